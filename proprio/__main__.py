@@ -1,0 +1,5 @@
+import sys
+
+from proprio.cli import main
+
+sys.exit(main())

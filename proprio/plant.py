@@ -1,0 +1,108 @@
+"""Build a Drake ``MultibodyPlant`` from a :class:`RobotDescription`, and thin single-sample Drake helpers.
+
+``AddRobot(builder, desc, ...)`` follows the ``AddX(builder, ...)`` idiom: it adds a plant + scene graph to a
+``DiagramBuilder`` and returns them. :class:`DrakeRobot` wraps a finalized plant and a context for cross-checks
+(``CalcInverseDynamics``, ``CalcJacobianSpatialVelocity``) and one-off queries.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.multibody.parsing import Parser
+from pydrake.multibody.plant import AddMultibodyPlantSceneGraph, MultibodyPlant
+from pydrake.multibody.tree import MultibodyForces
+from pydrake.multibody.tree import JacobianWrtVariable, ModelInstanceIndex
+from pydrake.systems.framework import DiagramBuilder
+
+from proprio.description import RobotDescription
+from proprio.payload import Payload
+from proprio.urdf import to_urdf
+
+__all__ = ["RobotPlant", "AddRobot", "build_plant", "DrakeRobot"]
+
+
+@dataclass
+class RobotPlant:
+    """What :func:`AddRobot` returns: the plant, its scene graph and the robot's model instance."""
+    plant: MultibodyPlant
+    scene_graph: object
+    instance: ModelInstanceIndex
+    description: RobotDescription
+
+
+def AddRobot(builder: DiagramBuilder, desc: RobotDescription, time_step: float = 0.0,
+             payload: Payload | None = None, finalize: bool = True) -> RobotPlant:
+    """Add ``desc`` (and an optional flange ``payload``) to ``builder`` as a MultibodyPlant + SceneGraph.
+
+    Args:
+        builder: the diagram builder to add to.
+        desc: the robot description.
+        time_step: 0 for a continuous plant, else the discrete update period [s] (e.g. 1e-3).
+        payload: optional rigid payload welded to the flange.
+        finalize: finalize the plant (set False to add more bodies first).
+    """
+    plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step=time_step)
+    instances = Parser(plant).AddModelsFromString(to_urdf(desc, payload), "urdf")
+    plant.mutable_gravity_field().set_gravity_vector(np.asarray(desc.gravity, dtype=float))
+    if finalize:
+        plant.Finalize()
+    return RobotPlant(plant, scene_graph, instances[0], desc)
+
+
+def build_plant(desc: RobotDescription, time_step: float = 0.0, payload: Payload | None = None) -> RobotPlant:
+    """A standalone finalized plant (its own builder; the diagram is not built)."""
+    return AddRobot(DiagramBuilder(), desc, time_step=time_step, payload=payload)
+
+
+class DrakeRobot:
+    """A finalized continuous plant of ``desc`` with a context, for single-sample Drake queries (SI, world frame)."""
+
+    def __init__(self, desc: RobotDescription, payload: Payload | None = None):
+        self.description = desc
+        self.plant = MultibodyPlant(0.0)
+        Parser(self.plant).AddModelsFromString(to_urdf(desc, payload, collision=False), "urdf")
+        self.plant.mutable_gravity_field().set_gravity_vector(np.asarray(desc.gravity, dtype=float))
+        self.plant.Finalize()
+        self.context = self.plant.CreateDefaultContext()
+        self.flange = self.plant.GetFrameByName(desc.end_effector.name)
+        self.joints = [self.plant.GetJointByName(j.name) for j in desc.joints]
+        self._q_index = np.array([j.position_start() for j in self.joints])
+        self._v_index = np.array([j.velocity_start() for j in self.joints])
+
+    def _set(self, q: np.ndarray, qd: np.ndarray | None = None) -> None:
+        q_full = np.zeros(self.plant.num_positions())
+        q_full[self._q_index] = q
+        self.plant.SetPositions(self.context, q_full)
+        v_full = np.zeros(self.plant.num_velocities())
+        if qd is not None:
+            v_full[self._v_index] = qd
+        self.plant.SetVelocities(self.context, v_full)
+
+    def inverse_dynamics(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """``CalcInverseDynamics`` with gravity as the only applied force [N·m] (eq. 3.5 without friction)."""
+        self._set(q, qd)
+        a = np.zeros(self.plant.num_velocities())
+        a[self._v_index] = qdd
+        forces = MultibodyForces(self.plant)
+        self.plant.CalcForceElementsContribution(self.context, forces)  # gravity
+        tau = self.plant.CalcInverseDynamics(self.context, a, forces)
+        return tau[self._v_index]
+
+    def flange_pose(self, q: np.ndarray) -> np.ndarray:
+        """4×4 world pose of the flange frame."""
+        self._set(q)
+        return self.flange.CalcPoseInWorld(self.context).GetAsMatrix4()
+
+    def flange_jacobian(self, q: np.ndarray, p_flange: np.ndarray | None = None) -> np.ndarray:
+        """``CalcJacobianSpatialVelocity`` of a point in the flange frame, expressed in world, ``[6,n]``."""
+        self._set(q)
+        p = np.zeros(3) if p_flange is None else np.asarray(p_flange, dtype=float)
+        world = self.plant.world_frame()
+        jac = self.plant.CalcJacobianSpatialVelocity(self.context, JacobianWrtVariable.kV, self.flange, p, world,
+                                                     world)
+        return jac[:, self._v_index]
+
+    def mass_matrix(self, q: np.ndarray) -> np.ndarray:
+        self._set(q)
+        return self.plant.CalcMassMatrix(self.context)[np.ix_(self._v_index, self._v_index)]

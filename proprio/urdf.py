@@ -1,0 +1,74 @@
+"""Emit an in-memory URDF string from a :class:`RobotDescription` (for Drake's parser and pinocchio)."""
+from __future__ import annotations
+
+from xml.sax.saxutils import quoteattr
+
+from proprio.description import CollisionShape, Link, RobotDescription
+from proprio.payload import Payload
+
+__all__ = ["to_urdf"]
+
+
+def _f(v) -> str:
+    return " ".join(repr(float(x)) for x in v)
+
+
+def _inertial(link: Link) -> str:
+    ixx, iyy, izz, ixy, ixz, iyz = link.inertia_com
+    mass = link.mass
+    if mass <= 0.0:  # massless links are not allowed by some parsers; use a negligible inertial
+        mass, ixx, iyy, izz, ixy, ixz, iyz = 1e-9, 1e-12, 1e-12, 1e-12, 0.0, 0.0, 0.0
+    return (f'<inertial><origin xyz="{_f(link.com_xyz)}" rpy="{_f(link.com_rpy)}"/><mass value="{mass!r}"/>'
+            f'<inertia ixx="{ixx!r}" iyy="{iyy!r}" izz="{izz!r}" ixy="{ixy!r}" ixz="{ixz!r}" iyz="{iyz!r}"/>'
+            '</inertial>')
+
+
+def _geometry(s: CollisionShape) -> str:
+    if s.shape == "sphere":
+        return f'<sphere radius="{s.radius!r}"/>'
+    if s.shape == "cylinder":
+        return f'<cylinder radius="{s.radius!r}" length="{s.length!r}"/>'
+    return f'<box size="{_f(s.size)}"/>'
+
+
+def _link(link: Link, collision: bool) -> str:
+    body = _inertial(link)
+    if collision:
+        for k, s in enumerate(link.collision):
+            body += (f'<collision name="{link.name}_c{k}"><origin xyz="{_f(s.xyz)}" rpy="{_f(s.rpy)}"/>'
+                     f'<geometry>{_geometry(s)}</geometry></collision>')
+    return f'<link name={quoteattr(link.name)}>{body}</link>'
+
+
+def to_urdf(desc: RobotDescription, payload: Payload | None = None, collision: bool = True,
+            world_joint: bool = True) -> str:
+    """URDF text for ``desc``: base welded to ``world`` (if ``world_joint``), revolute joints with limits, a fixed
+    ``flange`` frame link, and optionally a ``payload`` body welded to the flange."""
+    parts = [f'<?xml version="1.0"?><robot name={quoteattr(desc.name)}>']
+    if world_joint:
+        parts.append('<link name="world"/>')
+        parts.append(f'<joint name="world_to_base" type="fixed"><parent link="world"/>'
+                     f'<child link={quoteattr(desc.base.name)}/><origin xyz="{_f(desc.world_to_base_xyz)}" '
+                     f'rpy="{_f(desc.world_to_base_rpy)}"/></joint>')
+    parts.append(_link(desc.base, collision))
+    for j, lk in zip(desc.joints, desc.links):
+        parts.append(_link(lk, collision))
+        parts.append(
+            f'<joint name={quoteattr(j.name)} type="revolute"><parent link={quoteattr(j.parent)}/>'
+            f'<child link={quoteattr(j.child)}/><origin xyz="{_f(j.origin_xyz)}" rpy="{_f(j.origin_rpy)}"/>'
+            f'<axis xyz="{_f(j.axis)}"/><limit lower="{j.lower!r}" upper="{j.upper!r}" '
+            f'effort="{j.effort!r}" velocity="{j.velocity!r}"/></joint>')
+    ee = desc.end_effector
+    parts.append(f'<link name={quoteattr(ee.name)}/>')
+    parts.append(f'<joint name="{ee.name}_joint" type="fixed"><parent link={quoteattr(ee.parent)}/>'
+                 f'<child link={quoteattr(ee.name)}/><origin xyz="{_f(ee.xyz)}" rpy="{_f(ee.rpy)}"/></joint>')
+    if payload is not None and payload.mass > 0:
+        ixx, iyy, izz, ixy, ixz, iyz = payload.inertia
+        # a point-mass payload needs a tiny inertia to be a valid body
+        eps = 1e-9 if max(ixx, iyy, izz) == 0.0 else 0.0
+        pl = Link("payload", payload.mass, payload.com_flange, (ixx + eps, iyy + eps, izz + eps, ixy, ixz, iyz))
+        parts.append(_link(pl, collision=False))
+        parts.append(f'<joint name="payload_joint" type="fixed"><parent link={quoteattr(ee.name)}/>'
+                     '<child link="payload"/><origin xyz="0 0 0" rpy="0 0 0"/></joint>')
+    parts.append("</robot>")
+    return "".join(parts)
