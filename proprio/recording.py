@@ -1,0 +1,272 @@
+"""The Recording: proprio's one data format (DESIGN.md), with validating loaders and atomic writers.
+
+A Recording holds a joint-space time series of one arm:
+
+* ``t [N]`` s, strictly increasing;
+* ``q [N,n]`` rad (a degree-valued ``q`` is rejected, never guessed);
+* ``tau [N,n]`` N·m — the measured link-side joint torque τ_J;
+* optional ``qd``, ``qdd [N,n]`` (rad/s, rad/s²), ``f_ext [N,6]`` — the true external wrench exerted on the robot
+  at the flange origin, world frame, order ``[fx, fy, fz, mx, my, mz]`` (N, N·m);
+* ``truth``: extra channels (``tau_rbd``, ``tau_<effect>``, ...), each with first dimension N;
+* ``meta``: a JSON-serialisable dict (robot, rate_hz, source, payload, effects, seed, ...).
+
+On disk it is an ``.npz`` (``allow_pickle=False``) with keys ``t, q, tau[, qd, qdd, f_ext]``, ``truth__<name>`` and
+``meta`` (a JSON string). CSV import (:func:`recording_from_csv`) and the real KUKA LWR 4+ files
+(:func:`load_lwr4`) are converted at the boundary.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from proprio.description import RobotDescription
+from proprio.io import atomic_path
+
+__all__ = ["Recording", "RecordingError", "save_recording", "load_recording", "validate_recording",
+           "recording_from_csv", "load_lwr4", "is_lwr4_file"]
+
+TRUTH_PREFIX = "truth__"
+_OPTIONAL = ("qd", "qdd", "f_ext")
+
+
+class RecordingError(ValueError):
+    """A Recording (or a file meant to be one) is invalid; the message names the offending field."""
+
+
+@dataclass
+class Recording:
+    """A measured or simulated joint-space time series; see the module docstring for units and frames."""
+    t: np.ndarray
+    q: np.ndarray
+    tau: np.ndarray
+    qd: np.ndarray | None = None
+    qdd: np.ndarray | None = None
+    f_ext: np.ndarray | None = None
+    truth: dict[str, np.ndarray] = field(default_factory=dict)
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.t.shape[0])
+
+    @property
+    def n_joints(self) -> int:
+        return int(self.q.shape[1])
+
+    @property
+    def duration(self) -> float:
+        """Time span [s]."""
+        return float(self.t[-1] - self.t[0]) if self.n_samples > 1 else 0.0
+
+    @property
+    def rate_hz(self) -> float:
+        """Sample rate [Hz] from the median time step."""
+        return float(1.0 / np.median(np.diff(self.t))) if self.n_samples > 1 else float("nan")
+
+    def slice(self, i0: int, i1: int) -> "Recording":
+        """Samples ``i0:i1`` (a view-free copy of every channel, meta shared)."""
+        cut = lambda a: None if a is None else np.array(a[i0:i1])  # noqa: E731
+        return Recording(t=cut(self.t), q=cut(self.q), tau=cut(self.tau), qd=cut(self.qd), qdd=cut(self.qdd),
+                         f_ext=cut(self.f_ext), truth={k: cut(v) for k, v in self.truth.items()},
+                         meta=dict(self.meta))
+
+    def replace(self, **changes: Any) -> "Recording":
+        return dataclasses.replace(self, **changes)
+
+
+def _check_array(name: str, a: Any, shape: tuple[int | None, ...], source: str) -> np.ndarray:
+    try:
+        arr = np.asarray(a, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise RecordingError(f"{source}: '{name}' is not numeric ({exc})") from exc
+    if arr.ndim != len(shape) or any(s is not None and s != d for s, d in zip(shape, arr.shape)):
+        want = "[" + ", ".join("*" if s is None else str(s) for s in shape) + "]"
+        raise RecordingError(f"{source}: '{name}' has shape {list(arr.shape)}, expected {want}")
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        idx = np.argwhere(bad)[0]
+        kind = "NaN" if np.isnan(arr[tuple(idx)]) else "inf"
+        raise RecordingError(f"{source}: '{name}' contains {int(bad.sum())} non-finite value(s) ({kind} first at "
+                             f"sample {int(idx[0])})")
+    return arr
+
+
+def validate_recording(rec: Recording, robot: RobotDescription | None = None, source: str = "recording") -> Recording:
+    """Check shapes, finiteness, strictly increasing time, radians, and (with ``robot``) the joint count and position
+    limits. Returns ``rec`` with float64 arrays; raises :class:`RecordingError` naming the problem."""
+    t = _check_array("t", rec.t, (None,), source)
+    n_s = t.shape[0]
+    if n_s < 2:
+        raise RecordingError(f"{source}: 't' has {n_s} sample(s); a Recording needs at least 2")
+    dt = np.diff(t)
+    if np.any(dt <= 0):
+        k = int(np.argmax(dt <= 0))
+        raise RecordingError(f"{source}: 't' is not strictly increasing (t[{k + 1}] = {t[k + 1]:.6g} s <= "
+                             f"t[{k}] = {t[k]:.6g} s)")
+    q = _check_array("q", rec.q, (n_s, None), source)
+    n = q.shape[1]
+    tau = _check_array("tau", rec.tau, (n_s, n), source)
+    opt = {}
+    for name in _OPTIONAL:
+        val = getattr(rec, name)
+        opt[name] = None if val is None else _check_array(name, val, (n_s, 6 if name == "f_ext" else n), source)
+    truth = {}
+    for k, v in rec.truth.items():
+        arr = np.asarray(v)
+        if arr.ndim == 0 or arr.shape[0] != n_s:
+            raise RecordingError(f"{source}: truth channel '{k}' has shape {list(arr.shape)}, first dimension must "
+                                 f"be N = {n_s}")
+        truth[k] = _check_array(f"truth.{k}", arr, arr.shape, source)
+    # radians: a joint whose range exceeds 2π over a normal recording is degree-valued (or wrapped): reject
+    span = np.abs(q).max(axis=0)
+    if np.any(span > 2 * np.pi + 1e-6):
+        j = int(np.argmax(span))
+        raise RecordingError(f"{source}: 'q' joint {j} reaches {span[j]:.1f} — larger than 2π rad; q must be in radians "
+                             "(convert degrees with np.radians)")
+    if robot is not None:
+        if n != robot.n:
+            raise RecordingError(f"{source}: 'q' has {n} joints but robot '{robot.name}' has {robot.n}")
+        tol = np.radians(0.5)
+        lo, hi = robot.lower - tol, robot.upper + tol
+        viol = (q < lo) | (q > hi)
+        if viol.any():
+            i, j = (int(x) for x in np.argwhere(viol)[0])
+            raise RecordingError(f"{source}: 'q' joint {j} ({robot.joint_names[j]}) = {q[i, j]:.4f} rad at sample {i} "
+                                 f"is outside the limits [{robot.lower[j]:.4f}, {robot.upper[j]:.4f}] rad")
+    if not isinstance(rec.meta, dict):
+        raise RecordingError(f"{source}: 'meta' must be a dict")
+    try:
+        json.dumps(rec.meta)
+    except (TypeError, ValueError) as exc:
+        raise RecordingError(f"{source}: 'meta' is not JSON-serialisable ({exc})") from exc
+    return Recording(t=t, q=q, tau=tau, truth=truth, meta=rec.meta, **opt)
+
+
+def save_recording(rec: Recording, path: str | Path) -> Path:
+    """Validate and write ``rec`` to ``path`` (``.npz``) atomically. Returns the path."""
+    rec = validate_recording(rec, source=str(path))
+    path = Path(path)
+    if path.suffix != ".npz":
+        raise RecordingError(f"{path}: a Recording file must end in .npz")
+    arrays: dict[str, np.ndarray] = {"t": rec.t, "q": rec.q, "tau": rec.tau}
+    for name in _OPTIONAL:
+        if getattr(rec, name) is not None:
+            arrays[name] = getattr(rec, name)
+    for k, v in rec.truth.items():
+        arrays[TRUTH_PREFIX + k] = v
+    arrays["meta"] = np.array(json.dumps(rec.meta, sort_keys=True))
+    with atomic_path(path) as tmp:
+        np.savez_compressed(tmp, **arrays)
+    return path
+
+
+def is_lwr4_file(path: str | Path) -> bool:
+    """True if ``path`` is an npz in FloBaRoID's measurement layout (``times``, ``positions``, ``torques``)."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return {"times", "positions", "torques"} <= set(z.files)
+    except (OSError, ValueError, zipfile.BadZipFile):
+        return False
+
+
+def load_recording(path: str | Path, robot: RobotDescription | None = None) -> Recording:
+    """Load and validate a Recording ``.npz`` (FloBaRoID LWR files are converted via :func:`load_lwr4`).
+
+    Raises :class:`RecordingError` with a one-line message naming the problem (missing file, truncated archive,
+    missing key, bad shape, NaN/inf, non-increasing time, degrees, joint count or limits mismatch with ``robot``).
+    """
+    path = Path(path)
+    if not path.exists():
+        raise RecordingError(f"{path}: no such file")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            files = set(z.files)
+            if {"times", "positions", "torques"} <= files and "t" not in files:
+                return _lwr4_from_npz(z, path, robot)
+            missing = [k for k in ("t", "q", "tau") if k not in files]
+            if missing:
+                raise RecordingError(f"{path}: missing key(s) {missing} (a Recording needs t, q, tau)")
+            data = {k: z[k] for k in files}
+    except RecordingError:
+        raise
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise RecordingError(f"{path}: not a readable .npz archive (truncated or corrupted: {exc})") from exc
+    meta: dict[str, Any] = {}
+    if "meta" in data:
+        try:
+            meta = json.loads(str(data.pop("meta")))
+        except json.JSONDecodeError as exc:
+            raise RecordingError(f"{path}: 'meta' is not valid JSON ({exc})") from exc
+    truth = {k[len(TRUTH_PREFIX):]: v for k, v in data.items() if k.startswith(TRUTH_PREFIX)}
+    rec = Recording(t=data["t"], q=data["q"], tau=data["tau"], qd=data.get("qd"), qdd=data.get("qdd"),
+                    f_ext=data.get("f_ext"), truth=truth, meta=meta)
+    return validate_recording(rec, robot, source=str(path))
+
+
+def _lwr4_from_npz(z, path: Path, robot: RobotDescription | None) -> Recording:
+    t = np.asarray(z["times"], dtype=float)
+    rec = Recording(t=t - t[0], q=z["positions"], tau=z["torques"],
+                    qd=z["velocities"] if "velocities" in z.files else None,
+                    qdd=z["accelerations"] if "accelerations" in z.files else None,
+                    meta={"robot": "kuka_lwr4plus", "source": f"FloBaRoID HW measurements ({path.name})",
+                          "t0_unix": float(t[0]), "note": "positions/velocities/accelerations/torques are filtered "
+                          "upstream (see shared/data/kuka_lwr4/README.md)"})
+    rec = validate_recording(rec, robot, source=str(path))
+    rec.meta["rate_hz"] = rec.rate_hz
+    return rec
+
+
+def load_lwr4(data_dir: str | Path, index: int) -> Recording:
+    """The real KUKA LWR 4+ recording ``measurements_{index}.npz`` in ``data_dir`` (t starts at 0; q, q̇, q̈ and
+    τ as filtered upstream; the ``target_*`` keys are ignored — see that folder's README for their logging bug)."""
+    from proprio.description import load_robot
+
+    data_dir = Path(data_dir)
+    path = data_dir / f"measurements_{index}.npz"
+    if not path.exists():
+        raise RecordingError(f"{path}: no such file")
+    robot = load_robot(data_dir) if (data_dir / "robot.yaml").exists() else None
+    with np.load(path, allow_pickle=False) as z:
+        return _lwr4_from_npz(z, path, robot)
+
+
+def recording_from_csv(path: str | Path, n_joints: int, angle_unit: str = "rad", delimiter: str = ",",
+                       meta: dict[str, Any] | None = None) -> Recording:
+    """Import a CSV with a header row: ``t``, ``q1..qn``, ``tau1..taun`` and optionally ``qd1..``, ``qdd1..``,
+    ``fx fy fz mx my mz``. ``angle_unit="deg"`` converts q [°], q̇ [°/s], q̈ [°/s²] to radians at the boundary."""
+    path = Path(path)
+    if angle_unit not in ("rad", "deg"):
+        raise RecordingError(f"angle_unit must be 'rad' or 'deg', got {angle_unit!r}")
+    try:
+        table = np.genfromtxt(path, delimiter=delimiter, names=True, dtype=float, encoding="utf-8")
+    except (OSError, ValueError) as exc:
+        raise RecordingError(f"{path}: cannot parse CSV ({exc})") from exc
+    names = table.dtype.names or ()
+    if table.ndim == 0:
+        table = table.reshape(1)
+
+    def cols(prefix: str, required: bool) -> np.ndarray | None:
+        keys = [f"{prefix}{i + 1}" for i in range(n_joints)]
+        missing = [k for k in keys if k not in names]
+        if missing:
+            if required or len(missing) < n_joints:
+                raise RecordingError(f"{path}: missing column(s) {missing}")
+            return None
+        return np.stack([table[k] for k in keys], axis=1)
+
+    if "t" not in names:
+        raise RecordingError(f"{path}: missing column 't'")
+    scale = np.pi / 180.0 if angle_unit == "deg" else 1.0
+    q, qd, qdd = cols("q", True), cols("qd", False), cols("qdd", False)
+    wrench = ["fx", "fy", "fz", "mx", "my", "mz"]
+    f_ext = np.stack([table[k] for k in wrench], axis=1) if all(k in names for k in wrench) else None
+    rec = Recording(t=table["t"], q=q * scale, tau=cols("tau", True), qd=None if qd is None else qd * scale,
+                    qdd=None if qdd is None else qdd * scale, f_ext=f_ext,
+                    meta={"source": f"csv:{path.name}", **(meta or {})})
+    return validate_recording(rec, source=str(path))
