@@ -42,7 +42,8 @@ def _link(link: Link, collision: bool) -> str:
 
 def to_urdf(desc: RobotDescription, payload: Payload | None = None, collision: bool = True,
             world_joint: bool = True) -> str:
-    """URDF text for ``desc``: base welded to ``world`` (if ``world_joint``), revolute joints with limits, a fixed
+    """URDF text for ``desc``: base welded to ``world`` (if ``world_joint``), revolute joints with limits and one
+    actuator each (named as the joint, effort limit = joint effort), a fixed
     ``flange`` frame link, and optionally a ``payload`` body welded to the flange."""
     parts = [f'<?xml version="1.0"?><robot name={quoteattr(desc.name)}>']
     if world_joint:
@@ -58,6 +59,11 @@ def to_urdf(desc: RobotDescription, payload: Payload | None = None, collision: b
             f'<child link={quoteattr(j.child)}/><origin xyz="{_f(j.origin_xyz)}" rpy="{_f(j.origin_rpy)}"/>'
             f'<axis xyz="{_f(j.axis)}"/><limit lower="{j.lower!r}" upper="{j.upper!r}" '
             f'effort="{j.effort!r}" velocity="{j.velocity!r}"/></joint>')
+        # one actuator per joint (same name), so the plant has an actuation input port and Drake's
+        # InverseDynamicsController accepts it; unconnected, the actuation is zero
+        parts.append(f'<transmission name={quoteattr(j.name + "_transmission")} type="SimpleTransmission">'
+                     f'<actuator name={quoteattr(j.name)}/><joint name={quoteattr(j.name)}/>'
+                     '<mechanicalReduction>1</mechanicalReduction></transmission>')
     ee = desc.end_effector
     parts.append(f'<link name={quoteattr(ee.name)}/>')
     parts.append(f'<joint name="{ee.name}_joint" type="fixed"><parent link={quoteattr(ee.parent)}/>'
