@@ -353,7 +353,10 @@ def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescri
         return _robot_from_mdh_dict(data, source)
     name = str(data.get("name", Path(source).stem))
     base = data.get("base") or {}
-    pose = base.get("world_to_base_link") or {}
+    pose = (base.get("world_to_base_link") or {}) if isinstance(base, dict) else None
+    if not isinstance(base, dict) or not isinstance(pose, dict):
+        raise DescriptionError(f"{source}:base: expected a mapping with 'world_to_base_link' {{xyz, rpy}} and "
+                               "'base_link'")
     base_link = _parse_link(base["base_link"], f"{source}:base.base_link") if "base_link" in base else \
         Link("base", 0.0, (0.0, 0.0, 0.0), (0.0,) * 6)
     if "joints" not in data or "links" not in data:
@@ -373,6 +376,8 @@ def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescri
                                    f"'{lk.name}'")
         prev = lk.name
     ee = data.get("end_effector") or {"parent": links[-1].name}
+    if not isinstance(ee, dict):
+        raise DescriptionError(f"{source}:end_effector: expected a mapping {{name, parent, xyz, rpy}}, got {ee!r}")
     ee_obj = EndEffector(parent=str(ee.get("parent", links[-1].name)), xyz=_vec(ee, "xyz", f"{source}:end_effector",
                          default=(0, 0, 0)), rpy=_vec(ee, "rpy", f"{source}:end_effector", default=(0, 0, 0)),
                          name=str(ee.get("name", "flange")))
@@ -408,6 +413,10 @@ def robot_from_mdh(alpha: list[float], a: list[float], d: list[float], links: li
     n = len(alpha)
     if not (len(a) == len(d) == n):
         raise DescriptionError(f"MDH table: alpha, a, d lengths differ ({len(alpha)}, {len(a)}, {len(d)})")
+    for key, val in (("links", links), ("theta_offset", theta_offset), ("lower", lower), ("upper", upper),
+                     ("velocity", velocity), ("effort", effort)):
+        if val is not None and len(val) != n:
+            raise DescriptionError(f"MDH table: '{key}' has {len(val)} entries, expected {n} (one per joint)")
     off = theta_offset or [0.0] * n
     lo = lower or [-math.pi] * n
     up = upper or [math.pi] * n
@@ -453,6 +462,11 @@ def _robot_from_mdh_dict(data: dict, source: str) -> RobotDescription:
     t = data.get("mdh")
     if not isinstance(t, dict):
         raise DescriptionError(f"{source}: proprio-mdh/v1 needs a mapping 'mdh' with alpha_deg, a, d")
+    for key in ("a", "d"):
+        if key not in t:
+            raise DescriptionError(f"{source}:mdh: missing field '{key}'")
+    if "alpha" not in t and "alpha_deg" not in t:
+        raise DescriptionError(f"{source}:mdh: missing field 'alpha_deg' (or 'alpha' in rad)")
     alpha = [math.radians(x) for x in t["alpha_deg"]] if "alpha_deg" in t else list(t["alpha"])
     off = [math.radians(x) for x in t.get("theta_offset_deg", [])] or None
     n = len(alpha)
@@ -476,7 +490,10 @@ def robot_from_urdf(path: str | Path, base_link: str | None = None, tip_link: st
                     flange_xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> RobotDescription:
     """Import a user's URDF file: the serial chain of revolute joints from ``base_link`` to ``tip_link``.
 
-    Fixed joints between movable ones are not supported (merge them first); mesh geometry is ignored.
+    Without ``base_link`` the chain starts at the root link; fixed joints right below the root (e.g. a weld to an
+    undeclared ``world``) become the base pose. Fixed joints after the last revolute joint place the flange (named
+    after the last link), offset further by ``flange_xyz`` [m] in that frame. Fixed joints between movable ones are
+    not supported (merge them first); mesh geometry is ignored.
     """
     path = Path(path)
     try:
@@ -500,15 +517,24 @@ def robot_from_urdf(path: str | Path, base_link: str | None = None, tip_link: st
     joints_by_child = {}
     for el in root.findall("joint"):
         joints_by_child[el.find("child").get("link")] = el
-    children = set(joints_by_child)
-    roots = [n for n in links if n not in children]
-    base_name = base_link or (roots[0] if roots else None)
-    if base_name not in links:
-        raise DescriptionError(f"{path}: base link {base_name!r} not found")
-    # walk down from the base
     by_parent: dict[str, list] = {}
     for el in joints_by_child.values():
         by_parent.setdefault(el.find("parent").get("link"), []).append(el)
+    world_to_base = np.eye(4)
+    if base_link is None:
+        # the root may be an undeclared "world" (Drake's convention); fixed joints below it weld the base to it
+        roots = sorted({*links, *by_parent} - set(joints_by_child))
+        if len(roots) != 1:
+            raise DescriptionError(f"{path}: expected one root link, found {roots}; pass base_link")
+        base_name = roots[0]
+        while len(by_parent.get(base_name, [])) == 1 and by_parent[base_name][0].get("type") == "fixed":
+            world_to_base = world_to_base @ _origin_matrix(by_parent[base_name][0])
+            base_name = by_parent[base_name][0].find("child").get("link")
+    else:
+        base_name = base_link
+    if base_name not in links:
+        raise DescriptionError(f"{path}: base link {base_name!r} not found")
+    # walk down from the base
     chain = []
     cur = base_name
     while cur in by_parent and cur != tip_link:
@@ -517,12 +543,19 @@ def robot_from_urdf(path: str | Path, base_link: str | None = None, tip_link: st
             raise DescriptionError(f"{path}: link '{cur}' has {len(kids)} children; only serial chains are supported")
         chain.append(kids[0])
         cur = kids[0].find("child").get("link")
+    # fixed joints after the last movable one place the flange (composed, then offset by flange_xyz)
+    n_fixed_tail = 0
+    while n_fixed_tail < len(chain) and chain[len(chain) - 1 - n_fixed_tail].get("type") == "fixed":
+        n_fixed_tail += 1
+    flange = np.eye(4)
+    for el in chain[len(chain) - n_fixed_tail:]:
+        flange = flange @ _origin_matrix(el)
+    flange[:3, 3] += flange[:3, :3] @ np.asarray(flange_xyz, dtype=float)
+    flange_name = chain[-1].find("child").get("link") if n_fixed_tail else "flange"
     joints = []
-    for el in chain:
+    for el in chain[:len(chain) - n_fixed_tail]:
         jtype = el.get("type")
         if jtype not in ("revolute", "continuous"):
-            if jtype == "fixed" and el is chain[-1]:
-                break
             raise DescriptionError(f"{path}: joint '{el.get('name')}' is {jtype}; only revolute joints are supported")
         org = el.find("origin")
         lim = el.find("limit")
@@ -540,16 +573,27 @@ def robot_from_urdf(path: str | Path, base_link: str | None = None, tip_link: st
         raise DescriptionError(f"{path}: no revolute joints found below '{base_name}'")
     data = {
         "name": root.get("name", path.stem),
-        "base": {"base_link": _link_to_dict(links[base_name])},
+        "base": {"base_link": _link_to_dict(links[base_name]),
+                 "world_to_base_link": {"xyz": world_to_base[:3, 3].tolist(), "rpy": list(_rpy_of(world_to_base))}},
         "joints": [{"name": j.name, "parent": j.parent, "child": j.child, "origin_xyz": list(j.origin_xyz),
                     "origin_rpy": list(j.origin_rpy), "axis": list(j.axis),
                     "limits": {"lower": j.lower, "upper": j.upper, "velocity": j.velocity, "effort": j.effort}}
                    for j in joints],
         "links": [_link_to_dict(links[j.child]) for j in joints],
-        "end_effector": {"parent": joints[-1].child, "xyz": list(flange_xyz)},
+        "end_effector": {"name": flange_name, "parent": joints[-1].child, "xyz": flange[:3, 3].tolist(),
+                         "rpy": list(_rpy_of(flange))},
         "provenance": f"imported from URDF {path.name}",
     }
     return robot_from_dict(data, str(path))
+
+
+def _origin_matrix(joint_el: ET.Element) -> np.ndarray:
+    """4×4 transform of a URDF joint's ``<origin>`` (identity when absent)."""
+    org = joint_el.find("origin")
+    t = np.eye(4)
+    t[:3, :3] = rpy_to_matrix(_floats(org.get("rpy") if org is not None else None, 3))
+    t[:3, 3] = _floats(org.get("xyz") if org is not None else None, 3)
+    return t
 
 
 def _link_to_dict(link: Link) -> dict[str, Any]:

@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -111,6 +112,8 @@ def validate_recording(rec: Recording, robot: RobotDescription | None = None, so
                              f"t[{k}] = {t[k]:.6g} s)")
     q = _check_array("q", rec.q, (n_s, None), source)
     n = q.shape[1]
+    if n == 0:
+        raise RecordingError(f"{source}: 'q' has no joint columns")
     tau = _check_array("tau", rec.tau, (n_s, n), source)
     opt = {}
     for name in _OPTIONAL:
@@ -195,7 +198,7 @@ def load_recording(path: str | Path, robot: RobotDescription | None = None) -> R
             data = {k: z[k] for k in files}
     except RecordingError:
         raise
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError, zlib.error) as exc:
         raise RecordingError(f"{path}: not a readable .npz archive (truncated or corrupted: {exc})") from exc
     meta: dict[str, Any] = {}
     if "meta" in data:
@@ -232,8 +235,7 @@ def load_lwr4(data_dir: str | Path, index: int) -> Recording:
     if not path.exists():
         raise RecordingError(f"{path}: no such file")
     robot = load_robot(data_dir) if (data_dir / "robot.yaml").exists() else None
-    with np.load(path, allow_pickle=False) as z:
-        return _lwr4_from_npz(z, path, robot)
+    return load_recording(path, robot)  # same checks and one-line errors for corrupted files
 
 
 def recording_from_csv(path: str | Path, n_joints: int, angle_unit: str = "rad", delimiter: str = ",",

@@ -13,7 +13,12 @@ Provenance script: the shipped YAML files are its output, so every number in the
   moments violate the triangle inequality: links 2, 4, 7); they are projected to the closest valid tensor by
   clamping the largest principal moment to 0.99 × the sum of the other two, keeping the principal axes.
 * Collision primitives: one cylinder per link along the segment from the link origin to the next joint origin (or
-  to the flange), radii by link; a base cylinder. Coarse, for self-collision screening in trajectory generation.
+  to the flange), radii by link; a base cylinder. Coarse, for self-collision screening in trajectory generation
+  (``proprio.systems.collision``). Link 5's cylinder stops ``DISTAL_CLEARANCE`` short of the joint-6 axis: the
+  real wrist housing there is a narrow fork, and with the full segment the coarse cylinders of links 5 and 7
+  would overlap for |q6| > 110° although the real iiwa moves its wrist through the whole ±120° range. With these
+  primitives every single joint swept over its full range from q = 0 is free of self-collision
+  (``tests/test_rfma.py``), while folding the arm back onto itself is caught.
 """
 from __future__ import annotations
 
@@ -29,6 +34,7 @@ POS_DEG = [170, 120, 170, 120, 170, 120, 175]                      # Table 2.3
 VEL_DEG_S = [85, 85, 100, 75, 130, 135, 135]                        # Table 2.3
 ACC_RAD_S2 = [8.0, 8.0, 10.0, 10.0, 15.0, 15.0, 20.0]               # assumed (not published by KUKA)
 RADII = [0.07, 0.07, 0.065, 0.065, 0.06, 0.055, 0.045]
+DISTAL_CLEARANCE = [0.0, 0.0, 0.0, 0.0, 0.10, 0.0, 0.0]           # m cut from each cylinder's distal end
 FLANGE_Z = 0.045
 
 
@@ -64,7 +70,7 @@ def _description(ref: dict, set_name: str, name: str, provenance: str, ee_rpy: l
         inertia, changed = _projected_inertia([float(x) for x in lk["inertia"]])
         if changed:
             notes.append(f"link_{i} inertia projected from {lk['inertia']}")
-        d = seg_ends[i - 1]
+        d = seg_ends[i - 1] * (1.0 - DISTAL_CLEARANCE[i - 1] / np.linalg.norm(seg_ends[i - 1]))
         links.append({
             "name": f"iiwa_link_{i}", "mass": float(lk["mass"]), "com_xyz": [float(x) for x in lk["com"]],
             "com_rpy": [0.0, 0.0, 0.0], "inertia_com": dict(zip(keys, inertia)),

@@ -47,7 +47,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except (UserError, ValueError, FileNotFoundError) as exc:
-        print(f"proprio: error: {exc}", file=sys.stderr)
+        # one line, even when the message carries a parser's multi-line report (e.g. a YAML syntax error)
+        message = " ".join(line.strip() for line in str(exc).splitlines() if line.strip())
+        print(f"proprio: error: {message}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("proprio: interrupted", file=sys.stderr)

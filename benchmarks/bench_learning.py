@@ -1,0 +1,151 @@
+"""Learning-stack benchmarks: CPU training time per epoch for each architecture, and µs per sample of the streaming
+hybrid estimator in a Drake Diagram.
+
+    .venv/bin/python benchmarks/bench_learning.py [--samples 20000] [--epochs 2] [--steps 3000]
+
+1. Training: synthetic 7-joint data at 75 Hz (``--samples`` samples, windows of T = 100; Transformer also T = 500),
+   one torch thread, batch 32 windows; prints s/epoch and training samples/s per architecture (thesis sizes:
+   MLP-7 35-100-1 ×7, LSTM-2 35→35→7, LSTM-2-FCL, Transformer d=32, 4 heads, 2 layers).
+2. Streaming estimator (the online path, one sample per step at the model rate):
+   replay [q, q̇, q̈, τ_J] → Drake ``InverseDynamics`` (C++, τ_RBD incl. gravity) → :class:`ResidualNetworkSystem`
+   (hybrid LSTM-2-FCL, float64) → :class:`JacobianWrenchObserver` (f̂ = J⁻ᵀ(τ_HYB − τ_J)) → logger. Prints µs per
+   sample for the full Diagram and for the replay + residual System alone. Target: ≤ 100 µs per sample on one core.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+import torch
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.controllers import InverseDynamics
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import Demultiplexer, LogVectorOutput, Multiplexer, TrajectorySource
+from pydrake.trajectories import PiecewisePolynomial
+
+from proprio.description import load_robot
+from proprio.learning.datasets import DataConfig, PreparedRecording, make_split
+from proprio.learning.features import feature_matrix, rotational_displacement
+from proprio.learning.models import ARCHS, HybridModel, ModelConfig
+from proprio.learning.training import TrainConfig, train_model
+from proprio.plant import build_plant
+from proprio.systems.observers import JacobianWrenchObserver
+from proprio.systems.residual_network import AddResidualNetwork
+
+N = 7
+RATE = 75.0
+
+
+def _synthetic(samples: int, seed: int = 0) -> PreparedRecording:
+    rng = np.random.default_rng(seed)
+    t = np.arange(samples) / RATE
+    w = rng.uniform(0.1, 0.6, N)
+    q = 0.5 * np.sin(np.outer(t, w)) + 0.02 * np.sin(np.outer(t, 3 * w))
+    qd, qdd = np.gradient(q, t, axis=0), np.gradient(np.gradient(q, t, axis=0), t, axis=0)
+    tau_rbd = 10 * np.sin(q)
+    tau = tau_rbd + 0.3 * np.tanh(20 * qd) + rng.normal(0, 0.05, q.shape)
+    return PreparedRecording("synthetic", t, feature_matrix(tau_rbd, q, qd, qdd, rotational_displacement(q)), tau)
+
+
+def bench_training(samples: int, epochs: int) -> None:
+    print(f"Training time per epoch, CPU, {torch.get_num_threads()} thread(s), {samples} samples at {RATE:.0f} Hz "
+          f"(80 % train), batch 32 windows")
+    prep = _synthetic(samples)
+    print(f"{'model':<22} {'T':>4} {'s/epoch':>9} {'train samples/s':>16}")
+    for arch in ARCHS:
+        for window in ((100, 500) if arch == "transformer" else (100,)):
+            data = DataConfig(window=window)
+            split = make_split([prep], data)
+            model = HybridModel(ModelConfig(arch=arch, window=window, rate_hz=RATE))
+            result = train_model(model, split, TrainConfig(max_epochs=epochs, batch_size=32), progress=False)
+            spe = result.seconds_per_epoch
+            n_train = split.train.features.shape[0] * window
+            print(f"{model.cfg.label():<22} {window:>4} {spe:>9.2f} {n_train / spe:>16.0f}")
+
+
+def _replay_source(builder: DiagramBuilder, values: np.ndarray) -> Demultiplexer:
+    """Zero-order hold of ``values [N, 4n]`` = [q, q̇, q̈, τ_J] centred on the sample times, split in 4 ports."""
+    t = np.arange(len(values)) / RATE
+    breaks = np.concatenate([t - 0.5 / RATE, [t[-1] + 0.5 / RATE]])
+    src = builder.AddSystem(TrajectorySource(PiecewisePolynomial.ZeroOrderHold(breaks, np.vstack([values, values[-1:]]).T)))
+    demux = builder.AddSystem(Demultiplexer([N] * 4))
+    builder.Connect(src.get_output_port(), demux.get_input_port())
+    return demux
+
+
+def _timed(builder: DiagramBuilder, steps: int) -> float:
+    sim = Simulator(builder.Build())
+    sim.Initialize()
+    t0 = time.perf_counter()
+    sim.AdvanceTo((steps - 1) / RATE)
+    return (time.perf_counter() - t0) / steps * 1e6
+
+
+def bench_streaming(steps: int) -> None:
+    torch.set_num_threads(1)
+    desc = load_robot("iiwa14_identified")
+    rng = np.random.default_rng(0)
+    t = np.arange(steps) / RATE
+    q = 0.3 * np.sin(np.outer(t, rng.uniform(0.2, 0.8, N))) + np.array([0, 0.5, 0, -1.2, 0, 0.8, 0])
+    qd, qdd = np.gradient(q, t, axis=0), np.gradient(np.gradient(q, t, axis=0), t, axis=0)
+    values = np.hstack([q, qd, qdd, rng.normal(0, 1, q.shape)])
+    model = HybridModel(ModelConfig(arch="lstm2_fcl", rate_hz=RATE))
+    model.set_normalisation(feature_matrix(values[:, 21:], q, qd, qdd, rotational_displacement(q)), values[:, 21:])
+
+    def estimator(with_observer: bool) -> float:
+        """replay → InverseDynamics → residual LSTM [→ Jacobian observer] → logger; µs per sample."""
+        builder = DiagramBuilder()
+        demux = _replay_source(builder, values)
+        state = builder.AddSystem(Multiplexer([N, N]))
+        rbd = builder.AddSystem(InverseDynamics(plant, InverseDynamics.InverseDynamicsMode.kInverseDynamics))
+        builder.Connect(demux.get_output_port(0), state.get_input_port(0))
+        builder.Connect(demux.get_output_port(1), state.get_input_port(1))
+        builder.Connect(state.get_output_port(), rbd.get_input_port_estimated_state())
+        builder.Connect(demux.get_output_port(2), rbd.get_input_port_desired_acceleration())
+        residual = AddResidualNetwork(builder, model)
+        for i, name in enumerate(("q", "qd", "qdd")):
+            builder.Connect(demux.get_output_port(i), residual.GetInputPort(name))
+        builder.Connect(rbd.get_output_port_generalized_force(), residual.GetInputPort("tau_rbd"))
+        if not with_observer:
+            LogVectorOutput(residual.GetOutputPort("tau_hybrid"), builder, 1 / RATE)
+            return _timed(builder, steps)
+        observer = builder.AddSystem(JacobianWrenchObserver(desc))
+        builder.Connect(demux.get_output_port(0), observer.GetInputPort("q"))
+        builder.Connect(demux.get_output_port(3), observer.GetInputPort("tau_meas"))
+        builder.Connect(residual.GetOutputPort("tau_hybrid"), observer.GetInputPort("tau_dyn"))
+        LogVectorOutput(observer.GetOutputPort("wrench"), builder, 1 / RATE)
+        return _timed(builder, steps)
+
+    plant = build_plant(desc).plant          # kinematics/dynamics only: not simulated in these Diagrams
+    full, no_observer = estimator(True), estimator(False)
+
+    # (b) replay + residual System alone (τ_RBD input from the replay)
+    builder = DiagramBuilder()
+    demux = _replay_source(builder, values)
+    residual = AddResidualNetwork(builder, model)
+    for i, name in enumerate(("q", "qd", "qdd", "tau_rbd")):
+        builder.Connect(demux.get_output_port(i), residual.GetInputPort(name))
+    LogVectorOutput(residual.GetOutputPort("tau_hybrid"), builder, 1 / RATE)
+    alone = _timed(builder, steps)
+
+    print(f"\nStreaming hybrid estimator, one sample per step at {RATE:.0f} Hz, {steps} steps, 1 torch thread:")
+    print(f"  replay + InverseDynamics (C++) + residual LSTM-2-FCL + Jacobian observer + logger: {full:7.1f} µs/sample"
+          f"  (target ≤ 100; real-time factor at {RATE:.0f} Hz: {1e6 / RATE / full:.0f}×)")
+    print(f"  replay + InverseDynamics (C++) + residual LSTM-2-FCL + logger (no observer):      {no_observer:7.1f} µs/sample")
+    print(f"  replay + residual LSTM-2-FCL System + logger:                                    {alone:7.1f} µs/sample")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--samples", type=int, default=20000, help="training samples per epoch benchmark")
+    parser.add_argument("--epochs", type=int, default=2, help="epochs timed per architecture")
+    parser.add_argument("--steps", type=int, default=3000, help="Diagram steps timed")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    bench_streaming(args.steps)
+    bench_training(args.samples, args.epochs)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,403 @@
+"""The estimation diagram (DESIGN.md diagram 2): a Recording replayed through a dynamics model into both wrench
+observers, logged at the data rate.
+
+    TrajectorySource [q; q̇; q̈; τ_J] (zero-phase filtered, §4.1) → Demultiplexer
+        ├─ q, q̇, q̈ → TorqueModelSystem ──tau_dyn──→ JacobianWrenchObserver ──→ VectorLogSink (f̂, τ̂_ext, flags)
+        │                               └─tau_int──→ MomentumObserver ───────→ VectorLogSink (f̂, τ̂_ext)
+        └─ τ_J ───────────────────────────────────→ both observers' tau_meas
+
+The preprocessing is the offline, zero-phase one of §4.1 (Butterworth forward–backward, central differences), so
+the signals are computed before the replay; the observers themselves are causal Systems that would run unchanged on
+live sensor ports. ``tau_dyn`` comes from any :class:`TorqueModel` (the rigid-body model now; the hybrid RBD + learned
+residual plugs into the same port). :func:`estimate_wrench` runs it and returns an :class:`EstimationResult`.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem, ValueProducer
+from pydrake.systems.primitives import Demultiplexer, LogVectorOutput, TrajectorySource, VectorLogSink
+from pydrake.trajectories import PiecewisePolynomial
+from scipy.signal import butter, sosfiltfilt
+
+from proprio.description import RobotDescription, load_robot
+from proprio.dynamics import inverse_dynamics
+from proprio.io import atomic_path
+from proprio.kinematics import chain_geometry, point_jacobian
+from proprio.plant import DrakeRobot
+from proprio.recording import Recording, RecordingError, validate_recording
+from proprio.systems.observers import (JacobianWrenchObserver, MomentumObserver, WrenchMapping, jacobian_wrench,
+                                       momentum_observer, wrench_from_joint_torque)
+
+__all__ = ["TorqueModel", "RigidBodyTorqueModel", "load_torque_model", "TorqueModelSystem", "FilterSettings", "preprocess",
+           "check_recording_matches", "resample_uniform", "AddWrenchObservers", "build_estimation_diagram", "EstimationResult",
+           "estimate_wrench", "estimate_wrench_offline", "OBSERVERS", "DEFAULT_GAIN"]
+
+OBSERVERS = ("jacobian", "momentum")
+DEFAULT_GAIN = 100.0
+"""Default momentum-observer gain K_O [1/s] (time constant 10 ms)."""
+
+
+class TorqueModel(Protocol):
+    """A joint-torque model τ_dyn = τ_rbd + τ_int (eq. 3.9), vectorised over samples ``[N,n]``.
+
+    ``description`` gives the kinematics and the rigid-body inertials: τ_rbd is its inverse dynamics (Drake's
+    ``CalcInverseDynamics`` per step in the diagram, :func:`proprio.dynamics.inverse_dynamics` offline) and the
+    momentum observer takes M(q) from it. ``tau_int`` is everything the model adds to the rigid body (link friction,
+    a learned residual)."""
+    description: RobotDescription
+
+    def tau_int(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray: ...
+
+
+@dataclass(frozen=True)
+class RigidBodyTorqueModel:
+    """The RBD model of a description plus its link-side viscous + Coulomb friction, if it has any:
+    ``τ_int = F_v q̇ + F_c sgn(q̇)`` [N·m] with ``sgn = tanh(q̇ / coulomb_velocity)`` (``np.sign`` when 0).
+    The default 0.02 rad/s smooths the sign over the band where filtered velocities are unreliable."""
+    description: RobotDescription
+    coulomb_velocity: float = 0.02
+
+    def tau_int(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        d = self.description
+        qd = np.asarray(qd, dtype=float)
+        if not d.has_friction:
+            return np.zeros_like(qd)
+        sgn = np.sign(qd) if self.coulomb_velocity == 0 else np.tanh(qd / self.coulomb_velocity)
+        return np.asarray(d.friction_viscous) * qd + np.asarray(d.friction_coulomb) * sgn
+
+
+def load_torque_model(spec: str | Path) -> RigidBodyTorqueModel:
+    """A model from a shipped robot name or robot YAML/URDF (its RBD + friction, e.g. ``iiwa14_identified``), or an
+    identified-model ``.npz`` from ``proprio identify`` (its identified inertials, friction and Coulomb law)."""
+    path = Path(spec)
+    if path.suffix == ".npz":
+        from proprio.identification.model_io import load_model
+        ident = load_model(path)
+        model = RigidBodyTorqueModel(ident.description_identified(), ident.coulomb_velocity_scale)
+        if not ident.physically_consistent:
+            try:
+                DrakeRobot(model.description)
+            except RuntimeError as exc:
+                raise ValueError(f"{path}: the identified inertials are not physically consistent, so Drake cannot "
+                                 f"build the model plant ({str(exc).splitlines()[0]}); identify with the SDP "
+                                 "method") from None
+        return model
+    return RigidBodyTorqueModel(load_robot(spec))
+
+
+class TorqueModelSystem(LeafSystem):
+    """A :class:`TorqueModel` as a System (τ_rbd from Drake's ``CalcInverseDynamics``). Inputs ``q``, ``qd``, ``qdd`` (n each, rad, rad/s, rad/s²); outputs
+    ``tau_dyn`` = τ_rbd + τ_int and ``tau_int`` (n each, N·m), both computed once per context."""
+
+    def __init__(self, model: TorqueModel):
+        LeafSystem.__init__(self)
+        self._model = model
+        self._arm = DrakeRobot(model.description)
+        n = model.description.n
+        for name in ("q", "qd", "qdd"):
+            self.DeclareVectorInputPort(name, n)
+        cache = self.DeclareCacheEntry(
+            "torques", ValueProducer(allocate=AbstractValue.Make(np.zeros(2 * n)).Clone, calc=self._calc),
+            {self.all_input_ports_ticket()})
+        self.DeclareVectorOutputPort("tau_dyn", n, lambda c, o: o.SetFromVector(cache.Eval(c)[:n]))
+        self.DeclareVectorOutputPort("tau_int", n, lambda c, o: o.SetFromVector(cache.Eval(c)[n:]))
+
+    def _calc(self, context, value) -> None:
+        q, qd, qdd = (self.get_input_port(i).Eval(context) for i in range(3))
+        tau_int = self._model.tau_int(q[None, :], qd[None, :], qdd[None, :])[0]
+        value.set_value(np.concatenate([self._arm.inverse_dynamics(q, qd, qdd) + tau_int, tau_int]))
+
+
+# ---- preprocessing (§4.1) --------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class FilterSettings:
+    """Zero-phase low-pass (Butterworth, forward–backward, §4.1) applied to q and τ and after each central
+    difference. The signal is padded by odd extension over ``edge_cycles`` periods of the cutoff at each end."""
+    cutoff_hz: float = 20.0
+    order: int = 2
+    edge_cycles: float = 3.0
+
+    def min_samples(self, time_step: float) -> int:
+        """The shortest recording the filters accept: one period of the cutoff, and more than the filter order."""
+        return max(3 * (self.order + 1) + 1, int(np.ceil(1.0 / (self.cutoff_hz * time_step))) + 1)
+
+
+def preprocess(rec: Recording, settings: FilterSettings = FilterSettings()) -> dict[str, np.ndarray]:
+    """Filtered ``q, qd, qdd, tau`` ``[N,n]`` of a uniformly sampled Recording (zero-phase, §4.1).
+
+    Raises :class:`RecordingError` when the Recording is too short for the filter, not uniformly sampled, or the
+    cutoff is not below the Nyquist frequency.
+    """
+    n_s = rec.n_samples
+    dt = np.diff(rec.t)
+    h = float(np.median(dt))
+    if np.max(np.abs(dt - h)) > 1e-6 * h + 1e-9:
+        raise RecordingError(f"recording: 't' is not uniformly sampled (steps {dt.min():.6g}–{dt.max():.6g} s); "
+                             "resample it first")
+    nyquist = 0.5 / h
+    if not 0 < settings.cutoff_hz < nyquist:
+        raise ValueError(f"cutoff_hz = {settings.cutoff_hz} must be in (0, {nyquist:.6g}) Hz (the Nyquist frequency)")
+    if n_s < settings.min_samples(h):
+        raise RecordingError(f"recording: 't' has {n_s} samples; the derivative filters ({settings.cutoff_hz:g} Hz "
+                             f"cutoff at {1 / h:g} Hz) need at least {settings.min_samples(h)}")
+    sos = butter(settings.order, settings.cutoff_hz / nyquist, output="sos")
+    pad = min(n_s - 1, int(np.ceil(settings.edge_cycles / (settings.cutoff_hz * h))))
+
+    def low(x: np.ndarray) -> np.ndarray:
+        return sosfiltfilt(sos, x, axis=0, padlen=pad)
+
+    q = low(rec.q)
+    qd = low(np.gradient(q, h, axis=0))
+    qdd = low(np.gradient(qd, h, axis=0))
+    return {"t": rec.t - rec.t[0], "q": q, "qd": qd, "qdd": qdd, "tau": low(rec.tau), "time_step": h}
+
+
+def check_recording_matches(rec: Recording, desc: RobotDescription) -> Recording:
+    """Validate ``rec`` against the model robot ``desc``: joint count, joint limits, and — when ``meta['robot']``
+    names a loadable robot — identical kinematics (joint origins, axes, flange). Raises :class:`RecordingError`."""
+    rec = validate_recording(rec, desc)
+    name = rec.meta.get("robot")
+    if not name or name == desc.name:
+        return rec
+    try:
+        rec_robot = load_robot(name)
+    except (ValueError, OSError) as exc:
+        raise RecordingError(f"recording: made on robot '{name}' (meta.robot) but the model robot is '{desc.name}', "
+                             f"and '{name}' is not a known description whose kinematics could be compared") from exc
+    geo_r, geo_m = chain_geometry(rec_robot), chain_geometry(desc)
+    for field_name in ("world_base", "joint_origins", "axes", "flange"):
+        if np.shape(getattr(geo_r, field_name)) != np.shape(getattr(geo_m, field_name)) or not np.allclose(
+                getattr(geo_r, field_name), getattr(geo_m, field_name), atol=1e-6):
+            raise RecordingError(f"recording: robot '{name}' does not match the model robot '{desc.name}' "
+                                 f"(kinematics differ in {field_name})")
+    return rec
+
+
+# ---- the diagram -----------------------------------------------------------------------------------------------------
+
+def AddWrenchObservers(builder: DiagramBuilder, model: TorqueModel, time_step: float, gain: float | np.ndarray = DEFAULT_GAIN,
+                       mapping: WrenchMapping = WrenchMapping()
+                       ) -> tuple[TorqueModelSystem, JacobianWrenchObserver, MomentumObserver]:
+    """Add the torque model and both observers to ``builder`` and wire the model into them. The caller connects
+    the ``q``, ``qd``, ``qdd`` inputs of the model and ``q``/``qd``/``tau_meas`` of the observers."""
+    desc = model.description
+    torque_model = builder.AddNamedSystem("torque_model", TorqueModelSystem(model))
+    jac = builder.AddNamedSystem("jacobian_observer", JacobianWrenchObserver(desc, mapping))
+    mom = builder.AddNamedSystem("momentum_observer", MomentumObserver(desc, time_step, gain, mapping))
+    builder.Connect(torque_model.GetOutputPort("tau_dyn"), jac.GetInputPort("tau_dyn"))
+    builder.Connect(torque_model.GetOutputPort("tau_int"), mom.GetInputPort("tau_int"))
+    return torque_model, jac, mom
+
+
+_LOGGED = {"jacobian": ("wrench", "tau_ext", "manipulability", "unreliable"), "momentum": ("wrench", "tau_ext")}
+
+
+def build_estimation_diagram(model: TorqueModel, signals: dict[str, np.ndarray], gain: float | np.ndarray = DEFAULT_GAIN,
+                             mapping: WrenchMapping = WrenchMapping()
+                             ) -> tuple[Diagram, dict[str, VectorLogSink]]:
+    """The replay diagram over preprocessed ``signals`` (see :func:`preprocess`). Returns the diagram and its
+    loggers keyed ``"<observer>.<port>"``, each sampling every ``signals['time_step']`` from t = 0."""
+    n = model.description.n
+    h = signals["time_step"]
+    builder = DiagramBuilder()
+    stacked = np.hstack([signals[k] for k in ("q", "qd", "qdd", "tau")]).T
+    source = builder.AddNamedSystem("recording", TrajectorySource(
+        PiecewisePolynomial.FirstOrderHold(signals["t"], stacked)))
+    demux = builder.AddNamedSystem("signals", Demultiplexer([n, n, n, n]))
+    builder.Connect(source.get_output_port(), demux.get_input_port())
+    q, qd, qdd, tau = (demux.get_output_port(i) for i in range(4))
+    torque_model, jac, mom = AddWrenchObservers(builder, model, h, gain, mapping)
+    for port, name in ((q, "q"), (qd, "qd"), (qdd, "qdd")):
+        builder.Connect(port, torque_model.GetInputPort(name))
+    for obs in (jac, mom):
+        builder.Connect(q, obs.GetInputPort("q"))
+        builder.Connect(tau, obs.GetInputPort("tau_meas"))
+    builder.Connect(qd, mom.GetInputPort("qd"))
+    loggers = {}
+    for name, obs in (("jacobian", jac), ("momentum", mom)):
+        for port in _LOGGED[name]:
+            loggers[f"{name}.{port}"] = LogVectorOutput(obs.GetOutputPort(port), builder, publish_period=h)
+    return builder.Build(), loggers
+
+
+@dataclass
+class EstimationResult:
+    """Wrench estimates over a Recording's samples (world frame at the flange, ``[fx, fy, fz, mx, my, mz]``).
+
+    ``q [N,n]`` the filtered joint positions the observers used; ``wrench[obs]`` ``[N,6]`` and ``tau_ext[obs]`` ``[N,n]`` per observer (``"jacobian"``, ``"momentum"``);
+    ``manipulability [N]`` and ``unreliable [N]`` (bool) of the Jacobian mapping; ``f_true`` the Recording's true
+    wrench or None. :meth:`force_stats` skips ``skip_start_s`` at the start (the momentum observer's transient 5/K_O
+    and the filters' edge) and ``skip_end_s`` at the end (the zero-phase filters' edge).
+    """
+    t: np.ndarray
+    q: np.ndarray
+    wrench: dict[str, np.ndarray]
+    tau_ext: dict[str, np.ndarray]
+    manipulability: np.ndarray
+    unreliable: np.ndarray
+    f_true: np.ndarray | None
+    skip_start_s: float
+    skip_end_s: float
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def valid(self) -> np.ndarray:
+        """Samples used for statistics: away from the start-up and edge transients and not flagged unreliable."""
+        return ((self.t >= self.t[0] + self.skip_start_s) & (self.t <= self.t[-1] - self.skip_end_s)
+                & ~self.unreliable)
+
+    def force_stats(self, observer: str) -> tuple[np.ndarray, np.ndarray]:
+        """RMSE ``[3]`` and standard deviation ``[3]`` [N] of the force error f̂ − f_true per axis (Table 5.4)."""
+        if self.f_true is None:
+            raise ValueError("force_stats: the recording has no true wrench 'f_ext'")
+        mask = self.valid()
+        if not mask.any():
+            raise ValueError("force_stats: no valid samples (all within the start-up transient or unreliable)")
+        err = self.wrench[observer][mask, :3] - self.f_true[mask, :3]
+        return np.sqrt(np.mean(err ** 2, axis=0)), np.std(err, axis=0)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Flat ``name → array`` view for npz export."""
+        out = {"t": self.t, "manipulability": self.manipulability, "unreliable": self.unreliable.astype(float)}
+        for obs in OBSERVERS:
+            out[f"wrench_{obs}"] = self.wrench[obs]
+            out[f"tau_ext_{obs}"] = self.tau_ext[obs]
+        if self.f_true is not None:
+            out["f_true"] = self.f_true
+        return out
+
+    def save(self, out_dir: str | Path, stem: str = "estimates") -> list[Path]:
+        """Write ``<stem>.npz`` (all arrays + ``meta`` JSON) and ``<stem>.csv`` (t, wrenches, flags) atomically."""
+        out_dir = Path(out_dir)
+        npz, csv = out_dir / f"{stem}.npz", out_dir / f"{stem}.csv"
+        with atomic_path(npz) as tmp:
+            np.savez_compressed(tmp, **self.arrays(), meta=np.array(json.dumps(self.meta, sort_keys=True)))
+        axes = ("fx", "fy", "fz", "mx", "my", "mz")
+        columns = [("t", self.t)]
+        sources = [(obs, self.wrench[obs]) for obs in OBSERVERS] + ([("true", self.f_true)] if self.f_true is not
+                                                                    None else [])
+        columns += [(f"{a}_{name}", w[:, i]) for name, w in sources for i, a in enumerate(axes)]
+        columns += [("manipulability", self.manipulability), ("unreliable", self.unreliable.astype(float))]
+        table = np.column_stack([c for _, c in columns])
+        with atomic_path(csv) as tmp:
+            np.savetxt(tmp, table, delimiter=",", header=",".join(n for n, _ in columns), comments="", fmt="%.9g")
+        return [npz, csv]
+
+    def plot(self, path: str | Path, title: str = "") -> Path:
+        """PNG of f̂ (both observers) against the true force per axis over time, flagged samples shaded."""
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fig, axs = plt.subplots(3, 1, sharex=True, figsize=(10, 7))
+        for i, ax in enumerate(axs):
+            if self.f_true is not None:
+                ax.plot(self.t, self.f_true[:, i], "k", lw=1.5, label="true")
+            for obs, style in zip(OBSERVERS, ("C0", "C1")):
+                ax.plot(self.t, self.wrench[obs][:, i], style, lw=0.8, label=obs)
+            if self.unreliable.any():
+                ax.fill_between(self.t, 0, 1, where=self.unreliable, transform=ax.get_xaxis_transform(),
+                                color="r", alpha=0.15, label="unreliable")
+            ax.axvspan(self.t[0], self.t[0] + self.skip_start_s, color="0.85", zorder=-1)
+            ax.axvspan(self.t[-1] - self.skip_end_s, self.t[-1], color="0.85", zorder=-1)
+            ax.set_ylabel(f"f{'xyz'[i]} [N]")
+            ax.grid(alpha=0.3)
+        axs[0].legend(loc="upper right", ncol=4, fontsize=8)
+        axs[-1].set_xlabel("t [s]  (grey: start-up / filter edges, excluded from statistics)")
+        fig.suptitle(title or f"external force at the flange (world frame), model {self.meta.get('model', '?')}")
+        fig.tight_layout()
+        path = Path(path)
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=110, format="png")
+        plt.close(fig)
+        return path
+
+
+def resample_uniform(rec: Recording) -> Recording:
+    """``rec`` linearly interpolated onto a uniform time grid with its median step (real data has jitter; the
+    filters and the momentum observer need a fixed rate). Returns ``rec`` itself when it is already uniform."""
+    dt = np.diff(rec.t)
+    h = float(np.median(dt))
+    if np.max(np.abs(dt - h)) <= 1e-6 * h + 1e-9:
+        return rec
+    t = rec.t[0] + h * np.arange(int(np.floor((rec.t[-1] - rec.t[0]) / h)) + 1)
+
+    def interp(a: np.ndarray | None) -> np.ndarray | None:
+        if a is None:
+            return None
+        flat = a.reshape(a.shape[0], -1)
+        return np.stack([np.interp(t, rec.t, flat[:, j]) for j in range(flat.shape[1])], axis=1).reshape(
+            (t.size,) + a.shape[1:])
+
+    return Recording(t=t, q=interp(rec.q), tau=interp(rec.tau), qd=interp(rec.qd), qdd=interp(rec.qdd),
+                     f_ext=interp(rec.f_ext), truth={k: interp(v) for k, v in rec.truth.items()},
+                     meta={**rec.meta, "resampled_uniform_step_s": h})
+
+
+def _prepare(model: TorqueModel | RobotDescription, rec: Recording, settings: FilterSettings
+             ) -> tuple[TorqueModel, Recording, dict[str, np.ndarray]]:
+    if isinstance(model, RobotDescription):
+        model = RigidBodyTorqueModel(model)
+    rec = resample_uniform(check_recording_matches(rec, model.description))
+    return model, rec, preprocess(rec, settings)
+
+
+def _skips(gain: float | np.ndarray, filters: FilterSettings) -> dict[str, float]:
+    edge = filters.edge_cycles / filters.cutoff_hz
+    return {"skip_start_s": max(float(5.0 / np.min(gain)), edge), "skip_end_s": edge}
+
+
+def estimate_wrench(model: TorqueModel | RobotDescription, rec: Recording, gain: float | np.ndarray = DEFAULT_GAIN,
+                    mapping: WrenchMapping = WrenchMapping(), filters: FilterSettings = FilterSettings()
+                    ) -> EstimationResult:
+    """Run the estimation diagram over ``rec`` with ``model`` (a :class:`TorqueModel` or a description, taken as
+    its rigid-body model + friction). ``gain`` is the momentum observer's K_O [1/s] (scalar or per joint).
+
+    A Recording with jittery time stamps is first resampled onto a uniform grid (:func:`resample_uniform`; the
+    result's ``t`` is that grid). Raises :class:`RecordingError` when the Recording does not match the model robot
+    or is too short for the filters."""
+    model, rec, sig = _prepare(model, rec, filters)
+    diagram, loggers = build_estimation_diagram(model, sig, gain, mapping)
+    simulator = Simulator(diagram)
+    simulator.Initialize()
+    simulator.AdvanceTo(float(sig["t"][-1]) + 0.5 * sig["time_step"])
+    context = simulator.get_context()
+    n_s = rec.n_samples
+    logs = {k: lg.FindLog(context).data().T[:n_s] for k, lg in loggers.items()}
+    return EstimationResult(
+        t=rec.t.copy(), q=sig["q"], wrench={o: logs[f"{o}.wrench"] for o in OBSERVERS},
+        tau_ext={o: logs[f"{o}.tau_ext"] for o in OBSERVERS},
+        manipulability=logs["jacobian.manipulability"][:, 0], unreliable=logs["jacobian.unreliable"][:, 0] > 0.5,
+        f_true=None if rec.f_ext is None else rec.f_ext.copy(), **_skips(gain, filters),
+        meta={"model": model.description.name, "recording": dict(rec.meta), "gain": np.asarray(gain).tolist(),
+              "mapping": asdict(mapping), "filters": asdict(filters), "engine": "diagram"})
+
+
+def estimate_wrench_offline(model: TorqueModel | RobotDescription, rec: Recording, gain: float | np.ndarray = DEFAULT_GAIN,
+                            mapping: WrenchMapping = WrenchMapping(), filters: FilterSettings = FilterSettings()
+                            ) -> EstimationResult:
+    """The same estimates as :func:`estimate_wrench`, vectorised over samples with the observers' offline functions
+    (:func:`jacobian_wrench`, :func:`momentum_observer`) instead of stepping the diagram."""
+    model, rec, sig = _prepare(model, rec, filters)
+    desc = model.description
+    q, qd, qdd, tau = sig["q"], sig["qd"], sig["qdd"], sig["tau"]
+    tau_int = model.tau_int(q, qd, qdd)
+    tau_dyn = inverse_dynamics(desc, q, qd, qdd) + tau_int
+    geo = chain_geometry(desc)
+    w_jac, manip, flag = jacobian_wrench(geo, q, tau, tau_dyn, mapping)
+    r = momentum_observer(desc, sig["time_step"], q, qd, tau, tau_int, gain)
+    w_mom, _, _ = wrench_from_joint_torque(point_jacobian(geo, q, np.asarray(mapping.contact_point)), r, mapping)
+    return EstimationResult(
+        t=rec.t.copy(), q=q, wrench={"jacobian": w_jac, "momentum": w_mom}, tau_ext={"jacobian": tau_dyn - tau,
+                                                                                 "momentum": r},
+        manipulability=manip, unreliable=flag, f_true=None if rec.f_ext is None else rec.f_ext.copy(),
+        **_skips(gain, filters),
+        meta={"model": desc.name, "recording": dict(rec.meta), "gain": np.asarray(gain).tolist(),
+              "mapping": asdict(mapping), "filters": asdict(filters), "engine": "offline"})

@@ -1,0 +1,448 @@
+"""The twin: the data-collection diagram that plays the role of the real robot (DESIGN.md, "Physics of the twin").
+
+``JointTrajectorySource → InverseDynamicsController → JointDrive (motor side + link friction) → MultibodyPlant
+(discrete 1 ms, payload) → VectorLogSink``; the logged true motion then passes the sensor models
+(:mod:`proprio.systems.sensors`) in one vectorised pass. Output: a :class:`~proprio.recording.Recording` with the
+measured ``q``, ``tau`` (τ_J), the true ``qd``/``qdd``, the true flange wrench ``f_ext`` and truth channels:
+
+* ``tau_rbd``: rigid-body torque of the logged motion incl. payload (``proprio.dynamics.inverse_dynamics``);
+* ``tau_J_true``: the transmitted, sensed torque before the sensor effects (``= actuation + link friction``,
+  straight from the simulation; equals ``tau_rbd + Σ link friction``);
+* ``tau_<effect>``: each effect's contribution (``tau_viscous_coulomb``, ``tau_hysteresis``, ...);
+* ``q_true``: link positions before encoder noise.
+
+A twin is described by one YAML file (``proprio/configs/iiwa14_twin.yaml``)::
+
+    name: iiwa14_twin
+    robot: iiwa14_identified          # built-in name or robot YAML path
+    time_step: 0.001                  # s, discrete plant and drive period
+    log_rate_hz: 1000                 # 1000 (native) or e.g. 150 (thesis); decimated from the 1 kHz log
+    seed: 7
+    controller: {kp: [...], ki: [...], kd: [...], payload_model: false}   # IDC gains (1/s², 1/s³, 1/s)
+    payload: {mass: 1.0, com_flange: [0, 0, 0.05]}                        # or null
+    effects: {viscous_coulomb: {...}, hysteresis: {...}, ...}             # see proprio.systems.joint_effects
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from pydrake.multibody.parsing import Parser
+from pydrake.multibody.plant import DiscreteContactApproximation, MultibodyPlant
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.controllers import InverseDynamicsController
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import VectorLogSink
+from pydrake.trajectories import PiecewisePolynomial, Trajectory
+from tqdm import tqdm
+
+from proprio.description import RobotDescription, load_robot
+from proprio.dynamics import inverse_dynamics
+from proprio.kinematics import flange_pose, point_jacobian
+from proprio.payload import Payload, attach_payload
+from proprio.plant import DrakeRobot
+from proprio.recording import Recording
+from proprio.urdf import to_urdf
+from proprio.systems.joint_drive import AddJointDrive, JointDrive, check_explicit_friction
+from proprio.systems.joint_effects import (
+    Elasticity, EncoderNoise, JointEffect, MotionSignals, make_effects,
+)
+from proprio.systems.sensors import PositionSensor, TorqueSensor
+from proprio.systems.trajectories import AddTrajectorySource, sample_trajectory
+
+__all__ = ["TwinConfig", "TwinConfigError", "load_twin_config", "TwinDiagram", "build_twin_diagram",
+           "simulate_twin", "payload_wrench", "hysteresis_test_trajectory", "run_hysteresis_test", "demo_twin"]
+
+_TOP_KEYS = {"name", "robot", "time_step", "log_rate_hz", "seed", "controller", "payload", "effects", "description"}
+_CONTROLLER_KEYS = {"kp", "ki", "kd", "payload_model"}
+
+
+class TwinConfigError(ValueError):
+    """A twin configuration (or its trajectory) is invalid; the message names the field."""
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# configuration
+# ------------------------------------------------------------------------------------------------------------------
+@dataclass
+class TwinConfig:
+    """One twin: robot, effects and magnitudes, controller gains, rates, payload and seed (see module docstring)."""
+    robot: RobotDescription
+    effects: list[JointEffect]
+    kp: np.ndarray
+    ki: np.ndarray
+    kd: np.ndarray
+    payload_model: bool = False
+    payload: Payload | None = None
+    time_step: float = 1e-3
+    log_rate_hz: float = 1000.0
+    seed: int = 0
+    name: str = "twin"
+    raw: dict[str, Any] = field(default_factory=dict)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], source: str = "<dict>") -> "TwinConfig":
+        if not isinstance(data, dict):
+            raise TwinConfigError(f"{source}: a twin config must be a YAML mapping")
+        unknown = sorted(set(data) - _TOP_KEYS)
+        if unknown:
+            raise TwinConfigError(f"{source}: unknown key(s) {unknown}; valid keys: {sorted(_TOP_KEYS)}")
+        if "robot" not in data:
+            raise TwinConfigError(f"{source}: 'robot' is required (e.g. iiwa14_identified)")
+        desc = load_robot(data["robot"])
+        n = desc.n
+        try:
+            effects = make_effects(data.get("effects") or {}, n)
+        except ValueError as exc:
+            raise TwinConfigError(f"{source}: effects: {exc}") from exc
+        ctrl = data.get("controller") or {}
+        bad = sorted(set(ctrl) - _CONTROLLER_KEYS)
+        if bad:
+            raise TwinConfigError(f"{source}: controller: unknown key(s) {bad}; valid: {sorted(_CONTROLLER_KEYS)}")
+        gains = {}
+        for key, default in (("kp", 900.0), ("ki", 0.0), ("kd", 60.0)):
+            g = np.asarray(ctrl.get(key, default), dtype=float)
+            g = np.full(n, float(g)) if g.ndim == 0 else g
+            if g.shape != (n,) or np.any(g < 0) or not np.all(np.isfinite(g)):
+                raise TwinConfigError(f"{source}: controller.{key} must be >= 0, a number or {n} numbers")
+            gains[key] = g
+        time_step = float(data.get("time_step", 1e-3))
+        rate = float(data.get("log_rate_hz", 1.0 / time_step))
+        if not time_step > 0:
+            raise TwinConfigError(f"{source}: time_step must be > 0 s, got {time_step}")
+        if not 0 < rate <= 1.0 / time_step + 1e-9:
+            raise TwinConfigError(f"{source}: log_rate_hz must be in (0, 1/time_step = {1 / time_step:g}], got {rate}")
+        try:
+            payload = Payload.from_dict(data.get("payload"))
+        except (ValueError, KeyError, TypeError) as exc:
+            raise TwinConfigError(f"{source}: payload: {exc}") from exc
+        return cls(robot=desc, effects=effects, payload_model=bool(ctrl.get("payload_model", False)),
+                   payload=payload, time_step=time_step, log_rate_hz=rate, seed=int(data.get("seed", 0)),
+                   name=str(data.get("name", Path(source).stem)), raw=data, **gains)
+
+    def effect(self, name: str) -> JointEffect | None:
+        return next((e for e in self.effects if e.name == name), None)
+
+    def with_payload(self, payload: Payload | None) -> "TwinConfig":
+        return dataclasses.replace(self, payload=payload)
+
+    def with_effects(self, effects: list[JointEffect]) -> "TwinConfig":
+        return dataclasses.replace(self, effects=list(effects))
+
+    def meta(self) -> dict[str, Any]:
+        """JSON-able description for ``Recording.meta``."""
+        return {"twin": self.name, "robot": self.robot.name, "time_step": self.time_step,
+                "effects": {e.name: {k: v.tolist() for k, v in e.params().items()} for e in self.effects},
+                "controller": {"kp": self.kp.tolist(), "ki": self.ki.tolist(), "kd": self.kd.tolist(),
+                               "payload_model": self.payload_model},
+                "payload": None if self.payload is None else dataclasses.asdict(self.payload), "seed": self.seed}
+
+
+def load_twin_config(name_or_path: str | Path) -> TwinConfig:
+    """Load a twin YAML: a shipped config name (``iiwa14_twin`` or ``iiwa14_twin.yaml``) or a file path."""
+    path = Path(name_or_path)
+    if path.exists():
+        text, source = path.read_text(), str(path)
+    else:
+        stem = path.name if path.suffix in (".yaml", ".yml") else f"{path.name}.yaml"
+        res = resources.files("proprio.configs").joinpath(stem)
+        if not res.is_file():
+            shipped = sorted(p.name for p in resources.files("proprio.configs").iterdir() if p.name.endswith("twin.yaml"))
+            raise TwinConfigError(f"twin config '{name_or_path}' is neither a file nor a shipped config {shipped}")
+        text, source = res.read_text(), stem
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise TwinConfigError(f"{source}: not valid YAML ({exc})") from exc
+    return TwinConfig.from_dict(data, source)
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# the diagram
+# ------------------------------------------------------------------------------------------------------------------
+@dataclass
+class TwinDiagram:
+    """What :func:`build_twin_diagram` returns."""
+    diagram: Diagram
+    plant: Any
+    drive: JointDrive
+    controller: InverseDynamicsController
+    logger: VectorLogSink          # logs [q; q̇; q̈; actuation] every time_step
+    config: TwinConfig
+    control_plant: Any             # keeps the controller's model alive
+
+
+def build_twin_diagram(config: TwinConfig, trajectory: Trajectory) -> TwinDiagram:
+    """Wire the twin for ``trajectory`` (joint positions vs. time; velocity/acceleration by differentiation)."""
+    from pydrake.systems.primitives import Multiplexer
+
+    desc, n, dt = config.robot, config.robot.n, config.time_step
+    builder = DiagramBuilder()
+    # The twin plays planned, collision-free paths and draws nothing, so its plant has no SceneGraph: geometry
+    # queries would cost ~1/3 of a step. Same URDF as proprio.plant.AddRobot, collision shapes left out.
+    plant = builder.AddSystem(MultibodyPlant(dt))
+    instance = Parser(plant).AddModelsFromString(to_urdf(desc, config.payload, collision=False), "urdf")[0]
+    plant.mutable_gravity_field().set_gravity_vector(np.asarray(desc.gravity, dtype=float))
+    plant.SetUseSampledOutputPorts(False)          # log q̈ and u of the state at the logged instant
+    plant.set_discrete_contact_approximation(DiscreteContactApproximation.kTamsi)   # no contact: ≈3× faster than SAP
+    plant.Finalize()
+    plant.set_name("plant")
+
+    control_plant = DrakeRobot(desc, config.payload if config.payload_model else None).plant
+    ctrl = builder.AddSystem(InverseDynamicsController(control_plant, config.kp, config.ki, config.kd, True))
+    ctrl.set_name("controller")
+    link = [e for e in config.effects if e.place == "link"]
+    elastic = next((e for e in config.effects if isinstance(e, Elasticity)), None)
+    drive = AddJointDrive(builder, n, link, elastic, dt)
+    source = AddTrajectorySource(builder, trajectory)
+
+    state = plant.get_state_output_port(instance)
+    builder.Connect(source.GetOutputPort("state"), ctrl.get_input_port_desired_state())
+    builder.Connect(source.GetOutputPort("qdd"), ctrl.get_input_port_desired_acceleration())
+    # An elastic joint is position-controlled on the motor side (collocated, as the iiwa's motor encoders): PD on the
+    # link position through the spring is the classic non-collocated, unstable loop.
+    feedback = drive.GetOutputPort("motor_state") if elastic is not None else state
+    builder.Connect(feedback, ctrl.get_input_port_estimated_state())
+    builder.Connect(ctrl.get_output_port_generalized_force(), drive.GetInputPort("motor_torque"))
+    builder.Connect(state, drive.GetInputPort("link_state"))
+    builder.Connect(drive.GetOutputPort("actuation"), plant.get_actuation_input_port(instance))
+
+    mux = builder.AddSystem(Multiplexer([2 * n, n, n]))
+    builder.Connect(state, mux.get_input_port(0))
+    builder.Connect(plant.get_generalized_acceleration_output_port(instance), mux.get_input_port(1))
+    builder.Connect(drive.GetOutputPort("actuation"), mux.get_input_port(2))
+    logger = builder.AddSystem(VectorLogSink(4 * n, dt))
+    logger.set_name("logger")
+    builder.Connect(mux.get_output_port(), logger.get_input_port())
+    diagram = builder.Build()
+    diagram.set_name(f"twin:{config.name}")
+
+    mass = DrakeRobot(desc, config.payload).mass_matrix(trajectory.value(trajectory.start_time()).ravel())
+    check_explicit_friction(link, np.diag(mass), dt)
+    return TwinDiagram(diagram, plant, drive, ctrl, logger, config, control_plant)
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# simulation
+# ------------------------------------------------------------------------------------------------------------------
+def _check_trajectory(trajectory: Trajectory, desc: RobotDescription) -> None:
+    if trajectory.rows() != desc.n or trajectory.cols() != 1:
+        raise TwinConfigError(f"trajectory has shape {trajectory.rows()}x{trajectory.cols()}, robot '{desc.name}' "
+                              f"needs {desc.n}x1")
+    _, q, _, _ = sample_trajectory(trajectory, 1000.0)
+    over = np.maximum(q - desc.upper, desc.lower - q)
+    if np.any(over > 1e-9):
+        i, j = np.unravel_index(np.argmax(over), over.shape)
+        raise TwinConfigError(f"trajectory violates the joint limits: joint {j + 1} ({desc.joint_names[j]}) = "
+                              f"{math.degrees(q[i, j]):.2f}° at t = {trajectory.start_time() + i / 1000.0:.3f} s, "
+                              f"limits [{math.degrees(desc.lower[j]):.1f}°, {math.degrees(desc.upper[j]):.1f}°]")
+
+
+def payload_wrench(desc: RobotDescription, payload: Payload | None, q: np.ndarray, qd: np.ndarray,
+                   qdd: np.ndarray) -> np.ndarray:
+    """True wrench ``[N,6]`` = [f; m] (N, N·m) the payload exerts on the robot at the flange origin, world frame.
+
+    Newton–Euler of the payload body: ``F = m(a_c − g)``, ``N = I α + ω × I ω`` act on the payload, the robot
+    receives ``f = −F``, ``m = −(N + (p_c − p_f) × F)``. ``J̇q̇`` from a central difference of the batched
+    Jacobian along q̇ (h = 1e-6 s; error ~1e-10). Zero without a payload.
+    """
+    n_s = q.shape[0]
+    if payload is None:
+        return np.zeros((n_s, 6))
+    com = np.asarray(payload.com_flange, dtype=float)
+    h = 1e-6
+    jac = point_jacobian(desc, q, com)                                     # [N,6,n] rows [ω; v_c]
+    djac = (point_jacobian(desc, q + h * qd, com) - point_jacobian(desc, q - h * qd, com)) / (2 * h)
+    acc = np.einsum("sij,sj->si", jac, qdd) + np.einsum("sij,sj->si", djac, qd)   # [α; a_c]
+    omega = np.einsum("sij,sj->si", jac[:, :3], qd)
+    pose = flange_pose(desc, q)
+    rot, p_f = pose[:, :3, :3], pose[:, :3, 3]
+    ixx, iyy, izz, ixy, ixz, iyz = payload.inertia
+    i_fl = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
+    i_w = rot @ i_fl @ np.swapaxes(rot, 1, 2)
+    force = payload.mass * (acc[:, 3:] - np.asarray(desc.gravity))
+    moment = np.einsum("sij,sj->si", i_w, acc[:, :3]) + np.cross(omega, np.einsum("sij,sj->si", i_w, omega))
+    p_c = p_f + np.einsum("sij,j->si", rot, com)
+    return np.concatenate([-force, -(moment + np.cross(p_c - p_f, force))], axis=1)
+
+
+def _log_indices(n_steps: int, time_step: float, rate_hz: float) -> np.ndarray:
+    """Indices of the 1/time_step log kept at ``rate_hz`` (nearest step; 150 Hz → 6/7 ms jitter like the iiwa)."""
+    if abs(rate_hz * time_step - 1.0) < 1e-9:
+        return np.arange(n_steps)
+    t_want = np.arange(0.0, n_steps * time_step, 1.0 / rate_hz)
+    return np.unique(np.minimum(np.round(t_want / time_step).astype(int), n_steps - 1))
+
+
+def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload | None = None,
+                  progress: bool = True, chunk_s: float = 2.0) -> Recording:
+    """Simulate the twin along ``trajectory`` and return the Recording (see module docstring for the channels).
+
+    ``payload`` overrides the config's payload. Raises :class:`TwinConfigError` before simulating when the
+    trajectory leaves the joint limits or the friction is too stiff for the time step. The simulation advances in
+    ``chunk_s`` pieces (progress bar with the real-time factor); only the samples at ``log_rate_hz`` are kept.
+    """
+    if payload is not None:
+        config = config.with_payload(payload)
+    desc, n, dt = config.robot, config.robot.n, config.time_step
+    _check_trajectory(trajectory, desc)
+    twin = build_twin_diagram(config, trajectory)
+    t0, t1 = trajectory.start_time(), trajectory.end_time()
+    n_steps = int(math.floor((t1 - t0) / dt + 1e-9)) + 1
+    keep = _log_indices(n_steps, dt, config.log_rate_hz)
+
+    sim = Simulator(twin.diagram)
+    ctx = sim.get_mutable_context()
+    ctx.SetTime(t0)
+    pctx = twin.plant.GetMyMutableContextFromRoot(ctx)
+    q0 = trajectory.value(t0).ravel()
+    qd0 = trajectory.MakeDerivative(1).value(t0).ravel()
+    twin.plant.SetPositions(pctx, q0)
+    twin.plant.SetVelocities(pctx, qd0)
+    twin.drive.set_motor_state(twin.drive.GetMyMutableContextFromRoot(ctx), q0, qd0,
+                               inverse_dynamics(attach_payload(desc, config.payload), q0, qd0, np.zeros(n)))
+    log = twin.logger.FindMutableLog(ctx)
+    sim.Initialize()
+
+    chunks, got = [], 0
+    wall0 = time.perf_counter()
+    bar = tqdm(total=round(t1 - t0, 3), unit="s sim", disable=not progress, desc=f"twin {config.name}",
+               bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} s sim [{elapsed}<{remaining}, {postfix}]")
+    t = t0
+    while got < n_steps:
+        t = min(t + chunk_s, t0 + (n_steps - 1) * dt)
+        sim.AdvanceTo(t)
+        data = log.data().T.copy()
+        log.Clear()
+        data = data[: n_steps - got]
+        idx = keep[(keep >= got) & (keep < got + data.shape[0])] - got
+        chunks.append(data[idx])
+        got += data.shape[0]
+        bar.update(round(data.shape[0] * dt, 3))
+        bar.set_postfix_str(f"{(got * dt) / max(time.perf_counter() - wall0, 1e-9):.1f}x real time")
+        if t >= t0 + (n_steps - 1) * dt and got < n_steps:
+            raise RuntimeError(f"twin logged {got} of {n_steps} samples")
+    bar.close()
+    wall = time.perf_counter() - wall0
+    data = np.concatenate(chunks)
+    return _to_recording(config, t0 + keep * dt, data, wall)
+
+
+def _to_recording(config: TwinConfig, t: np.ndarray, data: np.ndarray, wall_s: float) -> Recording:
+    """Sensor models + truth channels from the logged true motion ``[q; q̇; q̈; u]``."""
+    desc, n = config.robot, config.robot.n
+    q, qd, qdd, u = (data[:, k * n:(k + 1) * n] for k in range(4))
+    rng = np.random.default_rng(config.seed)
+    s = MotionSignals(t=t, q=q, qd=qd, qdd=qdd)
+    truth: dict[str, np.ndarray] = {}
+    tau_rbd = inverse_dynamics(attach_payload(desc, config.payload), q, qd, qdd)
+    truth["tau_rbd"] = tau_rbd
+    fric = np.zeros_like(q)
+    for eff in config.effects:
+        if eff.place == "link":
+            truth[f"tau_{eff.name}"] = eff.torque(s)
+            fric += truth[f"tau_{eff.name}"]
+    tau_j = u + fric
+    truth["tau_J_true"] = tau_j
+    sensor_effects = [e for e in config.effects if e.place == "sensor" and not isinstance(e, EncoderNoise)]
+    tau_meas, parts = TorqueSensor(sensor_effects).measure(s, tau_j, rng)
+    truth.update({f"tau_{k}": v for k, v in parts.items()})
+    encoder = next((e for e in config.effects if isinstance(e, EncoderNoise)), None)
+    q_meas = PositionSensor(encoder).measure(q, rng)
+    truth["q_true"] = q
+    meta = {**config.meta(), "rate_hz": config.log_rate_hz, "source": "twin",
+            "sim_wall_s": round(wall_s, 3), "real_time_factor": round(float(t[-1] - t[0]) / max(wall_s, 1e-9), 2)}
+    return Recording(t=t - t[0], q=q_meas, tau=tau_meas, qd=qd, qdd=qdd,
+                     f_ext=payload_wrench(desc, config.payload, q, qd, qdd), truth=truth, meta=json.loads(
+                         json.dumps(meta)))
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# the Fig. 2.5 experiment and the demo
+# ------------------------------------------------------------------------------------------------------------------
+def hysteresis_test_trajectory(desc: RobotDescription, amplitude_deg: float = 10.0, speed_fraction: float = 0.1,
+                               cycles: int = 2, pause_s: float = 0.5) -> tuple[PiecewisePolynomial, list[tuple]]:
+    """Joint-wise triangular motion ±amplitude around the zero pose at ``speed_fraction`` of each joint's velocity
+    limit (thesis Fig. 2.5), one joint after the other. Returns the first-order-hold trajectory and, per joint,
+    ``(joint, t_start, t_end)`` of its window."""
+    amp = math.radians(amplitude_deg)
+    times, points, windows = [0.0], [np.zeros(desc.n)], []
+    t = 0.0
+    for j in range(desc.n):
+        leg = amp / (speed_fraction * desc.velocity_limits[j])
+        start = t
+        pattern = [amp] + [-amp, amp] * cycles + [0.0]
+        prev = 0.0
+        for target in pattern:
+            t += leg * abs(target - prev) / amp
+            q = np.zeros(desc.n)
+            q[j] = target
+            times.append(t)
+            points.append(q)
+            prev = target
+        windows.append((j, start, t))
+        t += pause_s
+        times.append(t)
+        points.append(np.zeros(desc.n))
+    return PiecewisePolynomial.FirstOrderHold(np.array(times), np.array(points).T), windows
+
+
+def run_hysteresis_test(config: TwinConfig, out_dir: str | Path, progress: bool = True) -> tuple[Path, Recording]:
+    """Run the Fig. 2.5 experiment on the twin; write ``hysteresis_test.png`` (τ vs. angle per joint, raw +
+    Savitzky–Golay overlay) and ``hysteresis_test.npz`` (the Recording) into ``out_dir``."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from scipy.signal import savgol_filter
+
+    from proprio.io import atomic_path
+    from proprio.recording import save_recording
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    traj, windows = hysteresis_test_trajectory(config.robot)
+    rec = simulate_twin(config, traj, progress=progress)
+    fig, axes = plt.subplots(2, 4, figsize=(16, 7.5))
+    for (j, ta, tb), ax in zip(windows, axes.ravel()):
+        sel = (rec.t >= ta) & (rec.t <= tb)
+        ang, tau = np.degrees(rec.q[sel, j]), rec.tau[sel, j]
+        win = max(5, int(0.25 * rec.rate_hz) | 1)
+        ax.plot(ang, tau, lw=0.4, color="0.6", label="measured τ_J")
+        ax.plot(ang, savgol_filter(tau, win, 2), lw=1.6, color="C3", label="Savitzky–Golay")
+        ax.set_title(f"joint {j + 1}")
+        ax.set_xlabel("angle [°]")
+        ax.set_ylabel("τ [N·m]")
+    axes.ravel()[-1].axis("off")
+    axes.ravel()[0].legend(loc="best", fontsize=8)
+    fig.suptitle(f"{config.name}: joint-wise triangular motion ±10° at 10 % speed (cf. thesis Fig. 2.5)")
+    fig.tight_layout()
+    png = out / "hysteresis_test.png"
+    with atomic_path(png) as tmp:
+        fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    save_recording(rec, out / "hysteresis_test.npz")
+    return png, rec
+
+
+def demo_twin(out_dir: str | Path, trajectory: Trajectory, seconds: float = 20.0,
+              config: str | Path | TwinConfig = "iiwa14_twin", progress: bool = True) -> Recording:
+    """Simulate the calibrated twin on the first ``seconds`` of ``trajectory`` and save ``twin.npz`` in
+    ``out_dir`` (for ``proprio demo``)."""
+    from proprio.recording import save_recording
+
+    cfg = config if isinstance(config, TwinConfig) else load_twin_config(config)
+    t0 = trajectory.start_time()
+    end = min(trajectory.end_time(), t0 + seconds)
+    if isinstance(trajectory, PiecewisePolynomial) and end < trajectory.end_time():
+        trajectory = trajectory.slice(0, int(np.searchsorted(trajectory.get_segment_times(), end, side="right")))
+    rec = simulate_twin(cfg, trajectory, progress=progress)
+    save_recording(rec, Path(out_dir) / "twin.npz")
+    return rec

@@ -1,0 +1,304 @@
+"""Base-parameter estimators (thesis §4.1): OLS with relative standard deviations (eq. 4.22–4.27), weighted least
+squares, and a physically consistent estimate as a semidefinite program in Drake's ``MathematicalProgram``.
+
+All three take joint-space data ``q, qd, qdd, tau [N, n]`` (rad, rad/s, rad/s², N·m) and return an
+:class:`~proprio.identification.model_io.IdentifiedModel` (``τ = K_b φ_b`` plus a full standard parameter set).
+The normal equations are accumulated from the regressor buffer one joint row-block at a time (``B[i, 12i:]`` is
+contiguous), so ``K_b`` is never stacked; the solve is a column-equilibrated Cholesky with one step of iterative
+refinement on the explicit residual.
+
+Data checks run before any fit: NaN/inf, too few samples, joints that never move, and a rank-deficient ``K_b``
+raise :class:`IdentificationError` naming the base parameters that cannot be identified and why.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from proprio.description import RobotDescription
+from proprio.identification.base_parameters import BaseParameters, base_parameters
+from proprio.identification.model_io import IdentifiedModel, data_digest
+from proprio.identification.regressor import PARAMS_PER_JOINT, regressor_buffer, standard_parameters
+
+__all__ = ["IdentificationError", "NormalEquations", "normal_equations", "check_data", "ols", "wls", "sdp",
+           "identify", "torque_error_table", "METHODS", "MOTION_THRESHOLD", "CONDITION_LIMIT"]
+
+METHODS = ("ols", "wls", "sdp")
+MOTION_THRESHOLD = 1e-3      # [rad] a joint whose position range is below this never moved
+CONDITION_LIMIT = 1e10       # cond(K_b) (columns scaled to unit norm) above this: numerically rank deficient
+
+
+class IdentificationError(ValueError):
+    """The data cannot identify the base parameters; the message names the unidentifiable ones and why."""
+
+
+@dataclass
+class NormalEquations:
+    """``G = K_bᵀ W K_b``, ``b = K_bᵀ W τ`` and what the estimators need to evaluate residuals."""
+    gram: np.ndarray          # [r (+n), r (+n)]
+    rhs: np.ndarray           # [r (+n)]
+    buffer: np.ndarray        # regressor buffer [n, p, N]
+    tau: np.ndarray           # [N, n]
+    offsets: bool             # the last n unknowns are per-joint torque offsets [N·m]
+
+
+def _base_columns(base: BaseParameters, i: int) -> tuple[np.ndarray, np.ndarray]:
+    """Positions (in ``φ_b``) and buffer columns (offset from ``12i``) of the base parameters joint ``i`` sees."""
+    sel = np.flatnonzero(base.independent >= PARAMS_PER_JOINT * i)
+    return sel, base.independent[sel] - PARAMS_PER_JOINT * i
+
+
+def normal_equations(desc: RobotDescription, base: BaseParameters, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
+                     tau: np.ndarray, coulomb_velocity_scale: float, weights: np.ndarray | None = None,
+                     offsets: bool = False) -> NormalEquations:
+    """Accumulate the (weighted, per-joint ``weights [n]``) normal equations of ``τ = K_b φ_b (+ τ_0)``."""
+    buf = regressor_buffer(desc, q, qd, qdd, coulomb_velocity_scale)
+    r, n = base.n_base, desc.n
+    m = r + n if offsets else r
+    gram, rhs = np.zeros((m, m)), np.zeros(m)
+    w = np.ones(n) if weights is None else np.asarray(weights, dtype=float)
+    for i in range(n):
+        sel, cols = _base_columns(base, i)
+        k_i = buf[i, PARAMS_PER_JOINT * i:][cols]          # [r_i, N] rows of K_bᵀ for joint i
+        gram[np.ix_(sel, sel)] += w[i] * (k_i @ k_i.T)
+        rhs[sel] += w[i] * (k_i @ tau[:, i])
+        if offsets:                                         # a column of ones in joint i's rows
+            gram[sel, r + i] = gram[r + i, sel] = w[i] * k_i.sum(axis=1)
+            gram[r + i, r + i] = w[i] * tau.shape[0]
+            rhs[r + i] = w[i] * tau[:, i].sum()
+    return NormalEquations(gram, rhs, buf, tau, offsets)
+
+
+def _predict_base(ne: NormalEquations, base: BaseParameters, phi_b: np.ndarray) -> np.ndarray:
+    n = ne.buffer.shape[0]
+    out = np.empty_like(ne.tau)
+    for i in range(n):
+        sel, cols = _base_columns(base, i)
+        out[:, i] = phi_b[sel] @ ne.buffer[i, PARAMS_PER_JOINT * i:][cols]
+    if ne.offsets:
+        out += phi_b[base.n_base:]
+    return out
+
+
+def _kt_times(ne: NormalEquations, base: BaseParameters, resid: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    out = np.zeros(ne.rhs.size)
+    for i in range(ne.buffer.shape[0]):
+        sel, cols = _base_columns(base, i)
+        out[sel] += weights[i] * (ne.buffer[i, PARAMS_PER_JOINT * i:][cols] @ resid[:, i])
+        if ne.offsets:
+            out[base.n_base + i] = weights[i] * resid[:, i].sum()
+    return out
+
+
+def check_data(desc: RobotDescription, base: BaseParameters, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
+               tau: np.ndarray, gram: np.ndarray | None = None) -> None:
+    """Raise :class:`IdentificationError` for data that cannot identify ``base`` (see the module docstring)."""
+    n = desc.n
+    for name, arr in (("q", q), ("qd", qd), ("qdd", qdd), ("tau", tau)):
+        arr = np.asarray(arr)
+        if arr.ndim != 2 or arr.shape[1] != n:
+            raise IdentificationError(f"{name} must be [N, {n}], got shape {arr.shape}")
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            s, j = np.argwhere(bad)[0]
+            raise IdentificationError(f"{name} contains {int(bad.sum())} NaN/inf values (first at sample {s}, joint "
+                                      f"{j + 1}); no parameter can be identified from them — clean or cut the data")
+    n_s = q.shape[0]
+    if n_s * n < base.n_base:
+        raise IdentificationError(f"too short: {n_s} samples × {n} joints = {n_s * n} equations < {base.n_base} base "
+                                  f"parameters; all of {', '.join(base.names[:3])}, ... are unidentifiable")
+    still = [j for j in range(n) if np.ptp(q[:, j]) < MOTION_THRESHOLD]
+    if still:
+        hit = [nm for nm, idx in zip(base.names, base.independent) if idx // PARAMS_PER_JOINT in still]
+        raise IdentificationError(
+            f"joint(s) {', '.join(str(j + 1) for j in still)} never move (position range < {MOTION_THRESHOLD} rad); "
+            f"unidentifiable: {', '.join(hit)}")
+    if gram is not None:
+        names = list(base.names) + [f"offset{j + 1}" for j in range(gram.shape[0] - base.n_base)]
+        d = np.sqrt(np.diag(gram))
+        if np.any(d <= 1e-10 * d.max()):
+            zero = [names[k] for k in np.flatnonzero(d <= 1e-10 * d.max())]
+            raise IdentificationError(f"regressor columns are zero (never excited): {', '.join(zero)}")
+        g = gram / np.outer(d, d)
+        ev, vec = np.linalg.eigh(g)
+        cond = np.sqrt(ev[-1] / max(ev[0], 1e-300))
+        if cond > CONDITION_LIMIT:
+            weak = np.abs(vec[:, ev < ev[-1] / CONDITION_LIMIT ** 2]).max(axis=1)
+            hit = [names[k] for k in np.argsort(-weak)[:6] if weak[k] > 0.1]
+            raise IdentificationError(
+                f"rank-deficient data: cond(K_b) = {cond:.3g} > {CONDITION_LIMIT:.0e}; the data do not separate "
+                f"{', '.join(hit)} (too short or not exciting enough — use an optimised excitation trajectory)")
+
+
+def _solve_spd(gram: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    d = 1.0 / np.sqrt(np.diag(gram))
+    c = scipy.linalg.cho_factor(gram * np.outer(d, d))
+    return d * scipy.linalg.cho_solve(c, d * rhs)
+
+
+def _least_squares(ne: NormalEquations, base: BaseParameters, weights: np.ndarray) -> np.ndarray:
+    phi_b = _solve_spd(ne.gram, ne.rhs)
+    resid = ne.tau - _predict_base(ne, base, phi_b)                     # iterative refinement (one step)
+    return phi_b + _solve_spd(ne.gram, _kt_times(ne, base, resid, weights))
+
+
+def _sigma_pct(ne: NormalEquations, base: BaseParameters, phi_b: np.ndarray, weights: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Relative standard deviations [%] (eq. 4.24–4.27) and the residual ``τ − K_b φ_b``."""
+    resid = ne.tau - _predict_base(ne, base, phi_b)
+    n_eq = resid.size
+    var = float(np.sum(weights * resid ** 2)) / max(n_eq - phi_b.size, 1)            # eq. 4.27
+    cov = var * np.linalg.inv(ne.gram)                                               # eq. 4.26
+    sigma = np.sqrt(np.clip(np.diag(cov), 0.0, None))                                # eq. 4.25
+    with np.errstate(divide="ignore"):
+        pct = 100.0 * sigma / np.abs(phi_b)                                          # eq. 4.24
+    return pct, resid
+
+
+def _full_set(base: BaseParameters, phi_b: np.ndarray, prior: np.ndarray) -> np.ndarray:
+    """The standard set nearest to ``prior`` (Euclidean) with ``K φ = φ_b`` (``φ_b`` without offsets)."""
+    k = base.projection
+    return prior + k.T @ np.linalg.solve(k @ k.T, phi_b[:base.n_base] - k @ prior)
+
+
+def _prepare(desc, q, qd, qdd, tau, base, coulomb_velocity_scale, offsets):
+    q, qd, qdd, tau = (np.asarray(a, dtype=float) for a in (q, qd, qdd, tau))
+    base = base or base_parameters(desc)
+    if base.robot != desc.name or base.n_standard != PARAMS_PER_JOINT * desc.n:
+        raise ValueError(f"base parameters were computed for {base.robot!r}, not for {desc.name!r}")
+    check_data(desc, base, q, qd, qdd, tau)
+    ne = normal_equations(desc, base, q, qd, qdd, tau, coulomb_velocity_scale, offsets=offsets)
+    check_data(desc, base, q, qd, qdd, tau, ne.gram)
+    return (q, qd, qdd, tau), base, ne
+
+
+def _model(desc, base, phi_b, pct, phi, method, scale, data, consistent):
+    return IdentifiedModel(desc, base, phi_b, pct, phi, method, scale, data_digest(*data), data[0].shape[0],
+                           consistent)
+
+
+def ols(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, tau: np.ndarray,
+        base: BaseParameters | None = None, coulomb_velocity_scale: float = 0.0,
+        offsets: bool = False) -> IdentifiedModel:
+    """Ordinary least squares ``φ_b = (K_bᵀK_b)⁻¹K_bᵀτ`` (eq. 4.22) with σ% (eq. 4.24–4.27).
+
+    ``desc`` gives the kinematics and the a-priori parameters that fill the unidentifiable directions of the full
+    set. ``offsets`` adds a constant torque offset per joint [N·m] (a torque-sensor bias, not in the thesis'
+    model) as ``n`` extra unknowns after the base parameters."""
+    data, base, ne = _prepare(desc, q, qd, qdd, tau, base, coulomb_velocity_scale, offsets)
+    ones = np.ones(desc.n)
+    phi_b = _least_squares(ne, base, ones)
+    pct, _ = _sigma_pct(ne, base, phi_b, ones)
+    phi = _full_set(base, phi_b, standard_parameters(desc))
+    return _model(desc, base, phi_b, pct, phi, "ols", coulomb_velocity_scale, data, False)
+
+
+def wls(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, tau: np.ndarray,
+        base: BaseParameters | None = None, coulomb_velocity_scale: float = 0.0,
+        offsets: bool = False) -> IdentifiedModel:
+    """Weighted least squares (Gautier): each joint's equations weighted by ``1/σ_i²``, ``σ_i`` the joint's OLS
+    residual standard deviation; σ% from the weighted covariance. Arguments as :func:`ols`."""
+    data, base, ne = _prepare(desc, q, qd, qdd, tau, base, coulomb_velocity_scale, offsets)
+    ones = np.ones(desc.n)
+    resid = ne.tau - _predict_base(ne, base, _least_squares(ne, base, ones))
+    dof = max(resid.shape[0] - ne.rhs.size / desc.n, 1.0)
+    var = np.sum(resid ** 2, axis=0) / dof
+    weights = 1.0 / np.maximum(var, 1e-12 * max(var.max(), 1e-300))
+    ne_w = normal_equations(desc, base, *data, coulomb_velocity_scale, weights, offsets)
+    phi_b = _least_squares(ne_w, base, weights)
+    pct, _ = _sigma_pct(ne_w, base, phi_b, weights)
+    phi = _full_set(base, phi_b, standard_parameters(desc))
+    return _model(desc, base, phi_b, pct, phi, "wls", coulomb_velocity_scale, data, False)
+
+
+def _pseudo_inertia(phi_link):
+    """4×4 pseudo-inertia ``[[½tr(I)·1 − I, h], [hᵀ, m]]`` (linear in the link's 10 parameters)."""
+    m, hx, hy, hz, ixx, ixy, ixz, iyy, iyz, izz = phi_link
+    half = 0.5 * (ixx + iyy + izz)
+    return np.array([[half - ixx, -ixy, -ixz, hx],
+                     [-ixy, half - iyy, -iyz, hy],
+                     [-ixz, -iyz, half - izz, hz],
+                     [hx, hy, hz, m]])
+
+
+def sdp(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, tau: np.ndarray,
+        base: BaseParameters | None = None, coulomb_velocity_scale: float = 0.0, offsets: bool = False,
+        regularization: float = 1e-4, min_mass: float = 1e-3) -> IdentifiedModel:
+    """Physically consistent least squares as an SDP (pseudo-inertia LMI of Wensing et al. 2018; cf. Stürz 2017).
+
+    ``min ‖R(Kφ − φ̂_b)‖ + λ‖φ − φ_prior‖`` over the full standard set ``φ`` (and the offsets) subject to every
+    link's pseudo-inertia ``⪰ 0`` with mass ``≥ min_mass`` [kg], and ``F_v, F_c ≥ 0``. ``R`` is the Cholesky factor
+    of ``K_bᵀK_b`` and ``φ̂_b`` the OLS solution, so the first term is the LS residual norm above its minimum;
+    ``λ = regularization · ‖R‖₂`` only picks the unidentifiable directions closest to the a-priori ``desc``. Both
+    terms are norms (second-order cones), so when the OLS solution is physically consistent it is an exact
+    minimiser of the data term. Solved with Clarabel; then polished onto ``Kφ = φ̂_b`` when that stays consistent.
+    """
+    from pydrake.solvers import ClarabelSolver, MathematicalProgram
+
+    data, base, ne = _prepare(desc, q, qd, qdd, tau, base, coulomb_velocity_scale, offsets)
+    ones = np.ones(desc.n)
+    phi_ls = _least_squares(ne, base, ones)
+    prior = standard_parameters(desc)
+    r, p, n_x = base.n_base, base.n_standard, ne.rhs.size - base.n_base
+    lift = np.zeros((r + n_x, p + n_x))                               # [φ, τ_0] → [φ_b, τ_0]
+    lift[:r, :p] = base.projection
+    lift[r:, p:] = np.eye(n_x)
+    r_chol = scipy.linalg.cholesky(ne.gram)                           # upper: G = RᵀR
+    prog = MathematicalProgram()
+    x = prog.NewContinuousVariables(p + n_x, "phi")
+    prog.AddL2NormCostUsingConicConstraint(r_chol @ lift, -r_chol @ phi_ls, x)
+    lam = regularization * np.linalg.norm(r_chol, 2)
+    prog.AddL2NormCostUsingConicConstraint(lam * np.eye(p), -lam * prior, x[:p])
+    for j in range(desc.n):
+        blk = x[PARAMS_PER_JOINT * j:PARAMS_PER_JOINT * j + 10]
+        prog.AddPositiveSemidefiniteConstraint(_pseudo_inertia(blk))
+        prog.AddLinearConstraint(blk[0] >= min_mass)
+        prog.AddBoundingBoxConstraint(0.0, np.inf, x[PARAMS_PER_JOINT * j + 10:PARAMS_PER_JOINT * j + 12])
+    result = ClarabelSolver().Solve(prog)
+    if not result.is_success():
+        raise IdentificationError(f"SDP failed ({result.get_solution_result()}); the data may be inconsistent with "
+                                  "any physical parameter set")
+    sol = result.GetSolution(x)
+    phi_val = sol[:p]
+    polished = _full_set(base, phi_ls, phi_val)                       # exact LS optimum if it stays feasible
+    if _consistent(polished, desc.n, min_mass):
+        phi_val, sol[p:] = polished, phi_ls[r:]
+    phi_b = np.concatenate([base.to_base(phi_val), sol[p:]])
+    pct, _ = _sigma_pct(ne, base, phi_b, ones)
+    return _model(desc, base, phi_b, pct, phi_val, "sdp", coulomb_velocity_scale, data, True)
+
+
+def _consistent(phi: np.ndarray, n: int, min_mass: float) -> bool:
+    p = phi.reshape(n, PARAMS_PER_JOINT)
+    return bool(all(np.linalg.eigvalsh(_pseudo_inertia(row[:10]))[0] >= 0.0 and row[0] >= min_mass
+                    and row[10] >= 0.0 and row[11] >= 0.0 for row in p))
+
+
+def identify(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, tau: np.ndarray,
+             method: str = "ols", base: BaseParameters | None = None, coulomb_velocity_scale: float = 0.0,
+             offsets: bool = False) -> IdentifiedModel:
+    """Dispatch to :func:`ols`, :func:`wls` or :func:`sdp`."""
+    fns = {"ols": ols, "wls": wls, "sdp": sdp}
+    if method not in fns:
+        raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    return fns[method](desc, q, qd, qdd, tau, base=base, coulomb_velocity_scale=coulomb_velocity_scale,
+                       offsets=offsets)
+
+
+def torque_error_table(tau_meas: np.ndarray, tau_pred: np.ndarray, title: str = "") -> tuple[str, dict]:
+    """Per-joint error statistics in the layout of thesis Table 4.4: MSE [N²·m²], σ of the error [N·m], and
+    RMSE [N·m]; plus the mean over samples of ‖e‖₂ across joints [N·m] (FloBaRoID's "absolute" figure)."""
+    e = np.asarray(tau_meas) - np.asarray(tau_pred)
+    mse = np.mean(e ** 2, axis=0)
+    sd = np.std(e, axis=0)
+    rmse = np.sqrt(mse)
+    lines = [title] if title else []
+    lines.append(f"{'joint':>7} {'MSE [Nm^2]':>11} {'sigma [Nm]':>11} {'RMSE [Nm]':>10}")
+    for j, (a, b, c) in enumerate(zip(mse, sd, rmse)):
+        lines.append(f"{j + 1:>7} {a:>11.4f} {b:>11.4f} {c:>10.4f}")
+    lines.append(f"{'average':>7} {mse.mean():>11.4f} {sd.mean():>11.4f} {rmse.mean():>10.4f}")
+    norm = float(np.mean(np.linalg.norm(e, axis=1)))
+    lines.append(f"mean ||e||_2 over samples: {norm:.4f} Nm")
+    return "\n".join(lines), {"mse": mse, "sigma": sd, "rmse": rmse, "mean_norm": norm}

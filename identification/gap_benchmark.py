@@ -1,0 +1,364 @@
+"""The withheld-effect benchmark of the gap diagnosis (DESIGN.md "Gap diagnosis", step 5).
+
+Each *case* generates data of a robot with some effect(s) present, and a simulation model without the withheld
+one(s); :func:`proprio.identification.gap_attribution.attribute` is run without being told what was withheld.
+Cases: every effect of the twin's library (``systems/joint_effects.py``) plus rigid-body parameter error, payload
+and signal lag, at several magnitudes and seeds; null cases (effects present in the data are also in the model);
+two-effect cases. Scores: confusion matrix, top-1 / top-2 accuracy, null false-positive rate, and the error of the
+predicted shrinkage (the diagnosis' own held-out SSE reduction after its first step) against the measured one
+(the held-out SSE reduction when the model is given the true withheld effect, i.e. only the sensor noise remains).
+
+**How the data are made (stated, as the benchmark is offline):** motion is an RFMA-like sequence generated here in
+closed form (min-jerk *reach* segments between random configurations at up to ≈70 % of the speed limits, then
+*exploration* segments: a smoothly windowed 3-term sinusoid of 0.5–3° per joint, §4.3), sampled at 200 Hz; the
+measured torque is ``τ_J = τ_rbd(q, q̇, q̈) + Σ effect.torque(...)`` with the library's own effect classes (link-side
+friction first, then sensor effects on the resulting τ_J) plus white sensor noise; encoder noise and elasticity act
+on the *recorded* q (encoder noise + quantisation; a motor-side position sensor that sees the spring deflection
+τ_J/K), which is how they reach a torque residual. Recordings store q only (q̇, q̈ are differentiated by the
+diagnosis, as from a real recorder). This applies the twin's effect library offline to twin-like motion; it does
+not run the Drake twin diagram (``diagrams/twin.py``).
+"""
+from __future__ import annotations
+
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import signal
+
+from proprio.description import Link, RobotDescription, load_robot
+from proprio.dynamics import inverse_dynamics
+from proprio.io import atomic_write_text
+from proprio.payload import Payload, attach_payload
+from proprio.recording import Recording
+from proprio.systems.joint_effects import EFFECTS, MotionSignals
+
+__all__ = ["BenchmarkCase", "CaseResult", "make_cases", "generate_case_data", "run_case", "run_benchmark",
+           "summarise", "rfma_like_motion", "EFFECT_TYPES"]
+
+RATE_HZ = 200.0
+NOISE_STD = 0.05                 # background torque-sensor noise [N·m] (present in data AND model unless withheld)
+EXTRA_TYPES = ("rigid_body", "payload", "signal_lag")
+EFFECT_TYPES = tuple(EFFECTS) + EXTRA_TYPES
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# motion
+# ---------------------------------------------------------------------------------------------------------------
+def _minjerk(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    s = 10 * tau ** 3 - 15 * tau ** 4 + 6 * tau ** 5
+    ds = 30 * tau ** 2 - 60 * tau ** 3 + 30 * tau ** 4
+    dds = 60 * tau - 180 * tau ** 2 + 120 * tau ** 3
+    return s, ds, dds
+
+
+def rfma_like_motion(robot: RobotDescription, seed: int, duration: float, rate_hz: float = RATE_HZ
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``t, q, q̇, q̈, segment`` (1 = reach, 0 = exploration) of alternating reach/explore segments (module doc)."""
+    rng = np.random.default_rng(seed)
+    n = robot.n
+    lo, hi = robot.lower, robot.upper
+    mid, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    vlim = robot.velocity_limits
+    t = np.arange(0.0, duration, 1.0 / rate_hz)
+    q = np.empty((len(t), n))
+    qd, qdd = np.zeros_like(q), np.zeros_like(q)
+    seg = np.zeros(len(t))
+    q_now = mid + rng.uniform(-0.4, 0.4, n) * half
+    t0 = 0.0
+    reach = True
+    while t0 < duration:
+        if reach:
+            q_next = mid + rng.uniform(-0.55, 0.55, n) * half
+            dist = np.abs(q_next - q_now)
+            frac = rng.uniform(0.3, 0.7)
+            T = max(1.0, float(np.max(1.875 * dist / (frac * vlim))))
+            m = (t >= t0) & (t < t0 + T)
+            tau = (t[m] - t0) / T
+            s, ds, dds = _minjerk(tau)
+            q[m] = q_now + s[:, None] * (q_next - q_now)
+            qd[m] = ds[:, None] * (q_next - q_now) / T
+            qdd[m] = dds[:, None] * (q_next - q_now) / T ** 2
+            seg[m] = 1
+            q_now = q_next
+        else:
+            T = rng.uniform(3.0, 5.0)
+            m = (t >= t0) & (t < t0 + T)
+            tt = t[m] - t0
+            amp = np.radians(rng.uniform(0.5, 3.0, (3, n)))
+            f = rng.uniform(0.3, 1.2, (3, n))
+            ph = rng.uniform(0, 2 * np.pi, (3, n))
+            w = 2 * np.pi * f
+            arg = w[None] * tt[:, None, None] + ph[None]
+            x = (amp * np.sin(arg)).sum(axis=1)
+            xd = (amp * w * np.cos(arg)).sum(axis=1)
+            xdd = (-amp * w ** 2 * np.sin(arg)).sum(axis=1)
+            ramp = np.minimum(np.minimum(tt, T - tt) / 0.4, 1.0)
+            s, ds, dds = _minjerk(ramp)
+            sgn = np.where(tt < T / 2, 1.0, -1.0) / 0.4
+            ds, dds = ds * sgn * (ramp < 1), dds / 0.16 * (ramp < 1)
+            q[m] = q_now + s[:, None] * x
+            qd[m] = ds[:, None] * x + s[:, None] * xd
+            qdd[m] = dds[:, None] * x + 2 * ds[:, None] * xd + s[:, None] * xdd
+        t0 += T
+        reach = not reach
+    return t, q, qd, qdd, seg
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# cases
+# ---------------------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class BenchmarkCase:
+    """``withheld``: effect types present in the data and absent from the model (empty = null case);
+    ``modelled``: library effects present in the data and in the model (same parameters); ``magnitude`` scales
+    the withheld effects' base level; ``seed`` draws their parameters and the motion."""
+    name: str
+    withheld: tuple[str, ...]
+    magnitude: float
+    seed: int
+    modelled: tuple[str, ...] = ()
+    duration_s: float = 24.0
+
+
+def _draw(kind: str, n: int, mag: float, rng: np.random.Generator) -> dict[str, Any]:
+    """Parameters of one effect at magnitude ``mag`` (base levels from DESIGN.md's calibration ranges)."""
+    u = lambda a, b: rng.uniform(a, b, n)  # noqa: E731
+    if kind == "viscous_coulomb":
+        return {"viscous": mag * u(0.10, 0.37), "coulomb": mag * u(0.03, 0.32)}
+    if kind == "stribeck":
+        return {"static": mag * u(0.15, 0.45), "stribeck_velocity": u(0.02, 0.08)}
+    if kind == "hysteresis":
+        return {"saturation": mag * u(0.1, 0.5), "saturation_travel": np.radians(u(4.0, 8.0))}
+    if kind == "lost_motion":
+        return {"amplitude": mag * u(0.15, 0.45), "window": np.radians(u(0.7, 1.5))}
+    if kind == "ripple":
+        amp, ph = mag * u(0.05, 0.2), u(0, 2 * np.pi)
+        return {"sin_amplitude": amp * np.cos(ph), "cos_amplitude": amp * np.sin(ph), "gear_ratio": u(100, 160),
+                "harmonic": 2.0}
+    if kind == "sensor_offset_gain":
+        return {"offset": mag * u(0.1, 0.9) * rng.choice([-1, 1], n), "gain": mag * u(-0.02, 0.02)}
+    if kind == "torque_noise":
+        return {"std": mag * u(0.05, 0.15)}
+    if kind == "encoder_noise":
+        return {"std": mag * u(2e-5, 8e-5)}
+    if kind == "elasticity":
+        return {"stiffness": u(4000.0, 15000.0) / mag}
+    if kind == "rigid_body":
+        return {"mass_scale": 1 + mag * u(-0.15, 0.15), "com_shift": mag * rng.uniform(-0.02, 0.02, (n, 3))}
+    if kind == "payload":
+        return {"mass": float(mag * rng.uniform(0.5, 2.0)), "com": rng.uniform(-0.03, 0.03, 3) + [0, 0, 0.05]}
+    if kind == "signal_lag":
+        return {"time_constant": float(mag * rng.uniform(0.004, 0.012))}
+    raise ValueError(f"unknown benchmark effect {kind!r}")
+
+
+def make_cases(quick: bool = False, seed: int = 0) -> list[BenchmarkCase]:
+    """The case list: every effect type × magnitudes (0.5, 1, 2; quick: 1) + null cases + two-effect cases."""
+    rng = np.random.default_rng(seed)
+    mags = (1.0,) if quick else (0.5, 1.0, 2.0)
+    cases = []
+    for kind in EFFECT_TYPES:
+        for m in mags:
+            s = int(rng.integers(1 << 30))
+            cases.append(BenchmarkCase(f"{kind}@{m:g}", (kind,), m, s))
+    library = [k for k in EFFECTS if k not in ("torque_noise", "encoder_noise", "elasticity")]
+    for k in range(2 if quick else 6):
+        present = tuple(sorted(rng.choice(library, size=k % 3, replace=False))) if k else ()
+        cases.append(BenchmarkCase(f"null#{k}" + (f"({'+'.join(present)})" if present else ""), (), 1.0,
+                                   int(rng.integers(1 << 30)), modelled=present))
+    pairs = [("viscous_coulomb", "sensor_offset_gain"), ("hysteresis", "ripple"), ("payload", "stribeck"),
+             ("rigid_body", "viscous_coulomb"), ("lost_motion", "sensor_offset_gain"), ("elasticity", "ripple")]
+    for a, b in pairs[:1 if quick else len(pairs)]:
+        cases.append(BenchmarkCase(f"{a}+{b}", (a, b), 1.0, int(rng.integers(1 << 30))))
+    return cases
+
+
+@dataclass
+class CaseData:
+    robot: RobotDescription
+    model_effects: tuple[str, ...]
+    model_params: dict[str, dict[str, Any]]
+    train: list[Recording]
+    holdout: list[Recording]
+    noise_holdout: list[np.ndarray]
+
+
+def _perturbed(robot: RobotDescription, p: dict[str, Any]) -> RobotDescription:
+    links = []
+    for j, lk in enumerate(robot.links):
+        links.append(Link(lk.name, lk.mass * float(p["mass_scale"][j]),
+                          tuple(np.asarray(lk.com_xyz) + p["com_shift"][j]), lk.inertia_com, lk.com_rpy,
+                          lk.collision))
+    return robot.with_inertials(links)
+
+
+def generate_case_data(case: BenchmarkCase, robot: RobotDescription | None = None) -> CaseData:
+    """Training (2 recordings) and held-out (1) data of a case, and the model's effect list (module docstring)."""
+    robot = robot or load_robot("iiwa14_nominal")
+    n = robot.n
+    rng = np.random.default_rng(case.seed)
+    params = {k: _draw(k, n, case.magnitude, rng) for k in case.withheld}
+    modelled = {k: _draw(k, n, 1.0, rng) for k in case.modelled}
+    data_robot = robot
+    if "rigid_body" in params:
+        data_robot = _perturbed(data_robot, params["rigid_body"])
+    if "payload" in params:
+        data_robot = attach_payload(data_robot, Payload(params["payload"]["mass"], tuple(params["payload"]["com"])))
+    present = {**modelled, **{k: v for k, v in params.items() if k in EFFECTS}}
+    noise = dict(params.get("torque_noise", {"std": np.full(n, NOISE_STD)}))
+    present["torque_noise"] = noise
+    effects = {k: EFFECTS[k](n, **v) for k, v in present.items()}
+    model_effects = tuple(k for k in modelled) + (() if "torque_noise" in params else ("torque_noise",))
+    model_params = {**modelled, "torque_noise": {"std": np.full(n, NOISE_STD)}}
+    recs, noises = [], []
+    for k in range(3):
+        t, q, qd, qdd, seg = rfma_like_motion(robot, case.seed + 7919 * k, case.duration_s)
+        s = MotionSignals(t, q, qd, qdd)
+        tau = inverse_dynamics(data_robot, q, qd, qdd)
+        for name in ("viscous_coulomb", "stribeck"):
+            if name in effects:
+                tau = tau + effects[name].torque(s)
+        s = s.with_tau(tau)
+        sensor = np.zeros_like(tau)
+        for name, eff in effects.items():
+            if eff.place == "sensor" and name not in ("torque_noise", "encoder_noise"):
+                sensor += eff.torque(s)
+        tau_meas = tau + sensor
+        if "signal_lag" in params:
+            a = np.exp(-1.0 / (RATE_HZ * params["signal_lag"]["time_constant"]))
+            tau_meas = signal.lfilter([1 - a], [1, -a], tau_meas - tau_meas[0], axis=0) + tau_meas[0]
+        nz = effects["torque_noise"].torque(s, rng=np.random.default_rng(case.seed + k))
+        tau_meas = tau_meas + nz
+        q_rec = q
+        if "elasticity" in params:
+            q_rec = q_rec + tau / np.asarray(params["elasticity"]["stiffness"])
+        if "encoder_noise" in params:
+            q_rec = EFFECTS["encoder_noise"](n, **params["encoder_noise"]).measure(
+                q_rec, np.random.default_rng(case.seed + 100 + k))
+        recs.append(Recording(t=t, q=q_rec, tau=tau_meas, truth={"segment": seg},
+                              meta={"robot": robot.name, "rate_hz": RATE_HZ, "source": "gap-benchmark (offline)"}))
+        noises.append(nz)
+    return CaseData(robot, model_effects, model_params, recs[:2], recs[2:], noises[2:])
+
+
+@dataclass
+class CaseResult:
+    case: BenchmarkCase
+    top: list[str]
+    steps: list[str]
+    predicted_shrinkage: float
+    measured_shrinkage: float
+    seconds: float
+    error: str = ""
+    params: dict[str, Any] = field(default_factory=dict)
+
+
+def run_case(case: BenchmarkCase) -> CaseResult:
+    """Generate, diagnose (not told what was withheld) and score one case."""
+    from proprio.identification.gap_attribution import SimModel, attribute
+
+    t0 = time.perf_counter()
+    data = generate_case_data(case)
+    n = data.robot.n
+    model = SimModel(data.robot, tuple(EFFECTS[k](n, **data.model_params[k]) for k in data.model_effects))
+    try:
+        att = attribute(model, data.train, data.holdout)
+    except ValueError as exc:
+        return CaseResult(case, [], [], float("nan"), float("nan"), time.perf_counter() - t0, error=str(exc))
+    e_h = np.concatenate(att.holdout_e)
+    sse0 = float((e_h ** 2).sum())
+    pred = 0.0
+    if att.steps:
+        after = e_h - np.concatenate(att.holdout_pred) if len(att.steps) == 1 else None
+        rm = att.steps[0].rmse_after
+        pred = 1.0 - float((rm ** 2).sum()) / float((att.rmse_before ** 2).sum()) if after is None else \
+            1.0 - float((after ** 2).sum()) / sse0
+    # measured: the model given the true effect leaves only the sensor noise (same held-out samples)
+    trim = [(r.t >= r.t[0] + 0.5) & (r.t <= r.t[-1] - 0.5) for r in data.holdout]
+    nz = np.concatenate([z[m] for z, m in zip(data.noise_holdout, trim)])
+    meas = 1.0 - float((nz ** 2).sum()) / sse0 if case.withheld != ("torque_noise",) else 0.0
+    return CaseResult(case, att.top(3), att.selected, pred, meas, time.perf_counter() - t0,
+                      params={s.name: float(s.gain) for s in att.steps})
+
+
+def run_benchmark(cases: list[BenchmarkCase], workers: int | None = None, progress: bool = True
+                  ) -> list[CaseResult]:
+    """Run the cases in parallel (``ProcessPoolExecutor``, ``workers`` default ``os.cpu_count()``)."""
+    from tqdm import tqdm
+
+    workers = workers or os.cpu_count() or 1
+    results: list[CaseResult] = []
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        futs = {pool.submit(run_case, c): c for c in cases}
+        for fut in tqdm(as_completed(futs), total=len(futs), disable=not progress, desc="gap-benchmark"):
+            results.append(fut.result())
+    order = {c.name: i for i, c in enumerate(cases)}
+    return sorted(results, key=lambda r: order[r.case.name])
+
+
+def summarise(results: list[CaseResult]) -> tuple[dict[str, Any], str]:
+    """Scores and a printable report (confusion matrix, accuracies, null FP rate, shrinkage error)."""
+    single = [r for r in results if len(r.case.withheld) == 1 and not r.error]
+    null = [r for r in results if not r.case.withheld and not r.error]
+    pair = [r for r in results if len(r.case.withheld) == 2 and not r.error]
+    failed = [r for r in results if r.error]
+    labels = sorted({r.case.withheld[0] for r in single})
+    pred_labels = labels + ["(other)", "(none)"]
+    conf = np.zeros((len(labels), len(pred_labels)), dtype=int)
+    for r in single:
+        i = labels.index(r.case.withheld[0])
+        p = r.top[0] if r.top else "(none)"
+        conf[i, pred_labels.index(p) if p in pred_labels else len(labels)] += 1
+    top1 = np.mean([bool(r.top) and r.top[0] == r.case.withheld[0] for r in single]) if single else float("nan")
+    top2 = np.mean([r.case.withheld[0] in r.top[:2] for r in single]) if single else float("nan")
+    null_fp = np.mean([bool(r.steps) for r in null]) if null else float("nan")
+    pair_both = np.mean([set(r.case.withheld) <= set(r.top[:3]) for r in pair]) if pair else float("nan")
+    shr = [(r.predicted_shrinkage, r.measured_shrinkage) for r in single
+           if r.measured_shrinkage > 0.05 and r.top and r.top[0] == r.case.withheld[0]]
+    rel = np.array([abs(p - m) / m for p, m in shr]) if shr else np.zeros(0)
+    scores = {"cases": len(results), "single": len(single), "null": len(null), "pairs": len(pair),
+              "failed": len(failed), "top1": float(top1), "top2": float(top2), "null_false_positive_rate":
+              float(null_fp), "pairs_both_found": float(pair_both),
+              "shrinkage_rel_error_median": float(np.median(rel)) if rel.size else float("nan"),
+              "shrinkage_rel_error_max": float(rel.max()) if rel.size else float("nan"),
+              "shrinkage_within_20pct": float(np.mean(rel <= 0.2)) if rel.size else float("nan"),
+              "effect_types": labels}
+    w = max(len(x) for x in labels + ["withheld"]) + 1
+    lines = ["Confusion matrix (rows: withheld effect, columns: top-1 attribution)", ""]
+    short = [p[:6] for p in pred_labels]
+    lines.append("withheld".ljust(w) + " ".join(s.rjust(6) for s in short))
+    for i, lab in enumerate(labels):
+        lines.append(lab.ljust(w) + " ".join(str(v).rjust(6) if v else ".".rjust(6) for v in conf[i]))
+    lines += ["", f"single-effect cases: {len(single)}  top-1 {100 * top1:.1f} %  top-2 {100 * top2:.1f} %",
+              f"null cases: {len(null)}  false-positive rate {100 * null_fp:.1f} %",
+              f"two-effect cases: {len(pair)}  both effects among the top 3: {100 * pair_both:.1f} %",
+              f"shrinkage (correct top-1, measured > 5 %): median rel. error "
+              f"{100 * scores['shrinkage_rel_error_median']:.1f} %, max {100 * scores['shrinkage_rel_error_max']:.1f}"
+              f" %, within 20 %: {100 * scores['shrinkage_within_20pct']:.0f} % of {rel.size}"]
+    if failed:
+        lines.append(f"failed cases: {len(failed)}: " + "; ".join(f"{r.case.name}: {r.error}" for r in failed))
+    lines += ["", "case".ljust(44) + "attribution (top 3)".ljust(52) + "pred.shr meas.shr  s"]
+    for r in results:
+        lines.append(r.case.name[:43].ljust(44) + (" > ".join(r.top) or "(nothing)")[:51].ljust(52)
+                     + f"{r.predicted_shrinkage:8.3f} {r.measured_shrinkage:8.3f} {r.seconds:4.0f}")
+    return scores, "\n".join(lines)
+
+
+def write_results(results: list[CaseResult], out_dir: str | Path) -> tuple[dict[str, Any], str]:
+    """Summarise, print-ready text, and write ``benchmark.txt`` + ``benchmark.json`` atomically to ``out_dir``."""
+    import json
+
+    scores, text = summarise(results)
+    out = Path(out_dir)
+    atomic_write_text(out / "benchmark.txt", text + "\n")
+    rows = [{"case": r.case.name, "withheld": list(r.case.withheld), "magnitude": r.case.magnitude,
+             "seed": r.case.seed, "modelled": list(r.case.modelled), "top": r.top, "selected": r.steps,
+             "predicted_shrinkage": r.predicted_shrinkage, "measured_shrinkage": r.measured_shrinkage,
+             "seconds": r.seconds, "error": r.error} for r in results]
+    atomic_write_text(out / "benchmark.json", json.dumps({"scores": scores, "cases": rows}, indent=1))
+    return scores, text

@@ -1,0 +1,309 @@
+"""Where does the sim-to-real torque gap live? (DESIGN.md "Gap diagnosis", step 2.)
+
+Given the residual ``e = τ_meas − τ_sim`` [N·m] of one or more Recordings, this module breaks the squared error
+down by joint × motion regime and by frequency:
+
+* **motion regimes** (each family partitions the samples, so a family's cells add up to the joint's share):
+  joint speed ``|q̇_j|`` as a fraction of the joint's velocity limit; travel since the joint's last reversal
+  ``|r_j|`` (the first degree after a reversal is the lost-motion / hysteresis window of §2.1); reach vs.
+  exploration segments (from ``truth['segment']`` / ``meta['segments']`` when the Recording has them, else by
+  speed); configuration region (joint position tercile of its range); payload (``meta['payload']`` mass);
+* **frequency**: the Welch power spectrum of ``e`` in time [Hz] and an *order spectrum* — the periodogram of ``e``
+  against the joint angle (``e`` resampled onto ``q`` by a Lomb–Scargle fit over the moving samples), which puts a
+  ripple locked to the joint angle at a fixed order [cycles/rev] whatever the speed.
+
+The *gap map* is the share of the total (all joints, all samples) squared error held by each joint × regime cell;
+:func:`plot_gap_map` draws it as a heat map.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+from scipy import signal
+
+from proprio.io import atomic_path
+
+__all__ = ["RegimeFamily", "GapMap", "Spectra", "travel_since_reversal", "regime_families", "gap_map",
+           "spectra", "order_spectrum", "peak_orders", "plot_gap_map", "plot_spectra"]
+
+REVERSAL_WINDOW_RAD = np.radians(1.0)       # lost-motion window after a reversal (§2.1)
+HYSTERESIS_SATURATION_RAD = np.radians(6.0)  # hysteresis saturates after ≈6° of travel (§2.1, Fig. 2.5)
+SPEED_EDGES = (0.0, 0.02, 0.10, 0.30, 0.60, np.inf)   # |q̇| / velocity limit
+REACH_SPEED_FRACTION = 0.35                 # reach segments run at 60–90 %, exploration at 10–30 % (Table 2.3)
+
+
+def travel_since_reversal(q: np.ndarray, qd: np.ndarray, deadband: float = 1e-3) -> np.ndarray:
+    """Signed joint travel r [rad] since each joint's last motion reversal, ``[N,n]`` (the thesis' rotational
+    displacement r, §4.2, unclipped). A reversal is a sign change of q̇ outside ``|q̇| < deadband`` [rad/s];
+    r restarts at 0 there. Vectorised: the start index of the current run is a running maximum."""
+    q, qd = np.atleast_2d(q), np.atleast_2d(qd)
+    n_s, n = q.shape
+    direction = np.sign(qd) * (np.abs(qd) > deadband)
+    # carry the last non-zero direction forward through the dead band
+    idx = np.where(direction != 0, np.arange(n_s)[:, None], 0)
+    idx = np.maximum.accumulate(idx, axis=0)
+    held = np.take_along_axis(direction, idx, axis=0)
+    flip = np.zeros((n_s, n), dtype=bool)
+    flip[1:] = (held[1:] != held[:-1]) & (held[:-1] != 0)
+    start = np.where(flip, np.arange(n_s)[:, None], 0)
+    start = np.maximum.accumulate(start, axis=0)
+    return q - np.take_along_axis(q, start, axis=0)
+
+
+@dataclass(frozen=True)
+class RegimeFamily:
+    """One way of partitioning the samples: ``labels [N,n]`` integer bin per sample and joint (a sample-wide
+    family repeats its label over the joints); ``names`` the bin names."""
+    name: str
+    names: tuple[str, ...]
+    labels: np.ndarray
+
+
+def _segment_labels(rec, qd: np.ndarray, vlim: np.ndarray) -> np.ndarray:
+    """1 = reach, 0 = exploration, per sample: from the Recording's own segment labels when present, else by
+    speed (any joint above ``REACH_SPEED_FRACTION`` of its limit, smoothed over 0.5 s)."""
+    if rec is not None and "segment" in rec.truth:
+        return (np.asarray(rec.truth["segment"]).reshape(len(qd), -1)[:, 0] > 0.5).astype(int)
+    if rec is not None and isinstance(rec.meta.get("segments"), list):
+        lab = np.zeros(len(qd), dtype=int)
+        t = rec.t
+        for seg in rec.meta["segments"]:
+            if isinstance(seg, dict) and seg.get("kind") == "reach":
+                lab[(t >= seg.get("t0", np.inf)) & (t < seg.get("t1", -np.inf))] = 1
+        return lab
+    fast = (np.abs(qd) / vlim).max(axis=1) > REACH_SPEED_FRACTION
+    if rec is not None and len(qd) > 3:
+        width = max(1, int(0.5 * rec.rate_hz))
+        fast = np.convolve(fast.astype(float), np.ones(width) / width, mode="same") > 0.5
+    return fast.astype(int)
+
+
+def regime_families(q: np.ndarray, qd: np.ndarray, lower: np.ndarray, upper: np.ndarray, vlim: np.ndarray,
+                    rec=None) -> list[RegimeFamily]:
+    """The motion-regime partitions of one Recording's samples (see the module docstring)."""
+    n_s, n = q.shape
+    speed = np.abs(qd) / vlim
+    sp = np.clip(np.digitize(speed, SPEED_EDGES[1:-1]), 0, len(SPEED_EDGES) - 2)
+    sp_names = tuple(f"speed {100 * a:.0f}–{100 * b:.0f}%" if np.isfinite(b) else f"speed >{100 * a:.0f}%"
+                     for a, b in zip(SPEED_EDGES[:-1], SPEED_EDGES[1:]))
+    r = np.abs(travel_since_reversal(q, qd))
+    rb = np.digitize(r, [REVERSAL_WINDOW_RAD, HYSTERESIS_SATURATION_RAD])
+    seg = np.repeat(_segment_labels(rec, qd, vlim)[:, None], n, axis=1)
+    pos = (q - lower) / np.maximum(upper - lower, 1e-9)
+    cfg = np.clip(np.digitize(pos, [1 / 3, 2 / 3]), 0, 2)
+    payload = rec.meta.get("payload") if rec is not None else None
+    mass = float(payload.get("mass", 0.0)) if isinstance(payload, dict) else 0.0
+    pay_name = f"payload {mass:g} kg" if mass > 0 else "no payload"
+    return [
+        RegimeFamily("speed", sp_names, sp),
+        RegimeFamily("travel since reversal", ("|r|<1° (reversal window)", "|r| 1–6°", "|r|>6°"), rb),
+        RegimeFamily("segment", ("exploration", "reach"), seg),
+        RegimeFamily("configuration", ("q low third", "q mid third", "q high third"), cfg),
+        RegimeFamily("payload", (pay_name,), np.zeros((n_s, n), dtype=int)),
+    ]
+
+
+@dataclass
+class GapMap:
+    """Share of the total squared residual per joint × regime cell.
+
+    ``columns`` are ``(family, bin)`` pairs; ``share [n, C]`` sums to the joint's share of the total within every
+    family; ``concentration [n, C]`` is the cell's mean square over the joint's mean square (> 1: the error
+    concentrates there); ``count [n, C]`` samples per cell; ``rmse [n]`` N·m and ``signal_rms [n]`` N·m per joint."""
+    joint_names: list[str]
+    columns: list[tuple[str, str]]
+    share: np.ndarray
+    concentration: np.ndarray
+    count: np.ndarray
+    rmse: np.ndarray
+    signal_rms: np.ndarray
+
+    def table(self, min_share: float = 0.0) -> str:
+        """A Markdown table of the shares [%] (columns whose largest share is below ``min_share`` dropped)."""
+        keep = [c for c in range(len(self.columns)) if self.share[:, c].max() >= min_share]
+        head = "| joint | RMSE N·m | % of signal | " + " | ".join(f"{f}: {b}" for f, b in
+                                                                 (self.columns[c] for c in keep)) + " |"
+        rows = [head, "|" + "---|" * (3 + len(keep))]
+        for j, name in enumerate(self.joint_names):
+            pct = 100 * self.rmse[j] / max(self.signal_rms[j], 1e-12)
+            cells = " | ".join(f"{100 * self.share[j, c]:.1f}" for c in keep)
+            rows.append(f"| {name} | {self.rmse[j]:.3f} | {pct:.1f} | {cells} |")
+        return "\n".join(rows)
+
+    def hotspots(self, k: int = 5) -> list[tuple[str, str, str, float, float]]:
+        """The ``k`` cells holding the largest share among those where the error concentrates (ratio > 1):
+        ``(joint, family, bin, share, concentration)``."""
+        fams = [f for f, _ in self.columns]
+        out = []
+        for j in range(len(self.joint_names)):
+            for c, (f, b) in enumerate(self.columns):
+                if fams.count(f) > 1 and self.concentration[j, c] > 1.0:
+                    out.append((self.joint_names[j], f, b, float(self.share[j, c]), float(self.concentration[j, c])))
+        return sorted(out, key=lambda x: -x[3] * x[4])[:k]
+
+
+def gap_map(residuals: Sequence[np.ndarray], families: Sequence[list[RegimeFamily]], tau: Sequence[np.ndarray],
+            joint_names: list[str]) -> GapMap:
+    """Aggregate the per-recording residuals ``e [N_k,n]`` over their regime families (same family/bin layout in
+    every recording, except the payload family whose bins are merged by name) into a :class:`GapMap`."""
+    n = residuals[0].shape[1]
+    columns: list[tuple[str, str]] = []
+    for fams in families:
+        for fam in fams:
+            for b in fam.names:
+                if (fam.name, b) not in columns:
+                    columns.append((fam.name, b))
+    sq = np.zeros((n, len(columns)))
+    cnt = np.zeros((n, len(columns)))
+    for e, fams in zip(residuals, families):
+        e2 = e ** 2
+        for fam in fams:
+            for k, b in enumerate(fam.names):
+                c = columns.index((fam.name, b))
+                m = fam.labels == k
+                sq[:, c] += (e2 * m).sum(axis=0)
+                cnt[:, c] += m.sum(axis=0)
+    e_all = np.concatenate(residuals)
+    total = float((e_all ** 2).sum())
+    joint_ms = (e_all ** 2).mean(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        conc = np.where(cnt > 0, sq / np.maximum(cnt, 1) / np.maximum(joint_ms[:, None], 1e-300), 0.0)
+    sig = np.sqrt((np.concatenate(tau) ** 2).mean(axis=0))
+    return GapMap(list(joint_names), columns, sq / max(total, 1e-300), conc, cnt, np.sqrt(joint_ms), sig)
+
+
+@dataclass
+class Spectra:
+    """Frequency content of the residual per joint.
+
+    ``freq [F]`` Hz and ``psd [F,n]`` (N·m)²/Hz: Welch spectrum over all recordings (averaged);
+    ``orders [K]`` cycles/rev and ``order_power [K,n]`` (N·m)²: amplitude² of the best sinusoid of the joint angle
+    at each order (Lomb–Scargle of e against q over the samples where the joint moves); ``peak_order [n]``,
+    ``peak_order_share [n]``: the strongest order and the share of the moving-sample variance it explains."""
+    freq: np.ndarray
+    psd: np.ndarray
+    orders: np.ndarray
+    order_power: np.ndarray
+    peak_order: np.ndarray
+    peak_order_share: np.ndarray
+    dominant_hz: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+def order_spectrum(e: np.ndarray, q: np.ndarray, qd: np.ndarray, orders: np.ndarray,
+                   min_speed: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
+    """Order spectrum of one joint: amplitude² [(N·m)²] of the best fit ``a sin(k q) + b cos(k q)`` for each order
+    ``k`` [cycles/rev] in ``orders``, over the samples where ``|q̇| > min_speed`` (the residual resampled onto the
+    joint angle — Lomb–Scargle with the angle as the abscissa). Returns ``(power [K], variance of e there)``."""
+    m = np.abs(qd) > min_speed
+    if m.sum() < 20:
+        return np.zeros(len(orders)), 0.0
+    x, y = q[m], e[m] - e[m].mean()
+    pw = signal.lombscargle(x, y, orders, precenter=False, normalize=False) * 4.0 / len(y)
+    return pw, float(np.var(y))
+
+
+def peak_orders(e: np.ndarray, q: np.ndarray, qd: np.ndarray, max_order: float = 400.0,
+                min_speed: float = 0.05) -> np.ndarray:
+    """Per joint, the order [cycles/rev] of the strongest angle-locked sinusoid in ``e`` (coarse grid of 0.25, then
+    refined to 0.002 around the peak; the peak of a long sweep is located far more finely than its width)."""
+    n = e.shape[1]
+    coarse = np.arange(1.0, max_order + 0.25, 0.25)
+    out = np.full(n, 2.0 * 160.0)
+    for j in range(n):
+        pw, _ = order_spectrum(e[:, j], q[:, j], qd[:, j], coarse, min_speed)
+        if not pw.any():
+            continue
+        k0 = coarse[int(np.argmax(pw))]
+        fine = np.arange(max(0.5, k0 - 0.5), k0 + 0.5, 0.002)
+        pf, _ = order_spectrum(e[:, j], q[:, j], qd[:, j], fine, min_speed)
+        out[j] = fine[int(np.argmax(pf))]
+    return out
+
+
+def spectra(residuals: Sequence[np.ndarray], qs: Sequence[np.ndarray], qds: Sequence[np.ndarray], rate_hz: float,
+            max_order: float = 400.0, min_speed: float = 0.05) -> Spectra:
+    """Welch spectrum of e and its order spectrum against each joint's angle (see :class:`Spectra`).
+
+    The order spectrum uses the samples with ``|q̇| > min_speed`` rad/s; orders from 1 to ``max_order``
+    cycles/rev in steps fine enough to resolve the swept angle (1/(4·span) cycles/rad)."""
+    n = residuals[0].shape[1]
+    nper = int(min(256, min(len(e) for e in residuals)))
+    psds = []
+    for e in residuals:
+        f, p = signal.welch(e, fs=rate_hz, nperseg=nper, axis=0, detrend="constant")
+        psds.append(p)
+    psd = np.mean(psds, axis=0)
+    dominant = f[1:][np.argmax(psd[1:], axis=0)] if len(f) > 1 else np.zeros(n)
+    e_all, q_all, qd_all = (np.concatenate(x) for x in (residuals, qs, qds))
+    orders = np.arange(1.0, max_order + 0.25, 0.25)
+    power = np.zeros((len(orders), n))
+    peak, share = np.zeros(n), np.zeros(n)
+    for j in range(n):
+        pw, var = order_spectrum(e_all[:, j], q_all[:, j], qd_all[:, j], orders, min_speed)
+        power[:, j] = pw
+        if pw.any():
+            k = int(np.argmax(pw))
+            peak[j] = orders[k]
+            share[j] = 0.5 * pw[k] / max(var, 1e-300)
+    return Spectra(f, psd, orders, power, peak, np.clip(share, 0.0, 1.0), dominant)
+
+
+def plot_gap_map(gm: GapMap, path: str | Path, title: str = "Where the torque gap lives") -> Path:
+    """Heat map of the gap-map shares [% of total squared error] (joints × regime cells), written atomically."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fams = [f for f, _ in gm.columns]
+    keep = [c for c, f in enumerate(fams) if f != "payload" or fams.count("payload") > 1]
+    data = 100 * gm.share[:, keep]
+    fig, ax = plt.subplots(figsize=(max(8.0, 0.55 * len(keep) + 2), 0.45 * len(gm.joint_names) + 2.4))
+    im = ax.imshow(data, aspect="auto", cmap="magma_r", vmin=0)
+    ax.set_yticks(range(len(gm.joint_names)), gm.joint_names)
+    ax.set_xticks(range(len(keep)), [f"{gm.columns[c][1]}" for c in keep], rotation=60, ha="right", fontsize=8)
+    for i in range(data.shape[0]):
+        for k in range(data.shape[1]):
+            if data[i, k] >= 0.5:
+                ax.text(k, i, f"{data[i, k]:.0f}", ha="center", va="center", fontsize=7,
+                        color="white" if data[i, k] > 0.6 * data.max() else "black")
+    prev = None
+    for k, c in enumerate(keep):
+        if prev is not None and fams[c] != prev:
+            ax.axvline(k - 0.5, color="k", lw=1.2)
+        prev = fams[c]
+    fig.colorbar(im, ax=ax, label="% of total squared error")
+    ax.set_title(title + " (each family's cells add up to the joint's share)", fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+    return path
+
+
+def plot_spectra(sp: Spectra, joint_names: list[str], path: str | Path) -> Path:
+    """Welch spectrum and order spectrum of the residual per joint (log scale), written atomically."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 4))
+    for j, name in enumerate(joint_names):
+        a1.semilogy(sp.freq[1:], sp.psd[1:, j] + 1e-16, label=name, lw=1)
+        a2.semilogy(sp.orders, sp.order_power[:, j] + 1e-16, label=name, lw=1)
+    a1.set_xlabel("frequency [Hz]")
+    a1.set_ylabel("PSD of e [(N·m)²/Hz]")
+    a2.set_xlabel("order [cycles per joint revolution]")
+    a2.set_ylabel("amplitude² of e vs q [(N·m)²]")
+    a1.set_title("Welch spectrum of the residual")
+    a2.set_title("Order spectrum (e against joint angle)")
+    a2.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+    return path

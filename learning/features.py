@@ -1,0 +1,187 @@
+"""Input features of the hybrid models (§4.2): the rotational-displacement encoding r and vec(τ_RBD, q, q̇, q̈, r).
+
+Rotational displacement since the last direction reversal (§4.2, "Rotational Displacement Encoding")
+--------------------------------------------------------------------------------------------------------
+``r_j(t) = clip(q_j(t) − a_j, ±r_max)`` with ``a_j`` the joint angle at the last confirmed direction reversal of joint
+j and ``r_max = 10°`` (hysteresis saturates there, Fig. 2.5).
+
+Noise robustness — a reversal needs travel, not a sign flip. Encoder noise flips the sign of Δq at every sample of
+a slow or resting joint, so a reversal is *confirmed* only once the joint has travelled back more than a deadband
+``h`` (config ``reversal_deadband_deg``, default 0.05°, far below the ≈1° lost-motion window and far above encoder
+noise) from its running extremum in the current direction (a peak detector with hysteresis). The reversal point
+``a_j`` is that extremum (the true turning point), not the sample where it was confirmed. The rule is causal, so
+the streaming encoder (:class:`ReversalEncoder`, used online by the residual System) and the offline one
+(:func:`rotational_displacement`) give bit-identical results; the price is a detection delay of ``h`` of travel,
+during which r still counts from the previous reversal. The first sample counts as a reversal point with direction
+"up" (a joint that starts moving down confirms a reversal at once, at its first extremum).
+
+Per joint the state is ``(d, e, a)``: direction ±1, running extremum in direction d, reversal point; per sample::
+
+    e ← max(d·e, d·q)·d            (running extremum)
+    if d·e − d·q > h:  a ← e, d ← −d, e ← q   (reversal confirmed)
+    r = clip(q − a, −r_max, r_max)
+
+The offline encoder runs this segment-wise: between two reversals it is ``np.maximum.accumulate`` over the samples,
+and the next reversal is the first sample where the accumulated extremum leads q by more than h; only the loop over
+segments (one per reversal) and the 7 joints is in Python.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from scipy.signal import butter, filtfilt
+
+__all__ = ["R_MAX_DEG", "DEFAULT_DEADBAND_DEG", "TauRbdProvider", "rotational_displacement", "ReversalEncoder",
+           "feature_matrix", "feature_names", "feature_columns", "filtered_derivatives", "rbd_provider"]
+
+R_MAX_DEG = 10.0
+DEFAULT_DEADBAND_DEG = 0.05
+_FIRST_CHUNK = 64
+
+TauRbdProvider = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+"""``(q, qd, qdd) -> tau_rbd``, all ``[N, n]`` (rad, rad/s, rad/s², N·m): any rigid-body backbone."""
+
+
+def _encode_joint(q: np.ndarray, h: float, r_max: float, state: tuple[float, float, float]
+                  ) -> tuple[np.ndarray, tuple[float, float, float]]:
+    """One joint: r [N] (unclipped travel, clipped on return) and the final state (d, e, a)."""
+    d, e, a = state
+    n = q.shape[0]
+    r = np.empty(n)
+    i = 0
+    while i < n:
+        # search the next reversal from sample i in growing chunks (amortised O(segment length))
+        start, chunk, hit = i, _FIRST_CHUNK, -1
+        while start < n and hit < 0:
+            stop = min(n, start + chunk)
+            s = d * q[start:stop]
+            run = np.maximum.accumulate(np.maximum(s, d * e))        # running extremum (signed) at each sample
+            lead = np.flatnonzero(run - s > h)
+            if lead.size:
+                hit = start + int(lead[0])
+                stop = hit
+                run = run[:lead[0] + 1]
+            r[start:stop] = q[start:stop] - a
+            e = d * run[-1]
+            start, chunk = stop, 2 * chunk
+        if hit < 0:
+            break
+        a, d, e = e, -d, q[hit]                                        # reversal at the extremum e
+        r[hit] = q[hit] - a
+        i = hit + 1
+    return np.clip(r, -r_max, r_max), (d, e, a)
+
+
+def rotational_displacement(q: np.ndarray, deadband_deg: float = DEFAULT_DEADBAND_DEG, r_max_deg: float = R_MAX_DEG
+                            ) -> np.ndarray:
+    """r ``[N, n]`` [rad]: each joint's travel since its last confirmed direction reversal, clipped to ±r_max.
+
+    ``q [N, n]`` rad, sampled at the model's data rate; ``deadband_deg`` is the return travel that confirms a reversal
+    (see the module docstring). Equals :class:`ReversalEncoder` fed one sample at a time, bit for bit.
+    """
+    q = np.asarray(q, dtype=float)
+    if q.ndim != 2 or q.shape[0] == 0:
+        raise ValueError(f"rotational_displacement: q must be [N, n] with N >= 1, got shape {list(q.shape)}")
+    if deadband_deg < 0 or r_max_deg <= 0:
+        raise ValueError("rotational_displacement: reversal_deadband_deg must be >= 0 and r_max_deg > 0")
+    h, r_max = np.radians(deadband_deg), np.radians(r_max_deg)
+    out = np.empty_like(q)
+    for j in range(q.shape[1]):
+        out[:, j], _ = _encode_joint(q[:, j], h, r_max, (1.0, q[0, j], q[0, j]))
+    return out
+
+
+@dataclass
+class ReversalEncoder:
+    """Streaming form of :func:`rotational_displacement`: call :meth:`step` once per sample.
+
+    The state (``d, e, a`` per joint, see the module docstring) is a flat vector ``[3n]`` so a Drake System can keep it
+    as discrete state: :meth:`initial_state`, :meth:`step_state` are the pure functions the System uses.
+    """
+    n: int
+    deadband_deg: float = DEFAULT_DEADBAND_DEG
+    r_max_deg: float = R_MAX_DEG
+
+    def __post_init__(self) -> None:
+        self.h = float(np.radians(self.deadband_deg))
+        self.r_max = float(np.radians(self.r_max_deg))
+        self.state: np.ndarray | None = None
+
+    def initial_state(self, q0: np.ndarray) -> np.ndarray:
+        """State ``[d(n), e(n), a(n)]`` before the first sample ``q0`` (direction up, reversal point q0)."""
+        q0 = np.asarray(q0, dtype=float)
+        return np.concatenate([np.ones(self.n), q0, q0])
+
+    def step_state(self, state: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(r [n] rad, next state)`` for one sample ``q [n]``; ``state`` is not modified."""
+        n = self.n
+        d, e, a = state[:n], state[n:2 * n], state[2 * n:]
+        s = d * q
+        run = np.maximum(s, d * e)
+        rev = run - s > self.h
+        nxt = np.concatenate([d, d * run, a])                     # no reversal: d, e = extremum, a
+        if rev.any():
+            nxt[:n][rev] = -d[rev]
+            nxt[n:2 * n][rev] = q[rev]
+            nxt[2 * n:][rev] = d[rev] * run[rev]
+        r = np.clip(q - nxt[2 * n:], -self.r_max, self.r_max)
+        return r, nxt
+
+    def step(self, q: np.ndarray) -> np.ndarray:
+        """r [n] rad for the next sample ``q [n]`` rad (the first call initialises the state)."""
+        q = np.asarray(q, dtype=float)
+        if self.state is None:
+            self.state = self.initial_state(q)
+        r, self.state = self.step_state(self.state, q)
+        return r
+
+
+def feature_names(n: int = 7) -> list[str]:
+    """Names of the full feature vector vec(τ_RBD, q, q̇, q̈, r) (eq. 4.30), 5n entries."""
+    return [f"{k}{j + 1}" for k in ("tau_rbd", "q", "qd", "qdd", "r") for j in range(n)]
+
+
+def feature_columns(n: int, hybrid: bool, use_r: bool) -> np.ndarray:
+    """Columns of the full 5n feature vector a model uses: τ_RBD only when hybrid, r only when use_r."""
+    blocks = ([0] if hybrid else []) + [1, 2, 3] + ([4] if use_r else [])
+    return np.concatenate([np.arange(b * n, (b + 1) * n) for b in blocks])
+
+
+def feature_matrix(tau_rbd: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """vec(τ_RBD, q, q̇, q̈, r) per sample: ``[N, 5n]`` (N·m, rad, rad/s, rad/s², rad) — 35 features for n = 7."""
+    return np.concatenate([tau_rbd, q, qd, qdd, r], axis=-1)
+
+
+def filtered_derivatives(t: np.ndarray, q: np.ndarray, cutoff_hz: float, order: int = 1
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """q̇, q̈ ``[N, n]`` by central differences (``np.gradient`` on the time stamps) of q, each followed by a
+    zero-phase Butterworth low-pass (forward–backward, §4.1) of ``order`` at ``cutoff_hz``. Offline only."""
+    t = np.asarray(t, dtype=float)
+    rate = 1.0 / float(np.median(np.diff(t)))
+    if not 0 < cutoff_hz < rate / 2:
+        raise ValueError(f"derivative_cutoff_hz = {cutoff_hz} must lie in (0, {rate / 2:.1f}) Hz (Nyquist of the data)")
+    b, a = butter(order, cutoff_hz / (rate / 2))
+    qd = filtfilt(b, a, np.gradient(q, t, axis=0), axis=0)
+    qdd = filtfilt(b, a, np.gradient(qd, t, axis=0), axis=0)
+    return qd, qdd
+
+
+def rbd_provider(desc) -> TauRbdProvider:
+    """The default backbone τ_RBD = RNEA of ``desc`` (:func:`proprio.dynamics.inverse_dynamics`) plus its viscous and
+    Coulomb friction ``f_v q̇ + f_c sign(q̇)`` when the description has friction."""
+    from proprio.dynamics import inverse_dynamics
+    from proprio.kinematics import chain_geometry
+
+    geo = chain_geometry(desc)
+    fv = np.asarray(desc.friction_viscous) if desc.friction_viscous is not None else None
+    fc = np.asarray(desc.friction_coulomb) if desc.friction_coulomb is not None else None
+
+    def tau_rbd(q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        tau = inverse_dynamics(desc, q, qd, qdd, geometry=geo)
+        if fv is not None:
+            tau = tau + fv * qd + fc * np.sign(qd)
+        return tau
+
+    return tau_rbd

@@ -1,0 +1,288 @@
+"""Residual / standalone torque models of §4.2: MLP-7, LSTM-2, LSTM-2-FCL and a causal Transformer.
+
+Every model maps the full feature sequence ``x [B, T, 5n]`` = vec(τ_RBD, q, q̇, q̈, r) (N·m, rad, rad/s, rad/s², rad)
+to joint torques ``[B, T, n]`` N·m:
+
+* hybrid (eq. 4.29/4.30): ``τ_HYB = τ_RBD + f_NN(τ_RBD, q, q̇, q̈[, r])``;
+* standalone: ``τ = f_NN(q, q̇, q̈[, r])`` (no τ_RBD in, nothing added out).
+
+The column selection and the normalisation (eq. 4.33/4.34) live inside the model as buffers, so a saved model is
+self-contained. Deviation from the thesis, on purpose: the output is de-normalised with the mean/std of the network's
+own target (the residual τ − τ_RBD for hybrids) rather than with the τ statistics — a residual is 10–100× smaller
+than τ, and the τ scale would squeeze the network output into a tiny range.
+
+Sequence models are trained sequence-to-sequence (a prediction at every step of a window, each seeing only that
+window's past: LSTM by recurrence, Transformer by a causal mask); the thesis' sequence-to-one prediction at the end
+of a window is the last step. :meth:`HybridModel.step` is the streaming form (one sample, state carried) used by the
+residual System; it exists for MLP-7 (stateless) and the LSTMs. The Transformer has no streaming form here.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from proprio.io import atomic_path
+from proprio.learning.features import DEFAULT_DEADBAND_DEG, R_MAX_DEG, feature_columns
+
+__all__ = ["ARCHS", "ModelConfig", "HybridModel", "StreamingStepper", "save_model", "load_model"]
+
+ARCHS = ("mlp7", "lstm2", "lstm2_fcl", "transformer")
+_LABEL = {"mlp7": "MLP-7", "lstm2": "LSTM-2", "lstm2_fcl": "LSTM-2-FCL", "transformer": "Transformer"}
+_FORMAT = "proprio-hybrid-model/1"
+
+
+@dataclass
+class ModelConfig:
+    """Architecture and the data conventions a model needs at inference time (the ``model:`` config section)."""
+    arch: str = "lstm2_fcl"
+    hybrid: bool = True                 # τ_RBD as input and added to the output
+    use_r: bool = True                  # rotational displacement encoding as input
+    n_joints: int = 7
+    window: int = 100                   # T used in training (and windowed evaluation)
+    mlp_hidden: int = 100               # MLP-7: 35-100-1 per joint
+    lstm_hidden: int = 35               # LSTM-2: 35 → 35 → n
+    tf_d_model: int = 32                # Transformer (small)
+    tf_heads: int = 4
+    tf_layers: int = 2
+    tf_ff: int = 64
+    rate_hz: float = 75.0               # model sample rate (after decimation) [Hz]
+    reversal_deadband_deg: float = DEFAULT_DEADBAND_DEG
+    r_max_deg: float = R_MAX_DEG
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "ModelConfig":
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ValueError(f"model: unknown key(s) {unknown}; allowed: {sorted(known)}")
+        cfg = cls(**d)
+        if cfg.arch not in ARCHS:
+            raise ValueError(f"model: arch '{cfg.arch}' unknown; choose one of {list(ARCHS)}")
+        return cfg
+
+    @property
+    def n_inputs(self) -> int:
+        return len(feature_columns(self.n_joints, self.hybrid, self.use_r))
+
+    @property
+    def streamable(self) -> bool:
+        return self.arch != "transformer"
+
+    def label(self) -> str:
+        """Thesis-style name: "LSTM-2-FCL 100", "MLP-7 no r", "LSTM-2 100 no r, no τ_RBD" (standalone)."""
+        name = _LABEL[self.arch] + ("" if self.arch == "mlp7" else f" {self.window}")
+        tags = ([] if self.use_r else ["no r"]) + ([] if self.hybrid else ["no τ_RBD"])
+        return name + (" " + ", ".join(tags) if tags else "")
+
+
+class _MLP7(nn.Module):
+    """n parallel 35-100-1 ReLU nets, trained jointly; batched weights, one einsum per layer."""
+
+    def __init__(self, n_in: int, hidden: int, n_out: int):
+        super().__init__()
+        b1, b2 = 1 / math.sqrt(n_in), 1 / math.sqrt(hidden)      # nn.Linear's default init bounds
+        self.w1 = nn.Parameter(torch.empty(n_out, n_in, hidden).uniform_(-b1, b1))
+        self.b1 = nn.Parameter(torch.empty(n_out, hidden).uniform_(-b1, b1))
+        self.w2 = nn.Parameter(torch.empty(n_out, hidden).uniform_(-b2, b2))
+        self.b2 = nn.Parameter(torch.empty(n_out).uniform_(-b2, b2))
+
+    def forward(self, z: torch.Tensor) -> torch.Tensor:          # [..., F] -> [..., n]
+        h = torch.relu(torch.einsum("...f,jfh->...jh", z, self.w1) + self.b1)
+        return torch.einsum("...jh,jh->...j", h, self.w2) + self.b2
+
+
+class _LSTM2(nn.Module):
+    """Two stacked LSTM cells F → H → n (LSTM-2); with ``fcl`` a linear n → n layer on top (LSTM-2-FCL)."""
+
+    def __init__(self, n_in: int, hidden: int, n_out: int, fcl: bool):
+        super().__init__()
+        self.cell1 = nn.LSTM(n_in, hidden, batch_first=True)
+        self.cell2 = nn.LSTM(hidden, n_out, batch_first=True)
+        self.fcl = nn.Linear(n_out, n_out) if fcl else None
+        self.sizes = (hidden, hidden, n_out, n_out)               # h1, c1, h2, c2
+
+    def forward(self, z: torch.Tensor, state: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """``z [B, T, F]``, flat ``state [B, 2H + 2n]`` (zeros when None) → ``(y [B, T, n], state)``."""
+        if state is None:
+            state = z.new_zeros(z.shape[0], sum(self.sizes))
+        h1, c1, h2, c2 = (s.unsqueeze(0).contiguous() for s in torch.split(state, self.sizes, dim=-1))
+        y1, (h1, c1) = self.cell1(z, (h1, c1))
+        y2, (h2, c2) = self.cell2(y1, (h2, c2))
+        y = self.fcl(y2) if self.fcl is not None else y2
+        return y, torch.cat([h1[0], c1[0], h2[0], c2[0]], dim=-1)
+
+
+class _PositionalEncoding(nn.Module):
+    def __init__(self, d_model: int, max_len: int):
+        super().__init__()
+        pos = torch.arange(max_len).unsqueeze(1)
+        div = torch.exp(torch.arange(0, d_model, 2) * (-math.log(10000.0) / d_model))
+        pe = torch.zeros(max_len, d_model)
+        pe[:, 0::2] = torch.sin(pos * div)
+        pe[:, 1::2] = torch.cos(pos * div)
+        self.register_buffer("pe", pe, persistent=False)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x + self.pe[:x.shape[1]]
+
+
+class _CausalTransformer(nn.Module):
+    """Encoder-only Transformer with sinusoidal positions and a causal mask (each step attends to its past)."""
+
+    def __init__(self, n_in: int, n_out: int, cfg: ModelConfig):
+        super().__init__()
+        self.inp = nn.Linear(n_in, cfg.tf_d_model)
+        self.pos = _PositionalEncoding(cfg.tf_d_model, cfg.window)
+        layer = nn.TransformerEncoderLayer(cfg.tf_d_model, cfg.tf_heads, cfg.tf_ff, dropout=0.0, batch_first=True)
+        self.encoder = nn.TransformerEncoder(layer, cfg.tf_layers, enable_nested_tensor=False)
+        self.out = nn.Linear(cfg.tf_d_model, n_out)
+
+    def forward(self, z: torch.Tensor) -> torch.Tensor:
+        T = z.shape[1]
+        mask = nn.Transformer.generate_square_subsequent_mask(T, device=z.device, dtype=z.dtype)
+        return self.out(self.encoder(self.pos(self.inp(z)), mask=mask, is_causal=True))
+
+
+class HybridModel(nn.Module):
+    """A hybrid or standalone torque model; input the full features ``[B, T, 5n]``, output τ ``[B, T, n]`` N·m."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.cfg = cfg
+        n, f = cfg.n_joints, cfg.n_inputs
+        self.register_buffer("columns", torch.as_tensor(feature_columns(n, cfg.hybrid, cfg.use_r)))
+        self.register_buffer("x_mean", torch.zeros(f))
+        self.register_buffer("x_std", torch.ones(f))
+        self.register_buffer("y_mean", torch.zeros(n))
+        self.register_buffer("y_std", torch.ones(n))
+        if cfg.arch == "mlp7":
+            self.net: nn.Module = _MLP7(f, cfg.mlp_hidden, n)
+        elif cfg.arch in ("lstm2", "lstm2_fcl"):
+            self.net = _LSTM2(f, cfg.lstm_hidden, n, fcl=cfg.arch == "lstm2_fcl")
+        else:
+            self.net = _CausalTransformer(f, n, cfg)
+
+    # -- normalisation (eq. 4.33, 4.34), computed on the training split -------------------------------------
+    def set_normalisation(self, features: np.ndarray, tau: np.ndarray) -> None:
+        """Mean/std of the used input columns and of the target (τ − τ_RBD if hybrid, else τ) over the training
+        samples ``features [..., 5n]``, ``tau [..., n]``. A constant column gets std 1."""
+        n = self.cfg.n_joints
+        x = features.reshape(-1, features.shape[-1])
+        y = tau.reshape(-1, n) - (x[:, :n] if self.cfg.hybrid else 0.0)
+        x = x[:, self.columns.cpu().numpy()]
+        std = lambda a: np.where(a.std(0) > 1e-9, a.std(0), 1.0)  # noqa: E731
+        for name, val in (("x_mean", x.mean(0)), ("x_std", std(x)), ("y_mean", y.mean(0)), ("y_std", std(y))):
+            buf = getattr(self, name)
+            buf.copy_(torch.as_tensor(val, dtype=buf.dtype))
+
+    def _normalise(self, x: torch.Tensor) -> torch.Tensor:
+        return (x[..., self.columns] - self.x_mean) / self.x_std
+
+    def _output(self, y: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        tau = y * self.y_std + self.y_mean
+        return tau + x[..., :self.cfg.n_joints] if self.cfg.hybrid else tau
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """τ ``[B, T, n]`` for ``x [B, T, 5n]``; sequence models start from a zero state (one fresh window)."""
+        z = self._normalise(x)
+        y = self.net(z)[0] if isinstance(self.net, _LSTM2) else self.net(z)
+        return self._output(y, x)
+
+    # -- streaming ----------------------------------------------------------------------------------------------
+    @property
+    def state_size(self) -> int:
+        """Length of the flat recurrent state (0 for MLP-7)."""
+        return sum(self.net.sizes) if isinstance(self.net, _LSTM2) else 0
+
+    def run(self, x: torch.Tensor, state: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Streaming over ``x [B, T, 5n]`` from ``state [B, state_size]`` (zeros when None) → ``(τ, final state)``.
+        One call over a whole recording equals T calls with one sample each."""
+        if not self.cfg.streamable:
+            raise ValueError(f"{self.cfg.label()}: a Transformer has no streaming form; use windowed evaluation")
+        z = self._normalise(x)
+        if isinstance(self.net, _LSTM2):
+            y, state = self.net(z, state)
+        else:
+            y, state = self.net(z), x.new_zeros(x.shape[0], 0)
+        return self._output(y, x), state
+
+
+def save_model(model: HybridModel, path: str | Path, extra: dict[str, Any] | None = None) -> Path:
+    """Write ``{format, config, state_dict, extra}`` atomically with ``torch.save`` (weights as float32/64 tensors,
+    everything else plain Python, so :func:`load_model` can use ``weights_only=True``). ``extra``: JSON-like info
+    (data config, backbone, metrics)."""
+    payload = {"format": _FORMAT, "config": asdict(model.cfg), "extra": extra or {},
+               "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()}}
+    with atomic_path(path) as tmp:
+        torch.save(payload, tmp)
+    return Path(path)
+
+
+def load_model(path: str | Path, dtype: torch.dtype = torch.float32) -> tuple[HybridModel, dict[str, Any]]:
+    """``(model in eval mode, extra)`` from a file written by :func:`save_model` (``weights_only=True``)."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such model file")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises several types for a corrupt / foreign file
+        raise ValueError(f"{path}: not a readable model file ({exc})") from exc
+    if not isinstance(payload, dict) or payload.get("format") != _FORMAT:
+        raise ValueError(f"{path}: not a proprio hybrid model (format tag missing)")
+    model = HybridModel(ModelConfig.from_dict(payload["config"]))
+    model.load_state_dict(payload["state_dict"])
+    return model.to(dtype).eval(), payload.get("extra", {})
+
+
+class StreamingStepper:
+    """The same model as plain float64 numpy for one-sample-at-a-time inference (≈10× less overhead per sample than
+    a torch call). ``step(x [5n], state [state_size]) -> (τ [n], state)``; equals :meth:`HybridModel.run` to
+    rounding (checked in the tests)."""
+
+    def __init__(self, model: HybridModel):
+        if not model.cfg.streamable:
+            raise ValueError(f"{model.cfg.label()}: a Transformer has no streaming form")
+        sd = {k: v.detach().cpu().double().numpy() for k, v in model.state_dict().items()}
+        self.n, self.hybrid = model.cfg.n_joints, model.cfg.hybrid
+        self.state_size = model.state_size
+        self.columns = sd["columns"].astype(int)
+        self.x_mean, self.x_std, self.y_mean, self.y_std = sd["x_mean"], sd["x_std"], sd["y_mean"], sd["y_std"]
+        self.arch = model.cfg.arch
+        if self.arch == "mlp7":
+            self.w1, self.b1, self.w2, self.b2 = sd["net.w1"], sd["net.b1"], sd["net.w2"], sd["net.b2"]
+        else:
+            self.cells = [(sd[f"net.cell{i}.weight_ih_l0"], sd[f"net.cell{i}.weight_hh_l0"],
+                           sd[f"net.cell{i}.bias_ih_l0"] + sd[f"net.cell{i}.bias_hh_l0"]) for i in (1, 2)]
+            self.sizes = model.net.sizes
+            self.fcl = (sd["net.fcl.weight"], sd["net.fcl.bias"]) if "net.fcl.weight" in sd else None
+
+    @staticmethod
+    def _cell(x: np.ndarray, h: np.ndarray, c: np.ndarray, w_ih: np.ndarray, w_hh: np.ndarray, b: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray]:
+        """One LSTM cell step (eq. 3.66–3.71), PyTorch gate order i, f, g, o."""
+        a = w_ih @ x + w_hh @ h + b
+        k = h.shape[0]
+        s = 1.0 / (1.0 + np.exp(-a))
+        c = s[k:2 * k] * c + s[:k] * np.tanh(a[2 * k:3 * k])
+        return s[3 * k:] * np.tanh(c), c
+
+    def step(self, x: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        z = (x[self.columns] - self.x_mean) / self.x_std
+        if self.arch == "mlp7":
+            h = np.maximum(np.einsum("f,jfh->jh", z, self.w1) + self.b1, 0.0)
+            y = np.einsum("jh,jh->j", h, self.w2) + self.b2
+        else:
+            k1, k2 = self.sizes[0], self.sizes[2]
+            h1, c1, h2, c2 = state[:k1], state[k1:2 * k1], state[2 * k1:2 * k1 + k2], state[2 * k1 + k2:]
+            h1, c1 = self._cell(z, h1, c1, *self.cells[0])
+            h2, c2 = self._cell(h1, h2, c2, *self.cells[1])
+            y = h2 if self.fcl is None else self.fcl[0] @ h2 + self.fcl[1]
+            state = np.concatenate([h1, c1, h2, c2])
+        tau = y * self.y_std + self.y_mean
+        return (tau + x[:self.n] if self.hybrid else tau), state

@@ -1,0 +1,181 @@
+"""Training loop of §4.4: AdamW (lr 1e-3), ReduceLROnPlateau (patience 2), up to 100 epochs, early stopping on the
+validation loss, a checkpoint after every epoch and resume after an interruption.
+
+Loss: the mean squared error of the model output normalised by the target std (eq. 4.38 in normalised units, so
+every joint weighs the same; evaluation reports N·m²). The learning-rate scheduler and early stopping watch the
+validation loss; the weights of the best validation epoch are restored at the end.
+
+The checkpoint (written atomically after each epoch) holds the model, optimizer, scheduler, epoch, best weights,
+history and every RNG state (torch global, the batch-order generator, CUDA), so a resumed run continues exactly where
+the interrupted one stopped and ends with the same weights as an uninterrupted run (on CPU, bit for bit).
+"""
+from __future__ import annotations
+
+import copy
+import time
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from proprio.io import atomic_path
+from proprio.learning.datasets import Split, Windows
+from proprio.learning.models import HybridModel
+
+__all__ = ["TrainConfig", "TrainResult", "train_model", "pick_device"]
+
+
+@dataclass
+class TrainConfig:
+    """Optimiser and schedule settings (the ``train:`` config section)."""
+    lr: float = 1e-3
+    weight_decay: float = 1e-2
+    max_epochs: int = 100
+    batch_size: int = 32            # subsequences per batch
+    lr_patience: int = 2            # ReduceLROnPlateau patience [epochs]
+    lr_factor: float = 0.1
+    early_stop_patience: int = 6    # epochs without a better validation loss
+    seed: int = 0
+    device: str = "auto"            # auto | cpu | cuda
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any] | None) -> "TrainConfig":
+        d = dict(d or {})
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ValueError(f"train: unknown key(s) {unknown}; allowed: {sorted(known)}")
+        cfg = cls(**d)
+        if cfg.max_epochs < 1 or cfg.batch_size < 1:
+            raise ValueError("train: max_epochs and batch_size must be >= 1")
+        if cfg.device not in ("auto", "cpu", "cuda"):
+            raise ValueError(f"train: device '{cfg.device}' must be auto, cpu or cuda")
+        return cfg
+
+
+@dataclass
+class TrainResult:
+    history: list[dict[str, float]] = field(default_factory=list)   # per epoch: epoch, train, val, lr, seconds
+    best_epoch: int = -1
+    stopped_early: bool = False
+
+    @property
+    def seconds_per_epoch(self) -> float:
+        return float(np.mean([h["seconds"] for h in self.history])) if self.history else float("nan")
+
+
+def pick_device(name: str = "auto") -> torch.device:
+    """CUDA when present (``auto``), else CPU."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise ValueError("train: device 'cuda' requested but no CUDA device is available")
+    return torch.device(name)
+
+
+def _tensors(w: Windows, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+    return (torch.as_tensor(w.features, dtype=torch.float32, device=device),
+            torch.as_tensor(w.tau, dtype=torch.float32, device=device))
+
+
+def _loss(model: HybridModel, x: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
+    return (((model(x) - tau) / model.y_std) ** 2).mean()
+
+
+@torch.no_grad()
+def _eval_loss(model: HybridModel, x: torch.Tensor, tau: torch.Tensor, batch: int) -> float:
+    model.eval()
+    total = sum(_loss(model, x[i:i + batch], tau[i:i + batch]).item() * len(x[i:i + batch])
+                for i in range(0, len(x), batch))
+    return total / max(len(x), 1)
+
+
+def _fingerprint(model: HybridModel, cfg: TrainConfig, split: Split) -> dict[str, Any]:
+    return {"model": asdict(model.cfg), "train": {k: v for k, v in asdict(cfg).items() if k != "device"},
+            "windows": [len(split.train), len(split.val)]}
+
+
+def train_model(model: HybridModel, split: Split, cfg: TrainConfig, checkpoint: str | Path | None = None,
+                progress: bool = True, on_epoch_end: Callable[[int, dict[str, float]], None] | None = None
+                ) -> TrainResult:
+    """Set the normalisation from ``split.train`` and train ``model`` in place; returns the history.
+
+    ``checkpoint``: file written after every epoch; if it exists (same model/train config and data size) training
+    resumes from it — after the last epoch it only restores the best weights. ``on_epoch_end(epoch, record)`` is
+    called after each epoch's checkpoint (tests use it to simulate a kill).
+    """
+    device = pick_device(cfg.device)
+    torch.manual_seed(cfg.seed)
+    model.set_normalisation(split.train.features, split.train.tau)
+    model.to(device=device, dtype=torch.float32)
+    x_tr, y_tr = _tensors(split.train, device)
+    x_va, y_va = _tensors(split.val if len(split.val) else split.train, device)
+    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, patience=cfg.lr_patience, factor=cfg.lr_factor)
+    gen = torch.Generator().manual_seed(cfg.seed)
+    result, start, best_val, best_state, bad = TrainResult(), 0, float("inf"), None, 0
+    fingerprint = _fingerprint(model, cfg, split)
+
+    ckpt = Path(checkpoint) if checkpoint is not None else None
+    if ckpt is not None and ckpt.exists():
+        state = torch.load(ckpt, map_location=device, weights_only=True)
+        if state.get("fingerprint") != fingerprint:
+            raise ValueError(f"{ckpt}: checkpoint belongs to a different model/config/dataset; remove it or choose "
+                             "another output path")
+        model.load_state_dict(state["model"])
+        opt.load_state_dict(state["optimizer"])
+        sched.load_state_dict(state["scheduler"])
+        gen.set_state(state["rng_batches"])
+        torch.set_rng_state(state["rng_torch"])
+        if device.type == "cuda" and "rng_cuda" in state:
+            torch.cuda.set_rng_state(state["rng_cuda"])
+        start, best_val, bad = state["epoch"] + 1, state["best_val"], state["bad_epochs"]
+        best_state, result = state["best_state"], TrainResult(**state["result"])
+
+    bar = tqdm(range(start, cfg.max_epochs), desc=model.cfg.label(), disable=not progress, unit="epoch",
+               initial=start, total=cfg.max_epochs)
+    for epoch in bar:
+        if result.stopped_early:
+            break
+        t0 = time.perf_counter()
+        model.train()
+        perm = torch.randperm(len(x_tr), generator=gen).to(device)
+        total = 0.0
+        for i in range(0, len(perm), cfg.batch_size):
+            idx = perm[i:i + cfg.batch_size]
+            opt.zero_grad(set_to_none=True)
+            loss = _loss(model, x_tr[idx], y_tr[idx])
+            loss.backward()
+            opt.step()
+            total += loss.item() * len(idx)
+        val = _eval_loss(model, x_va, y_va, 4 * cfg.batch_size)
+        sched.step(val)
+        record = {"epoch": epoch, "train": total / len(perm), "val": val, "lr": opt.param_groups[0]["lr"],
+                  "seconds": time.perf_counter() - t0}
+        result.history.append(record)
+        if val < best_val:
+            best_val, bad, result.best_epoch = val, 0, epoch
+            best_state = {k: v.detach().clone() for k, v in model.state_dict().items()}
+        else:
+            bad += 1
+        result.stopped_early = bad >= cfg.early_stop_patience
+        bar.set_postfix(train=f"{record['train']:.4f}", val=f"{val:.4f}", lr=f"{record['lr']:.0e}")
+        if ckpt is not None:
+            payload = {"fingerprint": fingerprint, "epoch": epoch, "model": model.state_dict(),
+                       "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
+                       "rng_batches": gen.get_state(), "rng_torch": torch.get_rng_state(), "best_val": best_val,
+                       "bad_epochs": bad, "best_state": best_state, "result": copy.deepcopy(asdict(result))}
+            if device.type == "cuda":
+                payload["rng_cuda"] = torch.cuda.get_rng_state()
+            with atomic_path(ckpt) as tmp:
+                torch.save(payload, tmp)
+        if on_epoch_end is not None:
+            on_epoch_end(epoch, record)
+    bar.close()
+    if best_state is not None:
+        model.load_state_dict(best_state)
+    model.to("cpu").eval()
+    return result

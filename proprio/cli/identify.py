@@ -1,0 +1,157 @@
+"""``proprio identify`` (rigid-body backbone from recordings) and ``proprio excite`` (optimal excitation design)."""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from proprio.cli import UserError
+
+__all__ = ["register", "demo_identification", "load_training_data"]
+
+
+def load_training_data(paths: list[str | Path], robot=None, trim: int = 0
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list]:
+    """Concatenate ``q, qd, qdd, tau`` of Recording files (``.npz``; FloBaRoID LWR files are detected by their
+    ``positions/torques/times`` keys), dropping ``trim`` samples at both ends of each (filter start-up).
+    Recordings without ``qd``/``qdd`` get them by the §4.1 preprocessing chain (central differences +
+    Butterworth)."""
+    from proprio.identification.preprocessing import PreprocessConfig, differentiate
+    from proprio.identification.excitation import load_excitation_config
+    from proprio.recording import load_recording
+
+    recs = [load_recording(p, robot) for p in paths]
+    return (*_stack(recs, trim, PreprocessConfig.from_dict(load_excitation_config()["preprocessing"]),
+                    differentiate), recs)
+
+
+def _stack(recs, trim, cfg, differentiate):
+    parts = {k: [] for k in ("q", "qd", "qdd", "tau")}
+    for rec in recs:
+        if rec.n_samples <= 2 * trim:
+            raise UserError(f"recording with {rec.n_samples} samples is shorter than 2 × --trim {trim}")
+        qd = rec.qd if rec.qd is not None else differentiate(rec.t, rec.q, cfg)
+        qdd = rec.qdd if rec.qdd is not None else differentiate(rec.t, qd, cfg)
+        sl = slice(trim, rec.n_samples - trim)
+        for k, v in (("q", rec.q), ("qd", qd), ("qdd", qdd), ("tau", rec.tau)):
+            parts[k].append(np.asarray(v)[sl])
+    return tuple(np.concatenate(parts[k]) for k in ("q", "qd", "qdd", "tau"))
+
+
+def demo_identification(train_recs: list, validate_recs: list, robot, out_dir: str | Path,
+                        method: str = "ols", trim: int = 100, offsets: bool = True,
+                        coulomb_velocity_scale: float = 0.02):
+    """Identify ``robot`` (a RobotDescription: kinematics + a-priori inertials) on Recording objects, validate on
+    others, save ``out_dir/identified_model.npz`` and return ``(model, table_text)`` (Table 4.4-style)."""
+    from proprio.identification.estimators import identify, torque_error_table
+    from proprio.identification.excitation import load_excitation_config
+    from proprio.identification.model_io import save_model
+    from proprio.identification.preprocessing import PreprocessConfig, differentiate
+
+    cfg = PreprocessConfig.from_dict(load_excitation_config()["preprocessing"])
+    q, qd, qdd, tau = _stack(train_recs, trim, cfg, differentiate)
+    model = identify(robot, q, qd, qdd, tau, method, coulomb_velocity_scale=coulomb_velocity_scale,
+                     offsets=offsets)
+    text = _tables(model, (q, qd, qdd, tau), _stack(validate_recs, trim, cfg, differentiate) if validate_recs
+                   else None, torque_error_table)
+    out = Path(out_dir)
+    save_model(model, out / "identified_model.npz")
+    return model, text
+
+
+def _tables(model, train, validate, torque_error_table) -> str:
+    parts = [torque_error_table(train[3], model.torque(*train[:3]), "training (Table 4.4 layout)")[0]]
+    if validate is not None:
+        parts.append(torque_error_table(validate[3], model.torque(*validate[:3]), "validation")[0])
+    return "\n\n".join(parts)
+
+
+def _identify(args: argparse.Namespace) -> int:
+    from proprio.description import load_robot
+    from proprio.identification.estimators import identify, torque_error_table
+    from proprio.identification.model_io import save_model
+
+    robot = load_robot(args.robot)
+    q, qd, qdd, tau, _ = load_training_data(args.train, robot, args.trim)
+    model = identify(robot, q, qd, qdd, tau, args.method, coulomb_velocity_scale=args.coulomb_velocity_scale,
+                     offsets=args.offsets)
+    validate = load_training_data(args.validate, robot, args.trim)[:4] if args.validate else None
+    print(f"{args.method.upper()} on {q.shape[0]} samples: {model.phi_b.size} parameters "
+          f"({model.base.n_base} base{' + offsets' if args.offsets else ''})")
+    if args.show_parameters:
+        print(model.parameter_table())
+    print(_tables(model, (q, qd, qdd, tau), validate, torque_error_table))
+    save_model(model, args.out)
+    print(f"wrote {args.out}")
+    return 0
+
+
+def _excite(args: argparse.Namespace) -> int:
+    from proprio.description import load_robot
+    from proprio.identification.excitation import (
+        check_collisions, load_excitation_config, optimise_excitation, protocol_trajectory)
+    from proprio.io import atomic_path
+
+    robot = load_robot(args.robot)
+    overrides: dict = {}
+    if args.starts is not None:
+        overrides.setdefault("optimisation", {})["starts"] = args.starts
+    if args.seed is not None:
+        overrides.setdefault("optimisation", {})["seed"] = args.seed
+    cfg = load_excitation_config(overrides)
+    result = optimise_excitation(robot, cfg, progress=True)
+    print(f"cond(K_b) = {result.cond:.1f} (thesis: 68); per start: "
+          + ", ".join(f"{c:.1f}" for c in result.start_conds))
+    period_t = np.arange(0.0, result.trajectory.period, 1.0 / cfg["collision"]["check_rate_hz"])
+    hits = check_collisions(robot, result.trajectory.evaluate(period_t)[0])
+    if hits:
+        k, a, b = hits[0]
+        print(f"WARNING: {len(hits)} self-collision samples, first at t = {period_t[k]:.2f} s ({a} / {b})")
+    else:
+        print(f"collision check: free ({period_t.size} samples)")
+    pr = cfg["protocol"]
+    t, q, qd, qdd = protocol_trajectory(result.trajectory, pr["speed_factors"], pr["rate_hz"])
+    meta = {"robot": robot.name, "cond": result.cond, "start_conds": result.start_conds, "solver": result.solver,
+            "repetitions": pr["repetitions"], "speed_factors": pr["speed_factors"], "collisions": len(hits),
+            "config": cfg}
+    with atomic_path(args.out, suffix=".npz") as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, t=t, q=q, qd=qd, qdd=qdd, a=result.trajectory.a, b=result.trajectory.b,
+                     omega_f=result.trajectory.omega_f, meta=np.array(json.dumps(meta)))
+    print(f"wrote {args.out}: {t.size} samples, {t[-1]:.1f} s per repetition × {pr['repetitions']}")
+    return 0
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "identify", help="identify the rigid-body backbone (base parameters) from recordings",
+        description="Identify base inertial + friction parameters (thesis §4.1) by OLS, weighted LS or a "
+                    "physically consistent SDP; print Table 4.4-style per-joint errors on training and validation "
+                    "data and save the model (.npz).")
+    p.add_argument("--robot", required=True, help="robot description: built-in name, YAML, URDF or directory "
+                                                  "(kinematics + a-priori inertials)")
+    p.add_argument("--train", nargs="+", required=True, metavar="REC", help="training recordings (.npz; FloBaRoID "
+                                                                            "LWR files accepted)")
+    p.add_argument("--validate", nargs="*", default=[], metavar="REC", help="validation recordings")
+    p.add_argument("--method", choices=("ols", "wls", "sdp"), default="ols", help="estimator (default ols)")
+    p.add_argument("--out", required=True, help="output model file (.npz)")
+    p.add_argument("--trim", type=int, default=100, help="samples dropped at both ends of every recording "
+                                                         "(filter start-up; default 100)")
+    p.add_argument("--offsets", action="store_true", help="also fit a constant torque offset per joint")
+    p.add_argument("--coulomb-velocity-scale", type=float, default=0.02,
+                   help="[rad/s] Coulomb friction as tanh(qd/scale); 0 = sign(qd) (default 0.02)")
+    p.add_argument("--show-parameters", action="store_true", help="print the base-parameter table (Table 4.6)")
+    p.set_defaults(func=_identify)
+
+    e = subparsers.add_parser(
+        "excite", help="design an optimal Fourier excitation trajectory (min cond(K_b))",
+        description="Optimise a finite Fourier series trajectory (L = 5, w_f = 0.1 pi, thesis eq. 4.9-4.19) for "
+                    "cond(K_b) with SNOPT from several random starts, check it for self-collisions and write the "
+                    "§4.1 protocol (period concatenated at decreasing speed) as an .npz with t, q, qd, qdd.")
+    e.add_argument("--robot", default="iiwa14_nominal", help="robot description (default iiwa14_nominal)")
+    e.add_argument("--out", required=True, help="output trajectory file (.npz)")
+    e.add_argument("--starts", type=int, default=None, help="number of random starts (config default 4)")
+    e.add_argument("--seed", type=int, default=None, help="random seed of the starts (config default 0)")
+    e.set_defaults(func=_excite)

@@ -1,0 +1,122 @@
+"""``proprio train``, ``proprio evaluate`` and ``proprio train-grid``: hybrid models (§4.2, §4.4, §5.1).
+
+The work is done by :mod:`proprio.learning.experiments`; these commands only parse arguments and load Recordings.
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from proprio.cli import UserError
+from proprio.recording import Recording, load_recording
+
+__all__ = ["register"]
+
+_BACKBONE_HELP = ("τ_RBD backbone: a built-in robot name (iiwa14_identified, iiwa14_nominal), a robot YAML/URDF/folder "
+                  "(RNEA + its friction) or an identified-model .npz from identification. Default: the 'robot' in the "
+                  "first Recording's meta")
+
+
+def _load(paths: list[str]) -> tuple[list[Recording], list[str]]:
+    recs = [load_recording(p) for p in paths]
+    return recs, [Path(p).stem for p in paths]
+
+
+def _backbone(spec: str | None, recs: list[Recording]):
+    from proprio.learning.experiments import resolve_backbone
+    spec = spec or recs[0].meta.get("robot")
+    if not spec:
+        raise UserError("--backbone is required: the Recording's meta names no robot")
+    try:
+        return resolve_backbone(spec)
+    except FileNotFoundError as exc:
+        raise UserError(f"--backbone {spec}: {exc}") from exc
+
+
+def _train(args: argparse.Namespace) -> int:
+    import torch
+
+    from proprio.learning.evaluation import format_table
+    from proprio.learning.experiments import load_config, train_from_config
+    torch.set_num_threads(args.threads)
+    cfg = load_config(args.config)
+    recs, names = _load(args.data)
+    tests, tnames = _load(args.test_data or [])
+    model, result, rows = train_from_config(cfg, recs, _backbone(args.backbone, recs), args.out, tests,
+                                            names + tnames)
+    print(format_table(rows))
+    print(f"saved {args.out} (best epoch {result.best_epoch + 1} of {len(result.history)}, "
+          f"{result.seconds_per_epoch:.2f} s/epoch)")
+    return 0
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    import torch
+
+    from proprio.learning.experiments import evaluate_saved
+    torch.set_num_threads(args.threads)
+    recs, names = _load(args.data)
+    tests, tnames = _load(args.test_data or [])
+    backbone = _backbone(args.backbone, recs) if args.backbone else None
+    print(evaluate_saved(args.model, recs, tests, backbone, names + tnames))
+    return 0
+
+
+def _train_grid(args: argparse.Namespace) -> int:
+    import torch
+
+    from proprio.learning.experiments import load_config, train_grid
+    torch.set_num_threads(args.threads)
+    cfg = load_config(args.config)
+    if args.epochs is not None:
+        cfg["train"] = {**cfg.get("train", {}), "max_epochs": args.epochs}
+    recs, names = _load(args.data)
+    tests, tnames = _load(args.test_data or [])
+    _, text = train_grid(cfg, recs, _backbone(args.backbone, recs), args.out, tests, names + tnames)
+    print(text)
+    print(f"wrote {Path(args.out) / 'table.txt'}, grid.json, grid.png and one .pt per model")
+    return 0
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--data", nargs="+", required=True, metavar="REC",
+                   help="training Recordings (.npz; LWR 4+ files are converted); split 80/20 by subsequences unless "
+                        "--test-data is given")
+    p.add_argument("--test-data", nargs="+", metavar="REC", help="held-out Recordings used as the whole test split")
+    p.add_argument("--backbone", metavar="SPEC", help=_BACKBONE_HELP)
+    p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "train", help="train one hybrid/standalone torque model (MLP-7, LSTM-2, LSTM-2-FCL, Transformer)",
+        description="Train a model on Recordings with the §4.4 protocol (decimation, 80/20 split by subsequences, "
+                    "AdamW + ReduceLROnPlateau, early stopping). Checkpoints after every epoch to OUT.ckpt; rerun the "
+                    "same command to resume after an interruption. Prints the Table 5.3 layout.")
+    p.add_argument("--config", default="train_lstm2_fcl",
+                   help="YAML config path or built-in name (train_lstm2_fcl, train_lstm2, train_mlp7, "
+                        "train_transformer, train_demo; default train_lstm2_fcl)")
+    _common(p)
+    p.add_argument("--out", required=True, metavar="MODEL", help="model file to write (.pt)")
+    p.set_defaults(func=_train)
+
+    p = subparsers.add_parser(
+        "evaluate", help="per-joint train/test MSE of a saved model (Table 5.3 layout)",
+        description="Re-create the split stored in MODEL on the given Recordings and print per-joint MSE [N·m²] of "
+                    "the RBD backbone, the model (windowed: fresh state per window of T) and, for MLP/LSTM, streaming "
+                    "inference (state carried over each recording).")
+    p.add_argument("--model", required=True, help="model file written by 'proprio train'")
+    _common(p)
+    p.set_defaults(func=_evaluate)
+
+    p = subparsers.add_parser(
+        "train-grid", help="reproduce the §5.1 ablation grid (Table 5.3) in one call",
+        description="Train every architecture × (hybrid, with r) variant of the grid config on one split and write "
+                    "OUT/table.txt (Table 5.3 layout + windowed vs streaming), grid.json, grid.png and the models. "
+                    "Finished models are reused and interrupted ones resume, so a rerun continues the grid.")
+    p.add_argument("--config", default="train_grid",
+                   help="grid config path or built-in name (train_grid, train_grid_lwr4; default train_grid)")
+    _common(p)
+    p.add_argument("--epochs", type=int, help="override train.max_epochs")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.set_defaults(func=_train_grid)

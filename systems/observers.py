@@ -1,0 +1,309 @@
+"""External-wrench observers at the flange, from joint torques (§3.1 eq. 3.8–3.14; De Luca's momentum observer).
+
+Conventions (DESIGN.md): the measured link-side torque is ``τ_J = τ_rbd(q, q̇, q̈) + τ_int − Jᵀ f_ext`` where
+``τ_int`` is what a model adds to the rigid body (link friction, a learned residual) and ``f_ext`` is the wrench
+the environment exerts ON the robot at the flange, world frame, order ``[fx, fy, fz, mx, my, mz]`` (N, N·m). So
+the external joint torque is
+
+    τ_ext = Jᵀ f_ext = τ_dyn − τ_J,        τ_dyn = τ_rbd + τ_int                      (eq. 3.10)
+    f_ext = J⁻ᵀ τ_ext                                                                   (eq. 3.11–3.12)
+
+Two ways to get τ_ext:
+
+* :class:`JacobianWrenchObserver` — direct: τ_ext = τ_dyn − τ_J with τ_dyn from a dynamics model fed with filtered
+  (q, q̇, q̈). Needs accelerations, no memory, no lag.
+* :class:`MomentumObserver` — De Luca's generalised-momentum residual (needs no q̈). With p = M(q) q̇ and
+  Ṁ = C + Cᵀ, the link dynamics give ṗ = τ_J − τ_int + τ_ext + τ_g(q) + C(q, q̇)ᵀq̇, so the residual
+
+      r = K_O ( p(t) − p(0) − ∫₀ᵗ (τ_J − τ_int + τ_g + Cᵀq̇ + r) ds )    obeys    ṙ = K_O (τ_ext − r),
+
+  a first-order low-pass of τ_ext with time constant 1/K_O per joint. τ_g is Drake's gravity generalised force
+  (``CalcGravityGeneralizedForces``, the *applied* gravity torque, = −g(q) of eq. 3.2) and Cᵀq̇ = ∂T/∂q is computed
+  as Ṁq̇ − Cq̇ (a central difference of M along q̇ plus Drake's ``CalcBiasTerm``).
+
+The Jacobian pseudo-inverse (eq. 3.12, the arm is redundant: 7 equations, 6 or 3 unknowns) is a weighted,
+adaptively damped least-squares solve of ``Jᵀ w = τ_ext``:
+
+    w = argmin ‖W^½ (Jᵀ w − τ_ext)‖² + λ² ‖w‖²,   λ² = λ_max² (1 − (σ_min/ε)²) if σ_min < ε else 0,
+
+with σ_min the smallest singular value of ``W^½ Jᵀ``. Away from singularities (σ_min ≥ ε) it is the exact weighted
+least-squares solution; near them the damping bounds the output and the ``unreliable`` flag is raised: a torque error
+δτ maps to a wrench error of up to ‖δτ‖/σ_min (ε = 0.02 → 0.1 N·m of torque error can give 5 N). Our Jacobian rows are
+[ω; v] (Drake's order), so the unknown of ``[J_v; J_ω]ᵀ w = τ`` is ``w = [f; m]``. Force-only mode (3-D) solves with
+J_v alone and reports zero moment: a payload exerts no moment about its own CoM, so put the contact point there.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import LeafSystem, ValueProducer
+from scipy.signal import lfilter
+
+from proprio.description import RobotDescription
+from proprio.dynamics import inverse_dynamics
+from proprio.kinematics import ChainGeometry, chain_geometry, point_jacobian
+from proprio.plant import DrakeRobot
+
+__all__ = ["WrenchMapping", "wrench_from_joint_torque", "jacobian_wrench", "JacobianWrenchObserver",
+           "momentum_terms", "DrakeArm", "momentum_observer", "MomentumObserver"]
+
+_VW = [3, 4, 5, 0, 1, 2]   # rows of our [ω; v] Jacobian in [v; ω] order, so that Jᵀ[f; m] = τ
+
+
+@dataclass(frozen=True)
+class WrenchMapping:
+    """How joint torques are mapped to a Cartesian wrench (eq. 3.12).
+
+    Attributes:
+        force_only: solve for the 3-D force only (moment reported as 0); right when the contact point is the CoM of
+            a payload or a point contact.
+        sigma_threshold: ε — below this smallest singular value of ``W^½ Jᵀ`` the estimate is flagged unreliable
+            and damping starts [m in force-only mode; mixed m / 1 for 6-D since J_v is in m and J_ω unitless].
+        damping_max: λ_max, the damping reached at an exact singularity (same units as the singular values).
+        joint_weights: per-joint weights W (e.g. 1/σ² of each torque sensor's noise); None = all ones.
+        contact_point: the point where the wrench acts, in the flange frame [m] (default: the flange origin).
+    """
+    force_only: bool = False
+    sigma_threshold: float = 0.02
+    damping_max: float = 0.02
+    joint_weights: tuple[float, ...] | None = None
+    contact_point: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        if not self.sigma_threshold > 0:
+            raise ValueError(f"WrenchMapping.sigma_threshold must be > 0, got {self.sigma_threshold}")
+        if not self.damping_max >= 0:
+            raise ValueError(f"WrenchMapping.damping_max must be >= 0, got {self.damping_max}")
+        if self.joint_weights is not None and not np.all(np.asarray(self.joint_weights) > 0):
+            raise ValueError(f"WrenchMapping.joint_weights must all be > 0, got {self.joint_weights}")
+
+
+def wrench_from_joint_torque(jac: np.ndarray, tau_ext: np.ndarray, mapping: WrenchMapping = WrenchMapping()
+                             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Solve ``Jᵀ w = τ_ext`` for the wrench, batched (eq. 3.12 with a weighted, damped pseudo-inverse).
+
+    Args:
+        jac: geometric Jacobians ``[N,6,n]`` of the contact point, rows [ω; v], world frame.
+        tau_ext: external joint torques ``[N,n]`` [N·m] (= τ_dyn − τ_J).
+        mapping: solver options.
+
+    Returns:
+        ``wrench [N,6]`` = [f; m] (N, N·m; moment 0 in force-only mode), ``manipulability [N]`` = ∏σ_i =
+        √det(J W Jᵀ) of the solved system (Yoshikawa), ``unreliable [N]`` bool (σ_min < ε).
+    """
+    jac = np.asarray(jac, dtype=float)
+    tau_ext = np.asarray(tau_ext, dtype=float)
+    a_t = np.swapaxes(jac[:, _VW[:3]] if mapping.force_only else jac[:, _VW], 1, 2)        # Jᵀ [N,n,k]
+    n = a_t.shape[1]
+    sqrt_w = np.ones(n) if mapping.joint_weights is None else np.sqrt(np.asarray(mapping.joint_weights, float))
+    if sqrt_w.shape != (n,):
+        raise ValueError(f"WrenchMapping.joint_weights has {sqrt_w.size} entries, the arm has {n} joints")
+    u, s, vt = np.linalg.svd(sqrt_w[:, None] * a_t, full_matrices=False)                 # [N,n,k],[N,k],[N,k,k]
+    s_min = s[:, -1]
+    eps = mapping.sigma_threshold
+    lam2 = np.where(s_min < eps, mapping.damping_max ** 2 * (1.0 - (s_min / eps) ** 2), 0.0)
+    gain = s / (s ** 2 + lam2[:, None])                                                    # damped 1/σ
+    b = np.einsum("sik,si->sk", u, sqrt_w * tau_ext)                                       # Uᵀ W^½ τ
+    sol = np.einsum("sjk,sj->sk", vt, gain * b)                                            # V diag(gain) Uᵀ W^½ τ
+    wrench = np.zeros((jac.shape[0], 6))
+    wrench[:, :sol.shape[1]] = sol
+    return wrench, np.prod(s, axis=1), s_min < eps
+
+
+def jacobian_wrench(desc: RobotDescription | ChainGeometry, q: np.ndarray, tau_meas: np.ndarray,
+                    tau_dyn: np.ndarray, mapping: WrenchMapping = WrenchMapping()
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The Jacobian wrench observer, vectorised over samples: ``f̂ = J⁻ᵀ(q) (τ_dyn − τ_meas)`` (eq. 3.12).
+
+    Args:
+        desc: robot description (or its precomputed :class:`ChainGeometry`) for the flange Jacobian.
+        q: joint positions ``[N,n]`` [rad]; tau_meas: measured τ_J ``[N,n]`` [N·m]; tau_dyn: model torque ``[N,n]``.
+        mapping: pseudo-inverse options (:class:`WrenchMapping`).
+
+    Returns:
+        ``(wrench [N,6] [fx, fy, fz, mx, my, mz] on the robot at the contact point, world frame,
+        manipulability [N], unreliable [N] bool)``.
+    """
+    geo = desc if isinstance(desc, ChainGeometry) else chain_geometry(desc)
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    tau_ext = np.atleast_2d(np.asarray(tau_dyn, dtype=float)) - np.atleast_2d(np.asarray(tau_meas, dtype=float))
+    if tau_ext.shape != q.shape:
+        raise ValueError(f"jacobian_wrench: q, tau_meas and tau_dyn must have the same shape [N,n], got q {q.shape}, "
+                         f"tau_dyn − tau_meas {tau_ext.shape}")
+    jac = point_jacobian(geo, q, np.asarray(mapping.contact_point, dtype=float))
+    return wrench_from_joint_torque(jac, tau_ext, mapping)
+
+
+class _WrenchOutputs:
+    """Mixin: the ``wrench``, ``manipulability`` and ``unreliable`` outputs, computed once per context (a cache
+    entry) from the ``q`` input port (port 0) and a ``tau_ext(context)`` function."""
+
+    def _declare_wrench_outputs(self, arm: DrakeArm, mapping: WrenchMapping, tau_ext, prerequisites: set) -> None:
+        self._arm, self._mapping, self._tau_ext = arm, mapping, tau_ext
+        self._contact = np.asarray(mapping.contact_point, dtype=float)
+        self._cache = self.DeclareCacheEntry(
+            "wrench_solution", ValueProducer(allocate=AbstractValue.Make(np.zeros(8)).Clone, calc=self._solve),
+            prerequisites)
+        self.DeclareVectorOutputPort("wrench", 6, lambda c, o: o.SetFromVector(self._cache.Eval(c)[:6]))
+        self.DeclareVectorOutputPort("manipulability", 1, lambda c, o: o.SetAtIndex(0, self._cache.Eval(c)[6]))
+        self.DeclareVectorOutputPort("unreliable", 1, lambda c, o: o.SetAtIndex(0, self._cache.Eval(c)[7]))
+
+    def _solve(self, context, value) -> None:
+        q = self.get_input_port(0).Eval(context)   # port 0 is "q" in both observers
+        jac = self._arm.flange_jacobian(q, self._contact)[None]
+        wrench, manip, flag = wrench_from_joint_torque(jac, self._tau_ext(context)[None, :], self._mapping)
+        value.set_value(np.concatenate([wrench[0], manip, flag.astype(float)]))
+
+
+class JacobianWrenchObserver(_WrenchOutputs, LeafSystem):
+    """f̂_ext = J⁻ᵀ(q)(τ_dyn − τ_meas) (eq. 3.12), direct feedthrough, no state.
+
+    Input ports (size n): ``q`` [rad], ``tau_meas`` [N·m] (measured τ_J), ``tau_dyn`` [N·m] (model torque).
+    Output ports: ``wrench`` (6) [fx, fy, fz, mx, my, mz] on the robot at the contact point, world frame;
+    ``tau_ext`` (n) = τ_dyn − τ_meas; ``manipulability`` (1) = √det(J W Jᵀ); ``unreliable`` (1) 1.0 when the
+    smallest singular value is below ``mapping.sigma_threshold`` else 0.0. Same solver as :func:`jacobian_wrench`
+    (:func:`wrench_from_joint_torque`) on the Jacobian from Drake's ``CalcJacobianSpatialVelocity``.
+    """
+
+    def __init__(self, desc: RobotDescription, mapping: WrenchMapping = WrenchMapping()):
+        LeafSystem.__init__(self)
+        n = desc.n
+        self.DeclareVectorInputPort("q", n)
+        self.DeclareVectorInputPort("tau_meas", n)
+        self.DeclareVectorInputPort("tau_dyn", n)
+        self.DeclareVectorOutputPort("tau_ext", n, lambda c, o: o.SetFromVector(self._residual(c)))
+        self._declare_wrench_outputs(DrakeArm(desc), mapping, self._residual, {self.all_input_ports_ticket()})
+
+    def _residual(self, context) -> np.ndarray:
+        return self.GetInputPort("tau_dyn").Eval(context) - self.GetInputPort("tau_meas").Eval(context)
+
+
+# ---- generalised momentum ------------------------------------------------------------------------------------------
+
+_FD_STEP = 1e-5   # [rad] central-difference step of M(q) along q̇ for Ṁq̇
+
+
+def momentum_terms(desc: RobotDescription, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Generalised momentum ``p = M(q) q̇`` and ``τ_g(q) + C(q,q̇)ᵀq̇`` (so that ṗ = τ_J − τ_int + τ_ext + that),
+    vectorised with the batched RNEA: ``M v = ID(q,0,v) − ID(q,0,0)``, ``C q̇ = ID(q,q̇,0) − ID(q,0,0)``,
+    ``τ_g = −ID(q,0,0)``, ``Ṁq̇`` by a central difference of ``M(q ± h u) q̇`` along ``u = q̇/‖q̇‖``.
+
+    Returns ``p [N,n]`` [N·m·s] and ``tau_g + Cᵀq̇ [N,n]`` [N·m].
+    """
+    q, qd = np.atleast_2d(np.asarray(q, float)), np.atleast_2d(np.asarray(qd, float))
+    geo = chain_geometry(desc)
+    zero = np.zeros_like(q)
+    g = inverse_dynamics(desc, q, zero, zero, geo)                     # = −τ_g
+    p = inverse_dynamics(desc, q, zero, qd, geo) - g
+    c_qd = inverse_dynamics(desc, q, qd, zero, geo) - g
+    speed = np.linalg.norm(qd, axis=1, keepdims=True)
+    step = _FD_STEP * np.divide(qd, speed, out=np.zeros_like(qd), where=speed > 0)
+
+    def m_qd(qq: np.ndarray) -> np.ndarray:
+        return inverse_dynamics(desc, qq, zero, qd, geo) - inverse_dynamics(desc, qq, zero, zero, geo)
+
+    mdot_qd = (m_qd(q + step) - m_qd(q - step)) * (speed / (2 * _FD_STEP))
+    return p, -g + mdot_qd - c_qd
+
+
+class DrakeArm(DrakeRobot):
+    """A Drake plant context of the model robot for the Systems' per-step work: the flange Jacobian
+    (``CalcJacobianSpatialVelocity``), inverse dynamics (``CalcInverseDynamics``) and the same p and τ_g + Cᵀq̇ as
+    :func:`momentum_terms` from ``CalcMassMatrix``, ``CalcBiasTerm`` and ``CalcGravityGeneralizedForces``."""
+
+    def momentum_terms(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``p = M(q)q̇`` [N·m·s] and ``τ_g(q) + C(q,q̇)ᵀq̇`` [N·m] for one sample (Cᵀq̇ = Ṁq̇ − Cq̇)."""
+        speed = float(np.linalg.norm(qd))
+        if speed > 0:
+            u = _FD_STEP * qd / speed
+            mdot_qd = (self.mass_matrix(q + u) - self.mass_matrix(q - u)) @ qd * (speed / (2 * _FD_STEP))
+        else:
+            mdot_qd = np.zeros_like(qd)
+        m = self.mass_matrix(q)
+        self._set(q, qd)
+        v = self._v_index
+        c_qd = self.plant.CalcBiasTerm(self.context)[v]
+        tau_g = self.plant.CalcGravityGeneralizedForces(self.context)[v]
+        return m @ qd, tau_g + mdot_qd - c_qd
+
+
+def _gains(gain: float | np.ndarray, n: int) -> np.ndarray:
+    k = np.broadcast_to(np.asarray(gain, dtype=float), (n,)).copy()
+    if not np.all(k > 0) or not np.all(np.isfinite(k)):
+        raise ValueError(f"momentum observer gain K_O must be finite and > 0 per joint [1/s], got {gain}")
+    return k
+
+
+def momentum_observer(desc: RobotDescription, time_step: float, q: np.ndarray, qd: np.ndarray,
+                      tau_meas: np.ndarray, tau_int: np.ndarray | None = None, gain: float | np.ndarray = 50.0
+                      ) -> np.ndarray:
+    """Offline generalised-momentum observer over uniformly sampled data: τ̂_ext ``[N,n]`` [N·m].
+
+    The residual is updated as the exact discretisation of ṙ = K_O(τ_ext − r) with the mean τ_ext over each sample
+    interval taken from the momentum balance (no accelerations):
+
+        u_k = (p_k − p_{k−1})/Δt − ½(β_k + β_{k−1}),   β = τ_J − τ_int + τ_g + Cᵀq̇,
+        r_k = γ r_{k−1} + (1 − γ) u_k,   γ = exp(−K_O Δt),   r_0 = 0.
+
+    Args:
+        desc: model description (rigid-body part). time_step: Δt [s]. q, qd: ``[N,n]`` [rad, rad/s].
+        tau_meas: measured τ_J ``[N,n]``. tau_int: the model's non-rigid-body torque (e.g. link friction) or None.
+        gain: K_O [1/s], scalar or per joint.
+    """
+    q = np.atleast_2d(np.asarray(q, float))
+    k = _gains(gain, q.shape[1])
+    p, beta = momentum_terms(desc, q, qd)
+    beta = beta + np.asarray(tau_meas, float) - (0.0 if tau_int is None else np.asarray(tau_int, float))
+    u = np.zeros_like(p)
+    u[1:] = np.diff(p, axis=0) / time_step - 0.5 * (beta[1:] + beta[:-1])
+    gamma = np.exp(-k * time_step)
+    return np.stack([lfilter([1.0 - gamma[j]], [1.0, -gamma[j]], u[:, j]) for j in range(q.shape[1])], axis=1)
+
+
+class MomentumObserver(_WrenchOutputs, LeafSystem):
+    """De Luca's generalised-momentum observer as a discrete System updated every ``time_step`` (the data rate).
+
+    Input ports (size n): ``q`` [rad], ``qd`` [rad/s], ``tau_meas`` [N·m] (measured τ_J), ``tau_int`` [N·m] (the
+    model's non-rigid-body torque, e.g. link friction; connect zeros for a pure rigid-body model).
+    Output ports: ``tau_ext`` (n) the residual r (state, ``DeclareStateOutputPort``); ``wrench`` (6),
+    ``manipulability`` (1), ``unreliable`` (1) as in :class:`JacobianWrenchObserver`, mapped with J(q) of the ``q``
+    input. Same recursion as :func:`momentum_observer`; r starts at 0 on the first update.
+    """
+
+    def __init__(self, desc: RobotDescription, time_step: float, gain: float | np.ndarray = 50.0,
+                 mapping: WrenchMapping = WrenchMapping()):
+        LeafSystem.__init__(self)
+        if not time_step > 0:
+            raise ValueError(f"MomentumObserver.time_step must be > 0 s, got {time_step}")
+        n = desc.n
+        self._n, self._dt = n, float(time_step)
+        self._gamma = np.exp(-_gains(gain, n) * time_step)
+        self.DeclareVectorInputPort("q", n)
+        self.DeclareVectorInputPort("qd", n)
+        self.DeclareVectorInputPort("tau_meas", n)
+        self.DeclareVectorInputPort("tau_int", n)
+        self._r = self.DeclareDiscreteState(n)
+        self._memory = self.DeclareDiscreteState(2 * n + 1)      # [p_{k−1}, β_{k−1}, started]
+        self.DeclarePeriodicDiscreteUpdateEvent(period_sec=time_step, offset_sec=0.0, update=self._update)
+        self.DeclareStateOutputPort("tau_ext", self._r)
+        self._declare_wrench_outputs(DrakeArm(desc), mapping, self._residual,
+                                     {self.input_port_ticket(self.GetInputPort("q").get_index()),
+                                      self.discrete_state_ticket(self._r)})
+
+    def _residual(self, context) -> np.ndarray:
+        return context.get_discrete_state(self._r).get_value()
+
+    def _update(self, context, discrete_state) -> None:
+        n = self._n
+        q = self.GetInputPort("q").Eval(context)
+        qd = self.GetInputPort("qd").Eval(context)
+        p, beta = self._arm.momentum_terms(q, qd)
+        beta = beta + self.GetInputPort("tau_meas").Eval(context) - self.GetInputPort("tau_int").Eval(context)
+        mem = context.get_discrete_state(self._memory).get_value()
+        r = context.get_discrete_state(self._r).get_value()
+        if mem[-1] > 0:
+            u = (p - mem[:n]) / self._dt - 0.5 * (beta + mem[n:2 * n])
+            discrete_state.get_mutable_vector(self._r).SetFromVector(self._gamma * r + (1.0 - self._gamma) * u)
+        discrete_state.get_mutable_vector(self._memory).SetFromVector(np.concatenate([p, beta, [1.0]]))

@@ -1,0 +1,387 @@
+"""RFMA — the thesis' Random Fine Motion Generation Algorithm (§4.3, Algorithm 4.10, eq. 4.35–4.37).
+
+The path alternates *reach* and *explore* phases around L random scaffold configurations:
+
+1. **Scaffolds.** Candidates are drawn uniformly in ``[lower + margin, upper − margin]`` (Table 2.3 limits, 2°
+   margin) in vectorised batches, forward-kinematised in one call (:func:`proprio.kinematics.flange_position`) and
+   kept if the flange position p_EE, measured from the **robot base origin** (base-link frame), lies in the
+   quarter sphere ``x > x_min, z > z_min, ‖p_EE‖ < radius`` (0, 0, 0.8 m); only the survivors are checked for
+   self-collision and collision with the configured environment boxes by Drake's SceneGraph
+   (:class:`proprio.systems.collision.CollisionChecker`). Sampling stops with :class:`RfmaError` ("found K of N
+   after M tries") when ``sampling.max_tries`` candidates do not give L scaffolds.
+2. **Ordering.** Greedy nearest neighbour in joint space on a scipy kd-tree, starting from the scaffold nearest the
+   home configuration (Algorithm 4.10 starts from the first sample; starting near home shortens the first reach).
+3. **Exploration** after each scaffold (eq. 4.35): per joint j, ``e_j(t) = Σ_{k=1}^{3} A_k sin(2π f_k t + φ_k)``
+   with ``A_k ∈ [0.5, 3]°``, ``f_k ∈ [−4, 4]``, ``φ_k ∈ [0, 2π]`` and ``T ∈ [2000, 2500]`` waypoints (eq. 4.36).
+   **Unit of f:** the thesis leaves it open; here ``t = waypoint index / waypoints_per_unit`` (500 by default), so
+   f counts cycles per 500 waypoints: a phase holds up to ~18 cycles of each term, i.e. many direction reversals
+   per joint. The speed is then set by the time parameterisation at 10–30 % of the velocity limits, not by the
+   waypoint count, so the exploration stays inside its speed band whatever f is. The waypoints are
+   ``q_scaf + e(t) − e(0)``, t = 0…T, so that the exploration starts at the scaffold (eq. 4.35 is not 0 at t = 0).
+   A joint whose exploration would leave ``[lower + margin, upper − margin]`` has its three terms redrawn (up to
+   ``_REDRAWS`` times); if none fits (scaffold right at the margin), its amplitudes are scaled down just enough to
+   fit, and the phase/joint is recorded in :attr:`RfmaPath.scaled`.
+4. **Path** (eq. 4.37): ``C = {home, q_1^scaf, e_1, …, q_L^scaf, e_L[, home]}``.
+5. **Timing** (:mod:`proprio.systems.trajectories`): each reach is a joint-wise linear rest-to-rest motion at a
+   relative speed and acceleration ρ ~ U[0.6, 0.9] of the limits; each exploration runs at ρ ~ U[0.1, 0.3] of the
+   velocity limits (and below ``acceleration_fraction`` of the acceleration limits).
+
+Everything random is drawn from ``np.random.default_rng(config.seed)``: the same config gives the same trajectory.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from scipy.spatial import cKDTree
+from tqdm.auto import tqdm
+
+from proprio.description import RobotDescription, load_robot
+from proprio.kinematics import chain_geometry, flange_position
+from proprio.systems.collision import CollisionChecker, EnvironmentBox, boxes_from_config
+from proprio.systems.trajectories import Phase, TimedPath, save_trajectory, time_parameterize
+
+__all__ = ["RfmaError", "RfmaConfig", "RfmaPath", "load_rfma_config", "flange_in_workspace", "sample_scaffolds",
+           "order_scaffolds", "exploration_waypoints", "generate_rfma_path", "rfma_trajectory", "generate_rfma",
+           "demo_trajectory"]
+
+_REDRAWS = 50
+
+
+class RfmaError(ValueError):
+    """A bad RFMA config, or sampling that could not find enough feasible scaffolds."""
+
+
+@dataclass(frozen=True)
+class RfmaConfig:
+    """RFMA settings (see ``proprio/configs/rfma.yaml`` for the meaning of each field). Angles in rad here; the
+    YAML states degrees where its key ends in ``_deg``."""
+    seed: int = 0
+    robot: str = "iiwa14_identified"
+    scaffolds: int = 150
+    joint_margin: float = math.radians(2.0)
+    home: tuple[float, ...] = (0.0,) * 7
+    return_home: bool = True
+    radius: float = 0.8
+    x_min: float = 0.0
+    z_min: float = 0.0
+    boxes: tuple[EnvironmentBox, ...] = ()
+    batch: int = 4096
+    max_tries: int = 400_000
+    terms: int = 3
+    amplitude: tuple[float, float] = (math.radians(0.5), math.radians(3.0))
+    frequency: tuple[float, float] = (-4.0, 4.0)
+    phase: tuple[float, float] = (0.0, 2.0 * math.pi)
+    waypoints: tuple[int, int] = (2000, 2500)
+    waypoints_per_unit: float = 500.0
+    explore_velocity_fraction: tuple[float, float] = (0.1, 0.3)
+    explore_acceleration_fraction: float = 0.9
+    reach_velocity_fraction: tuple[float, float] = (0.6, 0.9)
+    knot_dt: float = 0.02
+
+    def replace(self, **changes: Any) -> "RfmaConfig":
+        """A validated copy with some fields changed (e.g. ``scaffolds``, ``seed``)."""
+        return _validated(dataclasses.replace(self, **changes))
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able summary (radians), stored in trajectory metadata."""
+        d = dataclasses.asdict(self)
+        d["boxes"] = [dataclasses.asdict(b) for b in self.boxes]
+        return d
+
+
+def _interval(section: dict[str, Any], key: str, where: str, lo_min: float | None = None,
+              hi_max: float | None = None) -> tuple[float, float]:
+    if key not in section:
+        raise RfmaError(f"{where}.{key}: missing")
+    v = section[key]
+    if not isinstance(v, (list, tuple)) or len(v) != 2:
+        raise RfmaError(f"{where}.{key}: expected an interval [low, high], got {v!r}")
+    lo, hi = float(v[0]), float(v[1])
+    if not lo <= hi:
+        raise RfmaError(f"{where}.{key}: inverted interval [{lo}, {hi}] (low > high)")
+    if lo_min is not None and lo < lo_min:
+        raise RfmaError(f"{where}.{key}: low bound {lo} is below {lo_min}")
+    if hi_max is not None and hi > hi_max:
+        raise RfmaError(f"{where}.{key}: high bound {hi} exceeds {hi_max}")
+    return lo, hi
+
+
+def _validated(c: RfmaConfig) -> RfmaConfig:
+    if c.scaffolds < 1:
+        raise RfmaError(f"scaffolds: must be >= 1, got {c.scaffolds}")
+    if c.radius <= 0.0:
+        raise RfmaError(f"workspace.radius_m: must be > 0, got {c.radius}")
+    if c.x_min >= c.radius or c.z_min >= c.radius:
+        raise RfmaError(f"workspace: x_min_m={c.x_min}/z_min_m={c.z_min} lie outside the sphere of radius "
+                        f"{c.radius} m, no flange position can satisfy them (unreachable workspace)")
+    if c.batch < 1 or c.max_tries < 1:
+        raise RfmaError("sampling.batch and sampling.max_tries must be >= 1")
+    if c.terms < 1:
+        raise RfmaError(f"exploration.terms: must be >= 1, got {c.terms}")
+    if c.waypoints[0] < 2:
+        raise RfmaError(f"exploration.waypoints: need at least 2 waypoints, got {list(c.waypoints)}")
+    if c.waypoints_per_unit <= 0:
+        raise RfmaError(f"exploration.waypoints_per_unit: must be > 0, got {c.waypoints_per_unit}")
+    if not 0.0 < c.explore_acceleration_fraction <= 1.0:
+        raise RfmaError(f"exploration.acceleration_fraction: must lie in (0, 1], got {c.explore_acceleration_fraction}")
+    if c.knot_dt <= 0:
+        raise RfmaError(f"knot_dt_s: must be > 0, got {c.knot_dt}")
+    if c.joint_margin < 0:
+        raise RfmaError(f"joint_margin_deg: must be >= 0, got {math.degrees(c.joint_margin)}")
+    return c
+
+
+def _config_from_dict(d: dict[str, Any]) -> RfmaConfig:
+    if not isinstance(d, dict):
+        raise RfmaError("RFMA config: expected a mapping at the top level")
+    ws, sm = d.get("workspace", {}), d.get("sampling", {})
+    ex, re = d.get("exploration", {}), d.get("reach", {})
+    if "scaffolds" in d and int(d["scaffolds"]) < 1:
+        raise RfmaError(f"scaffolds: must be >= 1, got {d['scaffolds']}")
+    t_lo, t_hi = _interval(ex, "waypoints", "exploration")
+    c = RfmaConfig(
+        seed=int(d.get("seed", 0)), robot=str(d.get("robot", "iiwa14_identified")),
+        scaffolds=int(d.get("scaffolds", 150)),
+        joint_margin=math.radians(float(d.get("joint_margin_deg", 2.0))),
+        home=tuple(math.radians(float(x)) for x in d.get("home_deg", [0.0] * 7)),
+        return_home=bool(d.get("return_home", True)),
+        radius=float(ws.get("radius_m", 0.8)), x_min=float(ws.get("x_min_m", 0.0)),
+        z_min=float(ws.get("z_min_m", 0.0)),
+        boxes=boxes_from_config(d.get("environment_boxes")),
+        batch=int(sm.get("batch", 4096)), max_tries=int(sm.get("max_tries", 400_000)),
+        terms=int(ex.get("terms", 3)),
+        amplitude=tuple(math.radians(x) for x in _interval(ex, "amplitude_deg", "exploration", lo_min=0.0)),
+        frequency=_interval(ex, "frequency", "exploration"),
+        phase=_interval(ex, "phase_rad", "exploration"),
+        waypoints=(int(t_lo), int(t_hi)),
+        waypoints_per_unit=float(ex.get("waypoints_per_unit", 500.0)),
+        explore_velocity_fraction=_interval(ex, "velocity_fraction", "exploration", 1e-6, 1.0),
+        explore_acceleration_fraction=float(ex.get("acceleration_fraction", 0.9)),
+        reach_velocity_fraction=_interval(re, "velocity_fraction", "reach", 1e-6, 1.0),
+        knot_dt=float(d.get("knot_dt_s", 0.02)),
+    )
+    return _validated(c)
+
+
+def load_rfma_config(path: str | Path | None = None, **overrides: Any) -> RfmaConfig:
+    """Load an RFMA YAML config (default: the shipped ``proprio/configs/rfma.yaml``), then apply ``overrides``
+    (RfmaConfig field names, e.g. ``scaffolds=3, seed=1``). Raises :class:`RfmaError` naming a bad field."""
+    if path is None:
+        text = resources.files("proprio.configs").joinpath("rfma.yaml").read_text()
+    else:
+        path = Path(path)
+        if not path.exists():
+            raise FileNotFoundError(f"RFMA config not found: {path}")
+        text = path.read_text()
+    cfg = _config_from_dict(yaml.safe_load(text) or {})
+    return cfg.replace(**overrides) if overrides else cfg
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# scaffolds
+# ---------------------------------------------------------------------------------------------------------------
+def flange_in_workspace(desc: RobotDescription, q: np.ndarray, cfg: RfmaConfig) -> np.ndarray:
+    """``bool [N]``: the flange of ``q [N,n]`` lies in the quarter sphere of ``cfg`` (base-origin frame)."""
+    geo = chain_geometry(desc)
+    p_world = flange_position(geo, q)
+    p = (p_world - geo.world_base[:3, 3]) @ geo.world_base[:3, :3]      # into the base-link frame
+    return (p[:, 0] > cfg.x_min) & (p[:, 2] > cfg.z_min) & (np.linalg.norm(p, axis=1) < cfg.radius)
+
+
+def sample_scaffolds(desc: RobotDescription, cfg: RfmaConfig, rng: np.random.Generator,
+                     checker: CollisionChecker | None = None, progress: bool = False) -> tuple[np.ndarray, int]:
+    """Draw ``cfg.scaffolds`` feasible configurations ``[L, n]`` [rad] (step 1 of the module docstring).
+
+    Returns ``(scaffolds, tries)`` with ``tries`` the number of candidates drawn. Raises :class:`RfmaError` when
+    ``cfg.max_tries`` candidates are exhausted.
+    """
+    checker = checker or CollisionChecker(desc, cfg.boxes)
+    lo, hi = desc.lower + cfg.joint_margin, desc.upper - cfg.joint_margin
+    if np.any(lo >= hi):
+        raise RfmaError(f"joint_margin_deg={math.degrees(cfg.joint_margin)} leaves no range for joint "
+                        f"{desc.joint_names[int(np.argmax(lo >= hi))]}")
+    found: list[np.ndarray] = []
+    tries = in_ws = 0
+    with tqdm(total=cfg.scaffolds, desc="scaffolds", unit="cfg", disable=not progress, leave=False) as bar:
+        while len(found) < cfg.scaffolds and tries < cfg.max_tries:
+            m = min(cfg.batch, cfg.max_tries - tries)
+            cand = rng.uniform(lo, hi, size=(m, desc.n))
+            tries += m
+            cand = cand[flange_in_workspace(desc, cand, cfg)]
+            in_ws += cand.shape[0]
+            for q in cand:                                    # SceneGraph queries only for the survivors
+                if not checker.in_collision(q)[0]:
+                    found.append(q)
+                    bar.update(1)
+                    if len(found) == cfg.scaffolds:
+                        break
+    if len(found) < cfg.scaffolds:
+        if in_ws == 0:
+            raise RfmaError(f"unreachable workspace: none of {tries} random configurations puts the flange in "
+                            f"x > {cfg.x_min} m, z > {cfg.z_min} m, |p| < {cfg.radius} m; "
+                            f"found 0 of {cfg.scaffolds} scaffolds after {tries} tries")
+        raise RfmaError(f"found {len(found)} of {cfg.scaffolds} scaffolds after {tries} tries "
+                        f"({in_ws} in the workspace, the rest in collision); relax the workspace or environment "
+                        "boxes, or raise sampling.max_tries")
+    return np.array(found), tries
+
+
+def order_scaffolds(scaffolds: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """Greedy nearest-neighbour order ``[L]`` (indices) through ``scaffolds [L, n]`` starting near ``start``,
+    with a scipy kd-tree in joint space (Algorithm 4.10's sorting)."""
+    tree = cKDTree(scaffolds)
+    n = scaffolds.shape[0]
+    visited = np.zeros(n, dtype=bool)
+    order = np.empty(n, dtype=int)
+    query = np.asarray(start, dtype=float)
+    for i in range(n):                                   # one kd-tree query per scaffold
+        k = 1
+        while True:
+            _, idx = tree.query(query, k=min(k, n))
+            idx = np.atleast_1d(idx)
+            free = idx[~visited[idx]]
+            if free.size:
+                break
+            k *= 4
+        order[i] = free[0]
+        visited[free[0]] = True
+        query = scaffolds[free[0]]
+    return order
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# exploration (eq. 4.35-4.36)
+# ---------------------------------------------------------------------------------------------------------------
+def exploration_waypoints(q_scaf: np.ndarray, amplitude: np.ndarray, frequency: np.ndarray, phase: np.ndarray,
+                          n_waypoints: int, waypoints_per_unit: float) -> np.ndarray:
+    """Eq. 4.35 around a scaffold: ``q_scaf + e(t) − e(0)`` for waypoints 0…T, ``t = index / waypoints_per_unit``.
+
+    ``amplitude`` [rad], ``frequency`` [cycles per unit of t], ``phase`` [rad] have shape ``[n, terms]``;
+    returns ``[T+1, n]`` [rad] whose first row is ``q_scaf``.
+    """
+    t = np.arange(n_waypoints + 1, dtype=float)[:, None, None] / waypoints_per_unit      # [T+1,1,1]
+    e = np.sum(amplitude * np.sin(2.0 * np.pi * frequency * t + phase), axis=-1)          # [T+1,n]
+    return q_scaf + e - e[0]
+
+
+@dataclass(frozen=True)
+class RfmaPath:
+    """The geometric RFMA path (eq. 4.37) and every random draw behind it (radians).
+
+    ``waypoints [P, n]``; ``scaffolds [L, n]`` in visiting order; exploration parameters ``amplitude``,
+    ``frequency``, ``phase`` ``[L, n, terms]``; ``n_waypoints [L]`` (T per phase); ``reach_fraction [L(+1)]`` and
+    ``explore_fraction [L]`` relative speeds; ``phases`` for :func:`~proprio.systems.trajectories.time_parameterize`;
+    ``scaled``: ``(phase l, joint j, factor)`` where amplitudes had to be scaled to respect the joint limits;
+    ``tries``: candidates drawn for the scaffolds."""
+    waypoints: np.ndarray
+    scaffolds: np.ndarray
+    amplitude: np.ndarray
+    frequency: np.ndarray
+    phase: np.ndarray
+    n_waypoints: np.ndarray
+    reach_fraction: np.ndarray
+    explore_fraction: np.ndarray
+    phases: tuple[Phase, ...]
+    tries: int
+    scaled: tuple[tuple[int, int, float], ...] = field(default=())
+
+    @property
+    def n_scaffolds(self) -> int:
+        return int(self.scaffolds.shape[0])
+
+
+def _draw_terms(rng: np.random.Generator, cfg: RfmaConfig, shape: tuple[int, ...]) -> tuple[np.ndarray, ...]:
+    return (rng.uniform(*cfg.amplitude, size=shape + (cfg.terms,)),
+            rng.uniform(*cfg.frequency, size=shape + (cfg.terms,)),
+            rng.uniform(*cfg.phase, size=shape + (cfg.terms,)))
+
+
+def generate_rfma_path(desc: RobotDescription, cfg: RfmaConfig, progress: bool = False) -> RfmaPath:
+    """Run RFMA (Algorithm 4.10) for ``desc``: scaffolds, ordering, explorations, reach/explore phases."""
+    if len(cfg.home) != desc.n:
+        raise RfmaError(f"home_deg: expected {desc.n} values for robot '{desc.name}', got {len(cfg.home)}")
+    rng = np.random.default_rng(cfg.seed)
+    scaffolds, tries = sample_scaffolds(desc, cfg, rng, progress=progress)
+    home = np.asarray(cfg.home, dtype=float)
+    scaffolds = scaffolds[order_scaffolds(scaffolds, home)]
+    L = scaffolds.shape[0]
+    lo, hi = desc.lower + cfg.joint_margin, desc.upper - cfg.joint_margin
+    amp, freq, pha = _draw_terms(rng, cfg, (L, desc.n))
+    n_wp = rng.integers(cfg.waypoints[0], cfg.waypoints[1] + 1, size=L)
+    reach_frac = rng.uniform(*cfg.reach_velocity_fraction, size=L + int(cfg.return_home))
+    explore_frac = rng.uniform(*cfg.explore_velocity_fraction, size=L)
+    phases: list[Phase] = []
+    chunks = [home[None, :]]
+    scaled: list[tuple[int, int, float]] = []
+    prev = home
+    for l in tqdm(range(L), desc="explorations", disable=not progress, leave=False):
+        e = exploration_waypoints(scaffolds[l], amp[l], freq[l], pha[l], int(n_wp[l]), cfg.waypoints_per_unit)
+        for _ in range(_REDRAWS):                            # redraw the terms of joints leaving the limits
+            bad = np.any((e < lo) | (e > hi), axis=0)
+            if not bad.any():
+                break
+            a, f, p = _draw_terms(rng, cfg, (int(bad.sum()),))
+            amp[l, bad], freq[l, bad], pha[l, bad] = a, f, p
+            e = exploration_waypoints(scaffolds[l], amp[l], freq[l], pha[l], int(n_wp[l]), cfg.waypoints_per_unit)
+        for j in np.flatnonzero(np.any((e < lo) | (e > hi), axis=0)):   # scaffold at the margin: shrink to fit
+            dev = e[:, j] - scaffolds[l, j]
+            room = np.where(dev > 0, (hi[j] - scaffolds[l, j]) / np.maximum(dev, 1e-300),
+                            (scaffolds[l, j] - lo[j]) / np.maximum(-dev, 1e-300))
+            factor = float(min(1.0, room.min()))
+            amp[l, j] *= factor
+            scaled.append((l, int(j), factor))
+            e[:, j] = scaffolds[l, j] + factor * dev
+        phases.append(Phase(np.stack([prev, scaffolds[l]]), reach_frac[l], reach_frac[l], "reach"))
+        phases.append(Phase(e, explore_frac[l], cfg.explore_acceleration_fraction, "explore"))
+        chunks.append(e)
+        prev = e[-1]
+    if cfg.return_home:
+        phases.append(Phase(np.stack([prev, home]), reach_frac[L], reach_frac[L], "reach"))
+        chunks.append(home[None, :])
+    return RfmaPath(waypoints=np.concatenate(chunks), scaffolds=scaffolds, amplitude=amp, frequency=freq,
+                    phase=pha, n_waypoints=n_wp, reach_fraction=reach_frac, explore_fraction=explore_frac,
+                    phases=tuple(phases), tries=tries, scaled=tuple(scaled))
+
+
+def rfma_trajectory(path: RfmaPath, desc: RobotDescription, cfg: RfmaConfig) -> TimedPath:
+    """Time-parameterise an RFMA path (step 5 of the module docstring)."""
+    return time_parameterize(path.phases, desc, knot_dt=cfg.knot_dt)
+
+
+def generate_rfma(cfg: RfmaConfig | None = None, desc: RobotDescription | None = None,
+                  progress: bool = False) -> tuple[RfmaPath, TimedPath]:
+    """RFMA path + its trajectory for ``cfg`` (default: the shipped config) on ``desc`` (default: ``cfg.robot``)."""
+    cfg = cfg or load_rfma_config()
+    desc = desc or load_robot(cfg.robot)
+    path = generate_rfma_path(desc, cfg, progress=progress)
+    return path, rfma_trajectory(path, desc, cfg)
+
+
+def trajectory_meta(path: RfmaPath, timed: TimedPath, cfg: RfmaConfig, desc: RobotDescription) -> dict[str, Any]:
+    """JSON-able metadata of an RFMA trajectory (phases, draws, config) for :func:`save_trajectory`."""
+    return {"source": "rfma", "robot": desc.name, "seed": cfg.seed, "joint_names": desc.joint_names,
+            **timed.meta(), "scaffolds": path.scaffolds.tolist(), "n_waypoints": path.n_waypoints.tolist(),
+            "amplitude": path.amplitude.tolist(), "frequency": path.frequency.tolist(), "phase": path.phase.tolist(),
+            "reach_fraction": path.reach_fraction.tolist(), "explore_fraction": path.explore_fraction.tolist(),
+            "total_waypoints": int(path.waypoints.shape[0]), "tries": path.tries,
+            "scaled": [list(s) for s in path.scaled], "config": cfg.to_dict()}
+
+
+def demo_trajectory(out_dir: Path, scaffolds: int = 3, seed: int = 0):
+    """A short RFMA trajectory for ``proprio demo``: ``(PiecewisePolynomial, path_to_npz)``.
+
+    Uses the shipped config with ``scaffolds`` scaffolds and exploration phases of 800–1000 waypoints (instead of
+    2000–2500) so that the motion lasts roughly 20–40 s; saved as ``out_dir/rfma_demo.npz``.
+    """
+    cfg = load_rfma_config(scaffolds=scaffolds, seed=seed, waypoints=(800, 1000))
+    desc = load_robot(cfg.robot)
+    path, timed = generate_rfma(cfg, desc)
+    out = save_trajectory(Path(out_dir) / "rfma_demo.npz", timed.trajectory, trajectory_meta(path, timed, cfg, desc))
+    return timed.trajectory, out

@@ -1,0 +1,273 @@
+"""Wrench observers (systems/observers.py) and the estimation diagram (diagrams/estimation.py).
+
+Synthetic measurements are made with the foundation dynamics: a payload folded into the last link
+(``attach_payload``) gives ``τ_J = ID(desc + payload)`` while the model is ``desc`` alone, so the observers must see
+the payload's wrench on the flange, ``f = m (g − a_flange)`` for a point mass at the flange origin.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput, TrajectorySource
+from pydrake.trajectories import PiecewisePolynomial
+
+from proprio.description import load_robot
+from proprio.dynamics import gravity_torque, inverse_dynamics
+from proprio.kinematics import flange_jacobian
+from proprio.payload import Payload, attach_payload
+from proprio.recording import Recording, RecordingError
+from proprio.urdf import to_urdf
+from proprio.diagrams.estimation import (FilterSettings, RigidBodyTorqueModel, estimate_wrench,
+                                         estimate_wrench_offline, preprocess)
+from proprio.systems.observers import (DrakeArm, JacobianWrenchObserver, MomentumObserver, WrenchMapping,
+                                       jacobian_wrench, momentum_observer, momentum_terms)
+
+G = np.array([0.0, 0.0, -9.81])
+HOME = np.array([0.0, 0.5, 0.0, -1.2, 0.0, 0.8, 0.0])
+
+
+@pytest.fixture(scope="module")
+def rigid(iiwa):
+    return iiwa.without_friction()
+
+
+def _nonsingular_poses(desc, n, seed):
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(0.8 * desc.lower, 0.8 * desc.upper, (4 * n, desc.n))
+    s_min = np.linalg.svd(flange_jacobian(desc, q), compute_uv=False)[:, -1]
+    return q[s_min > 0.05][:n]
+
+
+def _motion(duration=3.0, h=1e-3, seed=0):
+    """A smooth multi-sine motion around HOME with exact derivatives (RFMA-like: slow, small, irregular)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, duration, h)
+    amp, freq, phase = rng.uniform(0.05, 0.2, 7), rng.uniform(0.15, 0.5, 7) * 2 * np.pi, rng.uniform(0, 6, 7)
+    arg = freq * t[:, None] + phase
+    return t, HOME + amp * np.sin(arg), amp * freq * np.cos(arg), -amp * freq ** 2 * np.sin(arg)
+
+
+def _payload_wrench(desc, mass, q, qd, qdd):
+    """True wrench of a point mass at the flange origin on the robot: ``[m (g − a); 0]`` (world frame)."""
+    eps = 1e-6
+    jv = flange_jacobian(desc, q)[:, 3:]
+    jv_dot = (flange_jacobian(desc, q + eps * qd)[:, 3:] - flange_jacobian(desc, q - eps * qd)[:, 3:]) / (2 * eps)
+    acc = np.einsum("sij,sj->si", jv, qdd) + np.einsum("sij,sj->si", jv_dot, qd)
+    f = np.zeros((q.shape[0], 6))
+    f[:, :3] = mass * (G - acc)
+    return f
+
+
+def _payload_recording(iiwa, mass=1.0, duration=3.0, seed=0):
+    """Measured τ_J of the iiwa (with its link friction) carrying ``mass`` at the flange; exact derivatives."""
+    model = RigidBodyTorqueModel(iiwa)
+    t, q, qd, qdd = _motion(duration, seed=seed)
+    tau = inverse_dynamics(attach_payload(iiwa, Payload(mass)), q, qd, qdd) + model.tau_int(q, qd, qdd)
+    return model, Recording(t=t, q=q, tau=tau, f_ext=_payload_wrench(iiwa, mass, q, qd, qdd),
+                            meta={"robot": iiwa.name, "payload": {"mass": mass}})
+
+
+# ---- Jacobian mapping ---------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("force_only", [False, True])
+def test_static_1kg_payload_random_poses(rigid, force_only):
+    q = _nonsingular_poses(rigid, 200, seed=1)
+    tau_meas = gravity_torque(attach_payload(rigid, Payload(1.0)), q)
+    wrench, manip, flag = jacobian_wrench(rigid, q, tau_meas, gravity_torque(rigid, q),
+                                          WrenchMapping(force_only=force_only))
+    assert not flag.any() and np.all(manip > 0)
+    assert np.abs(wrench - np.r_[G, 0, 0, 0]).max() < 0.05
+
+
+def test_recovers_arbitrary_wrench_in_f_m_order(rigid):
+    """τ_ext = Jᵀ w for a random 6-D wrench [f; m] (Jacobian rows [ω; v]) is mapped back to w exactly."""
+    rng = np.random.default_rng(2)
+    q = _nonsingular_poses(rigid, 50, seed=3)
+    w = rng.normal(size=(q.shape[0], 6)) * [10, 10, 10, 1, 1, 1]
+    jac = flange_jacobian(rigid, q)
+    tau_ext = np.einsum("sji,sj->si", jac, w[:, [3, 4, 5, 0, 1, 2]])
+    est, _, flag = jacobian_wrench(rigid, q, np.zeros_like(tau_ext), tau_ext)
+    assert not flag.any()
+    np.testing.assert_allclose(est, w, atol=1e-8)
+
+
+def test_contact_point_at_payload_com(rigid):
+    """A payload with its CoM 10 cm off the flange: force-only mapping at the CoM recovers m·g; at the flange
+    origin the 6-D wrench carries the moment r × m·g."""
+    com = np.array([0.0, 0.0, 0.1])
+    q = _nonsingular_poses(rigid, 30, seed=4)
+    tau_meas = gravity_torque(attach_payload(rigid, Payload(1.0, tuple(com))), q)
+    tau_dyn = gravity_torque(rigid, q)
+    w_com, _, _ = jacobian_wrench(rigid, q, tau_meas, tau_dyn, WrenchMapping(force_only=True,
+                                                                             contact_point=tuple(com)))
+    np.testing.assert_allclose(w_com[:, :3], np.tile(G, (q.shape[0], 1)), atol=1e-8)
+    w_fl, _, _ = jacobian_wrench(rigid, q, tau_meas, tau_dyn)
+    from proprio.kinematics import flange_pose
+    r = np.einsum("sij,j->si", flange_pose(rigid, q)[:, :3, :3], com)
+    np.testing.assert_allclose(w_fl[:, 3:], np.cross(r, G), atol=1e-8)
+
+
+@pytest.mark.parametrize("force_only", [False, True])
+def test_singular_pose_is_flagged_and_finite(rigid, force_only):
+    q = np.zeros((1, rigid.n))                                     # stretched: J_v loses the z direction
+    rng = np.random.default_rng(5)
+    tau_ext = rng.normal(size=(1, rigid.n))
+    mapping = WrenchMapping(force_only=force_only)
+    wrench, manip, flag = jacobian_wrench(rigid, q, np.zeros_like(tau_ext), tau_ext, mapping)
+    assert flag[0] and np.all(np.isfinite(wrench)) and manip[0] < 1e-12
+    # damped: no component larger than |τ| / (2 λ_max) (the peak of σ/(σ²+λ²))
+    assert np.abs(wrench).max() <= np.linalg.norm(tau_ext) / (2 * mapping.damping_max) + 1e-9
+    # the observer System raises its flag and stays finite too
+    system = JacobianWrenchObserver(rigid, mapping)
+    ctx = system.CreateDefaultContext()
+    system.GetInputPort("q").FixValue(ctx, q[0])
+    system.GetInputPort("tau_meas").FixValue(ctx, np.zeros(rigid.n))
+    system.GetInputPort("tau_dyn").FixValue(ctx, tau_ext[0])
+    assert system.GetOutputPort("unreliable").Eval(ctx)[0] == 1.0
+    np.testing.assert_allclose(system.GetOutputPort("wrench").Eval(ctx), wrench[0], atol=1e-9)
+
+
+def test_jacobian_system_matches_offline_function(rigid):
+    q = _nonsingular_poses(rigid, 5, seed=6)
+    rng = np.random.default_rng(7)
+    tau_meas, tau_dyn = rng.normal(size=q.shape), rng.normal(size=q.shape)
+    system = JacobianWrenchObserver(rigid)
+    ctx = system.CreateDefaultContext()
+    wrench, manip, flag = jacobian_wrench(rigid, q, tau_meas, tau_dyn)
+    for i in range(q.shape[0]):
+        for name, value in (("q", q[i]), ("tau_meas", tau_meas[i]), ("tau_dyn", tau_dyn[i])):
+            system.GetInputPort(name).FixValue(ctx, value)
+        np.testing.assert_allclose(system.GetOutputPort("wrench").Eval(ctx), wrench[i], atol=1e-10)
+        np.testing.assert_allclose(system.GetOutputPort("tau_ext").Eval(ctx), tau_dyn[i] - tau_meas[i])
+        assert system.GetOutputPort("manipulability").Eval(ctx)[0] == pytest.approx(manip[i], rel=1e-10)
+
+
+def test_mapping_rejects_bad_options(rigid):
+    with pytest.raises(ValueError, match="sigma_threshold"):
+        WrenchMapping(sigma_threshold=0.0)
+    with pytest.raises(ValueError, match="joint_weights"):
+        WrenchMapping(joint_weights=(1.0, -1.0))
+    q = np.zeros((1, rigid.n))
+    with pytest.raises(ValueError, match="joint_weights"):
+        jacobian_wrench(rigid, q, q, q, WrenchMapping(joint_weights=(1.0, 2.0)))
+    with pytest.raises(ValueError, match="same shape"):
+        jacobian_wrench(rigid, q, np.zeros((2, rigid.n)), q)
+
+
+# ---- generalised momentum -------------------------------------------------------------------------------------------
+
+def test_momentum_terms_match_pinocchio(rigid):
+    """p = M q̇ and τ_g + Cᵀq̇ (numpy RNEA and Drake paths) against pinocchio's CRBA, Coriolis matrix and gravity."""
+    model = pin.buildModelFromXML(to_urdf(rigid, None, collision=False))
+    model.gravity.linear[:] = rigid.gravity
+    data = model.createData()
+    rng = np.random.default_rng(8)
+    q = _nonsingular_poses(rigid, 10, seed=9)
+    qd = rng.normal(size=q.shape)
+    p_np, beta_np = momentum_terms(rigid, q, qd)
+    arm = DrakeArm(rigid)
+    for i in range(q.shape[0]):
+        m = pin.crba(model, data, q[i])
+        m = np.triu(m) + np.triu(m, 1).T
+        c = pin.computeCoriolisMatrix(model, data, q[i], qd[i])
+        p_ref = m @ qd[i]
+        beta_ref = -pin.computeGeneralizedGravity(model, data, q[i]) + c.T @ qd[i]
+        p_dr, beta_dr = arm.momentum_terms(q[i], qd[i])
+        for p, beta in ((p_np[i], beta_np[i]), (p_dr, beta_dr)):
+            np.testing.assert_allclose(p, p_ref, atol=1e-10)
+            np.testing.assert_allclose(beta, beta_ref, atol=1e-7)     # Ṁq̇ by central difference
+
+
+def test_momentum_observer_first_order_response(rigid):
+    """A step of external torque at a static pose: r follows τ_step (1 − exp(−K_O (t − t0))) per joint."""
+    h, t0 = 1e-3, 0.05
+    gains = np.array([20.0, 30.0, 40.0, 50.0, 60.0, 80.0, 100.0])
+    t = np.arange(0.0, 0.3, h)
+    q = np.tile(HOME, (t.size, 1))
+    step = np.linspace(1.0, 2.0, rigid.n)
+    tau_meas = gravity_torque(rigid, q) - np.where(t[:, None] >= t0, step, 0.0)      # τ_J = τ_rbd − τ_ext
+    r = momentum_observer(rigid, h, q, np.zeros_like(q), tau_meas, None, gains)
+    k0 = int(round(t0 / h))
+    # closed form of the exact discretisation (the trapezoid sees half the step in the interval where it occurs)
+    gamma = np.exp(-gains * h)
+    k = np.arange(t.size)[:, None] - k0
+    expected = np.where(k >= 0, step * (1.0 - gamma ** np.maximum(k, 0) * (1 + gamma) / 2), 0.0)
+    np.testing.assert_allclose(r, expected, atol=1e-9)
+    tau_i = k0 + np.round(1.0 / (gains * h)).astype(int)             # one time constant after the step
+    np.testing.assert_allclose(r[tau_i, np.arange(rigid.n)] / step, 1 - np.exp(-1), atol=0.02)
+
+    # the System, stepped by the simulator at the data rate, gives the same residual one sample later
+    builder = DiagramBuilder()
+    obs = builder.AddSystem(MomentumObserver(rigid, h, gains))
+    src = builder.AddSystem(TrajectorySource(PiecewisePolynomial.FirstOrderHold(t, tau_meas.T)))
+    builder.Connect(src.get_output_port(), obs.GetInputPort("tau_meas"))
+    for name, value in (("q", HOME), ("qd", np.zeros(rigid.n)), ("tau_int", np.zeros(rigid.n))):
+        builder.Connect(builder.AddSystem(ConstantVectorSource(value)).get_output_port(), obs.GetInputPort(name))
+    log = LogVectorOutput(obs.GetOutputPort("tau_ext"), builder, publish_period=h)
+    diagram = builder.Build()
+    sim = Simulator(diagram)
+    sim.AdvanceTo(t[-1] - 0.5 * h)
+    logged = log.FindLog(sim.get_context()).data().T
+    np.testing.assert_allclose(logged[1:], r[:logged.shape[0] - 1], atol=1e-9)
+
+
+def test_momentum_observer_rejects_bad_gain(rigid):
+    with pytest.raises(ValueError, match="gain"):
+        MomentumObserver(rigid, 1e-3, gain=-1.0)
+    with pytest.raises(ValueError, match="time_step"):
+        MomentumObserver(rigid, 0.0)
+
+
+# ---- the estimation diagram -----------------------------------------------------------------------------------------
+
+def test_payload_during_motion_both_observers(iiwa):
+    """1 kg at the flange during slow irregular motion, true model incl. friction, noise-free: both observers within
+    0.2 N of the payload's true force at every valid sample; the diagram equals the vectorised offline path."""
+    model, rec = _payload_recording(iiwa, 1.0, duration=3.0)
+    res = estimate_wrench(model, rec, gain=50.0)
+    off = estimate_wrench_offline(model, rec, gain=50.0)
+    valid = res.valid()
+    assert valid.sum() > 0.6 * rec.n_samples
+    for obs in ("jacobian", "momentum"):
+        err = res.wrench[obs][valid, :3] - rec.f_ext[valid, :3]
+        assert np.abs(err).max() < 0.2, obs
+    np.testing.assert_allclose(res.wrench["jacobian"], off.wrench["jacobian"], atol=1e-9)
+    # the momentum System's state output is visible one sample after its update (Drake discrete semantics)
+    np.testing.assert_allclose(res.tau_ext["momentum"][1:], off.tau_ext["momentum"][:-1], atol=1e-8)
+
+
+def test_no_payload_gives_zero_force(iiwa):
+    model, rec = _payload_recording(iiwa, 0.0, duration=2.0, seed=1)
+    res = estimate_wrench_offline(model, rec)
+    for obs in ("jacobian", "momentum"):
+        rmse, _ = res.force_stats(obs)
+        assert np.all(rmse < 0.05), obs
+
+
+def test_recording_robot_mismatch_is_an_error(iiwa, lwr_dir):
+    from proprio.recording import load_lwr4
+    rec = load_lwr4(lwr_dir, 1).slice(0, 400)
+    with pytest.raises(RecordingError, match="kuka_lwr4plus"):
+        estimate_wrench(iiwa, rec)
+
+
+def test_joint_count_mismatch_is_an_error(iiwa):
+    t = np.arange(0, 1, 1e-3)
+    rec = Recording(t=t, q=np.zeros((t.size, 6)), tau=np.zeros((t.size, 6)))
+    with pytest.raises(RecordingError, match="6 joints"):
+        estimate_wrench(iiwa, rec)
+
+
+def test_too_short_or_irregular_recording_is_an_error(iiwa):
+    model, rec = _payload_recording(iiwa, 1.0, duration=0.5)
+    with pytest.raises(RecordingError, match="samples"):
+        estimate_wrench(model, rec.slice(0, 20))
+    t = rec.t.copy()
+    t[100:] += 0.0004
+    with pytest.raises(RecordingError, match="uniformly"):
+        preprocess(rec.replace(t=t), FilterSettings())
+    with pytest.raises(ValueError, match="Nyquist"):
+        preprocess(rec, FilterSettings(cutoff_hz=600.0))
