@@ -247,7 +247,9 @@ def _num(d: dict, key: str, where: str, default: float | None = None, positive: 
 
 
 def _angle(d: dict, key: str, where: str, default: float | None = None) -> float:
-    """Read an angle in rad, or ``key_deg`` in degrees (converted)."""
+    """Read an angle in rad, or ``key_deg`` in degrees (converted); giving both is an error."""
+    if key in d and f"{key}_deg" in d:
+        raise DescriptionError(f"{where}: both '{key}' and '{key}_deg' given; keep one")
     if f"{key}_deg" in d:
         return math.radians(_num(d, f"{key}_deg", where))
     return _num(d, key, where, default)
@@ -335,8 +337,12 @@ def _parse_joint(d: dict, where: str) -> Joint:
         raise DescriptionError(f"{lw}: lower ({lower}) must be < upper ({upper})")
     if max(abs(lower), abs(upper)) > 2 * math.pi + 1e-9:
         raise DescriptionError(f"{lw}: |limit| > 2π rad — were degrees given without the '_deg' suffix?")
-    vel = math.radians(_num(lim, "velocity_deg", lw, positive=True)) if "velocity_deg" in lim \
-        else _num(lim, "velocity", lw, positive=True)
+    vel = _angle(lim, "velocity", lw)
+    if not vel > 0:
+        raise DescriptionError(f"{lw}.velocity: must be > 0, got {vel}")
+    if vel > 20.0:
+        raise DescriptionError(f"{lw}.velocity: {vel} rad/s is implausible for a revolute joint — were deg/s given "
+                               "without the '_deg' suffix?")
     acc = _num(lim, "acceleration", lw, default=math.inf, positive=True)
     return Joint(name=str(d["name"]), parent=str(d["parent"]), child=str(d["child"]),
                  origin_xyz=_vec(d, "origin_xyz", where), origin_rpy=_vec(d, "origin_rpy", where, default=(0, 0, 0)),

@@ -24,6 +24,12 @@ class Payload:
             raise DescriptionError(f"payload.mass must be a finite number >= 0 kg, got {self.mass}")
         if len(self.com_flange) != 3 or not np.all(np.isfinite(self.com_flange)):
             raise DescriptionError(f"payload.com_flange must be 3 finite numbers [m], got {self.com_flange}")
+        if len(self.inertia) != 6 or not np.all(np.isfinite(self.inertia)):
+            raise DescriptionError(f"payload.inertia must be 6 finite numbers (ixx, iyy, izz, ixy, ixz, iyz) [kg m^2], "
+                                   f"got {self.inertia}")
+        ixx, iyy, izz, ixy, ixz, iyz = self.inertia
+        if np.linalg.eigvalsh(np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]]))[0] < -1e-12:
+            raise DescriptionError(f"payload.inertia is not positive semi-definite: {self.inertia}")
 
     @classmethod
     def from_dict(cls, d: dict | None) -> "Payload | None":

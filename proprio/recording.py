@@ -144,11 +144,13 @@ def validate_recording(rec: Recording, robot: RobotDescription | None = None, so
                                  f"is outside the limits [{robot.lower[j]:.4f}, {robot.upper[j]:.4f}] rad")
     if not isinstance(rec.meta, dict):
         raise RecordingError(f"{source}: 'meta' must be a dict")
-    try:
-        json.dumps(rec.meta)
+    try:  # normalise to what JSON round-trips exactly (tuples -> lists); NaN/inf and odd keys are errors
+        meta = json.loads(json.dumps(rec.meta, allow_nan=False))
     except (TypeError, ValueError) as exc:
-        raise RecordingError(f"{source}: 'meta' is not JSON-serialisable ({exc})") from exc
-    return Recording(t=t, q=q, tau=tau, truth=truth, meta=rec.meta, **opt)
+        raise RecordingError(f"{source}: 'meta' is not strict JSON ({exc})") from exc
+    if any(not isinstance(k, str) for k in rec.meta):
+        raise RecordingError(f"{source}: 'meta' keys must be strings")
+    return Recording(t=t, q=q, tau=tau, truth=truth, meta=meta, **opt)
 
 
 def save_recording(rec: Recording, path: str | Path) -> Path:

@@ -109,6 +109,7 @@ def test_inspect_lwr_file_prints_correct_summary(lwr_dir, capsys, tmp_path):
     duration = t[-1] - t[0]
     assert f"duration {duration:.3f} s" in out
     assert f"rate {1 / np.median(np.diff(t)):.2f} Hz" in out
+    assert f"(dt {1e3 * np.diff(t).min():.3g}–{1e3 * np.diff(t).max():.3g} ms)" in out
     assert "samples 5027" in out and "joints 7" in out
     rows = parse_table(out)
     assert list(rows) == [f"lwr_{i}_joint" for i in range(7)]

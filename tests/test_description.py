@@ -95,6 +95,20 @@ def test_degree_limits_without_deg_suffix():
     _expect(d, "joints[5]", "limits", "_deg")
 
 
+def test_degree_velocity_without_deg_suffix():
+    d = iiwa_dict()
+    lim = d["joints"][3]["limits"]
+    del lim["velocity_deg"]
+    lim["velocity"] = 75
+    _expect(d, "joints[3]", "velocity", "_deg")
+
+
+def test_both_rad_and_deg_keys_rejected():
+    d = iiwa_dict()
+    d["joints"][1]["limits"]["lower"] = -2.0
+    _expect(d, "joints[1]", "lower", "lower_deg")
+
+
 def test_missing_limits_mapping():
     d = iiwa_dict()
     del d["joints"][2]["limits"]

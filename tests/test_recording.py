@@ -3,6 +3,7 @@ CSV import, atomic writes, and the real LWR 4+ files."""
 from __future__ import annotations
 
 import json
+import os
 import tempfile
 import zipfile
 from pathlib import Path
@@ -197,8 +198,16 @@ def test_shape_mismatches(tmp_path):
 def test_bad_meta(tmp_path):
     expect_error(write_npz(tmp_path / "meta.npz", **{**raw(good()), "meta": np.array("{not json")}), "'meta'",
                  "JSON")
-    with pytest.raises(RecordingError, match="'meta' is not JSON-serialisable"):
+    with pytest.raises(RecordingError, match="'meta' is not strict JSON"):
         save_recording(good().replace(meta={"x": object()}), tmp_path / "m.npz")
+    with pytest.raises(RecordingError, match="'meta' is not strict JSON"):
+        save_recording(good().replace(meta={"x": float("nan")}), tmp_path / "m.npz")
+    with pytest.raises(RecordingError, match="'meta' keys must be strings"):
+        save_recording(good().replace(meta={1: "a"}), tmp_path / "m.npz")
+    # tuples are normalised to lists, so what is saved is what comes back
+    rec = validate_recording(good().replace(meta={"com": (0.0, 0.1, 0.2)}))
+    save_recording(rec, tmp_path / "m.npz")
+    assert load_recording(tmp_path / "m.npz").meta == rec.meta == {"com": [0.0, 0.1, 0.2]}
 
 
 def test_object_arrays_are_not_unpickled(tmp_path):
@@ -356,3 +365,12 @@ def test_npz_members_are_plain_arrays(tmp_path):
 def test_zero_joints_rejected():
     with pytest.raises(RecordingError, match="'q' has no joint columns"):
         validate_recording(Recording(t=np.arange(3.0), q=np.zeros((3, 0)), tau=np.zeros((3, 0))))
+
+
+def test_saved_file_has_normal_permissions(tmp_path):
+    umask = os.umask(0o022)
+    try:
+        path = save_recording(good(), tmp_path / "perm.npz")
+    finally:
+        os.umask(umask)
+    assert path.stat().st_mode & 0o777 == 0o644  # not mkstemp's private 0600

@@ -51,6 +51,9 @@ def main(argv: list[str] | None = None) -> int:
         message = " ".join(line.strip() for line in str(exc).splitlines() if line.strip())
         print(f"proprio: error: {message}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # e.g. `proprio inspect FILE | head`
+        sys.stderr.close()
+        return 0
     except KeyboardInterrupt:
         print("proprio: interrupted", file=sys.stderr)
         return 130

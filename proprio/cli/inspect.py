@@ -51,8 +51,9 @@ def reversal_counts(qd: np.ndarray, deadband: float = DEFAULT_DEADBAND) -> np.nd
 
 def summarize_recording(rec: Recording, robot: RobotDescription | None = None,
                         deadband: float = DEFAULT_DEADBAND) -> dict[str, Any]:
-    """Key figures of ``rec``: duration [s], rate [Hz], samples, and per joint the position range (rad and deg),
-    max |q̇| [rad/s], RMS τ [N·m] and direction reversals per second (see :func:`reversal_counts`)."""
+    """Key figures of ``rec``: duration [s], rate [Hz] (median) with the smallest and largest time step [s], samples,
+    and per joint the position range (rad and deg), max |q̇| [rad/s], RMS τ [N·m] and direction reversals per
+    second (see :func:`reversal_counts`)."""
     qd, qd_source = joint_velocities(rec)
     n = rec.n_joints
     names = robot.joint_names if robot is not None and robot.n == n else [f"j{i + 1}" for i in range(n)]
@@ -64,6 +65,8 @@ def summarize_recording(rec: Recording, robot: RobotDescription | None = None,
         "source": rec.meta.get("source", "?"),
         "duration_s": duration,
         "rate_hz": rec.rate_hz,
+        "dt_min_s": float(np.diff(rec.t).min()),
+        "dt_max_s": float(np.diff(rec.t).max()),
         "n_samples": rec.n_samples,
         "n_joints": n,
         "channels": [c for c in ("qd", "qdd", "f_ext") if getattr(rec, c) is not None],
@@ -87,8 +90,8 @@ def format_summary(summary: dict[str, Any], title: str = "") -> str:
     s = summary
     lines = [f"Recording {title}".rstrip(),
              f"  robot: {s['robot']}   source: {s['source']}",
-             f"  duration {s['duration_s']:.3f} s   rate {s['rate_hz']:.2f} Hz   samples {s['n_samples']}   "
-             f"joints {s['n_joints']}",
+             f"  duration {s['duration_s']:.3f} s   rate {s['rate_hz']:.2f} Hz (dt {1e3 * s['dt_min_s']:.3g}–"
+             f"{1e3 * s['dt_max_s']:.3g} ms)   samples {s['n_samples']}   joints {s['n_joints']}",
              f"  optional channels: {', '.join(s['channels']) or '-'}   truth: {', '.join(s['truth']) or '-'}",
              f"  q̇ from {s['qd_source']}; reversals counted with a {s['deadband_rad_s']:g} rad/s deadband",
              ""]

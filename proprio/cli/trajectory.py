@@ -5,8 +5,6 @@ import argparse
 import time
 from pathlib import Path
 
-import numpy as np
-
 from proprio.cli import UserError
 
 __all__ = ["register", "plot_trajectory"]
@@ -60,36 +58,15 @@ def _cmd_rfma(args: argparse.Namespace) -> int:
 
 
 def plot_trajectory(traj, desc, out: Path, rate_hz: float = 50.0, title: str = "") -> Path:
-    """Fig. 4.9 views of a joint trajectory: flange path in 3-D coloured by its linear speed [m/s] (top) and joint
-    angles [deg] over time (bottom). Written atomically as PNG."""
+    """Write the Fig. 4.9 views of ``traj`` (:func:`proprio.systems.rfma.trajectory_figure`) as a PNG, atomically."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from proprio.io import atomic_path
-    from proprio.kinematics import chain_geometry, flange_jacobian, flange_position
-    from proprio.systems.trajectories import sample_trajectory
+    from proprio.systems.rfma import trajectory_figure
 
-    t, q, qd, _ = sample_trajectory(traj, rate_hz)
-    geo = chain_geometry(desc)
-    p = flange_position(geo, q)
-    speed = np.linalg.norm(np.einsum("nij,nj->ni", flange_jacobian(geo, q)[:, 3:, :], qd), axis=1)
-    fig = plt.figure(figsize=(9, 11))
-    ax = fig.add_subplot(2, 1, 1, projection="3d")
-    sc = ax.scatter(p[:, 0], p[:, 1], p[:, 2], c=speed, cmap="jet", s=1.5, linewidths=0)
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_zlabel("z [m]")
-    ax.set_title(title or "flange path (colour: linear speed)")
-    fig.colorbar(sc, ax=ax, shrink=0.7, label="flange speed [m/s]")
-    ax2 = fig.add_subplot(2, 1, 2)
-    for j in range(q.shape[1]):
-        ax2.plot(t, np.degrees(q[:, j]), lw=0.7, label=desc.joint_names[j] if j < desc.n else f"q{j + 1}")
-    ax2.set_xlabel("t [s]")
-    ax2.set_ylabel("joint angle [deg]")
-    ax2.legend(ncol=4, fontsize=7, loc="upper right")
-    ax2.grid(alpha=0.3)
-    fig.tight_layout()
+    fig = trajectory_figure(traj, desc, rate_hz=rate_hz, title=title)
     out = Path(out)
     with atomic_path(out, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=110)
