@@ -29,7 +29,7 @@ from scipy.signal import butter, sosfiltfilt
 from proprio.description import RobotDescription, load_robot
 from proprio.dynamics import inverse_dynamics
 from proprio.io import atomic_path
-from proprio.kinematics import chain_geometry, point_jacobian
+from proprio.kinematics import chain_geometry, flange_jacobian, flange_pose, point_jacobian
 from proprio.plant import DrakeRobot
 from proprio.recording import Recording, RecordingError, validate_recording
 from proprio.systems.observers import (JacobianWrenchObserver, MomentumObserver, WrenchMapping, jacobian_wrench,
@@ -58,36 +58,40 @@ class TorqueModel(Protocol):
 
 @dataclass(frozen=True)
 class RigidBodyTorqueModel:
-    """The RBD model of a description plus its link-side viscous + Coulomb friction, if it has any:
-    ``τ_int = F_v q̇ + F_c sgn(q̇)`` [N·m] with ``sgn = tanh(q̇ / coulomb_velocity)`` (``np.sign`` when 0).
-    The default 0.02 rad/s smooths the sign over the band where filtered velocities are unreliable."""
+    """The RBD model of a description plus its link-side viscous + Coulomb friction, if it has any, and constant
+    torque offsets: ``τ_int = F_v q̇ + F_c sgn(q̇) + τ_offset`` [N·m] with ``sgn = tanh(q̇ / coulomb_velocity)``
+    (``np.sign`` when 0). The default 0.02 rad/s smooths the sign over the band where filtered velocities are
+    unreliable."""
     description: RobotDescription
     coulomb_velocity: float = 0.02
+    offset: tuple[float, ...] | None = None
 
     def tau_int(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         d = self.description
         qd = np.asarray(qd, dtype=float)
-        if not d.has_friction:
-            return np.zeros_like(qd)
-        sgn = np.sign(qd) if self.coulomb_velocity == 0 else np.tanh(qd / self.coulomb_velocity)
-        return np.asarray(d.friction_viscous) * qd + np.asarray(d.friction_coulomb) * sgn
+        tau = np.zeros_like(qd) if self.offset is None else np.broadcast_to(self.offset, qd.shape).copy()
+        if d.has_friction:
+            sgn = np.sign(qd) if self.coulomb_velocity == 0 else np.tanh(qd / self.coulomb_velocity)
+            tau += np.asarray(d.friction_viscous) * qd + np.asarray(d.friction_coulomb) * sgn
+        return tau
 
 
 def load_torque_model(spec: str | Path) -> RigidBodyTorqueModel:
     """A model from a shipped robot name or robot YAML/URDF (its RBD + friction, e.g. ``iiwa14_identified``), or an
-    identified-model ``.npz`` from ``proprio identify`` (its identified inertials, friction and Coulomb law)."""
+    identified-model ``.npz`` from ``proprio identify`` (its identified inertials, friction, Coulomb law and torque
+    offsets; the inertials must be physically consistent for Drake, e.g. from ``--method sdp``)."""
     path = Path(spec)
     if path.suffix == ".npz":
         from proprio.identification.model_io import load_model
         ident = load_model(path)
-        model = RigidBodyTorqueModel(ident.description_identified(), ident.coulomb_velocity_scale)
-        if not ident.physically_consistent:
-            try:
-                DrakeRobot(model.description)
-            except RuntimeError as exc:
-                raise ValueError(f"{path}: the identified inertials are not physically consistent, so Drake cannot "
-                                 f"build the model plant ({str(exc).splitlines()[0]}); identify with the SDP "
-                                 "method") from None
+        model = RigidBodyTorqueModel(ident.description_identified(), ident.coulomb_velocity_scale,
+                                     tuple(float(x) for x in ident.offsets))
+        try:
+            DrakeRobot(model.description)
+        except (RuntimeError, ValueError) as exc:
+            raise ValueError(f"{path}: Drake cannot build a plant from the identified inertials "
+                             f"({str(exc).splitlines()[0]}); identify with --method sdp for a physically consistent "
+                             "model") from None
         return model
     return RigidBodyTorqueModel(load_robot(spec))
 
@@ -162,7 +166,8 @@ def preprocess(rec: Recording, settings: FilterSettings = FilterSettings()) -> d
 
 def check_recording_matches(rec: Recording, desc: RobotDescription) -> Recording:
     """Validate ``rec`` against the model robot ``desc``: joint count, joint limits, and — when ``meta['robot']``
-    names a loadable robot — identical kinematics (joint origins, axes, flange). Raises :class:`RecordingError`."""
+    names another loadable robot — the same kinematics: flange pose and flange Jacobian (joint axes in the world)
+    agree at a fixed set of configurations (link frame conventions may differ). Raises :class:`RecordingError`."""
     rec = validate_recording(rec, desc)
     name = rec.meta.get("robot")
     if not name or name == desc.name:
@@ -172,12 +177,12 @@ def check_recording_matches(rec: Recording, desc: RobotDescription) -> Recording
     except (ValueError, OSError) as exc:
         raise RecordingError(f"recording: made on robot '{name}' (meta.robot) but the model robot is '{desc.name}', "
                              f"and '{name}' is not a known description whose kinematics could be compared") from exc
-    geo_r, geo_m = chain_geometry(rec_robot), chain_geometry(desc)
-    for field_name in ("world_base", "joint_origins", "axes", "flange"):
-        if np.shape(getattr(geo_r, field_name)) != np.shape(getattr(geo_m, field_name)) or not np.allclose(
-                getattr(geo_r, field_name), getattr(geo_m, field_name), atol=1e-6):
-            raise RecordingError(f"recording: robot '{name}' does not match the model robot '{desc.name}' "
-                                 f"(kinematics differ in {field_name})")
+    q = np.random.default_rng(0).uniform(desc.lower, desc.upper, (16, desc.n))
+    same = rec_robot.n == desc.n and np.allclose(flange_pose(rec_robot, q), flange_pose(desc, q), atol=1e-6) and \
+        np.allclose(flange_jacobian(rec_robot, q), flange_jacobian(desc, q), atol=1e-6)
+    if not same:
+        raise RecordingError(f"recording: robot '{name}' (meta.robot) does not match the model robot '{desc.name}' "
+                             "(different kinematics: flange pose or joint axes differ)")
     return rec
 
 

@@ -10,12 +10,14 @@ payload's weight *and* its inertial force during the motion.
 
     τ_dyn − F(τ_meas) − Jᵀ f_true =   [τ_rbd,model(q̂, q̂̇, q̂̈) − F(τ_rbd,model(q, q̇, q̈))]     derivatives
                                     + F(τ_rbd,model − τ_rbd,real)(q, q̇, q̈)                  inertial parameters
-                                    + [τ_int,model(q̂̇) − F(τ_link friction)]                friction model
+                                    + [τ_int,model(q̂̇) − F(τ_link friction)]                friction + offsets
                                     − Σ_e F(τ_e)                                             each sensor effect e
                                     + remainder (simulation vs. RNEA, filtered truth)
 
 with F the zero-phase filter applied to the measurements and (q, q̇, q̈) the true motion; each term is mapped through
-the same J⁻ᵀ, so the terms add up to the observer's force error.
+the same J⁻ᵀ, so the signed terms add up to the observer's force error. Terms can cancel: an identified model
+absorbs part of the sensor effects into its inertials and offsets, so its "inertial parameters" and "friction +
+offsets" terms are large and anti-correlated with the sensor terms; their RMS values do not add.
 """
 from __future__ import annotations
 
@@ -105,7 +107,7 @@ def error_budget(model: TorqueModel, rec: Recording, mapping: WrenchMapping = Wr
     effects = rec.meta.get("effects", {})
     link = [k for k in effects if k in EFFECTS and EFFECTS[k].place == "link" and f"tau_{k}" in rec.truth]
     link_friction = sum((rec.truth[f"tau_{k}"] for k in link), np.zeros_like(rec.tau))
-    terms["link friction model"] = model.tau_int(sig["q"], sig["qd"], sig["qdd"]) - low(link_friction)
+    terms["friction + offset model (τ_int)"] = model.tau_int(sig["q"], sig["qd"], sig["qdd"]) - low(link_friction)
     for k in effects:
         if k in EFFECTS and EFFECTS[k].place == "sensor" and f"tau_{k}" in rec.truth:
             terms[f"sensor: {k}"] = -low(rec.truth[f"tau_{k}"])
@@ -150,11 +152,15 @@ def _force_only(res: EstimationResult, obs: str, mapping: WrenchMapping, desc) -
     return wrench_from_joint_torque(jac, res.tau_ext[obs], fo)[0]
 
 
-def _stats(res: EstimationResult, row: str) -> tuple[np.ndarray, np.ndarray]:
-    if row in OBSERVERS:
-        return res.force_stats(row)
+def _error(res: EstimationResult, row: str) -> np.ndarray:
+    """Force error f̂ − f_true ``[N_valid, 3]`` of one table row (an observer, or its force-only variant)."""
     mask = res.valid()
-    err = res.wrench[row][mask, :3] - res.f_true[mask, :3]
+    return res.wrench[row][mask, :3] - res.f_true[mask, :3]
+
+
+def _stats(res: EstimationResult, row: str) -> tuple[np.ndarray, np.ndarray]:
+    """RMSE and σ [3] of a row's force error (for an observer row the same numbers as ``res.force_stats``)."""
+    err = _error(res, row)
     return np.sqrt(np.mean(err ** 2, axis=0)), np.std(err, axis=0)
 
 
@@ -164,15 +170,28 @@ def _vec(v) -> str:
 
 def format_table(exp_results: dict[float, EstimationResult], masses: tuple[float, ...], model_name: str,
                  budgets: dict[float, dict[str, np.ndarray]] | None = None) -> str:
-    """Table 5.4 layout: per observer and mass the RMSE and σ [x y z] of the force error [N], the thesis' RBD row
-    beside it, and (optionally) the RMS force error per error source."""
+    """Table 5.4 layout: per observer and mass the RMSE, σ and mean (bias) [x y z] of the force error [N], the
+    thesis' RBD RMSE beside it, the payload force seen after taring with the 0 g run (mean f̂(m) − mean f̂(0 g),
+    against the true mean difference), and (optionally) the RMS force error per error source."""
     lines = [f"Payload experiment (thesis §5, Table 5.4): force error f̂ − f_true [N], model '{model_name}'",
-             f"{'observer':<22}{'mass':>6}  {'RMSE [x y z]':<21}  {'σ [x y z]':<21}  {'thesis RBD RMSE':<21}"]
+             f"{'observer':<22}{'mass':>6}  {'RMSE [x y z]':<21}  {'σ [x y z]':<21}  {'mean [x y z]':<21}  "
+             f"{'thesis RBD RMSE':<21}"]
     for row in _OBSERVER_ROWS:
         for m in masses:
             rmse, std = _stats(exp_results[m], row)
             thesis = _vec(THESIS_RBD[m][0]) if m in THESIS_RBD else ""
-            lines.append(f"{row:<22}{int(round(m * 1000)):>5}g  {_vec(rmse):<21}  {_vec(std):<21}  {thesis}")
+            lines.append(f"{row:<22}{int(round(m * 1000)):>5}g  {_vec(rmse):<21}  {_vec(std):<21}  "
+                         f"{_vec(_error(exp_results[m], row).mean(axis=0)):<21}  {thesis}")
+    if 0.0 in masses and len(masses) > 1:
+        lines.append("")
+        lines.append("Payload seen after taring with the 0 g run: mean f̂(m) − mean f̂(0 g) [x y z] N (truth in brackets)")
+        base = exp_results[0.0]
+        for row in _OBSERVER_ROWS:
+            for m in (x for x in masses if x != 0.0):
+                res = exp_results[m]
+                seen = res.wrench[row][res.valid(), :3].mean(axis=0) - base.wrench[row][base.valid(), :3].mean(axis=0)
+                true = res.f_true[res.valid(), :3].mean(axis=0) - base.f_true[base.valid(), :3].mean(axis=0)
+                lines.append(f"{row:<22}{int(round(m * 1000)):>5}g  {_vec(seen):<21}  ({_vec(true)})")
     if budgets:
         lines.append("")
         lines.append("Error budget of the Jacobian observer: RMS force error [x y z] N per source (module docstring)")
@@ -198,23 +217,25 @@ def payload_experiment(model: str | Path | TorqueModel, out_dir: str | Path, sec
     Args:
         model: a :class:`TorqueModel` or a spec for :func:`load_torque_model` (shipped robot / identified .npz).
         seconds: duration of the RFMA validation trajectory [s]. masses: payloads [kg] (point masses at
-            ``com_flange`` in the flange frame [m]). seed: RFMA and twin seed. gain: momentum observer K_O [1/s].
+            ``com_flange`` in the flange frame [m]). seed: seed of the RFMA trajectory (the same motion for every
+            mass) and of the twin's sensor noise (``seed + k`` for the k-th mass). gain: momentum observer K_O [1/s].
         twin_config: the twin (default: the calibrated ``iiwa14_twin``).
     """
     from proprio.diagrams.twin import load_twin_config, simulate_twin
 
     torque_model = model if not isinstance(model, (str, Path)) else load_torque_model(model)
-    name = torque_model.description.name
+    name = Path(model).name if isinstance(model, (str, Path)) and Path(model).suffix == ".npz" else \
+        torque_model.description.name
     twin = load_twin_config(twin_config)
-    twin = dataclasses.replace(twin, seed=seed)
     traj = validation_trajectory(seconds, seed=seed)
     out = Path(out_dir)
     results: dict[float, EstimationResult] = {}
     budgets: dict[float, dict[str, np.ndarray]] = {}
     files: list[Path] = []
-    for m in tqdm(masses, desc="payload experiment", unit="mass", disable=not progress):
+    for k, m in enumerate(tqdm(masses, desc="payload experiment", unit="mass", disable=not progress)):
         payload = Payload(float(m), tuple(com_flange)) if m > 0 else None
-        rec = simulate_twin(twin.with_payload(payload), traj, progress=False)
+        run = dataclasses.replace(twin, seed=seed + k)           # an independent sensor-noise draw per run
+        rec = simulate_twin(run.with_payload(payload), traj, progress=False)
         if save_recordings:
             files.append(save_recording(rec, out / f"twin_{int(round(m * 1000))}g.npz"))
         res = estimate_wrench(torque_model, rec, gain=gain, mapping=mapping, filters=filters)
@@ -265,7 +286,7 @@ def _plot_errors(exp: PayloadExperiment, path: Path) -> Path:
     return path
 
 
-def demo_payload_experiment(model: str | Path | TorqueModel, out_dir: str | Path, seconds: float = 8.0) -> str:
+def demo_payload_experiment(model: str | Path | TorqueModel, out_dir: str | Path, seconds: float = 5.0) -> str:
     """The payload experiment for ``proprio demo`` on a short trajectory (≈``seconds`` s per mass); returns the
     table text (also written to ``out_dir/table.txt``)."""
     return payload_experiment(model, out_dir, seconds=seconds, progress=False).table_text

@@ -40,7 +40,7 @@ from pydrake.multibody.plant import DiscreteContactApproximation, MultibodyPlant
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.controllers import InverseDynamicsController
 from pydrake.systems.framework import Diagram, DiagramBuilder
-from pydrake.systems.primitives import VectorLogSink
+from pydrake.systems.primitives import Multiplexer, VectorLogSink
 from pydrake.trajectories import PiecewisePolynomial, Trajectory
 from tqdm import tqdm
 
@@ -51,9 +51,11 @@ from proprio.payload import Payload, attach_payload
 from proprio.plant import DrakeRobot
 from proprio.recording import Recording
 from proprio.urdf import to_urdf
-from proprio.systems.joint_drive import AddJointDrive, JointDrive, check_explicit_friction
+from proprio.systems.joint_drive import (
+    AddJointDrive, JointDrive, check_elastic_stability, check_explicit_friction, friction_slope,
+)
 from proprio.systems.joint_effects import (
-    Elasticity, EncoderNoise, JointEffect, MotionSignals, make_effects,
+    Elasticity, EncoderNoise, JointEffect, MotionSignals, Motor, make_effects,
 )
 from proprio.systems.sensors import PositionSensor, TorqueSensor
 from proprio.systems.trajectories import AddTrajectorySource, sample_trajectory
@@ -180,35 +182,67 @@ class TwinDiagram:
     control_plant: Any             # keeps the controller's model alive
 
 
-def build_twin_diagram(config: TwinConfig, trajectory: Trajectory) -> TwinDiagram:
-    """Wire the twin for ``trajectory`` (joint positions vs. time; velocity/acceleration by differentiation)."""
-    from pydrake.systems.primitives import Multiplexer
+def _robot_plant(desc: RobotDescription, payload: Payload | None, time_step: float,
+                 rotor_inertia: np.ndarray | None) -> MultibodyPlant:
+    """The robot as a finalized MultibodyPlant (proprio's URDF, no collision shapes) with reflected rotor inertia.
 
-    desc, n, dt = config.robot, config.robot.n, config.time_step
-    builder = DiagramBuilder()
-    # The twin plays planned, collision-free paths and draws nothing, so its plant has no SceneGraph: geometry
-    # queries would cost ~1/3 of a step. Same URDF as proprio.plant.AddRobot, collision shapes left out.
-    plant = builder.AddSystem(MultibodyPlant(dt))
-    instance = Parser(plant).AddModelsFromString(to_urdf(desc, config.payload, collision=False), "urdf")[0]
+    The twin plays planned, collision-free paths and draws nothing, so it needs no SceneGraph: geometry queries
+    would cost ~1/3 of a step. Same URDF as ``proprio.plant.AddRobot``.
+    """
+    plant = MultibodyPlant(time_step)
+    Parser(plant).AddModelsFromString(to_urdf(desc, payload, collision=False), "urdf")
     plant.mutable_gravity_field().set_gravity_vector(np.asarray(desc.gravity, dtype=float))
-    plant.SetUseSampledOutputPorts(False)          # log q̈ and u of the state at the logged instant
-    plant.set_discrete_contact_approximation(DiscreteContactApproximation.kTamsi)   # no contact: ≈3× faster than SAP
+    if rotor_inertia is not None:
+        for k, index in enumerate(plant.GetJointActuatorIndices()):
+            plant.get_joint_actuator(index).set_default_rotor_inertia(float(rotor_inertia[k]))
+    if time_step > 0:
+        plant.SetUseSampledOutputPorts(False)          # log q̈ and u of the state at the logged instant
+        plant.set_discrete_contact_approximation(DiscreteContactApproximation.kTamsi)   # no contact: ≈3× faster
     plant.Finalize()
-    plant.set_name("plant")
+    return plant
 
-    control_plant = DrakeRobot(desc, config.payload if config.payload_model else None).plant
+
+def _effective_inertia(desc: RobotDescription, payload: Payload | None, trajectory: Trajectory,
+                       extra: np.ndarray) -> np.ndarray:
+    """Smallest inertia a torque on each joint sees along the trajectory: ``min_t 1/[(M(q)+diag(extra))⁻¹]_jj``."""
+    robot = DrakeRobot(desc, payload)
+    times = np.linspace(trajectory.start_time(), trajectory.end_time(), 25)
+    inv = [np.diag(np.linalg.inv(robot.mass_matrix(trajectory.value(t).ravel()) + np.diag(extra))) for t in times]
+    return 1.0 / np.max(inv, axis=0)
+
+
+def build_twin_diagram(config: TwinConfig, trajectory: Trajectory) -> TwinDiagram:
+    """Wire the twin for ``trajectory`` (joint positions vs. time; velocity/acceleration by differentiation).
+
+    Raises ``ValueError`` when the friction or the elasticity is too stiff for the time step on this trajectory.
+    """
+    desc, n, dt = config.robot, config.robot.n, config.time_step
+    link = [e for e in config.effects if e.place == "link"]
+    motor = next((e for e in config.effects if isinstance(e, Motor)), None)
+    elastic = next((e for e in config.effects if isinstance(e, Elasticity)), None)
+    rotor = motor.motor_inertia if motor is not None else np.zeros(n)
+    if elastic is None:
+        check_explicit_friction(friction_slope(link, motor),
+                                _effective_inertia(desc, config.payload, trajectory, rotor), dt)
+    else:
+        link_inertia = _effective_inertia(desc, config.payload, trajectory, np.zeros(n))
+        check_explicit_friction(friction_slope(link), link_inertia, dt)
+        check_elastic_stability(elastic, motor, link_inertia, dt)
+
+    builder = DiagramBuilder()
+    plant = builder.AddSystem(_robot_plant(desc, config.payload, dt, rotor if elastic is None else None))
+    plant.set_name("plant")
+    instance = plant.GetModelInstanceByName(desc.name)
+    control_plant = _robot_plant(desc, config.payload if config.payload_model else None, 0.0, rotor)
     ctrl = builder.AddSystem(InverseDynamicsController(control_plant, config.kp, config.ki, config.kd, True))
     ctrl.set_name("controller")
-    link = [e for e in config.effects if e.place == "link"]
-    elastic = next((e for e in config.effects if isinstance(e, Elasticity)), None)
-    drive = AddJointDrive(builder, n, link, elastic, dt)
+    drive = AddJointDrive(builder, n, link, motor, elastic, dt)
     source = AddTrajectorySource(builder, trajectory)
 
     state = plant.get_state_output_port(instance)
     builder.Connect(source.GetOutputPort("state"), ctrl.get_input_port_desired_state())
     builder.Connect(source.GetOutputPort("qdd"), ctrl.get_input_port_desired_acceleration())
-    # An elastic joint is position-controlled on the motor side (collocated, as the iiwa's motor encoders): PD on the
-    # link position through the spring is the classic non-collocated, unstable loop.
+    # an elastic joint is position-controlled on the motor side (collocated, see joint_drive.py)
     feedback = drive.GetOutputPort("motor_state") if elastic is not None else state
     builder.Connect(feedback, ctrl.get_input_port_estimated_state())
     builder.Connect(ctrl.get_output_port_generalized_force(), drive.GetInputPort("motor_torque"))
@@ -224,9 +258,6 @@ def build_twin_diagram(config: TwinConfig, trajectory: Trajectory) -> TwinDiagra
     builder.Connect(mux.get_output_port(), logger.get_input_port())
     diagram = builder.Build()
     diagram.set_name(f"twin:{config.name}")
-
-    mass = DrakeRobot(desc, config.payload).mass_matrix(trajectory.value(trajectory.start_time()).ravel())
-    check_explicit_friction(link, np.diag(mass), dt)
     return TwinDiagram(diagram, plant, drive, ctrl, logger, config, control_plant)
 
 
@@ -315,7 +346,7 @@ def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload |
     chunks, got = [], 0
     wall0 = time.perf_counter()
     bar = tqdm(total=round(t1 - t0, 3), unit="s sim", disable=not progress, desc=f"twin {config.name}",
-               bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} s sim [{elapsed}<{remaining}, {postfix}]")
+               bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} s sim [{elapsed}<{remaining}{postfix}]")
     t = t0
     while got < n_steps:
         t = min(t + chunk_s, t0 + (n_steps - 1) * dt)
@@ -333,10 +364,11 @@ def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload |
     bar.close()
     wall = time.perf_counter() - wall0
     data = np.concatenate(chunks)
-    return _to_recording(config, t0 + keep * dt, data, wall)
+    return _to_recording(config, twin.drive, t0 + keep * dt, data, wall)
 
 
-def _to_recording(config: TwinConfig, t: np.ndarray, data: np.ndarray, wall_s: float) -> Recording:
+def _to_recording(config: TwinConfig, drive: JointDrive, t: np.ndarray, data: np.ndarray, wall_s: float
+                  ) -> Recording:
     """Sensor models + truth channels from the logged true motion ``[q; q̇; q̈; u]``."""
     desc, n = config.robot, config.robot.n
     q, qd, qdd, u = (data[:, k * n:(k + 1) * n] for k in range(4))
@@ -345,12 +377,10 @@ def _to_recording(config: TwinConfig, t: np.ndarray, data: np.ndarray, wall_s: f
     truth: dict[str, np.ndarray] = {}
     tau_rbd = inverse_dynamics(attach_payload(desc, config.payload), q, qd, qdd)
     truth["tau_rbd"] = tau_rbd
-    fric = np.zeros_like(q)
     for eff in config.effects:
         if eff.place == "link":
             truth[f"tau_{eff.name}"] = eff.torque(s)
-            fric += truth[f"tau_{eff.name}"]
-    tau_j = u + fric
+    tau_j = drive.sensed_torque(u, qd, qdd)
     truth["tau_J_true"] = tau_j
     sensor_effects = [e for e in config.effects if e.place == "sensor" and not isinstance(e, EncoderNoise)]
     tau_meas, parts = TorqueSensor(sensor_effects).measure(s, tau_j, rng)
@@ -369,30 +399,46 @@ def _to_recording(config: TwinConfig, t: np.ndarray, data: np.ndarray, wall_s: f
 # the Fig. 2.5 experiment and the demo
 # ------------------------------------------------------------------------------------------------------------------
 def hysteresis_test_trajectory(desc: RobotDescription, amplitude_deg: float = 10.0, speed_fraction: float = 0.1,
-                               cycles: int = 2, pause_s: float = 0.5) -> tuple[PiecewisePolynomial, list[tuple]]:
+                               cycles: int = 2, blend_s: float = 0.3, pause_s: float = 0.5
+                               ) -> tuple[PiecewisePolynomial, list[tuple[int, float, float]]]:
     """Joint-wise triangular motion ±amplitude around the zero pose at ``speed_fraction`` of each joint's velocity
-    limit (thesis Fig. 2.5), one joint after the other. Returns the first-order-hold trajectory and, per joint,
-    ``(joint, t_start, t_end)`` of its window."""
-    amp = math.radians(amplitude_deg)
+    limit (thesis Fig. 2.5), one joint after the other.
+
+    The velocity is constant except at the vertices, where it reverses linearly within ``blend_s``: a triangle
+    convolved with a ``blend_s`` box, its corners raised by ``v·blend_s/4`` so that the peaks reach ±amplitude.
+    Returns the trajectory (cubic Hermite through 10 ms knots) and, per joint, ``(joint, t_start, t_end)``.
+    """
+    from scipy.ndimage import uniform_filter1d
+
     times, points, windows = [0.0], [np.zeros(desc.n)], []
-    t = 0.0
+    t = pause_s
     for j in range(desc.n):
-        leg = amp / (speed_fraction * desc.velocity_limits[j])
+        speed = speed_fraction * desc.velocity_limits[j]
+        amp = math.radians(amplitude_deg) + speed * blend_s / 4.0
+        leg = amp / speed
         start = t
-        pattern = [amp] + [-amp, amp] * cycles + [0.0]
+        times.append(t)
+        points.append(np.zeros(desc.n))
         prev = 0.0
-        for target in pattern:
+        for target in [amp] + [-amp, amp] * cycles + [0.0]:
             t += leg * abs(target - prev) / amp
             q = np.zeros(desc.n)
             q[j] = target
             times.append(t)
             points.append(q)
             prev = target
-        windows.append((j, start, t))
+        windows.append((j, start, t + blend_s))
         t += pause_s
-        times.append(t)
-        points.append(np.zeros(desc.n))
-    return PiecewisePolynomial.FirstOrderHold(np.array(times), np.array(points).T), windows
+    times.append(t)
+    points.append(np.zeros(desc.n))
+    corner = PiecewisePolynomial.FirstOrderHold(np.array(times), np.array(points).T)
+    fine = 1e-3
+    tf = np.arange(0.0, t + fine / 2, fine)
+    width = int(round(blend_s / fine)) | 1
+    q_smooth = uniform_filter1d(corner.vector_values(tf).T, width, axis=0, mode="nearest")
+    qd_smooth = np.gradient(q_smooth, tf, axis=0)
+    knots = slice(None, None, 10)
+    return PiecewisePolynomial.CubicHermite(tf[knots], q_smooth[knots].T, qd_smooth[knots].T), windows
 
 
 def run_hysteresis_test(config: TwinConfig, out_dir: str | Path, progress: bool = True) -> tuple[Path, Recording]:

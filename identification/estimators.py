@@ -265,9 +265,31 @@ def sdp(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, 
     polished = _full_set(base, phi_ls, phi_val)                       # exact LS optimum if it stays feasible
     if _consistent(polished, desc.n, min_mass):
         phi_val, sol[p:] = polished, phi_ls[r:]
+    phi_val = _clip_second_moments(phi_val, desc.n)
     phi_b = np.concatenate([base.to_base(phi_val), sol[p:]])
     pct, _ = _sigma_pct(ne, base, phi_b, ones)
     return _model(desc, base, phi_b, pct, phi_val, "sdp", coulomb_velocity_scale, data, True)
+
+
+def _clip_second_moments(phi: np.ndarray, n: int, floor: float = 1e-9) -> np.ndarray:
+    """Raise each link's central second-moment eigenvalues to ``floor · trace`` (the interior-point solution may sit
+    ~1e-9 outside the cone); changes parameters by ≲ 1e-9 and makes Drake's ``IsPhysicallyValid`` hold strictly."""
+    out = phi.copy()
+    for j in range(n):
+        m, h, i_o = out[12 * j], out[12 * j + 1:12 * j + 4], out[12 * j + 4:12 * j + 10]
+        c = h / m
+        i_mat = np.array([[i_o[0], i_o[1], i_o[2]], [i_o[1], i_o[3], i_o[4]], [i_o[2], i_o[4], i_o[5]]])
+        i_c = i_mat - m * (c @ c * np.eye(3) - np.outer(c, c))
+        sig = 0.5 * np.trace(i_c) * np.eye(3) - i_c                       # central second moment Σ_c
+        ev, vec = np.linalg.eigh(sig)
+        lo = floor * max(np.trace(sig), 1e-12)
+        if ev[0] >= lo:
+            continue
+        sig = vec @ np.diag(np.maximum(ev, lo)) @ vec.T
+        i_c = np.trace(sig) * np.eye(3) - sig
+        i_mat = i_c + m * (c @ c * np.eye(3) - np.outer(c, c))
+        out[12 * j + 4:12 * j + 10] = i_mat[[0, 0, 0, 1, 1, 2], [0, 1, 2, 1, 2, 2]]
+    return out
 
 
 def _consistent(phi: np.ndarray, n: int, min_mass: float) -> bool:

@@ -192,10 +192,12 @@ def optimise_excitation(desc: RobotDescription, config: dict[str, Any] | None = 
                                      np.full(t_con.size, vmax[j]), x_j)
         x_all = np.concatenate([a.ravel(), b.ravel()])
         prog.AddCost(cost_fn, vars=x_all)
-        x0 = rng.uniform(-1, 1, x_all.size) * float(op["initial_amplitude"])
+        x0 = _feasible_start(rng, float(op["initial_amplitude"]), n, L, (qa0, qb0, va0, vb0, aa0, ab0),
+                             (qa, qb, va, vb), lo, hi, vmax)
         result = solver.Solve(prog, x0, options)
         x = result.GetSolution(x_all)
-        traj = FourierTrajectory(x[:n * L].reshape(n, L), x[n * L:].reshape(n, L), w)
+        traj = _into_limits(FourierTrajectory(x[:n * L].reshape(n, L), x[n * L:].reshape(n, L), w), lo, hi, vmax)
+        x = np.concatenate([traj.a.ravel(), traj.b.ravel()])
         feasible = _feasible(traj, lo, hi, vmax)
         c = cost.value_and_gradient(x)[0] if feasible else math.inf
         conds.append(c)
@@ -206,6 +208,36 @@ def optimise_excitation(desc: RobotDescription, config: dict[str, Any] | None = 
         raise RuntimeError("excitation: no start reached a feasible trajectory; raise optimisation.starts")
     best.start_conds = conds
     return best
+
+
+def _feasible_start(rng, amplitude, n, L, start_basis, grid_basis, lo, hi, vmax) -> np.ndarray:
+    """Random coefficients projected onto the zero-start equalities (eq. 4.14) and scaled into the limits, so that
+    the solver starts feasible for all (linear) constraints."""
+    qa0, qb0, va0, vb0, aa0, ab0 = start_basis
+    qa, qb, va, vb = grid_basis
+    eq = np.vstack([np.concatenate([qa0[0], qb0[0]]), np.concatenate([va0[0], vb0[0]]),
+                    np.concatenate([aa0[0], ab0[0]])])                       # [3, 2L]
+    null = np.eye(2 * L) - eq.T @ np.linalg.solve(eq @ eq.T, eq)
+    x = rng.uniform(-1, 1, (n, 2 * L)) * amplitude @ null.T
+    pos, vel = x @ np.hstack([qa, qb]).T, x @ np.hstack([va, vb]).T        # [n, T]
+    with np.errstate(divide="ignore"):
+        ratio = np.min(np.stack([np.min(np.where(pos > 0, hi[:, None] / pos, np.inf), axis=1),
+                                 np.min(np.where(pos < 0, lo[:, None] / pos, np.inf), axis=1),
+                                 vmax / np.max(np.abs(vel), axis=1)]), axis=0)
+    x *= np.minimum(1.0, 0.95 * ratio)[:, None]
+    return np.concatenate([x[:, :L].ravel(), x[:, L:].ravel()])
+
+
+def _into_limits(traj: FourierTrajectory, lo: np.ndarray, hi: np.ndarray, vmax: np.ndarray) -> FourierTrajectory:
+    """Scale each joint's coefficients down just enough to meet the limits on a fine grid (the constraints hold
+    only at the constraint samples; scaling keeps the zero start since ``lo < 0 < hi``)."""
+    q, qd, _ = traj.evaluate(np.linspace(0.0, traj.period, 4000))
+    with np.errstate(divide="ignore"):
+        ratio = np.min(np.stack([np.min(np.where(q > 0, hi / q, np.inf), axis=0),
+                                 np.min(np.where(q < 0, lo / q, np.inf), axis=0),
+                                 vmax / np.max(np.abs(qd), axis=0)]), axis=0)
+    f = np.minimum(1.0, ratio)[:, None]
+    return FourierTrajectory(traj.a * f, traj.b * f, traj.omega_f)
 
 
 def _feasible(traj: FourierTrajectory, lo: np.ndarray, hi: np.ndarray, vmax: np.ndarray, tol: float = 1e-3) -> bool:

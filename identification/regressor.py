@@ -78,7 +78,8 @@ def parameters_to_links(phi: np.ndarray, template: RobotDescription) -> list[Lin
         i_o = np.array([[b[4], b[5], b[6]], [b[5], b[7], b[8]], [b[6], b[8], b[9]]])
         i_c = i_o - m * (c @ c * np.eye(3) - np.outer(c, c))
         links.append(Link(name=old.name, mass=m, com_xyz=tuple(float(x) for x in c),
-                          inertia_com=(i_c[0, 0], i_c[1, 1], i_c[2, 2], i_c[0, 1], i_c[0, 2], i_c[1, 2]),
+                          inertia_com=tuple(float(i_c[a, b]) for a, b in ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2),
+                                                                          (1, 2))),
                           com_rpy=(0.0, 0.0, 0.0), collision=old.collision))
     return links
 

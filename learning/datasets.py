@@ -1,7 +1,8 @@
 """The §4.4 data protocol: Recordings → features at the model rate → windows of length T → 80/20 split.
 
-1. Per Recording (at its own rate): q̇, q̈ from the Recording, or filtered central differences when it has none
-   (:func:`proprio.learning.features.filtered_derivatives`); optionally a zero-phase low-pass on the measured τ
+1. Per Recording (at its own rate): q̇, q̈ from the Recording, or filtered central differences of q when it has
+   none or ``derivatives: filtered`` (:func:`proprio.learning.features.filtered_derivatives`; a twin logs the TRUE
+   q̇, q̈, a real robot does not); optionally a zero-phase low-pass on the measured τ
    (the thesis trains on "post-processed" torques; ``tau_filter_hz``); ``trim_s`` cut from both ends (filter
    start-up transients).
 2. Every ``decimate``-th sample kept (the thesis drops every second sample of its ≈150 Hz data → 75 Hz). The model
@@ -39,7 +40,8 @@ class DataConfig:
     seed: int = 0                           # shuffles the subsequence order
     reversal_deadband_deg: float = DEFAULT_DEADBAND_DEG
     r_max_deg: float = R_MAX_DEG
-    derivative_cutoff_hz: float = 5.0       # only used when a Recording has no qd/qdd
+    derivatives: str = "auto"               # auto: the Recording's qd/qdd if present | filtered: always from q
+    derivative_cutoff_hz: float = 5.0       # Butterworth cutoff of the filtered derivatives [Hz]
     tau_filter_hz: float | None = None      # zero-phase low-pass on measured τ (None: raw)
     trim_s: float = 0.0                     # cut from both ends of every Recording [s]
 
@@ -51,6 +53,8 @@ class DataConfig:
         if unknown:
             raise ValueError(f"data: unknown key(s) {unknown}; allowed: {sorted(known)}")
         cfg = cls(**d)
+        if cfg.derivatives not in ("auto", "filtered"):
+            raise ValueError(f"data: derivatives must be 'auto' or 'filtered', got {cfg.derivatives!r}")
         if cfg.decimate < 1 or cfg.window < 1:
             raise ValueError("data: decimate and window must be >= 1")
         if not 0 < cfg.test_fraction < 1 or not 0 <= cfg.val_fraction < 1:
@@ -113,7 +117,7 @@ def prepare_recording(rec: Recording, tau_rbd: TauRbdProvider, cfg: DataConfig, 
                       ) -> PreparedRecording:
     """Steps 1–3 of the module docstring for one Recording."""
     rate = rec.rate_hz
-    if rec.qd is not None and rec.qdd is not None:
+    if cfg.derivatives == "auto" and rec.qd is not None and rec.qdd is not None:
         qd, qdd = rec.qd, rec.qdd
     else:
         qd, qdd = filtered_derivatives(rec.t, rec.q, cfg.derivative_cutoff_hz)

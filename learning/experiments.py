@@ -31,7 +31,7 @@ from proprio.learning.training import TrainConfig, TrainResult, train_model
 from proprio.recording import Recording
 
 __all__ = ["load_config", "Backbone", "resolve_backbone", "prepare_split", "train_from_config", "evaluate_saved",
-           "train_grid", "demo_hybrid", "HybridTorqueModel", "GRID_VARIANTS"]
+           "train_grid", "demo_hybrid", "payload_table", "HybridTorqueModel", "GRID_VARIANTS"]
 
 GRID_VARIANTS = ((True, True), (True, False), (False, False), (False, True))   # (hybrid, use_r), Table 5.3 order
 
@@ -209,7 +209,7 @@ def _plot_grid(rows: list[TableRow], path: Path) -> None:
 
 
 def demo_hybrid(train_recs: Sequence[Recording], test_recs: Sequence[Recording], robot: RobotDescription | str,
-                out_dir: str | Path, epochs: int = 15) -> tuple[HybridModel, str]:
+                out_dir: str | Path, epochs: int = 30) -> tuple[HybridModel, str]:
     """The demo's stage: a small hybrid LSTM-2-FCL (with r) trained on ``train_recs`` for ``epochs`` and compared to
     the RBD backbone of ``robot`` on ``test_recs``; the model is saved to ``out_dir/hybrid_lstm.pt``.
     Returns ``(model, Table 5.3 text)``. Sized for < 60 s on 2 cores with a few minutes of data."""
@@ -220,21 +220,56 @@ def demo_hybrid(train_recs: Sequence[Recording], test_recs: Sequence[Recording],
     return model, format_table(rows)
 
 
+def payload_table(models: dict[str, HybridModel | None], backbone: Backbone, recordings: dict[str, Recording],
+                  data: DataConfig, contact_point: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> str:
+    """Table 5.4 layout: force error of the Jacobian observer f̂ = J⁻ᵀ(τ_model − τ_J) (eq. 3.11/3.12, force-only,
+    at ``contact_point`` in the flange frame) against the Recordings' true ``f_ext``.
+
+    ``models``: name → model (None = the backbone alone, "RBD"); ``recordings``: label (e.g. "500 g") → Recording
+    with ``f_ext``, prepared with ``data`` like the training data. Per model and recording: RMSE [N] and the standard
+    deviation of the error [N] along x, y, z (world frame); samples flagged unreliable (near-singular J) are skipped.
+    """
+    from proprio.systems.observers import WrenchMapping, jacobian_wrench
+    mapping = WrenchMapping(force_only=True, contact_point=contact_point)
+    lines = [f"{'model':<28} {'payload':>8}  {'RMSE x, y, z [N]':>22}  {'std x, y, z [N]':>22}  {'samples':>7}"]
+    for label, rec in recordings.items():
+        if rec.f_ext is None:
+            raise ValueError(f"payload_table: recording '{label}' has no f_ext (true wrench)")
+        prep = prepare_recording(rec, backbone.tau_rbd, data, label)
+        keep = np.arange(int(round(data.trim_s * rec.rate_hz)), rec.n_samples - int(round(data.trim_s * rec.rate_hz)),
+                         data.decimate)
+        f_true = rec.f_ext[keep, :3]
+        q = prep.features[:, prep.n_joints:2 * prep.n_joints]
+        for name, model in models.items():
+            tau_model = prep.tau_rbd if model is None else predict_streaming(model, prep.features)
+            wrench, _, unreliable = jacobian_wrench(backbone.description, q, prep.tau, tau_model, mapping)
+            err = (wrench[:, :3] - f_true)[~unreliable]
+            rmse, std = np.sqrt((err ** 2).mean(0)), err.std(0)
+            fmt = lambda v: "[" + " ".join(f"{x:6.2f}" for x in v) + "]"  # noqa: E731
+            lines.append(f"{name:<28} {label:>8}  {fmt(rmse):>22}  {fmt(std):>22}  {len(err):>7}")
+    return "\n".join(lines)
+
+
 @dataclass
 class HybridTorqueModel:
-    """τ_dyn = τ_RBD + τ_NN as a sequence model for the estimation diagram's ``TorqueModel`` protocol.
+    """τ_dyn = τ_HYB = τ_backbone + τ_NN for the estimation diagram's ``TorqueModel`` protocol (offline use, e.g.
+    ``estimate_wrench_offline``).
 
-    ``tau_int(q, qd, qdd)`` is the backbone's friction (if any) plus the network residual run in streaming mode over
-    the given samples, which must be ONE contiguous sequence at the model rate (``model.cfg.rate_hz``)."""
+    ``tau_rbd`` is the RNEA of ``description``; ``tau_int = τ_HYB − tau_rbd`` (the backbone's friction plus the network
+    residual), with the network run in streaming mode over the given samples, which must be ONE contiguous sequence
+    at the model rate (``model.cfg.rate_hz``: decimate a Recording first). ``backbone`` is the τ_RBD provider the
+    model was trained with (default: RNEA + friction of ``description``). Online, use
+    :class:`proprio.systems.residual_network.ResidualNetworkSystem` instead."""
     description: RobotDescription
     model: HybridModel
+    backbone: TauRbdProvider | None = None
 
     def tau_rbd(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         from proprio.dynamics import inverse_dynamics
         return inverse_dynamics(self.description, q, qd, qdd)
 
     def tau_int(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
-        backbone = rbd_provider(self.description)(q, qd, qdd)
+        backbone = (self.backbone or rbd_provider(self.description))(q, qd, qdd)
         r = rotational_displacement(q, self.model.cfg.reversal_deadband_deg, self.model.cfg.r_max_deg)
         tau = predict_streaming(self.model, feature_matrix(backbone, q, qd, qdd, r))
         return tau - self.tau_rbd(q, qd, qdd)

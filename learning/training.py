@@ -36,8 +36,8 @@ class TrainConfig:
     max_epochs: int = 100
     batch_size: int = 32            # subsequences per batch
     lr_patience: int = 2            # ReduceLROnPlateau patience [epochs]
-    lr_factor: float = 0.1
-    early_stop_patience: int = 6    # epochs without a better validation loss
+    lr_factor: float = 0.5
+    early_stop_patience: int = 10   # epochs without a better validation loss
     seed: int = 0
     device: str = "auto"            # auto | cpu | cuda
 

@@ -86,6 +86,10 @@ class CollisionChecker:
         q = np.atleast_2d(np.asarray(q, dtype=float))
         return np.array([self._query(qi).HasCollisions() for qi in q], dtype=bool)
 
+    def any_collision(self, q: np.ndarray) -> bool:
+        """Whether any of the configurations ``q [N,n]`` collides (stops at the first that does)."""
+        return any(self._query(qi).HasCollisions() for qi in np.atleast_2d(np.asarray(q, dtype=float)))
+
     def colliding_pairs(self, q: np.ndarray) -> list[tuple[str, str]]:
         """Names of the penetrating geometry pairs at one configuration ``q [n]`` (for diagnostics)."""
         query = self._query(np.asarray(q, dtype=float))

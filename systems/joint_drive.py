@@ -1,71 +1,109 @@
-"""The joint drive: motor torque command → torque acting on the links, with the motor side (series elasticity, motor
-inertia, motor friction: hidden behind the torque sensor) and the link-side friction (visible in τ_J).
+"""The joint drive: motor torque command → torque acting on the links, with the motor side (motor inertia and
+friction, series elasticity: hidden behind the torque sensor) and the link-side friction (visible in τ_J).
 
-One Python :class:`JointDrive` ``LeafSystem`` does all per-step Python work of the twin, vectorised over the joints:
+One Python :class:`JointDrive` ``LeafSystem`` holds all per-step Python work of the twin, vectorised over joints:
 
-* **rigid drive** (no ``elasticity`` effect): the link receives ``u = τ_m − τ_f,link(q̇)``; the transmitted,
-  sensed torque is ``τ_J = τ_m``.
-* **elastic drive** (``elasticity`` effect, thesis eq. 3.6): discrete motor state ``[θ, θ̇]`` (rad, rad/s),
-  ``B θ̈ = τ_m − τ_f,m(θ̇) − τ_s``, spring ``τ_s = K(θ − q) + D(θ̇ − q̇)``; the link receives
-  ``u = τ_s − τ_f,link(q̇)`` and the sensor sees ``τ_J = τ_s``. The motor state is advanced with semi-implicit
-  Euler at the plant's period.
+* **rigid drive** (no ``elasticity`` effect): θ = q. The reflected motor inertia B of the ``motor`` effect is
+  Drake's rotor inertia in the plant (implicit, exact); the drive applies ``u = τ_m − τ_f,m(q̇) − τ_f,link(q̇)`` and
+  the sensor sees ``τ_J = τ_m − τ_f,m − B q̈ = u + τ_f,link − B q̈``.
+* **elastic drive** (``elasticity`` + ``motor``, thesis eq. 3.6): discrete motor state ``[θ, θ̇]`` (rad, rad/s),
+  ``B θ̈ = τ_m − τ_f,m(θ̇) − τ_s``, spring ``τ_s = K(θ − q) + D(θ̇ − q̇)``, advanced with semi-implicit Euler at the
+  plant's period; the link receives ``u = τ_s − τ_f,link(q̇)`` and the sensor sees ``τ_J = τ_s = u + τ_f,link``.
+  The controller then feeds back the motor state (collocated, like the iiwa's motor encoders): PD on the link
+  position through the spring is the classic unstable non-collocated loop.
 
-Either way ``τ_J = u + τ_f,link`` and, from the link dynamics, ``τ_J = τ_rbd(q, q̇, q̈) + τ_f,link − Jᵀ f_ext``: the
-twin recovers the true τ_J from the logged ``actuation`` port and q̇.
+Either way the link dynamics give ``τ_J = τ_rbd(q, q̇, q̈) + τ_f,link − Jᵀ f_ext``, and the twin recovers the true τ_J
+from the logged ``actuation`` and the motion (:meth:`JointDrive.sensed_torque`).
 
-Friction is applied explicitly (from the state at the start of the step), which is stable while
-``(c_j / M_jj)·dt < 2`` with ``c_j`` the friction's slope ``F_v + F_c/v_s (+ F_s/v_s)``; :func:`check_explicit_friction`
-refuses configurations that violate it with margin.
+Friction and the spring act explicitly (from the state at the start of the step). That is stable while
+``(c_j / m)·dt < 2`` with ``c_j`` the friction slope ``F_v + F_c/v_s (+ F_s/v_s)`` and ``m`` the smallest inertia the
+joint's torque can see (``λ_min(M) + B``), and for the spring while ``(ω·dt)² + 2·(D/μ)·dt`` stays below ~2 (μ the
+motor–link relative inertia); :func:`check_explicit_friction` and :func:`check_elastic_stability` refuse
+configurations that violate them with a 2× margin. With the iiwa's light links (λ_min(M) ≈ 0.003 kg·m² when joints 1
+and 3 are coaxial) realistic stiffness (~10⁴ N·m/rad) needs a time step well below 1 ms.
 """
 from __future__ import annotations
 
 import numpy as np
 from pydrake.systems.framework import BasicVector, Context, DiagramBuilder, DiscreteValues, LeafSystem
 
-from proprio.systems.joint_effects import Elasticity, JointEffect, Stribeck, ViscousCoulomb
+from proprio.systems.joint_effects import Elasticity, JointEffect, Motor, Stribeck, ViscousCoulomb
 
-__all__ = ["JointDrive", "AddJointDrive", "check_explicit_friction", "friction_slope"]
+__all__ = ["JointDrive", "AddJointDrive", "check_explicit_friction", "check_elastic_stability", "friction_slope"]
 
 
-def friction_slope(link_effects: list[JointEffect]) -> np.ndarray:
-    """Largest ``∂τ_f/∂q̇`` [N·m·s/rad] per joint of the velocity-dependent link friction (at q̇ = 0)."""
+def friction_slope(link_effects: list[JointEffect], motor: Motor | None = None) -> np.ndarray:
+    """Largest ``∂τ_f/∂q̇`` [N·m·s/rad] per joint of the velocity-dependent friction (at q̇ = 0)."""
     slope = 0.0
     for eff in link_effects:
         if isinstance(eff, ViscousCoulomb):
             slope = slope + eff.viscous + eff.coulomb / eff.smooth_velocity
         elif isinstance(eff, Stribeck):
             slope = slope + eff.static / eff.smooth_velocity
+    if motor is not None:
+        slope = slope + motor.motor_viscous + motor.motor_coulomb / motor.smooth_velocity
     return np.asarray(slope, dtype=float)
 
 
-def check_explicit_friction(link_effects: list[JointEffect], mass_diagonal: np.ndarray, time_step: float) -> None:
-    """Raise ``ValueError`` when explicit friction would make the discrete twin unstable (margin 2×)."""
-    ratio = friction_slope(link_effects) * time_step / np.asarray(mass_diagonal)
+def check_explicit_friction(slope: np.ndarray, inertia: np.ndarray, time_step: float) -> None:
+    """Raise ``ValueError`` when explicit friction of slope ``slope`` [N·m·s/rad] on inertia ``inertia`` [kg·m²]
+    would make the discrete twin unstable (2× margin)."""
+    ratio = np.asarray(slope) * time_step / np.asarray(inertia)
     if np.any(ratio > 1.0):
         j = int(np.argmax(ratio))
-        raise ValueError(f"link friction of joint {j + 1} is too stiff for time_step {time_step:g} s (slope·dt/M = "
-                         f"{ratio[j]:.2f} > 1): raise smooth_velocity or lower the Coulomb level")
+        raise ValueError(f"friction of joint {j + 1} is too stiff for time_step {time_step:g} s (slope·dt/inertia = "
+                         f"{ratio[j]:.2f} > 1): raise smooth_velocity, add motor inertia or lower the Coulomb level")
+
+
+def check_elastic_stability(elasticity: Elasticity, motor: Motor, link_inertia: np.ndarray, time_step: float) -> None:
+    """Raise ``ValueError`` when the explicitly coupled spring–damper would be unstable: with ``μ = (1/B + 1/m)⁻¹``,
+    ``ω² = K/μ`` and ``c = D/μ`` require ``(ω·dt)² + 2·c·dt < 1`` (stable below 2 undamped; a 2× margin)."""
+    mu = 1.0 / (1.0 / motor.motor_inertia + 1.0 / np.asarray(link_inertia))
+    index = (elasticity.stiffness / mu) * time_step ** 2 + 2.0 * elasticity.damping / mu * time_step
+    if np.any(index >= 1.0):
+        j = int(np.argmax(index))
+        raise ValueError(f"elasticity of joint {j + 1} is too stiff/damped for time_step {time_step:g} s with link "
+                         f"inertia {link_inertia[j]:.4f} kg·m² ((ω·dt)² + 2·c·dt = {index[j]:.2f} >= 1): lower "
+                         "stiffness/damping or the time step")
 
 
 class JointDrive(LeafSystem):
-    """Drive + link friction for ``n`` joints; the only per-step Python of the twin (one vectorised output).
+    """Drive + link friction for ``n`` joints (see the module docstring).
 
     Input ports: ``motor_torque`` [n] N·m (the controller's command), ``link_state`` [2n] = [q; q̇] (plant state).
-    Output ports: ``actuation`` [n] N·m = τ_J − τ_f,link (to the plant's actuation input) and, for the elastic
-    drive, ``motor_state`` [2n] = [θ; θ̇]. τ_f,link is a function of the logged q̇ only, so the twin recomputes it
-    (and τ_J = actuation + τ_f,link) from the log instead of logging a second Python port.
+    Output ports: ``actuation`` [n] N·m (to the plant's actuation input) and, for the elastic drive,
+    ``motor_state`` [2n] = [θ; θ̇]. τ_f,link is a function of the logged q̇ only, so the twin recomputes it from the
+    log instead of evaluating a second Python port every step.
     """
 
-    def __init__(self, n: int, link_effects: list[JointEffect], elasticity: Elasticity | None = None,
-                 time_step: float = 1e-3):
+    def __init__(self, n: int, link_effects: list[JointEffect], motor: Motor | None = None,
+                 elasticity: Elasticity | None = None, time_step: float = 1e-3):
         super().__init__()
         for eff in link_effects:
             if not isinstance(eff, (ViscousCoulomb, Stribeck)):
                 raise ValueError(f"JointDrive: {eff.name} is not a link-side friction effect")
+        if elasticity is not None and (motor is None or np.any(motor.motor_inertia <= 0)):
+            raise ValueError("JointDrive: an elastic drive needs a motor with motor_inertia > 0")
         self.n = n
         self.link_effects = list(link_effects)
+        self.motor = motor
         self.elasticity = elasticity
         self.time_step = time_step
+        # per-step fast path: every friction acting on q̇ as one viscous sum + stacked smooth-sign terms
+        on_qd = self.link_effects + ([motor] if motor is not None and elasticity is None else [])
+        self._viscous, self._coulomb, self._inv_vs = np.zeros(n), [], []
+        self._stribeck = [e for e in on_qd if isinstance(e, Stribeck)]
+        for eff in on_qd:
+            if isinstance(eff, ViscousCoulomb):
+                self._viscous = self._viscous + eff.viscous
+                self._coulomb.append(eff.coulomb)
+                self._inv_vs.append(1.0 / eff.smooth_velocity)
+            elif isinstance(eff, Motor):
+                self._viscous = self._viscous + eff.motor_viscous
+                self._coulomb.append(eff.motor_coulomb)
+                self._inv_vs.append(1.0 / eff.smooth_velocity)
+        self._coulomb = np.array(self._coulomb).reshape(-1, n)
+        self._inv_vs = np.array(self._inv_vs).reshape(-1, n)
         self._u_motor = self.DeclareVectorInputPort("motor_torque", n)
         self._u_link = self.DeclareVectorInputPort("link_state", 2 * n)
         if elasticity is not None:
@@ -81,27 +119,42 @@ class JointDrive(LeafSystem):
             out = out + eff.friction(qd)
         return out
 
+    def sensed_torque(self, actuation: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """True τ_J ``[N,n]`` from the logged actuation and link motion (``u + τ_f,link``, minus ``B q̈`` for the
+        rigid drive whose motor inertia the plant carries)."""
+        tau = actuation + self.link_friction(qd)
+        if self.elasticity is None and self.motor is not None:
+            tau = tau - self.motor.motor_inertia * qdd
+        return tau
+
     def _spring(self, context: Context, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         x = context.get_discrete_state(self._state).value()
         el = self.elasticity
         return el.stiffness * (x[:self.n] - q) + el.damping * (x[self.n:] - qd)
 
+    def _friction_on_qd(self, qd: np.ndarray) -> np.ndarray:
+        """All friction acting on the link velocity in one step (link side, plus motor side for a rigid drive)."""
+        tau = self._viscous * qd + np.sum(self._coulomb * np.tanh(qd * self._inv_vs), axis=0)
+        for eff in self._stribeck:
+            tau = tau + eff.friction(qd)
+        return tau
+
     def _calc_actuation(self, context: Context, output: BasicVector) -> None:
         x = self._u_link.Eval(context)
-        if self.elasticity is None:
-            tau_j = self._u_motor.Eval(context)
+        qd = x[self.n:]
+        if self.elasticity is not None:
+            tau = self._spring(context, x[:self.n], qd)
         else:
-            tau_j = self._spring(context, x[:self.n], x[self.n:])
-        output.SetFromVector(tau_j - self.link_friction(x[self.n:]))
+            tau = self._u_motor.Eval(context)
+        output.SetFromVector(tau - self._friction_on_qd(qd))
 
     def _update_motor(self, context: Context, discrete_state: DiscreteValues) -> None:
-        el = self.elasticity
-        n = self.n
+        n, motor = self.n, self.motor
         x = context.get_discrete_state(self._state).value()
         link = self._u_link.Eval(context)
-        tau_m = self._u_motor.Eval(context)
         tau_s = self._spring(context, link[:n], link[n:])
-        theta_dot = x[n:] + self.time_step / el.motor_inertia * (tau_m - el.motor_friction(x[n:]) - tau_s)
+        tau_m = self._u_motor.Eval(context)
+        theta_dot = x[n:] + self.time_step / motor.motor_inertia * (tau_m - motor.friction(x[n:]) - tau_s)
         discrete_state.set_value(self._state, np.concatenate([x[:n] + self.time_step * theta_dot, theta_dot]))
 
     def set_motor_state(self, context: Context, q: np.ndarray, qd: np.ndarray, tau: np.ndarray) -> None:
@@ -111,10 +164,10 @@ class JointDrive(LeafSystem):
             context.SetDiscreteState(self._state, np.concatenate([q + tau / self.elasticity.stiffness, qd]))
 
 
-def AddJointDrive(builder: DiagramBuilder, n: int, link_effects: list[JointEffect],
+def AddJointDrive(builder: DiagramBuilder, n: int, link_effects: list[JointEffect], motor: Motor | None = None,
                   elasticity: Elasticity | None = None, time_step: float = 1e-3,
                   name: str = "joint_drive") -> JointDrive:
     """Add a :class:`JointDrive` to ``builder`` (ports ``motor_torque``, ``link_state`` → ``actuation``)."""
-    drive = builder.AddSystem(JointDrive(n, link_effects, elasticity, time_step))
+    drive = builder.AddSystem(JointDrive(n, link_effects, motor, elasticity, time_step))
     drive.set_name(name)
     return drive

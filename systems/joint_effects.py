@@ -24,7 +24,9 @@ effect (YAML key)             place   model / calibration source
 ``sensor_offset_gain``        sensor  ``g·τ + o``; offsets 0.1–0.9 N·m (DESIGN.md), gain error ≈1 %
 ``torque_noise``              sensor  white Gaussian noise σ; "significant torque noise" at 10 % speed (Fig. 2.5)
 ``encoder_noise``             sensor  position noise + quantisation of q (no torque contribution)
-``elasticity``                motor   series elastic drive (K, D, motor inertia B, motor friction), simulated by
+``motor``                     motor   reflected motor inertia B and motor friction, hidden behind the sensor
+                                      (assumed magnitudes; they only shape the motion)
+``elasticity``                motor   series elastic drive (K, D) with the motor's state, simulated by
                                       ``proprio.systems.joint_drive``; zero direct contribution to τ_J
 ============================ ======= =============================================================================
 
@@ -47,7 +49,7 @@ import numpy as np
 __all__ = [
     "MotionSignals", "ReversalTravel", "reversal_travel", "JointEffect", "EffectConfigError",
     "ViscousCoulomb", "Stribeck", "Hysteresis", "LostMotion", "Ripple", "SensorOffsetGain", "TorqueNoise",
-    "EncoderNoise", "Elasticity", "EFFECTS", "make_effects",
+    "EncoderNoise", "Motor", "Elasticity", "EFFECTS", "make_effects",
 ]
 
 
@@ -104,7 +106,7 @@ class ReversalTravel:
     """Per-joint reversal segmentation of a motion.
 
     ``r [N,n]`` rad: signed travel since the last direction reversal (``q − anchor``); ``direction [N,n]`` ∈ {−1, 0,
-    +1}: the direction of the current segment (0 only for a joint that never moved); ``segment [N,n]``: segment
+    +1}: the current direction (0 until the joint first moves); ``segment [N,n]``: segment
     index per joint (0 = from the start to the first reversal). Per joint ``j``: ``starts[j]`` first sample of each
     segment, ``anchors[j]`` the position each segment's travel is measured from (q[0] for segment 0, else the
     extremum reached in the previous segment), ``seg_direction[j]``.
@@ -147,7 +149,7 @@ def reversal_travel(q: np.ndarray, qd: np.ndarray, reversal_velocity: float | np
         lo = np.minimum.reduceat(q[:, j], st)
         anc = np.concatenate([[q[0, j]], np.where(sd[:-1] > 0, hi[:-1], lo[:-1])])
         r[:, j] = q[:, j] - anc[seg]
-        direction[:, j] = sd[seg]
+        direction[:, j] = d
         segment[:, j] = seg
         starts.append(st)
         anchors.append(anc)
@@ -522,48 +524,70 @@ class EncoderNoise(JointEffect):
         return np.where(res > 0, np.round(q_meas / np.where(res > 0, res, 1.0)) * res, q_meas)
 
 
-class Elasticity(JointEffect):
-    """Series-elastic joint with a motor-side state (thesis eq. 3.6), simulated by ``proprio.systems.joint_drive``.
+class Motor(JointEffect):
+    """The motor side of the drive, hidden behind the torque sensor: reflected motor inertia B and motor friction.
 
-    Motor side: ``B θ̈ = τ_m − τ_f,m(θ̇) − τ_s``, spring ``τ_s = K(θ − q) + D(θ̇ − q̇)`` drives the link. The torque
-    sensor sits on the link side, so τ_J is fully determined by the link motion (``τ_rbd + τ_f,link − Jᵀf_ext``):
-    elasticity, motor inertia and motor friction add **nothing directly** to τ_J (:meth:`torque` is zero). They show
-    up in the data through the motion: a tracking lag and oscillation (a resonance near ``√(K/B_eff)``) in q and
-    hence in τ_rbd(q, q̇, q̈), and — if a position sensor were motor-side — through θ ≠ q (the twin measures the
-    link-side q, like the iiwa).
+    Motor side ``B θ̈ = τ_m − τ_f,m(θ̇) − τ_J``. With a rigid drive (θ = q) Drake's plant carries B as reflected rotor
+    inertia and the sensor sees ``τ_J = τ_m − τ_f,m − B q̈``; with ``elasticity`` the drive integrates θ. Either way
+    τ_J = τ_rbd + τ_f,link − Jᵀ f_ext is fixed by the link motion, so :meth:`torque` is zero: these effects show up only
+    through the motion (tracking error, inertia the controller must move).
 
-    Parameters ``stiffness`` K [N·m/rad] (> 0), ``damping`` D [N·m·s/rad], ``motor_inertia`` B [kg·m²]
-    (link-side reflected, > 0), ``motor_viscous`` [N·m·s/rad], ``motor_coulomb`` [N·m]; setting
-    ``smooth_velocity`` [rad/s] for the motor Coulomb term.
+    Parameters ``motor_inertia`` B [kg·m²] (link-side reflected, ``ρ² I_rotor``), ``motor_viscous`` [N·m·s/rad],
+    ``motor_coulomb`` [N·m]; setting ``smooth_velocity`` [rad/s].
     """
-    name = "elasticity"
+    name = "motor"
     place = "motor"
     linear = False
-    parameters = {"stiffness": (1e4, _TINY, _INF), "damping": (10.0, 0.0, _INF), "motor_inertia": (0.5, _TINY, _INF),
-                  "motor_viscous": (0.0, 0.0, _INF), "motor_coulomb": (0.0, 0.0, _INF)}
+    parameters = {"motor_inertia": (0.0, 0.0, _INF), "motor_viscous": (0.0, 0.0, _INF),
+                  "motor_coulomb": (0.0, 0.0, _INF)}
     settings = {"smooth_velocity": (0.02, _TINY, _INF)}
 
     def torque(self, s: MotionSignals, rng: np.random.Generator | None = None) -> np.ndarray:
         self._check_n(s)
         return np.zeros_like(s.q)
 
-    def motor_friction(self, theta_dot: np.ndarray) -> np.ndarray:
+    def friction(self, theta_dot: np.ndarray) -> np.ndarray:
         """Motor-side friction [N·m] (hidden from τ_J), dissipative."""
-        return self.motor_viscous * theta_dot + self.motor_coulomb * np.tanh(theta_dot / self.smooth_velocity)
+        v = self._values
+        return v["motor_viscous"] * theta_dot + v["motor_coulomb"] * np.tanh(theta_dot / v["smooth_velocity"])
+
+
+class Elasticity(JointEffect):
+    """Series-elastic joint with a motor-side state (thesis eq. 3.6), simulated by ``proprio.systems.joint_drive``
+    together with the ``motor`` block (which supplies the motor inertia B and motor friction).
+
+    Spring ``τ_s = K(θ − q) + D(θ̇ − q̇)`` between motor angle θ and link angle q drives the link and is what the
+    sensor measures. The torque sensor sits on the link side, so τ_J is fully determined by the link motion
+    (``τ_rbd + τ_f,link − Jᵀf_ext``): elasticity adds **nothing directly** to τ_J (:meth:`torque` is zero). It shows up
+    in the data through the motion: a deflection ``τ/K`` of the link from the motor-side-controlled position, a
+    tracking lag and a lightly damped resonance near ``√(K/μ)`` in q and hence in τ_rbd(q, q̇, q̈); and a motor-side
+    position sensor would read θ ≠ q (the twin, like the iiwa, measures the link-side q).
+
+    Parameters ``stiffness`` K [N·m/rad] (> 0), ``damping`` D [N·m·s/rad].
+    """
+    name = "elasticity"
+    place = "motor"
+    linear = False
+    parameters = {"stiffness": (1e4, _TINY, _INF), "damping": (10.0, 0.0, _INF)}
+
+    def torque(self, s: MotionSignals, rng: np.random.Generator | None = None) -> np.ndarray:
+        self._check_n(s)
+        return np.zeros_like(s.q)
 
 
 # ------------------------------------------------------------------------------------------------------------------
 # registry
 # ------------------------------------------------------------------------------------------------------------------
 EFFECTS: dict[str, type[JointEffect]] = {cls.name: cls for cls in (
-    ViscousCoulomb, Stribeck, Hysteresis, LostMotion, Ripple, SensorOffsetGain, TorqueNoise, EncoderNoise, Elasticity)}
+    ViscousCoulomb, Stribeck, Hysteresis, LostMotion, Ripple, SensorOffsetGain, TorqueNoise, EncoderNoise, Motor,
+    Elasticity)}
 
 
 def make_effects(config: dict | None, n: int) -> list[JointEffect]:
-    """Build the effects of a YAML ``effects:`` mapping ``{name: block}`` in registry order (link, then sensor).
+    """Build the effects of a YAML ``effects:`` mapping ``{name: block}`` in registry order (link, sensor, motor).
 
     Unknown names raise :class:`EffectConfigError` listing the valid ones (the payload is configured by the twin's
-    ``payload`` block, not here).
+    ``payload`` block, not here); ``elasticity`` requires a ``motor`` block (its motor inertia).
     """
     config = config or {}
     if not isinstance(config, dict):
@@ -572,4 +596,10 @@ def make_effects(config: dict | None, n: int) -> list[JointEffect]:
     if unknown:
         hint = " (the payload has its own top-level 'payload' block)" if "payload" in unknown else ""
         raise EffectConfigError(f"unknown joint effect(s) {unknown}{hint}; valid effects: {sorted(EFFECTS)}")
-    return [cls.from_config(config[name], n) for name, cls in EFFECTS.items() if name in config]
+    effects = [cls.from_config(config[name], n) for name, cls in EFFECTS.items() if name in config]
+    if "elasticity" in config:
+        motor = next((e for e in effects if isinstance(e, Motor)), None)
+        if motor is None or np.any(motor.motor_inertia <= 0):
+            raise EffectConfigError("elasticity needs a 'motor' block with motor_inertia > 0 on every joint (the "
+                                    "motor-side state)")
+    return effects

@@ -9,9 +9,14 @@ extremum and reversal point per joint), builds vec(τ_RBD, q, q̇, q̈, r), adva
 (h₁, c₁, h₂, c₂) carried in discrete state; MLP-7 is stateless) and stores the prediction in discrete state.
 
 Both outputs are state output ports (``DeclareStateOutputPort``): no direct feedthrough, so a feedback path through
-the observers or a controller never forms an algebraic loop. Latency: at a sample time t_k the update runs first and
-the outputs then show the prediction from the inputs sampled at t_k (a logger publishing at t_k sees it); between
-samples they hold it (zero-order hold), so a continuous consumer sees at most one sample period of delay.
+the observers or a controller never forms an algebraic loop. Latency: the update at sample time t_k stores the
+prediction from the inputs sampled at t_k; the outputs show it from then on and hold it until t_{k+1} (zero-order
+hold). A publish event at t_k (e.g. a ``VectorLogSink`` at the same rate) runs *before* that update — Drake publishes
+at the end of the step that reaches t_k and updates at the start of the next — so it logs the prediction of
+t_{k−1}: one sample of latency, exactly as an online estimator that outputs what it computed last period. A consumer that
+combines tau_hybrid with same-instant measurements (a wrench observer) should therefore sample with a small offset
+after t_k, or be compared against the measurements of t_{k−1}.
+
 The step runs the model as float64 numpy (:class:`~proprio.learning.models.StreamingStepper`, the same weights and
 equations as the torch model, equal to it to rounding): a torch call per sample costs ≈10× more overhead than the
 arithmetic. Transformers have no streaming form and are rejected.

@@ -11,16 +11,23 @@ The path alternates *reach* and *explore* phases around L random scaffold config
    after M tries") when ``sampling.max_tries`` candidates do not give L scaffolds.
 2. **Ordering.** Greedy nearest neighbour in joint space on a scipy kd-tree, starting from the scaffold nearest the
    home configuration (Algorithm 4.10 starts from the first sample; starting near home shortens the first reach).
+   With ``path_collision_check`` on (default), the straight joint-space reach to the nearest remaining scaffold is
+   checked every ``step_deg`` of joint motion; if it collides, the next-nearest scaffold is taken, and if no
+   remaining scaffold can be reached directly the arm first retracts home (an extra reach phase). The thesis
+   ensures collision-free reach paths in simulation (Fig. 4.8).
 3. **Exploration** after each scaffold (eq. 4.35): per joint j, ``e_j(t) = Σ_{k=1}^{3} A_k sin(2π f_k t + φ_k)``
    with ``A_k ∈ [0.5, 3]°``, ``f_k ∈ [−4, 4]``, ``φ_k ∈ [0, 2π]`` and ``T ∈ [2000, 2500]`` waypoints (eq. 4.36).
-   **Unit of f:** the thesis leaves it open; here ``t = waypoint index / waypoints_per_unit`` (500 by default), so
-   f counts cycles per 500 waypoints: a phase holds up to ~18 cycles of each term, i.e. many direction reversals
-   per joint. The speed is then set by the time parameterisation at 10–30 % of the velocity limits, not by the
-   waypoint count, so the exploration stays inside its speed band whatever f is. The waypoints are
-   ``q_scaf + e(t) − e(0)``, t = 0…T, so that the exploration starts at the scaffold (eq. 4.35 is not 0 at t = 0).
+   **Unit of f:** the thesis leaves it open; here ``t = waypoint index / waypoints_per_unit`` (600 by default), so
+   f counts cycles per 600 waypoints: a phase of 2250 waypoints holds up to 15 cycles of each term, i.e. many
+   direction reversals per joint. The speed is then set by the time parameterisation at 10–30 % of the velocity
+   limits, not by the waypoint count, so the exploration stays inside its speed band whatever f is; the unit only
+   trades phase duration against cycles per phase, and 600 gives the thesis' ≈1 h for 150 scaffolds (≈22 s per
+   exploration, like its 100 waypoints/s). The waypoints are ``q_scaf + e(t) − e(0)``, t = 0…T, so that the
+   exploration starts at the scaffold (eq. 4.35 is not 0 at t = 0).
    A joint whose exploration would leave ``[lower + margin, upper − margin]`` has its three terms redrawn (up to
    ``_REDRAWS`` times); if none fits (scaffold right at the margin), its amplitudes are scaled down just enough to
-   fit, and the phase/joint is recorded in :attr:`RfmaPath.scaled`.
+   fit, and the phase/joint is recorded in :attr:`RfmaPath.scaled`. With ``path_collision_check`` on, an
+   exploration whose waypoints collide is redrawn (and, around a crowded scaffold, shrunk towards it).
 4. **Path** (eq. 4.37): ``C = {home, q_1^scaf, e_1, …, q_L^scaf, e_L[, home]}``.
 5. **Timing** (:mod:`proprio.systems.trajectories`): each reach is a joint-wise linear rest-to-rest motion at a
    relative speed and acceleration ρ ~ U[0.6, 0.9] of the limits; each exploration runs at ρ ~ U[0.1, 0.3] of the
@@ -35,7 +42,7 @@ import math
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 import yaml
@@ -48,7 +55,8 @@ from proprio.systems.collision import CollisionChecker, EnvironmentBox, boxes_fr
 from proprio.systems.trajectories import Phase, TimedPath, save_trajectory, time_parameterize
 
 __all__ = ["RfmaError", "RfmaConfig", "RfmaPath", "load_rfma_config", "flange_in_workspace", "sample_scaffolds",
-           "order_scaffolds", "exploration_waypoints", "generate_rfma_path", "rfma_trajectory", "generate_rfma",
+           "unvisited_by_distance", "segment_in_collision", "waypoints_in_collision", "exploration_waypoints",
+           "generate_rfma_path", "rfma_trajectory", "generate_rfma", "trajectory_meta", "trajectory_figure",
            "demo_trajectory"]
 
 _REDRAWS = 50
@@ -79,11 +87,13 @@ class RfmaConfig:
     frequency: tuple[float, float] = (-4.0, 4.0)
     phase: tuple[float, float] = (0.0, 2.0 * math.pi)
     waypoints: tuple[int, int] = (2000, 2500)
-    waypoints_per_unit: float = 500.0
+    waypoints_per_unit: float = 600.0
     explore_velocity_fraction: tuple[float, float] = (0.1, 0.3)
     explore_acceleration_fraction: float = 0.9
     reach_velocity_fraction: tuple[float, float] = (0.6, 0.9)
     knot_dt: float = 0.02
+    check_path: bool = True
+    check_step: float = math.radians(1.0)
 
     def replace(self, **changes: Any) -> "RfmaConfig":
         """A validated copy with some fields changed (e.g. ``scaffolds``, ``seed``)."""
@@ -131,6 +141,8 @@ def _validated(c: RfmaConfig) -> RfmaConfig:
         raise RfmaError(f"exploration.waypoints_per_unit: must be > 0, got {c.waypoints_per_unit}")
     if not 0.0 < c.explore_acceleration_fraction <= 1.0:
         raise RfmaError(f"exploration.acceleration_fraction: must lie in (0, 1], got {c.explore_acceleration_fraction}")
+    if c.check_step <= 0:
+        raise RfmaError(f"path_collision_check.step_deg: must be > 0, got {math.degrees(c.check_step)}")
     if c.knot_dt <= 0:
         raise RfmaError(f"knot_dt_s: must be > 0, got {c.knot_dt}")
     if c.joint_margin < 0:
@@ -161,11 +173,13 @@ def _config_from_dict(d: dict[str, Any]) -> RfmaConfig:
         frequency=_interval(ex, "frequency", "exploration"),
         phase=_interval(ex, "phase_rad", "exploration"),
         waypoints=(int(t_lo), int(t_hi)),
-        waypoints_per_unit=float(ex.get("waypoints_per_unit", 500.0)),
+        waypoints_per_unit=float(ex.get("waypoints_per_unit", 600.0)),
         explore_velocity_fraction=_interval(ex, "velocity_fraction", "exploration", 1e-6, 1.0),
         explore_acceleration_fraction=float(ex.get("acceleration_fraction", 0.9)),
         reach_velocity_fraction=_interval(re, "velocity_fraction", "reach", 1e-6, 1.0),
         knot_dt=float(d.get("knot_dt_s", 0.02)),
+        check_path=bool(d.get("path_collision_check", {}).get("enabled", True)),
+        check_step=math.radians(float(d.get("path_collision_check", {}).get("step_deg", 1.0))),
     )
     return _validated(c)
 
@@ -233,27 +247,34 @@ def sample_scaffolds(desc: RobotDescription, cfg: RfmaConfig, rng: np.random.Gen
     return np.array(found), tries
 
 
-def order_scaffolds(scaffolds: np.ndarray, start: np.ndarray) -> np.ndarray:
-    """Greedy nearest-neighbour order ``[L]`` (indices) through ``scaffolds [L, n]`` starting near ``start``,
-    with a scipy kd-tree in joint space (Algorithm 4.10's sorting)."""
-    tree = cKDTree(scaffolds)
-    n = scaffolds.shape[0]
-    visited = np.zeros(n, dtype=bool)
-    order = np.empty(n, dtype=int)
-    query = np.asarray(start, dtype=float)
-    for i in range(n):                                   # one kd-tree query per scaffold
-        k = 1
-        while True:
-            _, idx = tree.query(query, k=min(k, n))
-            idx = np.atleast_1d(idx)
-            free = idx[~visited[idx]]
-            if free.size:
-                break
-            k *= 4
-        order[i] = free[0]
-        visited[free[0]] = True
-        query = scaffolds[free[0]]
-    return order
+def unvisited_by_distance(tree: cKDTree, visited: np.ndarray, query: np.ndarray) -> Iterator[int]:
+    """Indices of the not yet ``visited`` points of ``tree`` nearest-first from ``query`` (kd-tree queries with a
+    growing k) — Algorithm 4.10's ``kd_nearest_neighbor`` over the remaining scaffolds."""
+    n, k, done = visited.size, 1, 0
+    while done < n:
+        k = min(k, n)
+        _, idx = tree.query(query, k=k)
+        for i in np.atleast_1d(idx)[done:]:
+            if not visited[i]:
+                yield int(i)
+        done, k = k, 4 * k
+
+
+def segment_in_collision(checker: CollisionChecker, q0: np.ndarray, q1: np.ndarray, step: float) -> bool:
+    """The joint-space segment q0 → q1 touches an obstacle or itself, checked every ``step`` [rad] of the
+    fastest-moving joint."""
+    n = int(np.ceil(np.max(np.abs(q1 - q0)) / step)) + 1
+    s = np.linspace(0.0, 1.0, max(n, 2))[:, None]
+    return checker.any_collision(q0 + s * (q1 - q0))
+
+
+def waypoints_in_collision(checker: CollisionChecker, w: np.ndarray, step: float) -> bool:
+    """A dense waypoint list ``[m, n]`` touches an obstacle or itself, checked on a subsequence whose joint steps
+    are at most ``step`` [rad]."""
+    per = float(np.max(np.abs(np.diff(w, axis=0)))) if w.shape[0] > 1 else 0.0
+    stride = max(1, int(step / per)) if per > 0.0 else w.shape[0]
+    idx = np.unique(np.r_[np.arange(0, w.shape[0], stride), w.shape[0] - 1])
+    return checker.any_collision(w[idx])
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -276,10 +297,13 @@ class RfmaPath:
     """The geometric RFMA path (eq. 4.37) and every random draw behind it (radians).
 
     ``waypoints [P, n]``; ``scaffolds [L, n]`` in visiting order; exploration parameters ``amplitude``,
-    ``frequency``, ``phase`` ``[L, n, terms]``; ``n_waypoints [L]`` (T per phase); ``reach_fraction [L(+1)]`` and
-    ``explore_fraction [L]`` relative speeds; ``phases`` for :func:`~proprio.systems.trajectories.time_parameterize`;
-    ``scaled``: ``(phase l, joint j, factor)`` where amplitudes had to be scaled to respect the joint limits;
-    ``tries``: candidates drawn for the scaffolds."""
+    ``frequency``, ``phase`` ``[L, n, terms]``; ``n_waypoints [L]`` (T per phase); ``reach_fraction`` (one per
+    reach phase, in order) and ``explore_fraction [L]`` relative speeds; ``phases`` for
+    :func:`~proprio.systems.trajectories.time_parameterize`;
+    ``scaled``: ``(phase l, joint j, factor)`` where amplitudes had to be scaled to respect the joint limits
+    (factor NaN: the whole phase was shrunk towards a crowded scaffold to avoid a collision);
+    ``tries``: candidates drawn for the scaffolds; ``reach_rejections``: nearest scaffolds passed over because the
+    straight reach to them collided."""
     waypoints: np.ndarray
     scaffolds: np.ndarray
     amplitude: np.ndarray
@@ -291,16 +315,53 @@ class RfmaPath:
     phases: tuple[Phase, ...]
     tries: int
     scaled: tuple[tuple[int, int, float], ...] = field(default=())
+    reach_rejections: int = 0
 
     @property
     def n_scaffolds(self) -> int:
         return int(self.scaffolds.shape[0])
 
 
-def _draw_terms(rng: np.random.Generator, cfg: RfmaConfig, shape: tuple[int, ...]) -> tuple[np.ndarray, ...]:
-    return (rng.uniform(*cfg.amplitude, size=shape + (cfg.terms,)),
-            rng.uniform(*cfg.frequency, size=shape + (cfg.terms,)),
-            rng.uniform(*cfg.phase, size=shape + (cfg.terms,)))
+def _draw_terms(rng: np.random.Generator, cfg: RfmaConfig, n: int) -> tuple[np.ndarray, ...]:
+    """A_k [rad], f_k, φ_k for ``n`` joints: ``[n, terms]`` each, uniform in the configured ranges."""
+    shape = (n, cfg.terms)
+    return (rng.uniform(*cfg.amplitude, size=shape), rng.uniform(*cfg.frequency, size=shape),
+            rng.uniform(*cfg.phase, size=shape))
+
+
+def _exploration(rng: np.random.Generator, cfg: RfmaConfig, q_s: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                 n_wp: int, checker: CollisionChecker | None, step: float):
+    """One exploration phase around scaffold ``q_s`` inside ``[lo, hi]`` (and collision-free if ``checker``).
+
+    Returns ``(waypoints, amplitude, frequency, phase, scaled)`` with ``scaled`` a list of ``(joint, factor)``."""
+    n = q_s.size
+    for _ in range(_REDRAWS):                                # redraw the phase while it collides
+        amp, freq, pha = _draw_terms(rng, cfg, n)
+        e = exploration_waypoints(q_s, amp, freq, pha, n_wp, cfg.waypoints_per_unit)
+        for _ in range(_REDRAWS):                            # redraw the terms of joints leaving the limits
+            bad = np.any((e < lo) | (e > hi), axis=0)
+            if not bad.any():
+                break
+            amp[bad], freq[bad], pha[bad] = _draw_terms(rng, cfg, int(bad.sum()))
+            e = exploration_waypoints(q_s, amp, freq, pha, n_wp, cfg.waypoints_per_unit)
+        scaled = []
+        for j in np.flatnonzero(np.any((e < lo) | (e > hi), axis=0)):   # scaffold at the margin: shrink to fit
+            dev = e[:, j] - q_s[j]
+            room = np.where(dev > 0, (hi[j] - q_s[j]) / np.maximum(dev, 1e-300),
+                            (q_s[j] - lo[j]) / np.maximum(-dev, 1e-300))
+            factor = float(min(1.0, room.min()))
+            amp[j] *= factor
+            e[:, j] = q_s[j] + factor * dev
+            scaled.append((int(j), factor))
+        if checker is None or not waypoints_in_collision(checker, e, step):
+            return e, amp, freq, pha, scaled
+    for _ in range(30):                                      # crowded scaffold: shrink towards it (it is free)
+        amp *= 0.5
+        e = q_s + 0.5 * (e - q_s)
+        if not waypoints_in_collision(checker, e, step):
+            return e, amp, freq, pha, [(j, float("nan")) for j in range(n)]
+    raise RfmaError(f"no collision-free exploration found around scaffold {np.round(np.degrees(q_s), 1).tolist()} "
+                    "deg")
 
 
 def generate_rfma_path(desc: RobotDescription, cfg: RfmaConfig, progress: bool = False) -> RfmaPath:
@@ -308,46 +369,62 @@ def generate_rfma_path(desc: RobotDescription, cfg: RfmaConfig, progress: bool =
     if len(cfg.home) != desc.n:
         raise RfmaError(f"home_deg: expected {desc.n} values for robot '{desc.name}', got {len(cfg.home)}")
     rng = np.random.default_rng(cfg.seed)
-    scaffolds, tries = sample_scaffolds(desc, cfg, rng, progress=progress)
+    checker = CollisionChecker(desc, cfg.boxes)
+    path_checker = checker if cfg.check_path else None
+    scaffolds, tries = sample_scaffolds(desc, cfg, rng, checker=checker, progress=progress)
     home = np.asarray(cfg.home, dtype=float)
-    scaffolds = scaffolds[order_scaffolds(scaffolds, home)]
     L = scaffolds.shape[0]
     lo, hi = desc.lower + cfg.joint_margin, desc.upper - cfg.joint_margin
-    amp, freq, pha = _draw_terms(rng, cfg, (L, desc.n))
+    tree, visited = cKDTree(scaffolds), np.zeros(L, dtype=bool)
+    order, draws, phases, chunks, scaled, reach_frac = [], [], [], [home[None, :]], [], []
     n_wp = rng.integers(cfg.waypoints[0], cfg.waypoints[1] + 1, size=L)
-    reach_frac = rng.uniform(*cfg.reach_velocity_fraction, size=L + int(cfg.return_home))
     explore_frac = rng.uniform(*cfg.explore_velocity_fraction, size=L)
-    phases: list[Phase] = []
-    chunks = [home[None, :]]
-    scaled: list[tuple[int, int, float]] = []
-    prev = home
+    state = {"current": home, "rejected": 0}
+
+    def reach(target: np.ndarray) -> None:                   # one joint-wise linear reach phase
+        rho = float(rng.uniform(*cfg.reach_velocity_fraction))
+        reach_frac.append(rho)
+        phases.append(Phase(np.stack([state["current"], target]), rho, rho, "reach"))
+        state["current"] = target
+
+    def nearest_free(query: np.ndarray) -> int | None:       # nearest scaffold with a collision-free reach
+        for i in unvisited_by_distance(tree, visited, query):
+            if path_checker is None or not segment_in_collision(checker, state["current"], scaffolds[i],
+                                                                cfg.check_step):
+                return i
+            state["rejected"] += 1
+        return None
+
+    query = home
     for l in tqdm(range(L), desc="explorations", disable=not progress, leave=False):
-        e = exploration_waypoints(scaffolds[l], amp[l], freq[l], pha[l], int(n_wp[l]), cfg.waypoints_per_unit)
-        for _ in range(_REDRAWS):                            # redraw the terms of joints leaving the limits
-            bad = np.any((e < lo) | (e > hi), axis=0)
-            if not bad.any():
-                break
-            a, f, p = _draw_terms(rng, cfg, (int(bad.sum()),))
-            amp[l, bad], freq[l, bad], pha[l, bad] = a, f, p
-            e = exploration_waypoints(scaffolds[l], amp[l], freq[l], pha[l], int(n_wp[l]), cfg.waypoints_per_unit)
-        for j in np.flatnonzero(np.any((e < lo) | (e > hi), axis=0)):   # scaffold at the margin: shrink to fit
-            dev = e[:, j] - scaffolds[l, j]
-            room = np.where(dev > 0, (hi[j] - scaffolds[l, j]) / np.maximum(dev, 1e-300),
-                            (scaffolds[l, j] - lo[j]) / np.maximum(-dev, 1e-300))
-            factor = float(min(1.0, room.min()))
-            amp[l, j] *= factor
-            scaled.append((l, int(j), factor))
-            e[:, j] = scaffolds[l, j] + factor * dev
-        phases.append(Phase(np.stack([prev, scaffolds[l]]), reach_frac[l], reach_frac[l], "reach"))
+        pick = nearest_free(query)
+        if pick is None and not segment_in_collision(checker, state["current"], home, cfg.check_step):
+            reach(home)                                      # boxed in: retract home, then go on from there
+            chunks.append(home[None, :])
+            pick = nearest_free(home)
+        if pick is None:
+            raise RfmaError(f"no collision-free joint-space reach from the end of exploration {l} (nor via home) "
+                            f"to any of the {L - l} remaining scaffolds; try another seed or fewer boxes")
+        visited[pick] = True
+        order.append(pick)
+        q_s = scaffolds[pick]
+        reach(q_s)                                           # (q_s is the exploration's first waypoint)
+        e, amp, freq, pha, sc = _exploration(rng, cfg, q_s, lo, hi, int(n_wp[l]), path_checker, cfg.check_step)
+        draws.append((amp, freq, pha))
+        scaled += [(l, j, f) for j, f in sc]
         phases.append(Phase(e, explore_frac[l], cfg.explore_acceleration_fraction, "explore"))
         chunks.append(e)
-        prev = e[-1]
+        query, state["current"] = q_s, e[-1]
     if cfg.return_home:
-        phases.append(Phase(np.stack([prev, home]), reach_frac[L], reach_frac[L], "reach"))
+        if path_checker is not None and segment_in_collision(checker, state["current"], home, cfg.check_step):
+            raise RfmaError("the joint-space reach from the last exploration back home collides; try another seed "
+                            "or set return_home: false")
+        reach(home)
         chunks.append(home[None, :])
-    return RfmaPath(waypoints=np.concatenate(chunks), scaffolds=scaffolds, amplitude=amp, frequency=freq,
-                    phase=pha, n_waypoints=n_wp, reach_fraction=reach_frac, explore_fraction=explore_frac,
-                    phases=tuple(phases), tries=tries, scaled=tuple(scaled))
+    amp, freq, pha = (np.stack([d[k] for d in draws]) for k in range(3))
+    return RfmaPath(waypoints=np.concatenate(chunks), scaffolds=scaffolds[order], amplitude=amp, frequency=freq,
+                    phase=pha, n_waypoints=n_wp, reach_fraction=np.asarray(reach_frac), explore_fraction=explore_frac,
+                    phases=tuple(phases), tries=tries, scaled=tuple(scaled), reach_rejections=state["rejected"])
 
 
 def rfma_trajectory(path: RfmaPath, desc: RobotDescription, cfg: RfmaConfig) -> TimedPath:
@@ -371,7 +448,40 @@ def trajectory_meta(path: RfmaPath, timed: TimedPath, cfg: RfmaConfig, desc: Rob
             "amplitude": path.amplitude.tolist(), "frequency": path.frequency.tolist(), "phase": path.phase.tolist(),
             "reach_fraction": path.reach_fraction.tolist(), "explore_fraction": path.explore_fraction.tolist(),
             "total_waypoints": int(path.waypoints.shape[0]), "tries": path.tries,
-            "scaled": [list(s) for s in path.scaled], "config": cfg.to_dict()}
+            "reach_rejections": path.reach_rejections,
+            "scaled": [[l, j, f if math.isfinite(f) else None] for l, j, f in path.scaled],
+            "config": cfg.to_dict()}
+
+
+def trajectory_figure(traj, desc: RobotDescription, rate_hz: float = 50.0, title: str = ""):
+    """The thesis' Fig. 4.9 views of a joint trajectory as a matplotlib Figure: the flange path in 3-D (world
+    frame) coloured by its linear speed [m/s] (top) and the joint angles [deg] over time (bottom)."""
+    import matplotlib.pyplot as plt
+
+    from proprio.kinematics import flange_jacobian
+    from proprio.systems.trajectories import sample_trajectory
+
+    t, q, qd, _ = sample_trajectory(traj, rate_hz)
+    geo = chain_geometry(desc)
+    p = flange_position(geo, q)
+    speed = np.linalg.norm(np.einsum("nij,nj->ni", flange_jacobian(geo, q)[:, 3:, :], qd), axis=1)
+    fig = plt.figure(figsize=(9, 11))
+    ax = fig.add_subplot(2, 1, 1, projection="3d")
+    sc = ax.scatter(p[:, 0], p[:, 1], p[:, 2], c=speed, cmap="jet", s=1.5, linewidths=0)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_zlabel("z [m]")
+    ax.set_title(title or "flange path (colour: linear speed)")
+    fig.colorbar(sc, ax=ax, shrink=0.7, label="flange speed [m/s]")
+    ax2 = fig.add_subplot(2, 1, 2)
+    for j in range(desc.n):
+        ax2.plot(t, np.degrees(q[:, j]), lw=0.7, label=desc.joint_names[j])
+    ax2.set_xlabel("t [s]")
+    ax2.set_ylabel("joint angle [deg]")
+    ax2.legend(ncol=4, fontsize=7, loc="upper right")
+    ax2.grid(alpha=0.3)
+    fig.tight_layout()
+    return fig
 
 
 def demo_trajectory(out_dir: Path, scaffolds: int = 3, seed: int = 0):

@@ -327,9 +327,13 @@ def load_trajectory(path: str | Path) -> tuple[PiecewisePolynomial, dict[str, An
         if isinstance(exc, TrajectoryFileError):
             raise
         raise TrajectoryFileError(f"{path}: cannot read as .npz ({exc})") from exc
-    meta = json.loads(meta_s)
-    if meta.get("format") != TRAJECTORY_FORMAT:
-        raise TrajectoryFileError(f"{path}: 'meta.format' is {meta.get('format')!r}, expected {TRAJECTORY_FORMAT!r}")
+    try:
+        meta = json.loads(meta_s)
+    except json.JSONDecodeError as exc:
+        raise TrajectoryFileError(f"{path}: 'meta' is not valid JSON ({exc})") from exc
+    fmt = meta.get("format") if isinstance(meta, dict) else None
+    if fmt != TRAJECTORY_FORMAT:
+        raise TrajectoryFileError(f"{path}: 'meta.format' is {fmt!r}, expected {TRAJECTORY_FORMAT!r}")
     if breaks.ndim != 1 or breaks.size < 2 or np.any(np.diff(breaks) <= 0) or not np.all(np.isfinite(breaks)):
         raise TrajectoryFileError(f"{path}: 'breaks' must be a strictly increasing finite vector")
     for name, a in (("q", q), ("qd", qd)):

@@ -113,7 +113,7 @@ def test_errors_name_the_unidentifiable_parameters(robot, base, data):
         ols(robot, frozen, qd7, qdd7, tau, base=base)
     few = np.tile(np.arange(5), 20) * 100                      # 5 distinct states repeated: rank ≤ 35 < 57
     with pytest.raises(IdentificationError, match="rank-deficient data: cond"):
-        ols(robot, q[few] + 1e-3 * np.arange(100)[:, None] * 0, qd[few], qdd[few], tau[few], base=base)
+        ols(robot, q[few], qd[few], qdd[few], tau[few], base=base)
 
 
 def test_model_file_round_trip_and_backbone_system(tmp_path, robot, base, prior, data):
@@ -145,9 +145,10 @@ def test_excitation_optimiser_improves_cond_and_respects_constraints(robot, base
     import math
 
     from proprio.identification.excitation import (
-        _CondCost, check_collisions, load_excitation_config, optimise_excitation, protocol_trajectory)
+        _CondCost, check_collisions, condition_number, load_excitation_config, optimise_excitation,
+        protocol_trajectory)
 
-    cfg = load_excitation_config({"optimisation": {"starts": 1, "max_iterations": 8, "cost_samples": 40,
+    cfg = load_excitation_config({"optimisation": {"starts": 1, "max_iterations": 4, "cost_samples": 30,
                                                    "constraint_samples": 200}})
     result = optimise_excitation(robot, cfg, base)
     traj = result.trajectory
@@ -158,6 +159,8 @@ def test_excitation_optimiser_improves_cond_and_respects_constraints(robot, base
     assert np.all(q >= robot.lower + margin - 1e-3) and np.all(q <= robot.upper - margin + 1e-3)
     assert np.all(np.abs(qd) <= robot.velocity_limits + 1e-3)
     assert np.isfinite(result.cond) and result.cond < 1e4
+    t_cost = np.linspace(0, traj.period, 30, endpoint=False)
+    assert condition_number(robot, base, *traj.evaluate(t_cost), 0.02) == pytest.approx(result.cond, rel=1e-9)
     # the analytic cond gradient matches central differences
     cost = _CondCost(robot, base, np.linspace(0, 20, 30, endpoint=False), 5, 0.1 * np.pi, 0.02)
     x = np.random.default_rng(0).uniform(-0.3, 0.3, 70)
@@ -208,3 +211,17 @@ def test_real_lwr_identification_beats_flobaroid(lwr_dir, tmp_path, capsys):
     assert np.all(rmse < 0.3), rmse
     assert np.mean(np.linalg.norm(e, axis=1)) < 0.72                    # FloBaRoID's reported validation figure
     assert rmse.mean() < flobaroid.mean() + 0.01
+
+
+def test_demo_identification_on_recordings(tmp_path, robot, prior, data):
+    from proprio.cli.identify import demo_identification
+    from proprio.recording import Recording
+
+    q, qd, qdd, tau = data
+    t = np.arange(q.shape[0]) * 0.01
+    train = Recording(t=t[:1500], q=q[:1500], tau=tau[:1500], qd=qd[:1500], qdd=qdd[:1500])
+    val = Recording(t=t[1500:], q=q[1500:], tau=tau[1500:], qd=qd[1500:], qdd=qdd[1500:])
+    model, text = demo_identification([train], [val], prior, tmp_path, coulomb_velocity_scale=0.0)
+    assert (tmp_path / "identified_model.npz").exists()
+    assert "validation" in text and "mean ||e||_2" in text
+    np.testing.assert_allclose(model.torque(q[1500:], qd[1500:], qdd[1500:]), tau[1500:], atol=1e-6)

@@ -185,3 +185,15 @@ def test_config_errors_name_the_problem():
     effects = make_effects({"torque_noise": {"std": 0.1}, "viscous_coulomb": {"coulomb": 0.1}}, N_J)
     assert [e.name for e in effects] == ["viscous_coulomb", "torque_noise"]
     assert all(e.place in ("motor", "link", "sensor") for e in effects)
+
+
+def test_lost_motion_is_zero_before_a_joint_first_moves():
+    s = triangle(cycles=1.0)
+    pad = 200
+    q = np.vstack([np.zeros((pad, N_J)), s.q])
+    qd = np.vstack([np.zeros((pad, N_J)), s.qd])
+    t = np.arange(q.shape[0]) * 1e-3
+    rest = MotionSignals(t, q, qd, np.zeros_like(q))
+    tau = LostMotion.from_config({"amplitude": 0.3}, N_J).torque(rest)
+    np.testing.assert_array_equal(tau[:pad], 0.0)
+    assert np.min(tau[pad + 5:pad + 50, 0]) < -0.29                     # then holds −A while the flip is lost

@@ -301,3 +301,18 @@ def test_cli_train_and_evaluate_on_lwr4(tmp_path, capsys):
     evaluated = capsys.readouterr().out
     assert evaluated.splitlines()[3] == trained.splitlines()[3]      # the same RBD row
     assert main(["train", "--config", "no_such_config", *args, "--out", str(tmp_path / "x.pt")]) == 2
+
+
+def test_hybrid_torque_model_for_the_estimation_diagram():
+    from proprio.description import load_robot
+    from proprio.learning.experiments import HybridTorqueModel
+    from proprio.learning.features import rbd_provider
+    desc = load_robot("iiwa14_identified")
+    x = _sequence(80)
+    q, qd, qdd = x[:, 7:14], x[:, 14:21], x[:, 21:28]
+    torch.manual_seed(0)
+    model = HybridModel(_small("lstm2_fcl")).double().eval()
+    hybrid = HybridTorqueModel(desc, model)
+    tau_dyn = hybrid.tau_rbd(q, qd, qdd) + hybrid.tau_int(q, qd, qdd)
+    features = feature_matrix(rbd_provider(desc)(q, qd, qdd), q, qd, qdd, rotational_displacement(q))
+    np.testing.assert_allclose(tau_dyn, predict_streaming(model, features), atol=1e-10)

@@ -102,7 +102,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                  description="Experiments on the twin.")
     sub = twin.add_subparsers(dest="twin_command", metavar="EXPERIMENT")
     h = sub.add_parser("hysteresis-test", help="thesis Fig. 2.5: tau vs angle, joint-wise ±10° at 10 %% speed",
-                       description="Joint-wise triangular motion ±10° around the zero pose at 10 %% of each joint's "
+                       description="Joint-wise triangular motion ±10° around the zero pose at 10 % of each joint's "
                                    "speed limit, one joint after the other; plots measured tau vs angle for the 7 "
                                    "joints with a Savitzky-Golay overlay (hysteresis_test.png) and saves the "
                                    "Recording (hysteresis_test.npz).")

@@ -1,0 +1,76 @@
+"""Twin benchmark: real-time factor with all effects on at 1 kHz, the projected wall time of the full 1 h RFMA path,
+and the calibration check of issue 4 (identified-style RBD model vs. twin data, next to thesis Table 5.3).
+
+    .venv/bin/python benchmarks/bench_twin.py                          # 6-scaffold RFMA (~200 s of motion)
+    .venv/bin/python benchmarks/bench_twin.py --scaffolds 150          # the full ≈1 h path (slow)
+    .venv/bin/python benchmarks/bench_twin.py --trajectory FILE.npz    # any 'proprio trajectory rfma' file
+
+Prints: simulated seconds, wall seconds (simulation loop and sensor/truth post-processing separately), real-time
+factor, µs per 1 ms step, the projection to a 3600 s path, and per-joint MSE [N·m²] of ``τ_RBD + F_v q̇ + F_c
+sign(q̇)`` (true inertials and friction of the twin's robot, true q̇/q̈) against the measured τ_J — raw and with the
+white noise removed — beside the thesis' RBD test row.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import numpy as np
+
+from proprio.diagrams.twin import load_twin_config, simulate_twin
+from proprio.dynamics import inverse_dynamics
+
+THESIS_RBD_TEST_MSE = np.array([2.0882, 23.1839, 0.0991, 2.1749, 0.4097, 0.0985, 0.0471])   # Table 5.3, N·m²
+
+
+def rfma(scaffolds: int, seed: int, path: str | None):
+    if path:
+        from proprio.systems.trajectories import load_trajectory
+        return load_trajectory(path)[0]
+    from proprio.systems.rfma import generate_rfma, load_rfma_config
+    return generate_rfma(load_rfma_config(scaffolds=scaffolds, seed=seed))[1].trajectory
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--twin", default="iiwa14_twin")
+    ap.add_argument("--scaffolds", type=int, default=6)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--trajectory", default=None)
+    args = ap.parse_args()
+
+    traj = rfma(args.scaffolds, args.seed, args.trajectory)
+    config = load_twin_config(args.twin)
+    load = os.getloadavg()[0]
+    t0, c0 = time.perf_counter(), time.process_time()
+    rec = simulate_twin(config, traj, progress=True)
+    total, cpu = time.perf_counter() - t0, time.process_time() - c0
+    sim_s = rec.duration
+    loop = rec.meta["sim_wall_s"]
+    how = f"measured on a {sim_s:.0f} s path, extrapolated linearly" if sim_s < 3000 else "measured"
+    print(f"\ntwin {config.name}: effects {sorted(rec.meta['effects'])}; load average at start {load:.1f} on "
+          f"{os.cpu_count()} cores")
+    print(f"simulated {sim_s:.1f} s at 1 kHz ({rec.n_samples} samples)")
+    print(f"  wall: simulation loop {loop:.1f} s -> {sim_s / loop:.1f}x real time ({loop / sim_s * 1e3:.0f} us per "
+          f"1 ms step); incl. sensors/truth post-processing {total:.1f} s -> {sim_s / total:.1f}x")
+    print(f"  CPU time of this process (load-independent): {cpu:.1f} s -> {sim_s / cpu:.1f}x real time per core")
+    print(f"projected time for the 3600 s RFMA path ({how}): {3600 * total / sim_s / 60:.1f} min wall now, "
+          f"{3600 * cpu / sim_s / 60:.1f} min on one free core")
+
+    desc = config.robot
+    fric = config.effect("viscous_coulomb")
+    tau_model = (inverse_dynamics(desc, rec.truth["q_true"], rec.qd, rec.qdd)
+                 + fric.viscous * rec.qd + fric.coulomb * np.sign(rec.qd))
+    mse_raw = np.mean((rec.tau - tau_model) ** 2, axis=0)
+    mse_clean = np.mean((rec.tau - rec.truth["tau_torque_noise"] - tau_model) ** 2, axis=0)
+    print("\nper-joint MSE [N·m²] of the identified-style RBD model (true inertials + viscous/Coulomb) on twin data")
+    header = "".join(f"{'joint ' + str(j + 1):>9}" for j in range(desc.n))
+    print(f"{'':28}{header}{'mean':>9}")
+    for label, row in (("twin, raw tau", mse_raw), ("twin, white noise removed", mse_clean),
+                       ("thesis Table 5.3 RBD (test)", THESIS_RBD_TEST_MSE)):
+        print(f"{label:28}" + "".join(f"{v:9.3f}" for v in row) + f"{row.mean():9.3f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,208 @@
+"""The twin diagram: exactness with effects off, payload statics, truth-channel consistency, determinism, errors."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import yaml
+from pydrake.trajectories import PiecewisePolynomial
+
+from proprio.cli import main as cli_main
+from proprio.diagrams.twin import (
+    TwinConfig, TwinConfigError, load_twin_config, payload_wrench, simulate_twin,
+)
+from proprio.dynamics import inverse_dynamics
+from proprio.payload import Payload
+from proprio.plant import DrakeRobot
+from proprio.recording import Recording, load_recording, save_recording
+
+Q_A = np.array([0.1, 0.5, -0.2, -1.2, 0.3, 0.7, 0.2])
+
+
+def waypoints(seconds: float = 1.5, seed: int = 0) -> PiecewisePolynomial:
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0.0, seconds, 4)
+    q = Q_A + rng.uniform(-0.25, 0.25, (4, 7))
+    q[0] = Q_A
+    return PiecewisePolynomial.CubicShapePreserving(t, q.T, True)
+
+
+def hold(q: np.ndarray, seconds: float = 0.3) -> PiecewisePolynomial:
+    return PiecewisePolynomial.FirstOrderHold([0.0, seconds], np.column_stack([q, q]))
+
+
+def config_dict(name: str = "iiwa14_twin") -> dict:
+    from importlib import resources
+    return yaml.safe_load(resources.files("proprio.configs").joinpath(f"{name}.yaml").read_text())
+
+
+@pytest.fixture(scope="module")
+def nominal() -> TwinConfig:
+    return load_twin_config("iiwa14_nominal_twin")
+
+
+@pytest.fixture(scope="module")
+def calibrated() -> TwinConfig:
+    return load_twin_config("iiwa14_twin")
+
+
+def test_effects_off_tau_equals_drake_inverse_dynamics(nominal):
+    rec = simulate_twin(nominal, waypoints(), progress=False)
+    assert rec.meta["source"] == "twin" and rec.n_samples == 1501
+    drake = DrakeRobot(nominal.robot)
+    idx = np.arange(0, rec.n_samples, 30)
+    tau_drake = np.array([drake.inverse_dynamics(rec.q[i], rec.qd[i], rec.qdd[i]) for i in idx])
+    assert np.max(np.abs(rec.tau[idx] - tau_drake)) < 1e-6
+    assert np.max(np.abs(rec.tau - rec.truth["tau_rbd"])) < 1e-6
+    assert np.max(np.abs(rec.q - rec.truth["q_true"])) == 0.0
+    assert np.max(np.abs(rec.q - waypoints().vector_values(rec.t).T)) < 2e-3      # it tracks the trajectory
+    np.testing.assert_array_equal(rec.f_ext, 0.0)
+
+
+def test_payload_at_rest_adds_jacobian_transpose_weight(nominal):
+    cfg = TwinConfig.from_dict({**config_dict("iiwa14_nominal_twin"),
+                                "controller": {"payload_model": True}})
+    mass = 2.5
+    bare = simulate_twin(cfg, hold(Q_A), progress=False)
+    loaded = simulate_twin(cfg, hold(Q_A), payload=Payload(mass), progress=False)
+    assert np.max(np.abs(loaded.qd)) < 1e-9 and np.max(np.abs(loaded.q - Q_A)) < 1e-9   # at rest
+    jac_v = DrakeRobot(nominal.robot).flange_jacobian(Q_A)[3:]                           # translational rows
+    expected = jac_v.T @ np.array([0.0, 0.0, mass * 9.81])
+    np.testing.assert_allclose(loaded.tau[-1] - bare.tau[-1], expected, atol=1e-6)
+    np.testing.assert_allclose(loaded.f_ext[-1], [0, 0, -mass * 9.81, 0, 0, 0], atol=1e-6)
+    assert loaded.meta["payload"]["mass"] == mass
+
+
+def test_calibrated_twin_channels_are_consistent(calibrated):
+    payload = Payload(1.5, (0.02, 0.0, 0.06), (0.002, 0.002, 0.001, 0.0, 0.0, 0.0))
+    rec = simulate_twin(calibrated, waypoints(1.0, seed=3), payload=payload, progress=False)
+    tr = rec.truth
+    # τ_J from the simulation equals rigid-body dynamics of the logged motion + link friction
+    np.testing.assert_allclose(tr["tau_J_true"], tr["tau_rbd"] + tr["tau_viscous_coulomb"], atol=1e-6)
+    # ... and the payload's part of it is −Jᵀ f_ext (f_ext: the payload wrench on the flange, world frame)
+    tau_robot = inverse_dynamics(calibrated.robot, tr["q_true"], rec.qd, rec.qdd)
+    jac = np.array([DrakeRobot(calibrated.robot).flange_jacobian(q) for q in tr["q_true"][::50]])
+    wrench_mf = rec.f_ext[::50][:, [3, 4, 5, 0, 1, 2]]                               # [m; f] for [ω; v] rows
+    np.testing.assert_allclose(tr["tau_rbd"][::50] - tau_robot[::50],
+                               -np.einsum("sji,sj->si", jac, wrench_mf), atol=1e-6)
+    # measured = true + every sensor contribution
+    sensor = ["tau_hysteresis", "tau_lost_motion", "tau_ripple", "tau_sensor_offset_gain", "tau_torque_noise"]
+    np.testing.assert_allclose(rec.tau, tr["tau_J_true"] + sum(tr[k] for k in sensor), atol=1e-9)
+    assert 0 < np.max(np.abs(rec.q - tr["q_true"])) < math.radians(0.01)             # encoder noise
+    assert set(rec.meta["effects"]) >= {"viscous_coulomb", "hysteresis", "lost_motion", "ripple", "motor"}
+
+
+def test_payload_wrench_matches_drake_difference_when_moving(nominal):
+    rec = simulate_twin(nominal, waypoints(0.5, seed=5), progress=False)
+    payload = Payload(3.0, (0.05, -0.02, 0.1), (0.01, 0.02, 0.015, 0.001, 0.0, 0.002))
+    from proprio.payload import attach_payload
+    desc = nominal.robot
+    diff = (inverse_dynamics(attach_payload(desc, payload), rec.q, rec.qd, rec.qdd)
+            - inverse_dynamics(desc, rec.q, rec.qd, rec.qdd))
+    wrench = payload_wrench(desc, payload, rec.q, rec.qd, rec.qdd)
+    jac = np.array([DrakeRobot(desc).flange_jacobian(q) for q in rec.q[::25]])
+    np.testing.assert_allclose(diff[::25], -np.einsum("sji,sj->si", jac, wrench[::25][:, [3, 4, 5, 0, 1, 2]]),
+                               atol=1e-8)
+
+
+def test_same_seed_same_recording_and_150hz_logging(calibrated, tmp_path):
+    a = simulate_twin(calibrated, waypoints(0.6), progress=False)
+    b = simulate_twin(calibrated, waypoints(0.6), progress=False)
+    for name in ("t", "q", "tau", "qd", "qdd", "f_ext"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    for k in a.truth:
+        np.testing.assert_array_equal(a.truth[k], b.truth[k])
+    c = simulate_twin(TwinConfig.from_dict({**config_dict(), "seed": 8}), waypoints(0.6), progress=False)
+    assert np.any(c.tau != a.tau)
+    slow = simulate_twin(TwinConfig.from_dict({**config_dict(), "log_rate_hz": 150}), waypoints(0.6),
+                         progress=False)
+    assert abs(slow.rate_hz - 150) < 20 and set(np.round(np.diff(slow.t) * 1000).astype(int)) <= {6, 7}
+    path = save_recording(slow, tmp_path / "slow.npz")
+    assert load_recording(path).n_samples == slow.n_samples
+
+
+def test_elastic_drive_is_hidden_from_tau_but_shows_in_motion(calibrated):
+    data = config_dict()
+    data["effects"] = {"viscous_coulomb": data["effects"]["viscous_coulomb"], "motor": data["effects"]["motor"],
+                       "elasticity": {"stiffness": [5000, 10000, 5000, 5000, 1500, 2500, 500],
+                                      "damping": [5, 10, 5, 5, 2, 3, 0.5]}}
+    elastic = simulate_twin(TwinConfig.from_dict(data), waypoints(1.0), progress=False)
+    tr = elastic.truth
+    np.testing.assert_allclose(tr["tau_J_true"], tr["tau_rbd"] + tr["tau_viscous_coulomb"], atol=1e-6)
+    err = np.abs(elastic.q - waypoints(1.0).vector_values(elastic.t).T)
+    deflection = np.abs(tr["tau_J_true"]) / np.array([5000, 10000, 5000, 5000, 1500, 2500, 500])
+    assert np.max(err[:, 1]) > 0.5 * np.max(deflection[:, 1])          # joint 2 sags by ~τ/K
+    assert np.max(err) < 0.05
+    data["effects"]["elasticity"]["stiffness"] = 1e6
+    with pytest.raises(ValueError, match="too stiff"):
+        simulate_twin(TwinConfig.from_dict(data), waypoints(1.0), progress=False)
+
+
+def test_bad_configs_and_trajectories_fail_before_simulating(calibrated, tmp_path):
+    data = config_dict()
+    data["effects"]["hysterisis"] = {"saturation": 1.0}
+    with pytest.raises(TwinConfigError, match="unknown joint effect.*hysterisis"):
+        TwinConfig.from_dict(data)
+    data = config_dict()
+    data["effects"]["elasticity"] = {"stiffness": -100.0}
+    with pytest.raises(TwinConfigError, match="elasticity.stiffness"):
+        TwinConfig.from_dict(data)
+    bad = hold(np.array([0.0, 2.2, 0.0, 0.0, 0.0, 0.0, 0.0]))                        # joint 2 limit is 120°
+    with pytest.raises(TwinConfigError, match="joint 2 .*limits"):
+        simulate_twin(calibrated, bad, progress=False)
+
+
+def test_cli_simulate_replays_a_recording_and_errors_cleanly(calibrated, tmp_path, capsys):
+    src = simulate_twin(load_twin_config("iiwa14_nominal_twin"), waypoints(0.5), progress=False)
+    src_path = save_recording(src, tmp_path / "src.npz")
+    out = tmp_path / "out.npz"
+    assert cli_main(["simulate", "--twin", "iiwa14_twin.yaml", "--trajectory", str(src_path), "--payload-kg", "1",
+                     "--quiet", "--out", str(out)]) == 0
+    rec = load_recording(out)
+    assert rec.meta["payload"]["mass"] == 1.0 and np.median(rec.f_ext[:, 2]) == pytest.approx(-9.81, abs=1.0)
+    # a trajectory outside the limits: exit 2, one-line error, no file written
+    far = Recording(t=src.t, q=src.q + np.array([0, 1.9, 0, 0, 0, 0, 0]), tau=src.tau)
+    far_path = save_recording(far, tmp_path / "far.npz")
+    bad_out = tmp_path / "bad.npz"
+    assert cli_main(["simulate", "--trajectory", str(far_path), "--quiet", "--out", str(bad_out)]) == 2
+    assert "joint limits" in capsys.readouterr().err
+    assert not bad_out.exists() and not list(tmp_path.glob(".bad.npz*"))
+    cfg = tmp_path / "twin.yaml"
+    data = config_dict()
+    data["effects"]["stiction"] = {}
+    cfg.write_text(yaml.safe_dump(data))
+    assert cli_main(["simulate", "--twin", str(cfg), "--trajectory", str(src_path), "--out", str(bad_out)]) == 2
+    assert "stiction" in capsys.readouterr().err and not bad_out.exists()
+
+
+def test_interrupted_simulation_leaves_no_file(calibrated, tmp_path, monkeypatch):
+    import proprio.diagrams.twin as twin
+
+    src_path = save_recording(simulate_twin(load_twin_config("iiwa14_nominal_twin"), waypoints(0.3),
+                                            progress=False), tmp_path / "src.npz")
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(twin, "_to_recording", interrupted)
+    out = tmp_path / "out.npz"
+    assert cli_main(["simulate", "--trajectory", str(src_path), "--quiet", "--out", str(out)]) == 130
+    assert not out.exists() and not list(tmp_path.glob(".out.npz*"))
+
+
+def test_hysteresis_test_trajectory_is_fig_2_5(nominal):
+    from proprio.diagrams.twin import hysteresis_test_trajectory
+    from proprio.systems.trajectories import sample_trajectory
+
+    traj, windows = hysteresis_test_trajectory(nominal.robot)
+    t, q, qd, _ = sample_trajectory(traj, 200.0)
+    assert [w[0] for w in windows] == list(range(7))
+    for j, ta, tb in windows:
+        inside = (t >= ta) & (t <= tb)
+        others = np.delete(q[inside], j, axis=1)
+        assert np.max(np.abs(others)) < 1e-12                                    # one joint at a time
+        assert math.radians(9.0) < np.max(q[inside, j]) <= math.radians(10.0)   # ±10° (blended vertices)
+        cruise = np.abs(qd[inside, j])
+        assert np.median(cruise) == pytest.approx(0.1 * nominal.robot.velocity_limits[j], rel=0.02)   # 10 % speed
+    assert cli_main(["twin"]) == 2                                               # no experiment given: help
