@@ -6,10 +6,12 @@ observers, logged at the data rate.
         │                               └─tau_int──→ MomentumObserver ───────→ VectorLogSink (f̂, τ̂_ext)
         └─ τ_J ───────────────────────────────────→ both observers' tau_meas
 
-The preprocessing is the offline, zero-phase one of §4.1 (Butterworth forward–backward, central differences), so
-the signals are computed before the replay; the observers themselves are causal Systems that would run unchanged on
-live sensor ports. ``tau_dyn`` comes from any :class:`TorqueModel` (the rigid-body model now; the hybrid RBD + learned
-residual plugs into the same port). :func:`estimate_wrench` runs it and returns an :class:`EstimationResult`.
+The preprocessing is offline and zero-phase like §4.1 (central differences, Butterworth forward–backward; its
+cutoff, 20 Hz by default, keeps the RFMA exploration's few-Hz content that the 1 Hz excitation filter of
+:mod:`proprio.identification.preprocessing` would remove), so the signals are computed before the replay; the
+observers themselves are causal Systems that would run unchanged on live sensor ports. ``tau_dyn`` comes from any
+:class:`TorqueModel` (the rigid-body model now; the hybrid RBD + learned residual plugs into the same port).
+:func:`estimate_wrench` runs it and returns an :class:`EstimationResult`.
 """
 from __future__ import annotations
 
@@ -35,9 +37,10 @@ from proprio.recording import Recording, RecordingError, validate_recording
 from proprio.systems.observers import (JacobianWrenchObserver, MomentumObserver, WrenchMapping, jacobian_wrench,
                                        momentum_observer, wrench_from_joint_torque)
 
-__all__ = ["TorqueModel", "RigidBodyTorqueModel", "load_torque_model", "TorqueModelSystem", "FilterSettings", "preprocess",
-           "check_recording_matches", "resample_uniform", "AddWrenchObservers", "build_estimation_diagram", "EstimationResult",
-           "estimate_wrench", "estimate_wrench_offline", "OBSERVERS", "DEFAULT_GAIN"]
+__all__ = ["TorqueModel", "RigidBodyTorqueModel", "load_torque_model", "TorqueModelSystem", "FilterSettings",
+           "preprocess", "check_recording_matches", "resample_uniform", "AddWrenchObservers",
+           "build_estimation_diagram", "EstimationResult", "estimate_wrench", "estimate_wrench_offline", "OBSERVERS",
+           "DEFAULT_GAIN"]
 
 OBSERVERS = ("jacobian", "momentum")
 DEFAULT_GAIN = 100.0
@@ -97,8 +100,9 @@ def load_torque_model(spec: str | Path) -> RigidBodyTorqueModel:
 
 
 class TorqueModelSystem(LeafSystem):
-    """A :class:`TorqueModel` as a System (τ_rbd from Drake's ``CalcInverseDynamics``). Inputs ``q``, ``qd``, ``qdd`` (n each, rad, rad/s, rad/s²); outputs
-    ``tau_dyn`` = τ_rbd + τ_int and ``tau_int`` (n each, N·m), both computed once per context."""
+    """A :class:`TorqueModel` as a System (τ_rbd from Drake's ``CalcInverseDynamics``). Inputs ``q``, ``qd``,
+    ``qdd`` (n each, rad, rad/s, rad/s²); outputs ``tau_dyn`` = τ_rbd + τ_int and ``tau_int`` (n each, N·m), both
+    computed once per context."""
 
     def __init__(self, model: TorqueModel):
         LeafSystem.__init__(self)
@@ -188,7 +192,8 @@ def check_recording_matches(rec: Recording, desc: RobotDescription) -> Recording
 
 # ---- the diagram -----------------------------------------------------------------------------------------------------
 
-def AddWrenchObservers(builder: DiagramBuilder, model: TorqueModel, time_step: float, gain: float | np.ndarray = DEFAULT_GAIN,
+def AddWrenchObservers(builder: DiagramBuilder, model: TorqueModel, time_step: float,
+                       gain: float | np.ndarray = DEFAULT_GAIN,
                        mapping: WrenchMapping = WrenchMapping()
                        ) -> tuple[TorqueModelSystem, JacobianWrenchObserver, MomentumObserver]:
     """Add the torque model and both observers to ``builder`` and wire the model into them. The caller connects
@@ -205,7 +210,8 @@ def AddWrenchObservers(builder: DiagramBuilder, model: TorqueModel, time_step: f
 _LOGGED = {"jacobian": ("wrench", "tau_ext", "manipulability", "unreliable"), "momentum": ("wrench", "tau_ext")}
 
 
-def build_estimation_diagram(model: TorqueModel, signals: dict[str, np.ndarray], gain: float | np.ndarray = DEFAULT_GAIN,
+def build_estimation_diagram(model: TorqueModel, signals: dict[str, np.ndarray],
+                             gain: float | np.ndarray = DEFAULT_GAIN,
                              mapping: WrenchMapping = WrenchMapping()
                              ) -> tuple[Diagram, dict[str, VectorLogSink]]:
     """The replay diagram over preprocessed ``signals`` (see :func:`preprocess`). Returns the diagram and its
@@ -237,7 +243,8 @@ def build_estimation_diagram(model: TorqueModel, signals: dict[str, np.ndarray],
 class EstimationResult:
     """Wrench estimates over a Recording's samples (world frame at the flange, ``[fx, fy, fz, mx, my, mz]``).
 
-    ``q [N,n]`` the filtered joint positions the observers used; ``wrench[obs]`` ``[N,6]`` and ``tau_ext[obs]`` ``[N,n]`` per observer (``"jacobian"``, ``"momentum"``);
+    ``q [N,n]`` the filtered joint positions the observers used; ``wrench[obs]`` ``[N,6]`` and ``tau_ext[obs]``
+    ``[N,n]`` per observer (``"jacobian"``, ``"momentum"``);
     ``manipulability [N]`` and ``unreliable [N]`` (bool) of the Jacobian mapping; ``f_true`` the Recording's true
     wrench or None. :meth:`force_stats` skips ``skip_start_s`` at the start (the momentum observer's transient 5/K_O
     and the filters' edge) and ``skip_end_s`` at the end (the zero-phase filters' edge).
@@ -385,7 +392,8 @@ def estimate_wrench(model: TorqueModel | RobotDescription, rec: Recording, gain:
               "mapping": asdict(mapping), "filters": asdict(filters), "engine": "diagram"})
 
 
-def estimate_wrench_offline(model: TorqueModel | RobotDescription, rec: Recording, gain: float | np.ndarray = DEFAULT_GAIN,
+def estimate_wrench_offline(model: TorqueModel | RobotDescription, rec: Recording,
+                            gain: float | np.ndarray = DEFAULT_GAIN,
                             mapping: WrenchMapping = WrenchMapping(), filters: FilterSettings = FilterSettings()
                             ) -> EstimationResult:
     """The same estimates as :func:`estimate_wrench`, vectorised over samples with the observers' offline functions

@@ -184,7 +184,8 @@ def format_table(exp_results: dict[float, EstimationResult], masses: tuple[float
                          f"{_vec(_error(exp_results[m], row).mean(axis=0)):<21}  {thesis}")
     if 0.0 in masses and len(masses) > 1:
         lines.append("")
-        lines.append("Payload seen after taring with the 0 g run: mean f̂(m) − mean f̂(0 g) [x y z] N (truth in brackets)")
+        lines.append("Payload seen after taring with the 0 g run: mean f̂(m) − mean f̂(0 g) [x y z] N "
+                     "(truth in brackets)")
         base = exp_results[0.0]
         for row in _OBSERVER_ROWS:
             for m in (x for x in masses if x != 0.0):
@@ -223,6 +224,10 @@ def payload_experiment(model: str | Path | TorqueModel, out_dir: str | Path, sec
     """
     from proprio.diagrams.twin import load_twin_config, simulate_twin
 
+    if not masses or not all(np.isfinite(m) and m >= 0 for m in masses):
+        raise ValueError(f"masses must be a non-empty list of payload masses >= 0 kg, got {list(masses)}")
+    if not seconds > 0:
+        raise ValueError(f"seconds must be > 0, got {seconds}")
     torque_model = model if not isinstance(model, (str, Path)) else load_torque_model(model)
     name = Path(model).name if isinstance(model, (str, Path)) and Path(model).suffix == ".npz" else \
         torque_model.description.name
@@ -268,8 +273,8 @@ def _plot_errors(exp: PayloadExperiment, path: Path) -> Path:
     x = np.arange(len(exp.masses))
     for a, ax in enumerate(axs):
         for k, row in enumerate(rows):
-            vals = [THESIS_RBD.get(m, ([np.nan] * 3,))[0][a] if row == "thesis RBD" else _stats(exp.results[m], row)[0][a]
-                    for m in exp.masses]
+            vals = [THESIS_RBD.get(m, ([np.nan] * 3,))[0][a] if row == "thesis RBD"
+                    else _stats(exp.results[m], row)[0][a] for m in exp.masses]
             ax.bar(x + (k - len(rows) / 2 + 0.5) * width, vals, width, label=row,
                    color="0.6" if row == "thesis RBD" else f"C{k}")
         ax.set_xticks(x, [f"{int(round(m * 1000))} g" for m in exp.masses])

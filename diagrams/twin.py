@@ -6,10 +6,15 @@
 measured ``q``, ``tau`` (τ_J), the true ``qd``/``qdd``, the true flange wrench ``f_ext`` and truth channels:
 
 * ``tau_rbd``: rigid-body torque of the logged motion incl. payload (``proprio.dynamics.inverse_dynamics``);
-* ``tau_J_true``: the transmitted, sensed torque before the sensor effects (``= actuation + link friction``,
-  straight from the simulation; equals ``tau_rbd + Σ link friction``);
+* ``tau_J_true``: the transmitted, sensed torque before the sensor effects, straight from the simulation
+  (``JointDrive.sensed_torque``: actuation + link friction [− B q̈ for a rigid drive]); it equals
+  ``tau_rbd + Σ link friction`` to solver precision (tests: 1e-6 N·m);
 * ``tau_<effect>``: each effect's contribution (``tau_viscous_coulomb``, ``tau_hysteresis``, ...);
-* ``q_true``: link positions before encoder noise.
+* ``q_true``: link positions before encoder noise; ``q_motor``, ``qd_motor``: θ, θ̇ of an elastic drive.
+
+``qd``/``qdd`` are the plant's true link velocity and acceleration at the logged instants (a real robot gives
+neither: differentiate ``q`` for realism). The motor side (``drive`` block, ``elasticity``) has no torque channel: it is
+hidden behind the sensor and acts only through the motion.
 
 A twin is described by one YAML file (``proprio/configs/iiwa14_twin.yaml``)::
 
@@ -19,6 +24,7 @@ A twin is described by one YAML file (``proprio/configs/iiwa14_twin.yaml``)::
     log_rate_hz: 1000                 # 1000 (native) or e.g. 150 (thesis); decimated from the 1 kHz log
     seed: 7
     controller: {kp: [...], ki: [...], kd: [...], payload_model: false}   # IDC gains (1/s², 1/s³, 1/s)
+    drive: {motor_inertia: [...], motor_viscous: [...], motor_coulomb: [...]}   # motor side (hidden), or null
     payload: {mass: 1.0, com_flange: [0, 0, 0.05]}                        # or null
     effects: {viscous_coulomb: {...}, hysteresis: {...}, ...}             # see proprio.systems.joint_effects
 """
@@ -37,6 +43,7 @@ import numpy as np
 import yaml
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import DiscreteContactApproximation, MultibodyPlant
+from pydrake.multibody.tree import PdControllerGains
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.controllers import InverseDynamicsController
 from pydrake.systems.framework import Diagram, DiagramBuilder
@@ -63,7 +70,7 @@ from proprio.systems.trajectories import AddTrajectorySource, sample_trajectory
 __all__ = ["TwinConfig", "TwinConfigError", "load_twin_config", "TwinDiagram", "build_twin_diagram",
            "simulate_twin", "payload_wrench", "hysteresis_test_trajectory", "run_hysteresis_test", "demo_twin"]
 
-_TOP_KEYS = {"name", "robot", "time_step", "log_rate_hz", "seed", "controller", "payload", "effects", "description"}
+_TOP_KEYS = {"name", "robot", "time_step", "log_rate_hz", "seed", "controller", "drive", "payload", "effects"}
 _CONTROLLER_KEYS = {"kp", "ki", "kd", "payload_model"}
 
 
@@ -83,6 +90,7 @@ class TwinConfig:
     ki: np.ndarray
     kd: np.ndarray
     payload_model: bool = False
+    motor: Motor | None = None
     payload: Payload | None = None
     time_step: float = 1e-3
     log_rate_hz: float = 1000.0
@@ -123,11 +131,18 @@ class TwinConfig:
         if not 0 < rate <= 1.0 / time_step + 1e-9:
             raise TwinConfigError(f"{source}: log_rate_hz must be in (0, 1/time_step = {1 / time_step:g}], got {rate}")
         try:
+            motor = Motor.from_config(data["drive"], n) if data.get("drive") is not None else None
+        except ValueError as exc:
+            raise TwinConfigError(f"{source}: drive: {exc}") from exc
+        if any(isinstance(e, Elasticity) for e in effects) and (motor is None or np.any(motor.motor_inertia <= 0)):
+            raise TwinConfigError(f"{source}: effects.elasticity needs a 'drive' block with motor_inertia > 0 on every "
+                                  "joint (the motor-side state)")
+        try:
             payload = Payload.from_dict(data.get("payload"))
         except (ValueError, KeyError, TypeError) as exc:
             raise TwinConfigError(f"{source}: payload: {exc}") from exc
         return cls(robot=desc, effects=effects, payload_model=bool(ctrl.get("payload_model", False)),
-                   payload=payload, time_step=time_step, log_rate_hz=rate, seed=int(data.get("seed", 0)),
+                   motor=motor, payload=payload, time_step=time_step, log_rate_hz=rate, seed=int(data.get("seed", 0)),
                    name=str(data.get("name", Path(source).stem)), raw=data, **gains)
 
     def effect(self, name: str) -> JointEffect | None:
@@ -145,6 +160,7 @@ class TwinConfig:
                 "effects": {e.name: {k: v.tolist() for k, v in e.params().items()} for e in self.effects},
                 "controller": {"kp": self.kp.tolist(), "ki": self.ki.tolist(), "kd": self.kd.tolist(),
                                "payload_model": self.payload_model},
+                "drive": None if self.motor is None else {k: v.tolist() for k, v in self.motor.params().items()},
                 "payload": None if self.payload is None else dataclasses.asdict(self.payload), "seed": self.seed}
 
 
@@ -157,7 +173,8 @@ def load_twin_config(name_or_path: str | Path) -> TwinConfig:
         stem = path.name if path.suffix in (".yaml", ".yml") else f"{path.name}.yaml"
         res = resources.files("proprio.configs").joinpath(stem)
         if not res.is_file():
-            shipped = sorted(p.name for p in resources.files("proprio.configs").iterdir() if p.name.endswith("twin.yaml"))
+            shipped = sorted(p.name for p in resources.files("proprio.configs").iterdir()
+                             if p.name.endswith("twin.yaml"))
             raise TwinConfigError(f"twin config '{name_or_path}' is neither a file nor a shipped config {shipped}")
         text, source = res.read_text(), stem
     try:
@@ -177,27 +194,34 @@ class TwinDiagram:
     plant: Any
     drive: JointDrive
     controller: InverseDynamicsController
-    logger: VectorLogSink          # logs [q; q̇; q̈; actuation] every time_step
+    logger: VectorLogSink          # logs [q; q̇; q̈; net actuation (; θ; θ̇ if elastic)] every time_step
     config: TwinConfig
     control_plant: Any             # keeps the controller's model alive
 
 
 def _robot_plant(desc: RobotDescription, payload: Payload | None, time_step: float,
-                 rotor_inertia: np.ndarray | None) -> MultibodyPlant:
-    """The robot as a finalized MultibodyPlant (proprio's URDF, no collision shapes) with reflected rotor inertia.
+                 rotor_inertia: np.ndarray | None = None, spring: Elasticity | None = None) -> MultibodyPlant:
+    """The robot as a finalized MultibodyPlant (proprio's URDF, no collision shapes) with reflected rotor inertia,
+    or with each actuator a PD-controlled joint whose gains are the series spring (K, D) of ``spring``.
 
     The twin plays planned, collision-free paths and draws nothing, so it needs no SceneGraph: geometry queries
-    would cost ~1/3 of a step. Same URDF as ``proprio.plant.AddRobot``.
+    would cost ~1/3 of a step. Same URDF as ``proprio.plant.AddRobot``. Without a spring the discrete solver is
+    TAMSI (≈2× faster than SAP when nothing is in contact); the implicit PD actuators need SAP.
     """
     plant = MultibodyPlant(time_step)
     Parser(plant).AddModelsFromString(to_urdf(desc, payload, collision=False), "urdf")
     plant.mutable_gravity_field().set_gravity_vector(np.asarray(desc.gravity, dtype=float))
-    if rotor_inertia is not None:
-        for k, index in enumerate(plant.GetJointActuatorIndices()):
-            plant.get_joint_actuator(index).set_default_rotor_inertia(float(rotor_inertia[k]))
+    for k, index in enumerate(plant.GetJointActuatorIndices()):
+        actuator = plant.get_joint_actuator(index)
+        if rotor_inertia is not None:
+            actuator.set_default_rotor_inertia(float(rotor_inertia[k]))
+        if spring is not None:
+            actuator.set_controller_gains(PdControllerGains(p=float(spring.stiffness[k]),
+                                                            d=float(spring.damping[k])))
     if time_step > 0:
         plant.SetUseSampledOutputPorts(False)          # log q̈ and u of the state at the logged instant
-        plant.set_discrete_contact_approximation(DiscreteContactApproximation.kTamsi)   # no contact: ≈3× faster
+        plant.set_discrete_contact_approximation(DiscreteContactApproximation.kSap if spring is not None
+                                                 else DiscreteContactApproximation.kTamsi)
     plant.Finalize()
     return plant
 
@@ -218,19 +242,20 @@ def build_twin_diagram(config: TwinConfig, trajectory: Trajectory) -> TwinDiagra
     """
     desc, n, dt = config.robot, config.robot.n, config.time_step
     link = [e for e in config.effects if e.place == "link"]
-    motor = next((e for e in config.effects if isinstance(e, Motor)), None)
+    motor = config.motor
     elastic = next((e for e in config.effects if isinstance(e, Elasticity)), None)
     rotor = motor.motor_inertia if motor is not None else np.zeros(n)
     if elastic is None:
         check_explicit_friction(friction_slope(link, motor),
                                 _effective_inertia(desc, config.payload, trajectory, rotor), dt)
     else:
-        link_inertia = _effective_inertia(desc, config.payload, trajectory, np.zeros(n))
-        check_explicit_friction(friction_slope(link), link_inertia, dt)
-        check_elastic_stability(elastic, motor, link_inertia, dt)
+        # the spring's implicit damping D acts in parallel with the explicit link friction
+        check_explicit_friction(friction_slope(link) - elastic.damping,
+                                _effective_inertia(desc, config.payload, trajectory, np.zeros(n)), dt)
+        check_elastic_stability(elastic, motor, dt)
 
     builder = DiagramBuilder()
-    plant = builder.AddSystem(_robot_plant(desc, config.payload, dt, rotor if elastic is None else None))
+    plant = builder.AddSystem(_robot_plant(desc, config.payload, dt, rotor if elastic is None else None, elastic))
     plant.set_name("plant")
     instance = plant.GetModelInstanceByName(desc.name)
     control_plant = _robot_plant(desc, config.payload if config.payload_model else None, 0.0, rotor)
@@ -248,12 +273,18 @@ def build_twin_diagram(config: TwinConfig, trajectory: Trajectory) -> TwinDiagra
     builder.Connect(ctrl.get_output_port_generalized_force(), drive.GetInputPort("motor_torque"))
     builder.Connect(state, drive.GetInputPort("link_state"))
     builder.Connect(drive.GetOutputPort("actuation"), plant.get_actuation_input_port(instance))
+    net_actuation = plant.get_net_actuation_output_port(instance)
+    if elastic is not None:
+        builder.Connect(drive.GetOutputPort("motor_state"), plant.get_desired_state_input_port(instance))
+        builder.Connect(net_actuation, drive.GetInputPort("net_actuation"))
 
-    mux = builder.AddSystem(Multiplexer([2 * n, n, n]))
-    builder.Connect(state, mux.get_input_port(0))
-    builder.Connect(plant.get_generalized_acceleration_output_port(instance), mux.get_input_port(1))
-    builder.Connect(drive.GetOutputPort("actuation"), mux.get_input_port(2))
-    logger = builder.AddSystem(VectorLogSink(4 * n, dt))
+    logged = [state, plant.get_generalized_acceleration_output_port(instance), net_actuation]
+    if elastic is not None:
+        logged.append(drive.GetOutputPort("motor_state"))
+    mux = builder.AddSystem(Multiplexer([port.size() for port in logged]))
+    for k, port in enumerate(logged):
+        builder.Connect(port, mux.get_input_port(k))
+    logger = builder.AddSystem(VectorLogSink(mux.get_output_port().size(), dt))
     logger.set_name("logger")
     builder.Connect(mux.get_output_port(), logger.get_input_port())
     diagram = builder.Build()
@@ -369,14 +400,13 @@ def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload |
 
 def _to_recording(config: TwinConfig, drive: JointDrive, t: np.ndarray, data: np.ndarray, wall_s: float
                   ) -> Recording:
-    """Sensor models + truth channels from the logged true motion ``[q; q̇; q̈; u]``."""
+    """Sensor models + truth channels from the logged true motion ``[q; q̇; q̈; net actuation (; θ; θ̇)]``."""
     desc, n = config.robot, config.robot.n
     q, qd, qdd, u = (data[:, k * n:(k + 1) * n] for k in range(4))
     rng = np.random.default_rng(config.seed)
     s = MotionSignals(t=t, q=q, qd=qd, qdd=qdd)
     truth: dict[str, np.ndarray] = {}
-    tau_rbd = inverse_dynamics(attach_payload(desc, config.payload), q, qd, qdd)
-    truth["tau_rbd"] = tau_rbd
+    truth["tau_rbd"] = _in_batches(inverse_dynamics, attach_payload(desc, config.payload), q, qd, qdd)
     for eff in config.effects:
         if eff.place == "link":
             truth[f"tau_{eff.name}"] = eff.torque(s)
@@ -388,11 +418,18 @@ def _to_recording(config: TwinConfig, drive: JointDrive, t: np.ndarray, data: np
     encoder = next((e for e in config.effects if isinstance(e, EncoderNoise)), None)
     q_meas = PositionSensor(encoder).measure(q, rng)
     truth["q_true"] = q
+    if data.shape[1] > 4 * n:                          # elastic drive: θ, θ̇ (what a motor-side sensor reads)
+        truth["q_motor"], truth["qd_motor"] = data[:, 4 * n:5 * n], data[:, 5 * n:6 * n]
     meta = {**config.meta(), "rate_hz": config.log_rate_hz, "source": "twin",
             "sim_wall_s": round(wall_s, 3), "real_time_factor": round(float(t[-1] - t[0]) / max(wall_s, 1e-9), 2)}
     return Recording(t=t - t[0], q=q_meas, tau=tau_meas, qd=qd, qdd=qdd,
-                     f_ext=payload_wrench(desc, config.payload, q, qd, qdd), truth=truth, meta=json.loads(
-                         json.dumps(meta)))
+                     f_ext=_in_batches(lambda d, *x: payload_wrench(d, config.payload, *x), desc, q, qd, qdd),
+                     truth=truth, meta=json.loads(json.dumps(meta)))
+
+
+def _in_batches(fn, desc: RobotDescription, *arrays: np.ndarray, size: int = 100_000) -> np.ndarray:
+    """``fn(desc, *arrays)`` over sample batches (the batched kinematics hold ~1 kB per sample in temporaries)."""
+    return np.concatenate([fn(desc, *(a[i:i + size] for a in arrays)) for i in range(0, arrays[0].shape[0], size)])
 
 
 # ------------------------------------------------------------------------------------------------------------------

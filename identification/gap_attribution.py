@@ -62,7 +62,7 @@ __all__ = ["SimModel", "GapData", "Candidate", "EffectCandidate", "RigidBodyCand
 NOISE_EFFECTS = ("torque_noise", "encoder_noise")
 MIN_BLOCKS = 20
 MIN_BLOCK_S = 0.5
-MAX_FIT_SAMPLES = 6000
+MAX_FIT_SAMPLES = 4000
 
 
 class DiagnosisError(ValueError):
@@ -450,45 +450,76 @@ class _Fit:
 
 
 def _wlstsq(a: np.ndarray, y: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Weighted LS of ``y [M,n] ≈ a [M,n,p] θ`` with joint weights ``w [n]``; returns θ and (AᵀWA)⁺."""
+    """Weighted LS of ``y [M,n] ≈ a [M,n,p] θ`` with joint weights ``w [n]`` by the normal equations of the
+    column-scaled problem (eigen-decomposition, directions below 1e-10 of the largest dropped); returns θ and
+    (AᵀWA)⁺."""
     sw = np.sqrt(w)
     aw = (a * sw[None, :, None]).reshape(-1, a.shape[-1])
     yw = (y * sw[None, :]).reshape(-1)
     scale = np.linalg.norm(aw, axis=0)
     scale[scale == 0] = 1.0
-    theta, *_ = np.linalg.lstsq(aw / scale, yw, rcond=1e-10)
-    ata_inv = np.linalg.pinv((aw / scale).T @ (aw / scale), rcond=1e-10) / np.outer(scale, scale)
-    return theta / scale, ata_inv
+    g = (aw.T @ aw) / np.outer(scale, scale)
+    lam, vec = np.linalg.eigh(g)
+    keep = lam > 1e-10 * max(lam.max(), 1e-300)
+    g_inv = (vec[:, keep] / lam[keep]) @ vec[:, keep].T
+    theta = g_inv @ ((aw.T @ yw) / scale)
+    return theta / scale, g_inv / np.outer(scale, scale)
 
 
 def _fit_nonlinear(cand: Candidate, target: np.ndarray, data: GapData, w: np.ndarray,
                    starts: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """Bounded nonlinear LS of one candidate on ``target [M,n]``; returns θ and (JᵀWJ)⁺ at the optimum."""
+    """Bounded nonlinear LS of one candidate on ``target [M,n]``; returns θ and (JᵀWJ)⁺ at the optimum.
+
+    The Jacobian is by forward differences, grouped: parameters that act on different joints are perturbed
+    together (one torque evaluation per parameter kind instead of per parameter)."""
     sw = np.sqrt(w)
     lo, hi = cand.bounds()
     n = target.shape[1]
     jp = cand.joint_of_param(n)
-    sparsity = None
     if np.all(jp >= 0):
-        rows = np.arange(target.size) % n
-        sparsity = (rows[:, None] == jp[None, :]).astype(int)
+        kinds = len(jp) // n
+        groups = [np.arange(k * n, (k + 1) * n) for k in range(kinds)] if len(jp) == kinds * n else \
+            [np.array([i]) for i in range(len(jp))]
+    else:
+        groups = [np.array([i]) for i in range(len(jp))]
+
+    def model(theta):
+        return cand.torque(theta, data)
 
     def resid(theta):
-        return ((target - cand.torque(theta, data)) * sw).reshape(-1)
+        return ((target - model(theta)) * sw).reshape(-1)
+
+    def jac(theta):
+        base = model(theta)
+        out = np.zeros((target.size, len(theta)))
+        for grp in groups:
+            h = 1e-6 * np.maximum(np.abs(theta[grp]), 1e-3)
+            step_up = np.where(theta[grp] + h <= hi[grp], h, -h)
+            th = theta.copy()
+            th[grp] += step_up
+            d = (model(th) - base) * sw                       # [M, n]
+            for i, gi in enumerate(grp):
+                col = np.zeros_like(d)
+                if jp[gi] >= 0:
+                    col[:, jp[gi]] = d[:, jp[gi]]
+                else:
+                    col = d
+                out[:, gi] = -col.reshape(-1) / step_up[i]
+        return out
 
     best = None
     for x0 in starts:
-        x0 = np.clip(x0, lo, hi)
-        x0 = np.where((x0 <= lo) & np.isfinite(lo), lo + 1e-9 * np.maximum(1, np.abs(lo)), x0)
-        x0 = np.where((x0 >= hi) & np.isfinite(hi), hi - 1e-9 * np.maximum(1, np.abs(hi)), x0)
+        x0 = np.asarray(x0, dtype=float).copy()
+        span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
+        x0 = np.clip(x0, lo + 1e-6 * span * np.isfinite(lo), hi - 1e-6 * span * np.isfinite(hi))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            sol = optimize.least_squares(resid, x0, bounds=(lo, hi), jac_sparsity=sparsity, x_scale="jac",
-                                         max_nfev=60, method="trf")
+            sol = optimize.least_squares(resid, x0, jac=jac, bounds=(lo, hi), x_scale="jac", max_nfev=40,
+                                         method="trf", tr_solver="exact")
         if best is None or sol.cost < best.cost:
             best = sol
-    jac = best.jac.toarray() if hasattr(best.jac, "toarray") else np.asarray(best.jac)
-    return best.x, np.linalg.pinv(jac.T @ jac, rcond=1e-10)
+    j = np.asarray(best.jac)
+    return best.x, np.linalg.pinv(j.T @ j, rcond=1e-10)
 
 
 def _fit(cands: list[Candidate], data: GapData, w: np.ndarray, init: dict[str, np.ndarray],

@@ -122,7 +122,7 @@ class BenchmarkCase:
     magnitude: float
     seed: int
     modelled: tuple[str, ...] = ()
-    duration_s: float = 24.0
+    duration_s: float = 20.0
 
 
 def _draw(kind: str, n: int, mag: float, rng: np.random.Generator) -> dict[str, Any]:

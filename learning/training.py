@@ -1,9 +1,10 @@
 """Training loop of §4.4: AdamW (lr 1e-3), ReduceLROnPlateau (patience 2), up to 100 epochs, early stopping on the
 validation loss, a checkpoint after every epoch and resume after an interruption.
 
-Loss: the mean squared error of the model output normalised by the target std (eq. 4.38 in normalised units, so
-every joint weighs the same; evaluation reports N·m²). The learning-rate scheduler and early stopping watch the
-validation loss; the weights of the best validation epoch are restored at the end.
+Loss (``loss``): ``nm2`` — the mean squared torque error in N·m² of eq. 4.38, the metric of Table 5.3 (joints with
+large torques weigh more); or ``normalised`` — the error divided by each joint's target std (every joint weighs the
+same). The learning-rate scheduler and early stopping watch the validation loss; the weights of the best validation
+epoch are restored at the end.
 
 The checkpoint (written atomically after each epoch) holds the model, optimizer, scheduler, epoch, best weights,
 history and every RNG state (torch global, the batch-order generator, CUDA), so a resumed run continues exactly where
@@ -37,9 +38,10 @@ class TrainConfig:
     batch_size: int = 32            # subsequences per batch
     lr_patience: int = 2            # ReduceLROnPlateau patience [epochs]
     lr_factor: float = 0.5
-    early_stop_patience: int = 10   # epochs without a better validation loss
+    early_stop_patience: int = 15   # epochs without a better validation loss
     seed: int = 0
     device: str = "auto"            # auto | cpu | cuda
+    loss: str = "nm2"               # nm2 (eq. 4.38) | normalised
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> "TrainConfig":
@@ -51,6 +53,8 @@ class TrainConfig:
         cfg = cls(**d)
         if cfg.max_epochs < 1 or cfg.batch_size < 1:
             raise ValueError("train: max_epochs and batch_size must be >= 1")
+        if cfg.loss not in ("nm2", "normalised"):
+            raise ValueError(f"train: loss '{cfg.loss}' must be nm2 or normalised")
         if cfg.device not in ("auto", "cpu", "cuda"):
             raise ValueError(f"train: device '{cfg.device}' must be auto, cpu or cuda")
         return cfg
@@ -81,14 +85,15 @@ def _tensors(w: Windows, device: torch.device) -> tuple[torch.Tensor, torch.Tens
             torch.as_tensor(w.tau, dtype=torch.float32, device=device))
 
 
-def _loss(model: HybridModel, x: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
-    return (((model(x) - tau) / model.y_std) ** 2).mean()
+def _loss(model: HybridModel, x: torch.Tensor, tau: torch.Tensor, kind: str) -> torch.Tensor:
+    err = model(x) - tau
+    return ((err / model.y_std if kind == "normalised" else err) ** 2).mean()
 
 
 @torch.no_grad()
-def _eval_loss(model: HybridModel, x: torch.Tensor, tau: torch.Tensor, batch: int) -> float:
+def _eval_loss(model: HybridModel, x: torch.Tensor, tau: torch.Tensor, batch: int, kind: str) -> float:
     model.eval()
-    total = sum(_loss(model, x[i:i + batch], tau[i:i + batch]).item() * len(x[i:i + batch])
+    total = sum(_loss(model, x[i:i + batch], tau[i:i + batch], kind).item() * len(x[i:i + batch])
                 for i in range(0, len(x), batch))
     return total / max(len(x), 1)
 
@@ -147,11 +152,11 @@ def train_model(model: HybridModel, split: Split, cfg: TrainConfig, checkpoint: 
         for i in range(0, len(perm), cfg.batch_size):
             idx = perm[i:i + cfg.batch_size]
             opt.zero_grad(set_to_none=True)
-            loss = _loss(model, x_tr[idx], y_tr[idx])
+            loss = _loss(model, x_tr[idx], y_tr[idx], cfg.loss)
             loss.backward()
             opt.step()
             total += loss.item() * len(idx)
-        val = _eval_loss(model, x_va, y_va, 4 * cfg.batch_size)
+        val = _eval_loss(model, x_va, y_va, 4 * cfg.batch_size, cfg.loss)
         sched.step(val)
         record = {"epoch": epoch, "train": total / len(perm), "val": val, "lr": opt.param_groups[0]["lr"],
                   "seconds": time.perf_counter() - t0}

@@ -3,24 +3,27 @@ friction, series elasticity: hidden behind the torque sensor) and the link-side 
 
 One Python :class:`JointDrive` ``LeafSystem`` holds all per-step Python work of the twin, vectorised over joints:
 
-* **rigid drive** (no ``elasticity`` effect): θ = q. The reflected motor inertia B of the ``motor`` effect is
-  Drake's rotor inertia in the plant (implicit, exact); the drive applies ``u = τ_m − τ_f,m(q̇) − τ_f,link(q̇)`` and
-  the sensor sees ``τ_J = τ_m − τ_f,m − B q̈ = u + τ_f,link − B q̈``.
-* **elastic drive** (``elasticity`` + ``motor``, thesis eq. 3.6): discrete motor state ``[θ, θ̇]`` (rad, rad/s),
-  ``B θ̈ = τ_m − τ_f,m(θ̇) − τ_s``, spring ``τ_s = K(θ − q) + D(θ̇ − q̇)``, advanced with semi-implicit Euler at the
-  plant's period; the link receives ``u = τ_s − τ_f,link(q̇)`` and the sensor sees ``τ_J = τ_s = u + τ_f,link``.
-  The controller then feeds back the motor state (collocated, like the iiwa's motor encoders): PD on the link
-  position through the spring is the classic unstable non-collocated loop.
+* **rigid drive** (no ``elasticity`` effect): θ = q. The reflected motor inertia B of the :class:`Motor` (the
+  twin's ``drive`` block) is Drake's rotor inertia in the plant (implicit, exact); the drive applies
+  ``u = τ_m − τ_f,m(q̇) − τ_f,link(q̇)`` and the sensor sees ``τ_J = τ_m − τ_f,m − B q̈ = u + τ_f,link − B q̈``.
+* **elastic drive** (``elasticity`` + :class:`Motor`, thesis eq. 3.6): discrete motor state ``[θ, θ̇]`` (rad, rad/s),
+  ``B θ̈ = τ_m − τ_f,m(θ̇) − τ_s``. The spring ``τ_s = K(θ − q) + D(θ̇ − q̇)`` is Drake's implicit PD-controlled
+  actuator (SAP): the drive feeds ``[θ; θ̇]`` to the plant's desired-state input with gains (K, D), so a realistic
+  stiffness on light links is stable at 1 ms; the feed-forward actuation is ``−τ_f,link(q̇)``. The motor state is
+  advanced with semi-implicit Euler from the spring torque the plant applied in the same step (its net actuation),
+  so action equals reaction. The sensor sees ``τ_J = τ_s``. The controller feeds back the motor state (collocated,
+  like the iiwa's motor encoders): PD on the link position through the spring is the classic unstable
+  non-collocated loop.
 
-Either way the link dynamics give ``τ_J = τ_rbd(q, q̇, q̈) + τ_f,link − Jᵀ f_ext``, and the twin recovers the true τ_J
-from the logged ``actuation`` and the motion (:meth:`JointDrive.sensed_torque`).
+Either way the plant's net actuation ``u`` satisfies ``τ_J = u + τ_f,link [− B q̈ for the rigid drive]``, and the link
+dynamics give ``τ_J = τ_rbd(q, q̇, q̈) + τ_f,link − Jᵀ f_ext``; the twin recovers the true τ_J from the logged net
+actuation and the motion (:meth:`JointDrive.sensed_torque`).
 
-Friction and the spring act explicitly (from the state at the start of the step). That is stable while
-``(c_j / m)·dt < 2`` with ``c_j`` the friction slope ``F_v + F_c/v_s (+ F_s/v_s)`` and ``m`` the smallest inertia the
-joint's torque can see (``λ_min(M) + B``), and for the spring while ``(ω·dt)² + 2·(D/μ)·dt`` stays below ~2 (μ the
-motor–link relative inertia); :func:`check_explicit_friction` and :func:`check_elastic_stability` refuse
-configurations that violate them with a 2× margin. With the iiwa's light links (λ_min(M) ≈ 0.003 kg·m² when joints 1
-and 3 are coaxial) realistic stiffness (~10⁴ N·m/rad) needs a time step well below 1 ms.
+Friction acts explicitly (from the state at the start of the step): stable while ``(c_j / m)·dt < 2`` with ``c_j`` the
+friction slope ``F_v + F_c/v_s (+ F_s/v_s)`` (minus the spring's implicit damping D when elastic) and ``m`` the
+smallest inertia the joint's torque sees along the trajectory; the motor side of the elastic drive while
+``(K/B)·dt² + 2(D/B)·dt < 2``.
+:func:`check_explicit_friction` and :func:`check_elastic_stability` refuse violations with a 2× margin.
 """
 from __future__ import annotations
 
@@ -55,25 +58,26 @@ def check_explicit_friction(slope: np.ndarray, inertia: np.ndarray, time_step: f
                          f"{ratio[j]:.2f} > 1): raise smooth_velocity, add motor inertia or lower the Coulomb level")
 
 
-def check_elastic_stability(elasticity: Elasticity, motor: Motor, link_inertia: np.ndarray, time_step: float) -> None:
-    """Raise ``ValueError`` when the explicitly coupled spring–damper would be unstable: with ``μ = (1/B + 1/m)⁻¹``,
-    ``ω² = K/μ`` and ``c = D/μ`` require ``(ω·dt)² + 2·c·dt < 1`` (stable below 2 undamped; a 2× margin)."""
-    mu = 1.0 / (1.0 / motor.motor_inertia + 1.0 / np.asarray(link_inertia))
-    index = (elasticity.stiffness / mu) * time_step ** 2 + 2.0 * elasticity.damping / mu * time_step
+def check_elastic_stability(elasticity: Elasticity, motor: Motor, time_step: float) -> None:
+    """Raise ``ValueError`` when the explicit motor side of the elastic drive would be unstable:
+    require ``(K/B)·dt² + 2·(D/B)·dt < 1`` (stable below 2; a 2× margin). The link side is implicit (SAP)."""
+    b = motor.motor_inertia
+    index = elasticity.stiffness / b * time_step ** 2 + 2.0 * elasticity.damping / b * time_step
     if np.any(index >= 1.0):
         j = int(np.argmax(index))
-        raise ValueError(f"elasticity of joint {j + 1} is too stiff/damped for time_step {time_step:g} s with link "
-                         f"inertia {link_inertia[j]:.4f} kg·m² ((ω·dt)² + 2·c·dt = {index[j]:.2f} >= 1): lower "
-                         "stiffness/damping or the time step")
+        raise ValueError(f"elasticity of joint {j + 1} is too stiff/damped for time_step {time_step:g} s with motor "
+                         f"inertia {b[j]:.4f} kg·m² ((K/B)·dt² + 2(D/B)·dt = {index[j]:.2f} >= 1): lower "
+                         "stiffness/damping, raise motor_inertia or lower the time step")
 
 
 class JointDrive(LeafSystem):
     """Drive + link friction for ``n`` joints (see the module docstring).
 
-    Input ports: ``motor_torque`` [n] N·m (the controller's command), ``link_state`` [2n] = [q; q̇] (plant state).
-    Output ports: ``actuation`` [n] N·m (to the plant's actuation input) and, for the elastic drive,
-    ``motor_state`` [2n] = [θ; θ̇]. τ_f,link is a function of the logged q̇ only, so the twin recomputes it from the
-    log instead of evaluating a second Python port every step.
+    Input ports: ``motor_torque`` [n] N·m (the controller's command), ``link_state`` [2n] = [q; q̇] (plant state),
+    and for the elastic drive ``net_actuation`` [n] N·m (the plant's applied joint torque, to close action/reaction).
+    Output ports: ``actuation`` [n] N·m (the plant's actuation input; feed-forward to the implicit spring when
+    elastic) and, for the elastic drive, ``motor_state`` [2n] = [θ; θ̇] (the plant's desired state). τ_f,link is a
+    function of the logged q̇ only, so the twin recomputes it from the log instead of evaluating a second port.
     """
 
     def __init__(self, n: int, link_effects: list[JointEffect], motor: Motor | None = None,
@@ -106,11 +110,15 @@ class JointDrive(LeafSystem):
         self._inv_vs = np.array(self._inv_vs).reshape(-1, n)
         self._u_motor = self.DeclareVectorInputPort("motor_torque", n)
         self._u_link = self.DeclareVectorInputPort("link_state", 2 * n)
+        uses = {self._u_link.ticket()}
         if elasticity is not None:
+            self._u_net = self.DeclareVectorInputPort("net_actuation", n)
             self._state = self.DeclareDiscreteState(2 * n)
             self.DeclarePeriodicDiscreteUpdateEvent(time_step, 0.0, self._update_motor)
             self.DeclareStateOutputPort("motor_state", self._state)
-        self.DeclareVectorOutputPort("actuation", n, self._calc_actuation)
+        else:
+            uses.add(self._u_motor.ticket())
+        self.DeclareVectorOutputPort("actuation", n, self._calc_actuation, prerequisites_of_calc=uses)
 
     def link_friction(self, qd: np.ndarray) -> np.ndarray:
         """τ_f,link [N·m] for velocities ``qd`` (``[n]`` or ``[N,n]``): the sum of the link friction effects."""
@@ -119,18 +127,13 @@ class JointDrive(LeafSystem):
             out = out + eff.friction(qd)
         return out
 
-    def sensed_torque(self, actuation: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
-        """True τ_J ``[N,n]`` from the logged actuation and link motion (``u + τ_f,link``, minus ``B q̈`` for the
-        rigid drive whose motor inertia the plant carries)."""
-        tau = actuation + self.link_friction(qd)
+    def sensed_torque(self, net_actuation: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """True τ_J ``[N,n]`` from the plant's logged net actuation and link motion (``u + τ_f,link``, minus
+        ``B q̈`` for the rigid drive whose motor inertia the plant carries as rotor inertia)."""
+        tau = net_actuation + self.link_friction(qd)
         if self.elasticity is None and self.motor is not None:
             tau = tau - self.motor.motor_inertia * qdd
         return tau
-
-    def _spring(self, context: Context, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
-        x = context.get_discrete_state(self._state).value()
-        el = self.elasticity
-        return el.stiffness * (x[:self.n] - q) + el.damping * (x[self.n:] - qd)
 
     def _friction_on_qd(self, qd: np.ndarray) -> np.ndarray:
         """All friction acting on the link velocity in one step (link side, plus motor side for a rigid drive)."""
@@ -140,19 +143,17 @@ class JointDrive(LeafSystem):
         return tau
 
     def _calc_actuation(self, context: Context, output: BasicVector) -> None:
-        x = self._u_link.Eval(context)
-        qd = x[self.n:]
+        qd = self._u_link.Eval(context)[self.n:]
         if self.elasticity is not None:
-            tau = self._spring(context, x[:self.n], qd)
+            output.SetFromVector(-self._friction_on_qd(qd))
         else:
-            tau = self._u_motor.Eval(context)
-        output.SetFromVector(tau - self._friction_on_qd(qd))
+            output.SetFromVector(self._u_motor.Eval(context) - self._friction_on_qd(qd))
 
     def _update_motor(self, context: Context, discrete_state: DiscreteValues) -> None:
         n, motor = self.n, self.motor
         x = context.get_discrete_state(self._state).value()
-        link = self._u_link.Eval(context)
-        tau_s = self._spring(context, link[:n], link[n:])
+        qd = self._u_link.Eval(context)[n:]
+        tau_s = self._u_net.Eval(context) + self._friction_on_qd(qd)      # the spring torque the plant applied
         tau_m = self._u_motor.Eval(context)
         theta_dot = x[n:] + self.time_step / motor.motor_inertia * (tau_m - motor.friction(x[n:]) - tau_s)
         discrete_state.set_value(self._state, np.concatenate([x[:n] + self.time_step * theta_dot, theta_dot]))

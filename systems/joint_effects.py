@@ -24,8 +24,8 @@ effect (YAML key)             place   model / calibration source
 ``sensor_offset_gain``        sensor  ``g·τ + o``; offsets 0.1–0.9 N·m (DESIGN.md), gain error ≈1 %
 ``torque_noise``              sensor  white Gaussian noise σ; "significant torque noise" at 10 % speed (Fig. 2.5)
 ``encoder_noise``             sensor  position noise + quantisation of q (no torque contribution)
-``motor``                     motor   reflected motor inertia B and motor friction, hidden behind the sensor
-                                      (assumed magnitudes; they only shape the motion)
+(:class:`Motor`)              motor   reflected motor inertia B and motor friction, hidden behind the sensor;
+                                      the twin's ``drive`` block, not an ``EFFECTS`` entry (nothing to fit in τ_J)
 ``elasticity``                motor   series elastic drive (K, D) with the motor's state, simulated by
                                       ``proprio.systems.joint_drive``; zero direct contribution to τ_J
 ============================ ======= =============================================================================
@@ -35,12 +35,13 @@ direction reversal, :func:`reversal_travel`), which is also the thesis' feature 
 with a velocity deadband (Schmitt trigger on q̇) so that noise around standstill does not create spurious reversals;
 the travel is measured from the extremum of q reached before the reversal. Stateful effects are evaluated per
 segment between reversals; the values carried across segments follow an affine recursion that is solved with a
-vectorised prefix scan (no per-sample Python loop).
+vectorised prefix scan (no per-sample Python loop). The same laws run sample by sample, with the reversal state as
+Drake discrete state, in :class:`proprio.systems.sensors.TorqueSensorSystem` (tested equal to 1e-9).
 """
 from __future__ import annotations
 
 import math
-from abc import ABC
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -262,9 +263,10 @@ class JointEffect(ABC):
         hi = np.concatenate([np.full(self.n, spec[2]) for spec in self.parameters.values()] or [np.zeros(0)])
         return lo, hi
 
+    @abstractmethod
     def torque(self, s: MotionSignals, rng: np.random.Generator | None = None) -> np.ndarray:
-        """Additive contribution to the measured τ_J, ``[N, n]`` N·m."""
-        raise NotImplementedError
+        """Additive contribution to the measured τ_J, ``[N, n]`` N·m (``rng``: seeded generator for random
+        effects)."""
 
     def regressor(self, s: MotionSignals) -> np.ndarray:
         """``[N, n, len(vector())]`` with ``torque == einsum("tnp,p->tn", regressor, vector())`` (linear effects)."""
@@ -526,6 +528,8 @@ class EncoderNoise(JointEffect):
 
 class Motor(JointEffect):
     """The motor side of the drive, hidden behind the torque sensor: reflected motor inertia B and motor friction.
+    Configured by the twin's top-level ``drive`` block; not in :data:`EFFECTS`, because it adds nothing to τ_J that
+    a fit on torque data could find.
 
     Motor side ``B θ̈ = τ_m − τ_f,m(θ̇) − τ_J``. With a rigid drive (θ = q) Drake's plant carries B as reflected rotor
     inertia and the sensor sees ``τ_J = τ_m − τ_f,m − B q̈``; with ``elasticity`` the drive integrates θ. Either way
@@ -554,7 +558,8 @@ class Motor(JointEffect):
 
 class Elasticity(JointEffect):
     """Series-elastic joint with a motor-side state (thesis eq. 3.6), simulated by ``proprio.systems.joint_drive``
-    together with the ``motor`` block (which supplies the motor inertia B and motor friction).
+    with the twin's ``drive`` block (:class:`Motor`: motor inertia B and motor friction); the spring is Drake's
+    implicit PD-controlled actuator, so realistic stiffness is stable at 1 ms.
 
     Spring ``τ_s = K(θ − q) + D(θ̇ − q̇)`` between motor angle θ and link angle q drives the link and is what the
     sensor measures. The torque sensor sits on the link side, so τ_J is fully determined by the link motion
@@ -579,15 +584,14 @@ class Elasticity(JointEffect):
 # registry
 # ------------------------------------------------------------------------------------------------------------------
 EFFECTS: dict[str, type[JointEffect]] = {cls.name: cls for cls in (
-    ViscousCoulomb, Stribeck, Hysteresis, LostMotion, Ripple, SensorOffsetGain, TorqueNoise, EncoderNoise, Motor,
-    Elasticity)}
+    ViscousCoulomb, Stribeck, Hysteresis, LostMotion, Ripple, SensorOffsetGain, TorqueNoise, EncoderNoise, Elasticity)}
 
 
 def make_effects(config: dict | None, n: int) -> list[JointEffect]:
     """Build the effects of a YAML ``effects:`` mapping ``{name: block}`` in registry order (link, sensor, motor).
 
-    Unknown names raise :class:`EffectConfigError` listing the valid ones (the payload is configured by the twin's
-    ``payload`` block, not here); ``elasticity`` requires a ``motor`` block (its motor inertia).
+    Unknown names raise :class:`EffectConfigError` listing the valid ones (the payload and the motor side have the
+    twin's own ``payload`` and ``drive`` blocks).
     """
     config = config or {}
     if not isinstance(config, dict):
@@ -596,10 +600,4 @@ def make_effects(config: dict | None, n: int) -> list[JointEffect]:
     if unknown:
         hint = " (the payload has its own top-level 'payload' block)" if "payload" in unknown else ""
         raise EffectConfigError(f"unknown joint effect(s) {unknown}{hint}; valid effects: {sorted(EFFECTS)}")
-    effects = [cls.from_config(config[name], n) for name, cls in EFFECTS.items() if name in config]
-    if "elasticity" in config:
-        motor = next((e for e in effects if isinstance(e, Motor)), None)
-        if motor is None or np.any(motor.motor_inertia <= 0):
-            raise EffectConfigError("elasticity needs a 'motor' block with motor_inertia > 0 on every joint (the "
-                                    "motor-side state)")
-    return effects
+    return [cls.from_config(config[name], n) for name, cls in EFFECTS.items() if name in config]

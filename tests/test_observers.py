@@ -14,7 +14,6 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput, TrajectorySource
 from pydrake.trajectories import PiecewisePolynomial
 
-from proprio.description import load_robot
 from proprio.dynamics import gravity_torque, inverse_dynamics
 from proprio.kinematics import flange_jacobian
 from proprio.payload import Payload, attach_payload
@@ -308,3 +307,41 @@ def test_too_short_or_irregular_recording_is_an_error(iiwa):
         preprocess(rec.replace(t=t), FilterSettings())
     with pytest.raises(ValueError, match="Nyquist"):
         preprocess(rec, FilterSettings(cutoff_hz=600.0))
+
+
+def test_cli_estimate_writes_outputs_and_rejects_mismatch(iiwa, tmp_path, capsys):
+    from proprio.cli import main
+    from proprio.recording import save_recording
+    _, rec = _payload_recording(iiwa, 1.0, duration=1.0)
+    path = save_recording(rec, tmp_path / "rec.npz")
+    assert main(["estimate", "--model", "iiwa14_identified", "--recording", str(path), "--out",
+                 str(tmp_path / "out")]) == 0
+    out = capsys.readouterr().out
+    assert "jacobian" in out and "momentum" in out
+    for name in ("estimates.npz", "estimates.csv", "wrench.png"):
+        assert (tmp_path / "out" / name).stat().st_size > 0
+    with np.load(tmp_path / "out" / "estimates.npz", allow_pickle=False) as z:
+        assert z["wrench_jacobian"].shape == (rec.n_samples, 6)
+    bad = save_recording(rec.replace(meta={"robot": "kuka_lwr4plus"}), tmp_path / "bad.npz")
+    assert main(["estimate", "--recording", str(bad), "--out", str(tmp_path / "x")]) == 2
+    assert "kuka_lwr4plus" in capsys.readouterr().err
+
+
+def test_payload_experiment_end_to_end_on_nominal_twin(rigid, nominal_twin, tmp_path):
+    """The experiment's plumbing on a short run: table rows per observer and mass, the payload seen after taring,
+    figures written, and the error budget's terms adding up to the Jacobian observer's force error."""
+    from proprio.diagrams.estimation import RigidBodyTorqueModel
+    from proprio.diagrams.payload_experiment import payload_experiment
+    exp = payload_experiment(RigidBodyTorqueModel(rigid), tmp_path, seconds=2.0, masses=(0.0, 1.0),
+                             twin_config="iiwa14_nominal_twin", progress=False)
+    assert exp.table_text.count("1000g") >= 8 and "thesis RBD" in exp.table_text
+    for m in (0.0, 1.0):
+        res, budget = exp.results[m], exp.budgets[m]
+        valid = res.valid()
+        np.testing.assert_allclose(budget["total"][valid], res.wrench["jacobian"][valid, :3] - res.f_true[valid, :3],
+                                   atol=1e-9)
+        assert np.sqrt(np.mean(budget["total"][valid] ** 2)) < 0.2
+    seen = exp.results[1.0].wrench["jacobian"][exp.results[1.0].valid(), 2].mean() - \
+        exp.results[0.0].wrench["jacobian"][exp.results[0.0].valid(), 2].mean()
+    assert seen == pytest.approx(-9.81, abs=0.2)
+    assert all(p.exists() and p.stat().st_size > 0 for p in exp.files)

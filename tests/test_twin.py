@@ -16,6 +16,7 @@ from proprio.dynamics import inverse_dynamics
 from proprio.payload import Payload
 from proprio.plant import DrakeRobot
 from proprio.recording import Recording, load_recording, save_recording
+from proprio.systems.joint_effects import MotionSignals, reversal_travel
 
 Q_A = np.array([0.1, 0.5, -0.2, -1.2, 0.3, 0.7, 0.2])
 
@@ -90,7 +91,8 @@ def test_calibrated_twin_channels_are_consistent(calibrated):
     sensor = ["tau_hysteresis", "tau_lost_motion", "tau_ripple", "tau_sensor_offset_gain", "tau_torque_noise"]
     np.testing.assert_allclose(rec.tau, tr["tau_J_true"] + sum(tr[k] for k in sensor), atol=1e-9)
     assert 0 < np.max(np.abs(rec.q - tr["q_true"])) < math.radians(0.01)             # encoder noise
-    assert set(rec.meta["effects"]) >= {"viscous_coulomb", "hysteresis", "lost_motion", "ripple", "motor"}
+    assert set(rec.meta["effects"]) >= {"viscous_coulomb", "hysteresis", "lost_motion", "ripple"}
+    assert rec.meta["drive"]["motor_inertia"][0] > 0
 
 
 def test_payload_wrench_matches_drake_difference_when_moving(nominal):
@@ -124,17 +126,23 @@ def test_same_seed_same_recording_and_150hz_logging(calibrated, tmp_path):
 
 def test_elastic_drive_is_hidden_from_tau_but_shows_in_motion(calibrated):
     data = config_dict()
-    data["effects"] = {"viscous_coulomb": data["effects"]["viscous_coulomb"], "motor": data["effects"]["motor"],
-                       "elasticity": {"stiffness": [5000, 10000, 5000, 5000, 1500, 2500, 500],
-                                      "damping": [5, 10, 5, 5, 2, 3, 0.5]}}
+    data["effects"] = {"viscous_coulomb": data["effects"]["viscous_coulomb"],
+                       "elasticity": {"stiffness": [15000, 15000, 9000, 9000, 4000, 3000, 3000],
+                                      "damping": [25, 25, 15, 15, 6, 4, 4]}}
     elastic = simulate_twin(TwinConfig.from_dict(data), waypoints(1.0), progress=False)
     tr = elastic.truth
     np.testing.assert_allclose(tr["tau_J_true"], tr["tau_rbd"] + tr["tau_viscous_coulomb"], atol=1e-6)
     err = np.abs(elastic.q - waypoints(1.0).vector_values(elastic.t).T)
-    deflection = np.abs(tr["tau_J_true"]) / np.array([5000, 10000, 5000, 5000, 1500, 2500, 500])
+    deflection = np.abs(tr["tau_J_true"]) / np.array([15000, 15000, 9000, 9000, 4000, 3000, 3000])
     assert np.max(err[:, 1]) > 0.5 * np.max(deflection[:, 1])          # joint 2 sags by ~τ/K
+    # θ ≠ q: the sensed torque is the implicit spring of the step, K(θ − q⁺) + D(θ̇ − q̇⁺) with the end-of-step
+    # link state q̇⁺ = q̇ + dt q̈, q⁺ = q + dt q̇⁺ (SAP's implicit PD)
+    v1 = elastic.qd + 1e-3 * elastic.qdd
+    spring = (np.array([15000, 15000, 9000, 9000, 4000, 3000, 3000]) * (tr["q_motor"] - tr["q_true"] - 1e-3 * v1)
+              + np.array([25, 25, 15, 15, 6, 4, 4]) * (tr["qd_motor"] - v1))
+    np.testing.assert_allclose(spring, tr["tau_J_true"], atol=1e-6)
     assert np.max(err) < 0.05
-    data["effects"]["elasticity"]["stiffness"] = 1e6
+    data["effects"]["elasticity"]["stiffness"] = 1e7
     with pytest.raises(ValueError, match="too stiff"):
         simulate_twin(TwinConfig.from_dict(data), waypoints(1.0), progress=False)
 
@@ -147,6 +155,10 @@ def test_bad_configs_and_trajectories_fail_before_simulating(calibrated, tmp_pat
     data = config_dict()
     data["effects"]["elasticity"] = {"stiffness": -100.0}
     with pytest.raises(TwinConfigError, match="elasticity.stiffness"):
+        TwinConfig.from_dict(data)
+    data = config_dict("iiwa14_nominal_twin")
+    data["effects"] = {"elasticity": {"stiffness": 1e4}}
+    with pytest.raises(TwinConfigError, match="needs a 'drive' block"):
         TwinConfig.from_dict(data)
     bad = hold(np.array([0.0, 2.2, 0.0, 0.0, 0.0, 0.0, 0.0]))                        # joint 2 limit is 120°
     with pytest.raises(TwinConfigError, match="joint 2 .*limits"):
@@ -206,3 +218,53 @@ def test_hysteresis_test_trajectory_is_fig_2_5(nominal):
         cruise = np.abs(qd[inside, j])
         assert np.median(cruise) == pytest.approx(0.1 * nominal.robot.velocity_limits[j], rel=0.02)   # 10 % speed
     assert cli_main(["twin"]) == 2                                               # no experiment given: help
+
+
+def test_streaming_torque_sensor_system_matches_the_vectorised_sensor(calibrated):
+    from pydrake.common import RandomGenerator
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import TrajectorySource, VectorLogSink
+
+    from proprio.systems.sensors import AddTorqueSensor, TorqueSensor
+
+    rng = np.random.default_rng(2)
+    knots = np.linspace(0.0, 3.0, 13)
+    motion = PiecewisePolynomial.CubicShapePreserving(knots, (Q_A + rng.uniform(-0.2, 0.2, (13, 7))).T, True)
+    torque = PiecewisePolynomial.FirstOrderHold(knots, rng.uniform(-40, 40, (13, 7)).T)
+    sensor_effects = [e for e in calibrated.effects if e.place == "sensor" and e.name != "encoder_noise"]
+    builder = DiagramBuilder()
+    state_src = builder.AddSystem(TrajectorySource(motion, output_derivative_order=1))
+    tau_src = builder.AddSystem(TrajectorySource(torque))
+    sensor, out = AddTorqueSensor(builder, 7, sensor_effects)
+    builder.Connect(state_src.get_output_port(), sensor.GetInputPort("link_state"))
+    builder.Connect(tau_src.get_output_port(), sensor.GetInputPort("tau_J"))
+    clean_log = builder.AddSystem(VectorLogSink(7, 1e-3))
+    noisy_log = builder.AddSystem(VectorLogSink(7, 1e-3))
+    builder.Connect(sensor.GetOutputPort("tau_measured"), clean_log.get_input_port())
+    builder.Connect(out.get_output_port(), noisy_log.get_input_port())
+    diagram = builder.Build()
+    sim = Simulator(diagram)
+    diagram.SetRandomContext(sim.get_mutable_context(), RandomGenerator(4))
+    sim.AdvanceTo(3.0)
+    log = clean_log.FindLog(sim.get_context())
+    t = log.sample_times()
+    q, qd = motion.vector_values(t).T, motion.MakeDerivative(1).vector_values(t).T
+    offline = TorqueSensor([e for e in sensor_effects if e.name != "torque_noise"])
+    expected, _ = offline.measure(MotionSignals(t, q, qd, np.zeros_like(q)), torque.vector_values(t).T, rng)
+    assert len(offline.gauge) == 3 and t.size == 3001
+    assert min(len(st) for st in reversal_travel(q, qd).starts) >= 3          # every joint reverses
+    np.testing.assert_allclose(log.data().T, expected, atol=1e-9)
+    noise = noisy_log.FindLog(sim.get_context()).data().T - log.data().T
+    std = calibrated.effect("torque_noise").std
+    assert np.all(np.abs(noise.std(axis=0) / std - 1.0) < 0.1)
+
+
+def test_cli_hysteresis_test_writes_the_fig_2_5_plot(calibrated, tmp_path):
+    assert cli_main(["twin", "hysteresis-test", "--quiet", "--out", str(tmp_path)]) == 0
+    png = tmp_path / "hysteresis_test.png"
+    assert png.stat().st_size > 50_000 and png.read_bytes()[:4] == b"\x89PNG"
+    rec = load_recording(tmp_path / "hysteresis_test.npz")
+    hyst = rec.truth["tau_hysteresis"]
+    sat = calibrated.effect("hysteresis").saturation
+    assert np.all(hyst.max(axis=0) > 0.9 * sat) and np.all(hyst.min(axis=0) < -0.9 * sat)   # loops saturate

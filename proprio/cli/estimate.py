@@ -43,8 +43,8 @@ def run_estimate(args: argparse.Namespace) -> int:
     mapping, filters = _options(args)
     res = estimate_wrench(model, rec, gain=args.gain, mapping=mapping, filters=filters)
     out = Path(args.out)
-    written = res.save(out) + [res.plot(out / "wrench.png", title=f"{Path(args.recording).name}: estimated external force, "
-                                                                   f"model {model.description.name}")]
+    title = f"{Path(args.recording).name}: estimated external force, model {model.description.name}"
+    written = res.save(out) + [res.plot(out / "wrench.png", title=title)]
     print(f"{rec.n_samples} samples, {res.unreliable.sum()} flagged unreliable (near a singularity)")
     if res.f_true is not None:
         print(f"{'observer':<10} {'RMSE [fx fy fz] N':<28} {'σ [fx fy fz] N'}")
@@ -63,8 +63,10 @@ def _vec(v) -> str:
 def run_payload_experiment(args: argparse.Namespace) -> int:
     from proprio.diagrams.payload_experiment import payload_experiment
 
-    if args.seconds <= 0:
+    if not args.seconds > 0:
         raise UserError(f"--seconds must be > 0, got {args.seconds}")
+    if any(not m >= 0 for m in args.masses):
+        raise UserError(f"--masses must be >= 0 kg, got {args.masses}")
     mapping, filters = _options(args)
     result = payload_experiment(args.model, args.out, seconds=args.seconds, masses=tuple(args.masses),
                                 seed=args.seed, gain=args.gain, mapping=mapping, filters=filters,
