@@ -82,7 +82,7 @@ class RigidBodyTorqueModel:
 def load_torque_model(spec: str | Path) -> RigidBodyTorqueModel:
     """A model from a shipped robot name or robot YAML/URDF (its RBD + friction, e.g. ``iiwa14_identified``), or an
     identified-model ``.npz`` from ``proprio identify`` (its identified inertials, friction, Coulomb law and torque
-    offsets; the inertials must be physically consistent for Drake, e.g. from ``--method sdp``)."""
+    offsets; Drake must accept the identified inertials, which an SDP model always satisfies)."""
     path = Path(spec)
     if path.suffix == ".npz":
         from proprio.identification.model_io import load_model

@@ -95,19 +95,15 @@ class JointDrive(LeafSystem):
         self.time_step = time_step
         # per-step fast path: every friction acting on q̇ as one viscous sum + stacked smooth-sign terms
         on_qd = self.link_effects + ([motor] if motor is not None and elasticity is None else [])
-        self._viscous, self._coulomb, self._inv_vs = np.zeros(n), [], []
+        self._viscous, self._smooth_sign = np.zeros(n), []          # F_v sum; (F_c, 1/v_s) pairs
         self._stribeck = [e for e in on_qd if isinstance(e, Stribeck)]
         for eff in on_qd:
             if isinstance(eff, ViscousCoulomb):
                 self._viscous = self._viscous + eff.viscous
-                self._coulomb.append(eff.coulomb)
-                self._inv_vs.append(1.0 / eff.smooth_velocity)
+                self._smooth_sign.append((eff.coulomb, 1.0 / eff.smooth_velocity))
             elif isinstance(eff, Motor):
                 self._viscous = self._viscous + eff.motor_viscous
-                self._coulomb.append(eff.motor_coulomb)
-                self._inv_vs.append(1.0 / eff.smooth_velocity)
-        self._coulomb = np.array(self._coulomb).reshape(-1, n)
-        self._inv_vs = np.array(self._inv_vs).reshape(-1, n)
+                self._smooth_sign.append((eff.motor_coulomb, 1.0 / eff.smooth_velocity))
         self._u_motor = self.DeclareVectorInputPort("motor_torque", n)
         self._u_link = self.DeclareVectorInputPort("link_state", 2 * n)
         uses = {self._u_link.ticket()}
@@ -137,7 +133,9 @@ class JointDrive(LeafSystem):
 
     def _friction_on_qd(self, qd: np.ndarray) -> np.ndarray:
         """All friction acting on the link velocity in one step (link side, plus motor side for a rigid drive)."""
-        tau = self._viscous * qd + np.sum(self._coulomb * np.tanh(qd * self._inv_vs), axis=0)
+        tau = self._viscous * qd
+        for coulomb, inv_vs in self._smooth_sign:
+            tau += coulomb * np.tanh(qd * inv_vs)
         for eff in self._stribeck:
             tau = tau + eff.friction(qd)
         return tau

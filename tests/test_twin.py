@@ -16,7 +16,7 @@ from proprio.dynamics import inverse_dynamics
 from proprio.payload import Payload
 from proprio.plant import DrakeRobot
 from proprio.recording import Recording, load_recording, save_recording
-from proprio.systems.joint_effects import MotionSignals, reversal_travel
+from proprio.systems.joint_effects import MotionSignals, make_effects, reversal_travel
 
 Q_A = np.array([0.1, 0.5, -0.2, -1.2, 0.3, 0.7, 0.2])
 
@@ -93,6 +93,10 @@ def test_calibrated_twin_channels_are_consistent(calibrated):
     assert 0 < np.max(np.abs(rec.q - tr["q_true"])) < math.radians(0.01)             # encoder noise
     assert set(rec.meta["effects"]) >= {"viscous_coulomb", "hysteresis", "lost_motion", "ripple"}
     assert rec.meta["drive"]["motor_inertia"][0] > 0
+    rebuilt = make_effects(rec.meta["effects"], 7)                   # the meta describes the effects exactly
+    assert [e.name for e in rebuilt] == [e.name for e in calibrated.effects]
+    for a, b in zip(rebuilt, calibrated.effects):
+        np.testing.assert_array_equal(a.vector(), b.vector())
 
 
 def test_payload_wrench_matches_drake_difference_when_moving(nominal):
