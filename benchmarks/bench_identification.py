@@ -7,20 +7,28 @@
 
 Data: the twin robot (iiwa14_identified) on a random Fourier trajectory, τ from proprio.dynamics + friction + noise.
 Usage: ``.venv/bin/python benchmarks/bench_identification.py [--samples 64000] [--repeats 3]``.
+
+OpenBLAS is pinned to one thread (``OPENBLAS_NUM_THREADS=1`` unless already set): on a shared, oversubscribed
+machine its spinning worker threads make the small QR/Cholesky/GEMM calls 10–100× slower; set the variable yourself
+to measure multi-threaded BLAS.
 """
 from __future__ import annotations
 
-import argparse
-import time
+import os
 
-import numpy as np
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from proprio.description import load_robot
-from proprio.dynamics import inverse_dynamics
-from proprio.identification.base_parameters import base_parameters
-from proprio.identification.estimators import ols, sdp
-from proprio.identification.excitation import FourierTrajectory
-from proprio.identification.regressor import regressor
+import argparse  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from proprio.description import load_robot  # noqa: E402
+from proprio.dynamics import inverse_dynamics  # noqa: E402
+from proprio.identification.base_parameters import base_parameters  # noqa: E402
+from proprio.identification.estimators import ols, sdp  # noqa: E402
+from proprio.identification.excitation import FourierTrajectory  # noqa: E402
+from proprio.identification.regressor import regressor  # noqa: E402
 
 
 def best_of(fn, repeats: int) -> float:

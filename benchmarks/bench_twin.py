@@ -54,7 +54,10 @@ def main() -> None:
     print(f"simulated {sim_s:.1f} s at 1 kHz ({rec.n_samples} samples)")
     print(f"  wall: simulation loop {loop:.1f} s -> {sim_s / loop:.1f}x real time ({loop / sim_s * 1e3:.0f} us per "
           f"1 ms step); incl. sensors/truth post-processing {total:.1f} s -> {sim_s / total:.1f}x")
-    print(f"  CPU time of this process (load-independent): {cpu:.1f} s -> {sim_s / cpu:.1f}x real time per core")
+    loop_cpu = rec.meta["sim_cpu_s"]
+    print(f"  CPU time of this process (load-independent): simulation loop {loop_cpu:.1f} s -> "
+          f"{sim_s / loop_cpu:.1f}x real time ({loop_cpu / sim_s * 1e3:.0f} us per step); incl. post-processing "
+          f"{cpu:.1f} s -> {sim_s / cpu:.1f}x")
     print(f"projected time for the 3600 s RFMA path ({how}): {3600 * total / sim_s / 60:.1f} min wall now, "
           f"{3600 * cpu / sim_s / 60:.1f} min on one free core")
 

@@ -375,7 +375,7 @@ def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload |
     sim.Initialize()
 
     chunks, got = [], 0
-    wall0 = time.perf_counter()
+    wall0, cpu0 = time.perf_counter(), time.process_time()
     bar = tqdm(total=round(t1 - t0, 3), unit="s sim", disable=not progress, desc=f"twin {config.name}",
                bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} s sim [{elapsed}<{remaining}{postfix}]")
     t = t0
@@ -393,13 +393,13 @@ def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload |
         if t >= t0 + (n_steps - 1) * dt and got < n_steps:
             raise RuntimeError(f"twin logged {got} of {n_steps} samples")
     bar.close()
-    wall = time.perf_counter() - wall0
+    wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
     data = np.concatenate(chunks)
-    return _to_recording(config, twin.drive, t0 + keep * dt, data, wall)
+    return _to_recording(config, twin.drive, t0 + keep * dt, data, wall, cpu)
 
 
-def _to_recording(config: TwinConfig, drive: JointDrive, t: np.ndarray, data: np.ndarray, wall_s: float
-                  ) -> Recording:
+def _to_recording(config: TwinConfig, drive: JointDrive, t: np.ndarray, data: np.ndarray, wall_s: float,
+                  cpu_s: float) -> Recording:
     """Sensor models + truth channels from the logged true motion ``[q; q̇; q̈; net actuation (; θ; θ̇)]``."""
     desc, n = config.robot, config.robot.n
     q, qd, qdd, u = (data[:, k * n:(k + 1) * n] for k in range(4))
@@ -421,7 +421,8 @@ def _to_recording(config: TwinConfig, drive: JointDrive, t: np.ndarray, data: np
     if data.shape[1] > 4 * n:                          # elastic drive: θ, θ̇ (what a motor-side sensor reads)
         truth["q_motor"], truth["qd_motor"] = data[:, 4 * n:5 * n], data[:, 5 * n:6 * n]
     meta = {**config.meta(), "rate_hz": config.log_rate_hz, "source": "twin",
-            "sim_wall_s": round(wall_s, 3), "real_time_factor": round(float(t[-1] - t[0]) / max(wall_s, 1e-9), 2)}
+            "sim_wall_s": round(wall_s, 3), "sim_cpu_s": round(cpu_s, 3),
+            "real_time_factor": round(float(t[-1] - t[0]) / max(wall_s, 1e-9), 2)}
     return Recording(t=t - t[0], q=q_meas, tau=tau_meas, qd=qd, qdd=qdd,
                      f_ext=_in_batches(lambda d, *x: payload_wrench(d, config.payload, *x), desc, q, qd, qdd),
                      truth=truth, meta=json.loads(json.dumps(meta)))
@@ -517,15 +518,19 @@ def run_hysteresis_test(config: TwinConfig, out_dir: str | Path, progress: bool 
 
 def demo_twin(out_dir: str | Path, trajectory: Trajectory, seconds: float = 20.0,
               config: str | Path | TwinConfig = "iiwa14_twin", progress: bool = True) -> Recording:
-    """Simulate the calibrated twin on the first ``seconds`` of ``trajectory`` and save ``twin.npz`` in
-    ``out_dir`` (for ``proprio demo``)."""
+    """Simulate the calibrated twin on the first ``seconds`` of ``trajectory`` (whole segments) and save
+    ``twin.npz`` (the Recording) and ``twin_diagram.dot`` (Graphviz of the diagram) in ``out_dir`` (for
+    ``proprio demo``)."""
+    from proprio.io import atomic_write_text
     from proprio.recording import save_recording
 
     cfg = config if isinstance(config, TwinConfig) else load_twin_config(config)
     t0 = trajectory.start_time()
     end = min(trajectory.end_time(), t0 + seconds)
     if isinstance(trajectory, PiecewisePolynomial) and end < trajectory.end_time():
-        trajectory = trajectory.slice(0, int(np.searchsorted(trajectory.get_segment_times(), end, side="right")))
+        trajectory = trajectory.slice(0, int(np.searchsorted(trajectory.get_segment_times(), end, side="left")))
     rec = simulate_twin(cfg, trajectory, progress=progress)
     save_recording(rec, Path(out_dir) / "twin.npz")
+    atomic_write_text(Path(out_dir) / "twin_diagram.dot",
+                      build_twin_diagram(cfg, trajectory).diagram.GetGraphvizString(max_depth=1))
     return rec

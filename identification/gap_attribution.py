@@ -100,14 +100,25 @@ class SimModel:
         return names
 
     def predict(self, s: MotionSignals) -> np.ndarray:
+        """Deterministic τ_J [N·m]: rigid body + link-side friction/effects, then sensor effects applied to that
+        link-side torque (never to the measured one: a fit must not see the measurement's own noise)."""
+        return self.predict_parts(s)[1]
+
+    def predict_parts(self, s: MotionSignals) -> tuple[np.ndarray, np.ndarray]:
+        """``(link-side torque, sensor output)`` the model predicts, each ``[N,n]`` N·m."""
         tau = inverse_dynamics(self.robot, s.q, s.qd, s.qdd)
         if self.robot.has_friction:
             tau = tau + np.asarray(self.robot.friction_viscous) * s.qd \
                 + np.asarray(self.robot.friction_coulomb) * np.sign(s.qd)
         for eff in self.effects:
-            if eff.name not in NOISE_EFFECTS:
+            if eff.place != "sensor":
                 tau = tau + eff.torque(s)
-        return tau
+        s_link = s.with_tau(tau)
+        out = tau.copy()
+        for eff in self.effects:
+            if eff.place == "sensor" and eff.name not in NOISE_EFFECTS:
+                out = out + eff.torque(s_link)
+        return tau, out
 
     def noise_variance(self, s: MotionSignals, seed: int = 0) -> np.ndarray:
         """Variance per joint [(N·m)²] of the torque the model's noise effects add (0 without noise effects)."""
@@ -147,7 +158,8 @@ class GapData:
                 s = signals_of(rec)
             except ValueError as exc:
                 raise DiagnosisError(f"{role} recording {k}: {exc}") from exc
-            sim = model.predict(s)
+            link, sim = model.predict_parts(s)
+            s = s.with_tau(link)          # candidates scale/load with the modelled, not the measured, torque
             keep = (rec.t >= rec.t[0] + trim_s) & (rec.t <= rec.t[-1] - trim_s)
             if keep.sum() < 10:
                 raise DiagnosisError(f"{role} recording {k}: {rec.n_samples} samples ({rec.duration:.2f} s) leave "
@@ -319,8 +331,8 @@ class ElasticityCandidate(Candidate):
     def design(self, data: GapData) -> np.ndarray:
         out = []
         h = 1e-6
-        for s, tau in zip(data.signals, data.tau):
-            n = s.n
+        for s in data.signals:
+            n, tau = s.n, s.tau
             cols = np.empty(s.q.shape + (n,))
             for k in range(n):
                 dq = np.zeros(n)
@@ -522,6 +534,73 @@ def _fit_nonlinear(cand: Candidate, target: np.ndarray, data: GapData, w: np.nda
     return best.x, np.linalg.pinv(j.T @ j, rcond=1e-10)
 
 
+def _fit_separable(cand: Candidate, target: np.ndarray, data: GapData, w: np.ndarray,
+                   starts: list[np.ndarray], iters: int = 30) -> tuple[np.ndarray, np.ndarray]:
+    """Bounded Levenberg–Marquardt for a candidate whose parameters act joint by joint (every library effect):
+    the problem splits into one small ``K``-parameter problem per joint, solved for all joints at once (one torque
+    evaluation per iterate and per parameter kind for the forward-difference Jacobian; steps accepted per joint).
+    Returns θ and the block-diagonal (JᵀWJ)⁻¹."""
+    lo, hi = cand.bounds()
+    n = target.shape[1]
+    k_kinds = cand.n_params // n
+    lo, hi = lo.reshape(k_kinds, n), hi.reshape(k_kinds, n)
+    span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
+
+    def clip(th):
+        return np.clip(th, lo + 1e-9 * span * np.isfinite(lo), hi - 1e-9 * span * np.isfinite(hi))
+
+    def model(th):
+        return cand.torque(th.reshape(-1), data)
+
+    def jacobian(th, base):
+        jac = np.empty(target.shape + (k_kinds,))
+        for k in range(k_kinds):
+            h = 1e-6 * np.maximum(np.abs(th[k]), 1e-3)
+            h = np.where(th[k] + h <= hi[k], h, -h)
+            t2 = th.copy()
+            t2[k] += h
+            jac[:, :, k] = (model(t2) - base) / h
+        return jac
+
+    best_th, best_cost = None, None
+    for x0 in starts:
+        th = clip(np.asarray(x0, dtype=float).reshape(k_kinds, n).copy())
+        pred = model(th)
+        cost = ((target - pred) ** 2).sum(axis=0)
+        lam = np.full(n, 1e-3)
+        for _ in range(iters):
+            jac = jacobian(th, pred)
+            r = target - pred
+            a = np.einsum("mjk,mjl->jkl", jac, jac)
+            g = np.einsum("mjk,mj->jk", jac, r)
+            d = np.einsum("jkk->jk", a) + 1e-12
+            step = np.linalg.solve(a + lam[:, None, None] * d[:, :, None] * np.eye(k_kinds), g[..., None])[..., 0]
+            th_new = clip(th + step.T)
+            pred_new = model(th_new)
+            cost_new = ((target - pred_new) ** 2).sum(axis=0)
+            ok = cost_new < cost
+            th = np.where(ok[None, :], th_new, th)
+            pred = np.where(ok[None, :], pred_new, pred)
+            gain = np.where(ok, (cost - cost_new) / np.maximum(cost, 1e-300), 0.0)
+            cost = np.where(ok, cost_new, cost)
+            lam = np.where(ok, lam / 3.0, lam * 4.0)
+            if np.all((gain < 1e-6) & (ok | (lam > 1e6))):
+                break
+        if best_cost is None:
+            best_th, best_cost = th.copy(), cost.copy()
+        else:
+            better = cost < best_cost
+            best_th = np.where(better[None, :], th, best_th)
+            best_cost = np.where(better, cost, best_cost)
+    jac = jacobian(best_th, model(best_th))
+    a = np.einsum("mjk,mjl->jkl", jac, jac) * w[:, None, None]
+    cov = np.zeros((cand.n_params, cand.n_params))
+    for j in range(n):
+        idx = np.arange(k_kinds) * n + j
+        cov[np.ix_(idx, idx)] = np.linalg.pinv(a[j], rcond=1e-10)
+    return best_th.reshape(-1), cov
+
+
 def _fit(cands: list[Candidate], data: GapData, w: np.ndarray, init: dict[str, np.ndarray],
          sweeps: int = 3) -> _Fit:
     """Joint fit of ``cands`` to the training residual: linear candidates exactly (one stacked LS), nonlinear ones
@@ -546,7 +625,8 @@ def _fit(cands: list[Candidate], data: GapData, w: np.ndarray, init: dict[str, n
         for c in nl:
             others = lin_pred + sum((t for k, t in torques.items() if k != c.name), np.zeros_like(e))
             starts = ([thetas[c.name]] if c.name in init else []) + c.starts(data)
-            thetas[c.name], cov[c.name] = _fit_nonlinear(c, e - others, data, w, starts)
+            fitter = _fit_separable if np.all(c.joint_of_param(e.shape[1]) >= 0) else _fit_nonlinear
+            thetas[c.name], cov[c.name] = fitter(c, e - others, data, w, starts)
             torques[c.name] = c.torque(thetas[c.name], data)
             init = {**init, c.name: thetas[c.name]}
     return _Fit(thetas, cov)

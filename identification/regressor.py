@@ -119,9 +119,22 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
+def _fma(x: np.ndarray, y: np.ndarray, out: np.ndarray, tmp: np.ndarray) -> None:
+    """``out += x * y`` without allocating (``tmp`` is scratch of ``out``'s shape)."""
+    np.multiply(x, y, out=tmp)
+    out += tmp
+
+
+def _dot3(x: np.ndarray, y: np.ndarray, out: np.ndarray, tmp: np.ndarray) -> None:
+    """``out = Σ_k x[k] y[k]`` over the leading component axis, written in place."""
+    np.multiply(x[0], y[0], out=out)
+    _fma(x[1], y[1], out, tmp)
+    _fma(x[2], y[2], out, tmp)
+
+
 def _to_child(rot: np.ndarray, x: np.ndarray, c: np.ndarray, s: np.ndarray) -> np.ndarray:
     """Express parent-frame vectors ``x [3, ..., N]`` in the child frame: ``R_axis(q)ᵀ R_oᵀ x``."""
-    y = (rot @ x.reshape(3, -1)).reshape((9,) + x.shape[1:])
+    y = np.einsum("ij,jm->im", rot, x.reshape(3, -1)).reshape((9,) + x.shape[1:])   # no BLAS threads for 9×3
     return c * y[0:3] - s * y[3:6] + y[6:9]
 
 
@@ -200,16 +213,20 @@ def _rigid_body_block(geo: RegressorGeometry, q: np.ndarray, qd: np.ndarray, qdd
         wm[2, 0] -= wd[1]
         wm[2, 1] += wd[0]
         blk = out[:j + 1, 12 * j:12 * j + 10]                 # [j+1, 10, S] view
-        blk[:, 0] = v[0] * acc[0] + v[1] * acc[1] + v[2] * acc[2]
+        tmp = np.empty_like(v[0])
+        _dot3(v, acc, blk[:, 0], tmp)
         a_u = _cross(acc[:, None], u)
         for c in range(3):
-            blk[:, 1 + c] = v[0] * wm[0, c] + v[1] * wm[1, c] + v[2] * wm[2, c] + a_u[c]
+            _dot3(v, wm[:, c], blk[:, 1 + c], tmp)
+            blk[:, 1 + c] += a_u[c]
         uw = _cross(u, w[:, None])
         for col, (a_, b_) in zip(range(4, 10), ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))):
-            val = u[a_] * wd[b_] + uw[a_] * w[b_]
+            out_c = blk[:, col]
+            np.multiply(u[a_], wd[b_], out=out_c)
+            _fma(uw[a_], w[b_], out_c, tmp)
             if a_ != b_:
-                val += u[b_] * wd[a_] + uw[b_] * w[a_]
-            blk[:, col] = val
+                _fma(u[b_], wd[a_], out_c, tmp)
+                _fma(uw[b_], w[a_], out_c, tmp)
 
 
 def regressor(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,

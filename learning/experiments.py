@@ -209,15 +209,23 @@ def _plot_grid(rows: list[TableRow], path: Path) -> None:
 
 
 def demo_hybrid(train_recs: Sequence[Recording], test_recs: Sequence[Recording], robot: RobotDescription | str,
-                out_dir: str | Path, epochs: int = 30) -> tuple[HybridModel, str]:
-    """The demo's stage: a small hybrid LSTM-2-FCL (with r) trained on ``train_recs`` for ``epochs`` and compared to
-    the RBD backbone of ``robot`` on ``test_recs``; the model is saved to ``out_dir/hybrid_lstm.pt``.
-    Returns ``(model, Table 5.3 text)``. Sized for < 60 s on 2 cores with a few minutes of data."""
+                out_dir: str | Path, epochs: int = 30, payload_recs: dict[str, Recording] | None = None,
+                contact_point: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> tuple[HybridModel, str]:
+    """The demo's stage: a small hybrid LSTM-2-FCL (with r, ``train_demo.yaml``) trained on ``train_recs`` for
+    ``epochs`` and compared with the RBD backbone of ``robot`` on ``test_recs``; saved to ``out_dir/hybrid_lstm.pt``.
+    With ``payload_recs`` (label → Recording with ``f_ext``, e.g. {"0 g": ..., "1000 g": ...}) the Table 5.4 force
+    errors of RBD and hybrid are appended. Returns ``(model, text)``. Sized for < 60 s on 2 cores with a few
+    minutes of data."""
     cfg = load_config("train_demo")
     cfg["train"] = {**cfg.get("train", {}), "max_epochs": int(epochs)}
-    model, _, rows = train_from_config(cfg, train_recs, resolve_backbone(robot), Path(out_dir) / "hybrid_lstm.pt",
+    backbone = resolve_backbone(robot)
+    model, _, rows = train_from_config(cfg, train_recs, backbone, Path(out_dir) / "hybrid_lstm.pt",
                                        test_recs=test_recs, progress=False)
-    return model, format_table(rows)
+    text = format_table(rows)
+    if payload_recs:
+        text += "\n\n" + payload_table({"RBD": None, model.cfg.label(): model}, backbone, payload_recs,
+                                        DataConfig.from_dict(cfg.get("data")), contact_point)
+    return model, text
 
 
 def payload_table(models: dict[str, HybridModel | None], backbone: Backbone, recordings: dict[str, Recording],

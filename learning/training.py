@@ -28,6 +28,10 @@ from proprio.learning.models import HybridModel
 
 __all__ = ["TrainConfig", "TrainResult", "train_model", "pick_device"]
 
+_REL_IMPROVEMENT = 1e-4
+"""A validation loss counts as better only if it is this much lower (relative) — ReduceLROnPlateau's default
+threshold, so early stopping and the scheduler agree on what a plateau is."""
+
 
 @dataclass
 class TrainConfig:
@@ -161,7 +165,7 @@ def train_model(model: HybridModel, split: Split, cfg: TrainConfig, checkpoint: 
         record = {"epoch": epoch, "train": total / len(perm), "val": val, "lr": opt.param_groups[0]["lr"],
                   "seconds": time.perf_counter() - t0}
         result.history.append(record)
-        if val < best_val:
+        if val < best_val * (1.0 - _REL_IMPROVEMENT):
             best_val, bad, result.best_epoch = val, 0, epoch
             best_state = {k: v.detach().clone() for k, v in model.state_dict().items()}
         else:

@@ -1,0 +1,128 @@
+"""Gap diagnosis (issue 7) on small synthetic cases: localisation, attribution, report, bad input."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from proprio.description import load_robot
+from proprio.dynamics import inverse_dynamics
+from proprio.identification.gap_attribution import DiagnosisError, SimModel, attribute
+from proprio.identification.gap_benchmark import rfma_like_motion
+from proprio.identification.gap_localisation import gap_map, regime_families, travel_since_reversal
+from proprio.identification.gap_report import diagnose
+from proprio.recording import Recording
+from proprio.systems.joint_effects import EFFECTS, MotionSignals
+
+RATE = 100.0
+NOISE = 0.05
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot("iiwa14_nominal")
+
+
+def _recs(robot, effects, seeds=(1, 2, 3), duration=14.0):
+    out = []
+    n = robot.n
+    for k, seed in enumerate(seeds):
+        t, q, qd, qdd, seg = rfma_like_motion(robot, seed, duration, RATE)
+        s = MotionSignals(t, q, qd, qdd)
+        tau = inverse_dynamics(robot, q, qd, qdd)
+        for eff in effects:
+            tau = tau + eff.torque(s.with_tau(tau))
+        tau = tau + np.random.default_rng(100 + seed).normal(0.0, NOISE, tau.shape)
+        out.append(Recording(t=t, q=q, tau=tau, qd=qd, qdd=qdd, truth={"segment": seg}, meta={"robot": robot.name}))
+    return out[:2], out[2:]
+
+
+def test_travel_since_reversal_restarts_at_reversals():
+    t = np.linspace(0, 2 * np.pi, 2001)
+    q = np.sin(t)[:, None]
+    qd = np.cos(t)[:, None]
+    r = travel_since_reversal(q, qd)
+    # q rises from 0 to 1 (r = q), then falls from 1 to -1 (r = q - 1), then rises from -1 (r = q + 1)
+    assert r[500, 0] == pytest.approx(1.0, abs=1e-3)
+    assert r[1500, 0] == pytest.approx(-2.0, abs=1e-3)
+    assert r[2000, 0] == pytest.approx(1.0, abs=2e-3)
+
+
+def test_localisation_puts_lost_motion_in_its_joint_and_reversal_window(robot):
+    n = robot.n
+    amp = np.zeros(n)
+    amp[3] = 0.8
+    eff = EFFECTS["lost_motion"](n, amplitude=amp)
+    (rec, _), _ = _recs(robot, [eff], seeds=(5, 6, 7))
+    s = MotionSignals.from_recording(rec)
+    e = rec.tau - inverse_dynamics(robot, s.q, s.qd, s.qdd)
+    fams = regime_families(s.q, s.qd, robot.lower, robot.upper, robot.velocity_limits, rec)
+    gm = gap_map([e], [fams], [rec.tau], robot.joint_names)
+    assert int(np.argmax(gm.rmse)) == 3
+    col = gm.columns.index(("travel since reversal", "|r|<1° (reversal window)"))
+    assert gm.concentration[3, col] > 3.0                    # the error lives right after reversals
+    fam_cols = [c for c, (f, _) in enumerate(gm.columns) if f == "speed"]
+    assert gm.share[:, fam_cols].sum() == pytest.approx(1.0)  # each family partitions the total
+
+
+def test_coulomb_friction_is_found_and_recovered(robot, tmp_path):
+    n = robot.n
+    rng = np.random.default_rng(3)
+    fc, fv = rng.uniform(0.2, 0.4, n), rng.uniform(0.1, 0.3, n)
+    train, hold = _recs(robot, [EFFECTS["viscous_coulomb"](n, coulomb=fc, viscous=fv)])
+    d = diagnose(SimModel(robot), train, hold, tmp_path,
+                 candidates=["viscous_coulomb", "sensor_offset_gain", "hysteresis", "payload"])
+    att = d.attribution
+    assert att.steps and att.steps[0].name == "viscous_coulomb"
+    theta, ci, names = att.steps[-1].params["viscous_coulomb"]
+    np.testing.assert_allclose(theta[n:], fc, rtol=0.10)      # Coulomb level within 10 %
+    np.testing.assert_allclose(theta[:n], fv, rtol=0.10)
+    assert np.all(ci > 0)
+    after = att.steps[0].rmse_after
+    assert np.all(after < 0.5 * att.rmse_before)
+    assert np.all(after < 1.5 * NOISE)                        # only the noise is left ...
+    assert att.residual.white                                  # ... and it is white
+    for key in ("report_md", "report_html", "gap_map_png", "before_after_png"):
+        assert d.files[key].exists() and d.files[key].stat().st_size > 0
+    assert "viscous + Coulomb friction" in d.verdict
+
+
+def test_null_case_attributes_nothing(robot):
+    train, hold = _recs(robot, [], seeds=(11, 12, 13))
+    att = attribute(SimModel(robot, (EFFECTS["torque_noise"](robot.n, std=NOISE),)), train, hold,
+                    candidates=["viscous_coulomb", "sensor_offset_gain", "ripple", "payload", "signal_lag"])
+    assert att.steps == [] and att.noise == []
+
+
+def test_unmodelled_offset_is_not_confused_with_friction(robot):
+    n = robot.n
+    off = np.linspace(-0.6, 0.6, n)
+    train, hold = _recs(robot, [EFFECTS["sensor_offset_gain"](n, offset=off)], seeds=(21, 22, 23))
+    att = attribute(robot, train, hold, candidates=["viscous_coulomb", "sensor_offset_gain", "hysteresis"])
+    assert att.steps[0].name == "sensor_offset_gain"
+    assert "viscous_coulomb" not in att.selected
+
+
+def test_bad_input_messages(robot):
+    train, hold = _recs(robot, [], seeds=(31, 32, 33), duration=12.0)
+    six = train[0].replace(q=train[0].q[:, :6], tau=train[0].tau[:, :6], qd=train[0].qd[:, :6],
+                           qdd=train[0].qdd[:, :6])
+    with pytest.raises(DiagnosisError, match="mismatched robots"):
+        attribute(robot, [six], hold)
+    with pytest.raises(DiagnosisError, match="too short"):
+        attribute(robot, train, [hold[0].slice(0, 300)])
+    model = SimModel.from_names(robot, ["viscous_coulomb"])
+    with pytest.raises(DiagnosisError, match="already in the model"):
+        attribute(model, train, hold, candidates=["viscous_coulomb"])
+    with pytest.raises(DiagnosisError, match="no candidate effects left"):
+        attribute(model, train, hold, candidates=[])
+    with pytest.raises(DiagnosisError, match="unknown effect"):
+        SimModel.from_names(robot, ["friction"])
+
+
+def test_cli_reports_bad_model(tmp_path, capsys):
+    from proprio.cli import main
+
+    rc = main(["diagnose", "--model", str(tmp_path / "nope.yaml"), "--train", "a.npz", "--holdout", "b.npz",
+               "--out", str(tmp_path)])
+    assert rc == 2
+    assert "error" in capsys.readouterr().err
