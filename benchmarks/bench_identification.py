@@ -56,7 +56,8 @@ def main() -> None:
         + np.array(robot.friction_coulomb) * np.sign(qd) + rng.normal(scale=0.05, size=q.shape)
 
     t_reg = best_of(lambda: regressor(robot, q, qd, qdd), args.repeats)
-    print(f"regressor           : {args.samples} samples in {t_reg:.3f} s = {args.samples / t_reg:,.0f} samples/s")
+    print(f"regressor           : {args.samples} samples in {t_reg:.3f} s = {args.samples / t_reg:,.0f} samples/s "
+          "(new [7, 84, N] output each call)")
     try:
         import pinocchio as pin
 
@@ -64,7 +65,7 @@ def main() -> None:
         model = pin.buildModelFromXML(to_urdf(robot, collision=False))
         data = model.createData()
         m = args.pinocchio_samples
-        out = np.empty((m, 7, 70))
+        out = np.zeros((m, 7, 70))
 
         def loop():
             for k in range(m):
