@@ -28,7 +28,8 @@ from proprio.identification.base_parameters import BaseParameters, base_paramete
 from proprio.identification.regressor import regressor_buffer, regressor_geometry
 
 __all__ = ["FourierTrajectory", "ExcitationResult", "load_excitation_config", "condition_number",
-           "optimise_excitation", "check_collisions", "protocol_trajectory"]
+           "optimise_excitation", "check_collisions", "protocol_trajectory", "load_shipped_excitation",
+           "protocol_piecewise"]
 
 
 def load_excitation_config(overrides: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -299,3 +300,21 @@ def protocol_trajectory(traj: FourierTrajectory, speed_factors: list[float], rat
         qdds.append(qdd * f * f)
         t0 += dur
     return np.concatenate(ts), np.concatenate(qs), np.concatenate(qds), np.concatenate(qdds)
+
+
+def load_shipped_excitation(name: str = "iiwa14_excitation") -> tuple[FourierTrajectory, dict[str, Any]]:
+    """A precomputed optimal excitation shipped in ``proprio/configs/<name>.yaml`` (coefficients and provenance)."""
+    text = resources.files("proprio.configs").joinpath(f"{name}.yaml").read_text()
+    data = yaml.safe_load(text)
+    traj = FourierTrajectory(a=np.asarray(data["a"], dtype=float), b=np.asarray(data["b"], dtype=float),
+                             omega_f=float(data["omega_f"]))
+    return traj, {k: v for k, v in data.items() if k not in ("a", "b")}
+
+
+def protocol_piecewise(traj: FourierTrajectory, speed_factors: list[float], rate_hz: float = 100.0):
+    """The §4.1 protocol as a Drake ``PiecewisePolynomial`` (cubic Hermite through the exact q, q̇ at ``rate_hz``),
+    ready for a ``TrajectorySource`` or the twin."""
+    from pydrake.trajectories import PiecewisePolynomial
+
+    t, q, qd, _ = protocol_trajectory(traj, speed_factors, rate_hz)
+    return PiecewisePolynomial.CubicHermite(t, q.T, qd.T)

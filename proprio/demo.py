@@ -1,17 +1,21 @@
-"""``proprio demo``: the end-to-end pipeline on the built-in default, as a list of stages.
+"""``proprio demo``: the whole pipeline on the built-in default, as a list of stages.
 
 Each :class:`Stage` is a function ``run(ctx, out_dir) -> list[Path]`` that reads what earlier stages put in the shared
 ``ctx`` dict, adds its own results, prints a few lines and returns the files it wrote. :func:`run_demo` prints a header
-per stage, times it and lists its outputs. Later capabilities insert their stages into :data:`STAGES`
-(trajectory → twin → identification → observers → diagnosis → hybrid).
+per stage, times it and lists its outputs.
 
-Current stages:
+Stages (the built-in default is the calibrated iiwa 14 twin, ``proprio/configs/iiwa14_twin.yaml``):
 
-1. ``robot`` — load the twin robot ``iiwa14_identified`` (the robot the twin treats as real).
-2. ``twin`` — a Drake diagram ``TrajectorySource → InverseDynamicsController → MultibodyPlant`` (discrete, 1 ms)
-   tracks a smooth 5 s joint motion; ``VectorLogSink``s record q, q̇ and the controller's generalized force, which
-   without joint effects is the link-side torque τ_J. Saved as a Recording.
-3. ``inspect`` — the ``proprio inspect`` summary and plot of that Recording.
+1. ``trajectory`` — a short RFMA fine-motion trajectory (§4.3) and its Fig. 4.9 views.
+2. ``twin`` — the calibrated twin (hysteresis, lost motion, friction, ripple, offsets, noise) on that trajectory:
+   a Recording with truth channels, a Graphviz drawing of the diagram and the ``proprio inspect`` summary.
+3. ``excitation`` — the twin on the shipped optimal Fourier excitation (§4.1; two speeds of the protocol).
+4. ``identification`` — physically consistent (SDP) base parameters on the nominal kinematics from the excitation run, validated on
+   the RFMA run (Table 4.4 layout).
+5. ``payload`` — the payload experiment (§5, Table 5.4) with the identified RBD model and both observers.
+6. ``diagnosis`` — the sim-to-real gap of the twin against the nominal CAD model: where, which effects, how far
+   it shrinks (report.html).
+7. ``hybrid`` — a small hybrid LSTM residual (§4.2) on the twin data, and the payload table with it.
 """
 from __future__ import annotations
 
@@ -21,31 +25,20 @@ from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
-from pydrake.systems.analysis import Simulator
-from pydrake.systems.controllers import InverseDynamicsController
-from pydrake.systems.framework import Diagram, DiagramBuilder
-from pydrake.systems.primitives import Demultiplexer, LogVectorOutput, TrajectorySource
-from pydrake.trajectories import PiecewisePolynomial
 
-from proprio.description import RobotDescription, load_robot
-from proprio.dynamics import inverse_dynamics
+from proprio.description import load_robot
 from proprio.io import atomic_write_text
-from proprio.kinematics import flange_position
-from proprio.plant import AddRobot, DrakeRobot
-from proprio.recording import Recording, save_recording, validate_recording
+from proprio.recording import save_recording
 
-__all__ = ["Stage", "STAGES", "run_demo", "demo_trajectory", "simulate_tracking", "DEFAULT_OUT"]
+__all__ = ["Stage", "STAGES", "run_demo", "DEFAULT_OUT"]
 
 DEFAULT_OUT = Path("demo_output")
-TWIN_ROBOT = "iiwa14_identified"
-
-# A comfortable iiwa pose [rad] and three excursions from it; the motion starts and ends at rest in HOME.
-HOME = np.array([0.0, 0.5, 0.0, -1.2, 0.0, 0.8, 0.0])
-EXCURSIONS = np.array([
-    [0.5, 0.3, -0.4, 0.35, 0.6, -0.4, 0.7],
-    [-0.4, -0.2, 0.4, -0.25, -0.6, 0.4, -0.7],
-    [0.3, 0.25, -0.25, 0.3, 0.4, -0.3, 0.5],
-])
+TWIN = "iiwa14_twin"
+NOMINAL_ROBOT = "iiwa14_nominal"
+RFMA_SCAFFOLDS = 3
+TWIN_SECONDS = 30.0          # s of RFMA motion simulated on the twin
+EXCITATION_SPEEDS = [1.0, 0.8]  # the first two periods of the §4.1 protocol (20 s + 25 s)
+PAYLOAD_SECONDS = 6.0        # s of motion per payload mass
 
 
 @dataclass(frozen=True)
@@ -56,111 +49,85 @@ class Stage:
     run: Callable[[dict[str, Any], Path], list[Path]]
 
 
-def demo_trajectory(duration: float = 5.0, home: np.ndarray = HOME,
-                    excursions: np.ndarray = EXCURSIONS) -> PiecewisePolynomial:
-    """A C²-continuous joint trajectory [rad] through ``home``, ``home + excursions[k]`` …, back to ``home``, at rest
-    at both ends, with evenly spaced knots over ``duration`` [s]."""
-    knots = np.vstack([home, home + excursions, home])                      # [K, n]
-    breaks = np.linspace(0.0, duration, knots.shape[0])
-    zero = np.zeros((knots.shape[1], 1))
-    return PiecewisePolynomial.CubicWithContinuousSecondDerivatives(breaks, knots.T, zero, zero)
+def _indent(text: str) -> str:
+    return "\n".join("  " + line for line in text.splitlines())
 
 
-def simulate_tracking(desc: RobotDescription, trajectory: PiecewisePolynomial, time_step: float = 1e-3,
-                      kp: float = 100.0, kd: float = 20.0) -> tuple[Recording, Diagram]:
-    """Track ``trajectory`` with Drake's ``InverseDynamicsController`` on a discrete plant of ``desc``.
+def _stage_trajectory(ctx: dict[str, Any], out: Path) -> list[Path]:
+    from proprio.systems.rfma import demo_trajectory, trajectory_figure
 
-    Diagram: ``TrajectorySource [q_d; q̇_d; q̈_d] → Demultiplexer → InverseDynamicsController(kp, kd) → plant
-    actuation``, plant state fed back; ``VectorLogSink``s sample the plant state and the controller torque every
-    ``time_step``.
-    Returns the Recording (t [s], q [rad], q̇ [rad/s], q̈ [rad/s²] = the plant's step acceleration
-    (v_{k+1} − v_k)/h, τ [N·m]: the controller's generalized force, equal to the link-side τ_J since this plant has
-    no joint effects, so τ = inverse_dynamics(q, q̇, q̈) to round-off) and the built diagram.
-    """
-    builder = DiagramBuilder()
-    robot = AddRobot(builder, desc, time_step=time_step, finalize=False)
-    plant = robot.plant
-    plant.SetUseSampledOutputPorts(False)  # log the state of the current step, not a sampled copy
-    plant.Finalize()
-    n = desc.n
-    control_model = DrakeRobot(desc).plant  # the controller's model: a separate continuous plant of the same robot
-    source = builder.AddNamedSystem("trajectory", TrajectorySource(trajectory, output_derivative_order=2))
-    split = builder.AddNamedSystem("split_reference", Demultiplexer([2 * n, n]))   # [q_d; q̇_d], q̈_d
-    controller = builder.AddNamedSystem("controller", InverseDynamicsController(
-        control_model, kp=np.full(n, kp), ki=np.zeros(n), kd=np.full(n, kd), has_reference_acceleration=True))
-    state = plant.get_state_output_port(robot.instance)
-    builder.Connect(source.get_output_port(), split.get_input_port())
-    builder.Connect(split.get_output_port(0), controller.get_input_port_desired_state())
-    builder.Connect(split.get_output_port(1), controller.get_input_port_desired_acceleration())
-    builder.Connect(state, controller.get_input_port_estimated_state())
-    builder.Connect(controller.get_output_port_generalized_force(), plant.get_actuation_input_port(robot.instance))
-    state_log = LogVectorOutput(state, builder, publish_period=time_step)
-    state_log.set_name("state_log")
-    tau_log = LogVectorOutput(controller.get_output_port_generalized_force(), builder, publish_period=time_step)
-    tau_log.set_name("tau_log")
-    diagram = builder.Build()
-    diagram.set_name("twin_tracking")
-
-    simulator = Simulator(diagram)
-    context = simulator.get_mutable_context()
-    plant.SetPositions(plant.GetMyMutableContextFromRoot(context), robot.instance, trajectory.value(0.0).ravel())
-    simulator.AdvanceTo(trajectory.end_time() + time_step)  # one extra step to difference q̇ at the last sample
-
-    xs = state_log.FindLog(context)
-    t, x, tau = xs.sample_times(), xs.data().T, tau_log.FindLog(context).data().T
-    # the discrete plant steps v_{k+1} = v_k + h·q̈_k, so the forward difference is the acceleration it integrated
-    qdd = np.diff(x[:, n:], axis=0) / time_step
-    k = min(len(t) - 1, int(round(trajectory.end_time() / time_step)) + 1)
-    rec = Recording(t=t[:k].copy(), q=x[:k, :n].copy(), qd=x[:k, n:].copy(), qdd=qdd[:k].copy(), tau=tau[:k].copy(),
-                    meta={"robot": desc.name, "rate_hz": 1.0 / time_step, "time_step_s": time_step,
-                          "source": "proprio demo: InverseDynamicsController tracking on a discrete MultibodyPlant",
-                          "controller": {"type": "InverseDynamicsController", "kp": kp, "kd": kd},
-                          "effects": [], "payload": None})
-    return validate_recording(rec, desc, source="demo recording"), diagram
-
-
-# ---- stages -------------------------------------------------------------------------------------------------
-
-def _stage_robot(ctx: dict[str, Any], out: Path) -> list[Path]:
-    desc = load_robot(TWIN_ROBOT)
-    ctx["robot"] = desc
-    mass = sum(lk.mass for lk in desc.links)
-    print(f"  {desc.name}: {desc.n} joints, moving mass {mass:.2f} kg, friction {'yes' if desc.has_friction else 'no'}")
-    print(f"  flange at q = 0: {np.round(flange_position(desc, np.zeros(desc.n)), 4).tolist()} m")
-    return []
+    traj, path = demo_trajectory(out, scaffolds=RFMA_SCAFFOLDS, seed=0)
+    ctx["rfma"] = traj
+    desc = load_robot("iiwa14_identified")
+    fig = trajectory_figure(traj, desc, title="proprio demo: RFMA trajectory (Fig. 4.9 views)")
+    png = out / "rfma_demo.png"
+    fig.savefig(png, dpi=110)
+    print(f"  RFMA: {RFMA_SCAFFOLDS} scaffolds, {traj.end_time():.1f} s of motion")
+    return [path, png]
 
 
 def _stage_twin(ctx: dict[str, Any], out: Path) -> list[Path]:
-    desc = ctx["robot"]
-    traj = demo_trajectory()
-    rec, diagram = simulate_tracking(desc, traj)
-    ctx["recording"] = rec
-    q_ref = traj.vector_values(rec.t).T
-    err = np.abs(rec.q - q_ref).max()
-    speed = (np.abs(rec.qd).max(axis=0) / desc.velocity_limits).max()
-    print(f"  simulated {rec.duration:.2f} s at {rec.rate_hz:.0f} Hz: max tracking error {np.degrees(err):.3g}°, "
-          f"peak speed {100 * speed:.0f} % of the joint limit, max |τ| {np.abs(rec.tau).max():.1f} N·m")
-    rnea_gap = np.abs(rec.tau - inverse_dynamics(desc, rec.q, rec.qd, rec.qdd)).max()
-    print(f"  check: max |τ − RNEA(q, q̇, q̈)| = {rnea_gap:.2g} N·m (numpy RNEA vs Drake's discrete plant)")
-    rec_path = save_recording(rec, out / "twin_recording.npz")
-    dot_path = out / "twin_diagram.dot"
-    atomic_write_text(dot_path, diagram.GetGraphvizString(max_depth=1))
-    ctx["recording_path"] = rec_path
-    return [rec_path, dot_path]
-
-
-def _stage_inspect(ctx: dict[str, Any], out: Path) -> list[Path]:
     from proprio.cli.inspect import format_summary, plot_recording, summarize_recording
+    from proprio.diagrams.twin import build_twin_diagram, load_twin_config, simulate_twin
 
-    rec, desc = ctx["recording"], ctx["robot"]
-    print("\n".join("  " + line for line in format_summary(summarize_recording(rec, desc)).splitlines()[1:]))
-    return [plot_recording(rec, out / "twin_recording.png", desc, title="proprio demo: twin tracking")]
+    cfg = load_twin_config(TWIN)
+    traj = ctx["rfma"]
+    end = min(traj.end_time(), TWIN_SECONDS)
+    traj = traj.slice(0, int(np.searchsorted(traj.get_segment_times(), end, side="left")))
+    t0 = time.perf_counter()
+    rec = simulate_twin(cfg, traj, progress=False)
+    wall = time.perf_counter() - t0
+    ctx["twin_config"], ctx["twin_rfma"], ctx["robot"] = cfg, rec, cfg.robot
+    print(f"  simulated {rec.duration:.1f} s in {wall:.1f} s ({rec.duration / wall:.1f}× real time), "
+          f"effects: {', '.join(rec.meta['effects'])}")
+    print(_indent("\n".join(format_summary(summarize_recording(rec, cfg.robot)).splitlines()[1:])))
+    rec_path = save_recording(rec, out / "twin_rfma.npz")
+    dot = out / "twin_diagram.dot"
+    atomic_write_text(dot, build_twin_diagram(cfg, traj).diagram.GetGraphvizString(max_depth=1))
+    png = plot_recording(rec, out / "twin_rfma.png", cfg.robot, title="proprio demo: calibrated twin on RFMA")
+    return [rec_path, dot, png]
+
+
+def _stage_excitation(ctx: dict[str, Any], out: Path) -> list[Path]:
+    from proprio.diagrams.twin import simulate_twin
+    from proprio.identification.excitation import load_shipped_excitation, protocol_piecewise
+
+    fourier, info = load_shipped_excitation()
+    traj = protocol_piecewise(fourier, EXCITATION_SPEEDS)
+    rec = simulate_twin(ctx["twin_config"], traj, progress=False)
+    ctx["twin_excitation"] = rec
+    print(f"  shipped excitation: cond(K_b) = {info['cond']:.1f} (thesis 68); ran speeds {EXCITATION_SPEEDS} "
+          f"→ {rec.duration:.1f} s on the twin")
+    return [save_recording(rec, out / "twin_excitation.npz")]
+
+
+def _stage_identification(ctx: dict[str, Any], out: Path) -> list[Path]:
+    from proprio.cli.identify import demo_identification
+
+    model, table = demo_identification([ctx["twin_excitation"]], [ctx["twin_rfma"]], load_robot(NOMINAL_ROBOT), out,
+                                       method="sdp")
+    ctx["identified_model_path"] = out / "identified_model.npz"
+    print(f"  {model.method.upper()} on the nominal kinematics: {model.base.n_base} base parameters + offsets")
+    print(_indent(table))
+    atomic_write_text(out / "identification.txt", table + "\n")
+    return [ctx["identified_model_path"], out / "identification.txt"]
+
+
+def _stage_payload(ctx: dict[str, Any], out: Path) -> list[Path]:
+    from proprio.diagrams.payload_experiment import demo_payload_experiment
+
+    table = demo_payload_experiment(ctx["identified_model_path"], out / "payload_rbd", seconds=PAYLOAD_SECONDS)
+    ctx["payload_table_rbd"] = table
+    print(_indent(table))
+    return [out / "payload_rbd" / "table.txt"]
 
 
 STAGES: list[Stage] = [
-    Stage("robot", "twin robot description", _stage_robot),
-    Stage("twin", "simulate the twin (Drake, 1 ms) and save a Recording", _stage_twin),
-    Stage("inspect", "summarise and plot the Recording", _stage_inspect),
+    Stage("trajectory", "RFMA fine-motion trajectory (§4.3)", _stage_trajectory),
+    Stage("twin", "calibrated twin on the RFMA trajectory (Drake, 1 ms)", _stage_twin),
+    Stage("excitation", "calibrated twin on the optimal excitation (§4.1)", _stage_excitation),
+    Stage("identification", "rigid-body identification: train on excitation, validate on RFMA", _stage_identification),
+    Stage("payload", "payload experiment with the identified RBD model (Table 5.4)", _stage_payload),
 ]
 
 
