@@ -16,24 +16,30 @@ Each candidate is fitted to the residual ``e = τ_meas − τ_sim`` of the TRAIN
 least squares where it is linear in its parameters (the effect's own ``regressor``), by bounded
 ``scipy.optimize.least_squares`` otherwise — and scored by the reduction of the weighted squared residual on the
 HELD-OUT recordings. Greedy forward selection adds the best candidate, refits all selected ones jointly
-(linear ones exactly, nonlinear ones by back-fitting) and repeats while the gain is significant:
+(linear ones exactly, nonlinear ones by back-fitting) and repeats while the gain is significant.
 
 **Selection test.** The held-out samples are cut into ``B`` contiguous time blocks (≥ 20, each ≥ 0.5 s: much
-longer than the residual's correlation time, so block sums are close to independent even when ``e`` is strongly
-autocorrelated — the reason for blocks rather than samples). Per block the gain is
-``d_b = Σ_{t∈b,j} w_j [r_S² − r_{S+c}²]`` with ``w_j = 1/mean(e_train,j²)`` (every joint counts, whatever its
-torque scale). A candidate is *significant* when (i) its relative gain ``G = Σ d_b / Σ w r_S²`` is at least
-``min_gain`` (2 %, the practical resolution) and (ii) a one-sided t-test over the blocks rejects ``E[d_b] ≤ 0`` at
-``α/K`` (Bonferroni over the ``K`` candidates of the step, α = 1 %).
+longer than the residual's correlation time, so block statistics are close to independent even when ``e`` is
+strongly autocorrelated — the reason for blocks rather than samples). With ``w_j = 1/mean(e_train,j²)`` (every
+joint counts, whatever its torque scale) and ``SSE_b = Σ_{t∈b,j} w_j r²``, the per-block statistic is the
+log-ratio ``l_b = log(SSE_b(S) / SSE_b(S+c))`` — scale-free, so a lag or friction that matters in every block is
+not drowned by the few blocks of fast reaches. A candidate is *significant* when (i) its relative gain
+``G = 1 − Σ SSE_b(S+c) / Σ SSE_b(S)`` is at least ``min_gain`` (2 %, the practical resolution) and (ii) a
+one-sided t-test over the blocks rejects ``E[l_b] ≤ 0`` at ``α/K`` (Bonferroni over the ``K`` candidates of the
+step, α = 1 %). Overfitting a candidate to noise makes ``l_b`` slightly negative on held-out data, so the null
+case stays clean.
 
-**Ties.** A significant runner-up whose paired block differences against the best candidate are not significant
+**Ties.** A significant runner-up whose paired block log-ratio differences against the best are not significant
 (one-sided t-test, 5 %) explains the same held-out variance within the test's resolution: it is reported as tied
-("X or Y") and the simpler one (fewer parameters) is the one added.
+("X or Y") and the simpler one (fewer parameters) is the one added; the others stay candidates for later steps.
+A candidate that lowers the weighted error but raises the unweighted held-out SSE counts as no gain.
 
-**Noise.** Torque / encoder noise cannot shrink a held-out error. After the deterministic steps, an unmodelled
-``torque_noise`` is reported when the remaining residual is white (Ljung–Box) and its variance exceeds the noise
-the model already predicts; ``encoder_noise`` when the remaining residual is white and correlates with the
-position sensitivity of the modelled torque.
+**Noise.** Torque noise cannot shrink a held-out error. After the deterministic steps, an unmodelled
+``torque_noise`` is reported when the remaining residual is white (Ljung–Box and state R²) and its variance
+exceeds the noise the model already predicts. Encoder noise *can* be predicted: its signature is the change of the
+modelled torque when the measured motion is de-noised (``EncoderNoiseCandidate``). Elasticity leaves τ_J exact for
+a link-side position sensor; it is tested as the deflection a motor-side position sensor would miss
+(``ElasticityCandidate``).
 
 Confidence intervals come from the Jacobian of the fit (``σ² (JᵀWJ)⁻¹``) inflated by ``N / N_eff``, the
 effective sample size of the autocorrelated residual (Bartlett), i.e. 95 % CI = ``± 1.96 σ_θ``.
@@ -52,7 +58,7 @@ from proprio.description import RobotDescription
 from proprio.dynamics import inverse_dynamics
 from proprio.identification.gap_localisation import peak_orders
 from proprio.identification.regressor import PARAMS_PER_JOINT, parameter_names, regressor
-from proprio.recording import Recording
+from proprio.recording import Recording, validate_recording
 from proprio.systems.joint_effects import EFFECTS, JointEffect, MotionSignals
 
 __all__ = ["SimModel", "GapData", "Candidate", "EffectCandidate", "RigidBodyCandidate", "PayloadCandidate",
@@ -236,19 +242,23 @@ class EffectCandidate(Candidate):
     the residual's RMS per joint (two starts)."""
     AMPLITUDE_KEYS = ("static", "saturation", "amplitude", "offset")
 
-    def __init__(self, name: str, n: int, **settings: Any):
-        self.name = name
+    def __init__(self, name: str, n: int, keys: Sequence[str] | None = None, label: str | None = None,
+                 **settings: Any):
+        self.name = label or name
+        self.effect = name
         self.proto: JointEffect = EFFECTS[name](n, **settings)
         self.linear = bool(self.proto.linear)
         self.place = self.proto.place
-        self._keys = list(type(self.proto).parameters)
+        all_keys = list(type(self.proto).parameters)
+        self._keys = list(keys) if keys else all_keys
+        self._cols = np.concatenate([np.arange(n) + n * all_keys.index(k) for k in self._keys])
         self._n = n
 
     def param_names(self) -> list[str]:
         return [f"{k}[{j + 1}]" for k in self._keys for j in range(self._n)]
 
     def design(self, data: GapData) -> np.ndarray:
-        return data.stack([self.proto.regressor(s) for s in data.signals])
+        return data.stack([self.proto.regressor(s)[..., self._cols] for s in data.signals])
 
     def torque(self, theta: np.ndarray, data: GapData) -> np.ndarray:
         eff = self.proto.with_vector(np.asarray(theta, dtype=float))
@@ -279,7 +289,7 @@ def ripple_candidate(n: int, train: "GapData", max_order: float = 400.0) -> Effe
     residual's order spectrum (the ripple is linear once its order is known; the order is found, not assumed)."""
     q = train.stack([s.q for s in train.signals])
     qd = train.stack([s.qd for s in train.signals])
-    orders = peak_orders(train.residual, q, qd, max_order=max_order)
+    orders = peak_orders(train.residual, q, qd, max_order=max_order, min_order=10.0)
     harmonic = 2.0
     return EffectCandidate("ripple", n, gear_ratio=orders / harmonic, harmonic=harmonic)
 
@@ -316,30 +326,36 @@ class EncoderNoiseCandidate(Candidate):
 
 class ElasticityCandidate(Candidate):
     """Joint elasticity seen by a motor-side position sensor: the measured q includes the spring deflection
-    ``τ_J/K``, so the model evaluates the rigid body at the wrong angle: ``e ≈ −Σ_k ∂τ_sim/∂q_k · τ_k c_k`` with
-    compliance ``c_k = 1/K_k`` [rad/(N·m)] (linear in ``c``). With a link-side position sensor elasticity leaves
+    ``δ = c∘τ_J`` (compliance ``c_k = 1/K_k`` [rad/(N·m)]), so the model evaluates the rigid body at the wrong
+    motion: ``e ≈ −Σ_k (∂τ/∂q_k τ_k + ∂τ/∂q̇_k τ̇_k + ∂τ/∂q̈_k τ̈_k) c_k`` (linear in ``c``; τ the modelled
+    link torque, its derivatives by finite differences of its 5 Hz zero-phase low-pass). With a link-side position sensor elasticity leaves
     τ_J = τ_rbd(q, q̇, q̈) exact and cannot show in this residual (``systems/joint_effects.Elasticity``)."""
     name = "elasticity"
     place = "motor"
 
-    def __init__(self, model: "SimModel"):
-        self.model = model
+    def __init__(self, model: "SimModel", accel: float = 1.0):
+        self.model, self.accel = model, accel
 
     def param_names(self) -> list[str]:
         return [f"compliance[{j + 1}]" for j in range(self.model.robot.n)]
 
     def design(self, data: GapData) -> np.ndarray:
         out = []
-        h = 1e-6
         for s in data.signals:
             n, tau = s.n, s.tau
+            rate = 1.0 / float(np.median(np.diff(s.t)))
+            smooth = signal.sosfiltfilt(signal.butter(2, min(5.0, 0.2 * rate), fs=rate, output="sos"), tau, axis=0)
+            tau_d = np.gradient(smooth, s.t, axis=0)
+            tau_dd = np.gradient(tau_d, s.t, axis=0)
             cols = np.empty(s.q.shape + (n,))
             for k in range(n):
-                dq = np.zeros(n)
-                dq[k] = h
-                plus = inverse_dynamics(self.model.robot, s.q + dq, s.qd, s.qdd)
-                minus = inverse_dynamics(self.model.robot, s.q - dq, s.qd, s.qdd)
-                cols[:, :, k] = -(plus - minus) / (2 * h) * tau[:, k:k + 1]
+                # directional derivative of τ_rbd along the deflection (τ_k, τ̇_k, τ̈_k)·c_k of joint k
+                h = 1e-3 / max(float(np.abs(tau[:, k]).max()), 1e-9)
+                dirs = [np.zeros_like(s.q) for _ in range(3)]
+                dirs[0][:, k], dirs[1][:, k], dirs[2][:, k] = h * tau[:, k], h * tau_d[:, k], h * tau_dd[:, k]
+                plus = inverse_dynamics(self.model.robot, s.q + dirs[0], s.qd + dirs[1], s.qdd + self.accel * dirs[2])
+                minus = inverse_dynamics(self.model.robot, s.q - dirs[0], s.qd - dirs[1], s.qdd - self.accel * dirs[2])
+                cols[:, :, k] = -(plus - minus) / (2 * h)
             out.append(cols)
         return data.stack(out)
 
@@ -379,8 +395,11 @@ class RigidBodyCandidate(Candidate):
 
 
 class PayloadCandidate(Candidate):
-    """An unmodelled point mass at the flange: parameters ``m`` [kg] and ``m·c`` [kg·m] (``c`` in the flange
-    frame). Its torque is the last link's regressor columns for mass and first moment, moved to the flange."""
+    """An unmodelled payload at the flange: mass ``m`` [kg], first moment ``m·c`` [kg·m] (``c`` in the flange
+    frame) and rotational inertia about the last link's origin (6 entries, link axes; a point mass off the axis has
+    one). Its torque is the last link's 10 regressor columns with the first moment moved to the flange frame —
+    the same columns a rigid-body error of the last link has, which is why payload and inertial error are a
+    confusable pair (reported as tied when the data cannot separate them)."""
     name = "payload"
     place = "link"
 
@@ -391,35 +410,48 @@ class PayloadCandidate(Candidate):
         self.r_f = rpy_to_matrix(robot.end_effector.rpy)
 
     def param_names(self) -> list[str]:
-        return ["mass", "m·cx", "m·cy", "m·cz"]
+        return ["mass", "m·cx", "m·cy", "m·cz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz"]
 
     def design(self, data: GapData) -> np.ndarray:
         n = self.robot.n
         c0 = PARAMS_PER_JOINT * (n - 1)
         out = []
         for s in data.signals:
-            y = regressor(self.robot, s.q, s.qd, s.qdd)[..., c0:c0 + 4]
-            out.append(np.concatenate([y[..., :1] + y[..., 1:4] @ self.p_f[:, None], y[..., 1:4] @ self.r_f],
-                                      axis=-1))
+            y = regressor(self.robot, s.q, s.qd, s.qdd)[..., c0:c0 + 10]
+            out.append(np.concatenate([y[..., :1] + y[..., 1:4] @ self.p_f[:, None], y[..., 1:4] @ self.r_f,
+                                       y[..., 4:10]], axis=-1))
         return data.stack(out)
 
 
 class SignalLagCandidate(Candidate):
-    """A time shift δ_j [s] of the measured torque against the simulated one: ``e ≈ −δ_j dτ_sim,j/dt``."""
+    """A first-order lag of time constant ``T_j`` [s] between the modelled and the measured torque (a causal
+    filter in the torque channel): ``e ≈ LP_T(τ_sim) − τ_sim`` with ``LP_T`` the exactly discretised first-order
+    low-pass. Nonlinear in ``T``, one parameter per joint."""
     name = "signal_lag"
     place = "sensor"
+    linear = False
 
     def __init__(self, n: int):
         self.n = n
 
     def param_names(self) -> list[str]:
-        return [f"delay[{j + 1}]" for j in range(self.n)]
+        return [f"time_constant[{j + 1}]" for j in range(self.n)]
 
-    def design(self, data: GapData) -> np.ndarray:
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        return np.zeros(self.n), np.full(self.n, 0.2)
+
+    def starts(self, data: GapData) -> list[np.ndarray]:
+        return [np.full(self.n, 0.005), np.full(self.n, 0.03)]
+
+    def torque(self, theta: np.ndarray, data: GapData) -> np.ndarray:
         out = []
         for s, sim in zip(data.signals, data.tau_sim):
-            dsim = np.gradient(sim, s.t, axis=0)
-            out.append(-dsim[:, :, None] * np.eye(self.n)[None])
+            dt = float(np.median(np.diff(s.t)))
+            y = np.empty_like(sim)
+            for j in range(self.n):
+                a = math.exp(-dt / theta[j]) if theta[j] > 1e-9 else 0.0
+                y[:, j] = signal.lfilter([1 - a], [1, -a], sim[:, j] - sim[0, j]) + sim[0, j]
+            out.append(y - sim)
         return data.stack(out)
 
     def joint_of_param(self, n: int) -> np.ndarray:
@@ -434,7 +466,13 @@ def candidate_set(model: SimModel, train: GapData, names: Sequence[str] | None =
                "elasticity": lambda: ElasticityCandidate(model)}
     available: dict[str, Callable[[], Candidate]] = {
         k: special.get(k, lambda k=k: EffectCandidate(k, n)) for k in EFFECTS
-        if k not in present and k != "torque_noise"}
+        if k not in present and k not in ("torque_noise", "sensor_offset_gain")}
+    if "sensor_offset_gain" not in present:
+        # offset and gain error are tested apart: a gain error aliases a scaled rigid body, an offset does not
+        available["sensor_offset"] = lambda: EffectCandidate("sensor_offset_gain", n, ("offset",), "sensor_offset")
+        available["sensor_gain"] = lambda: EffectCandidate("sensor_offset_gain", n, ("gain",), "sensor_gain")
+    names = None if names is None else [x for k in names for x in
+                                        (("sensor_offset", "sensor_gain") if k == "sensor_offset_gain" else (k,))]
     available["rigid_body"] = lambda: RigidBodyCandidate(model.robot, train)
     available["payload"] = lambda: PayloadCandidate(model.robot)
     available["signal_lag"] = lambda: SignalLagCandidate(n)
@@ -729,10 +767,12 @@ class Attribution:
 
 
 def _block_gain(r_s: np.ndarray, delta: np.ndarray, w: np.ndarray, blk: np.ndarray, n_blk: int):
-    d = ((r_s ** 2 - (r_s - delta) ** 2) * w).sum(axis=1)
-    db = np.bincount(blk, weights=d, minlength=n_blk)
-    base = float(((r_s ** 2) * w).sum())
-    return db, float(db.sum()) / max(base, 1e-300)
+    """Per block the log-ratio ``l_b = log(SSE_S,b / SSE_S+c,b)`` of the weighted squared residual (scale-free, so
+    blocks of fast reaches and slow exploration weigh alike), and the overall relative gain ``G``."""
+    before = np.bincount(blk, weights=((r_s ** 2) * w).sum(axis=1), minlength=n_blk)
+    after = np.bincount(blk, weights=(((r_s - delta) ** 2) * w).sum(axis=1), minlength=n_blk)
+    lb = np.log(np.maximum(before, 1e-300) / np.maximum(after, 1e-300))
+    return lb, 1.0 - float(after.sum()) / max(float(before.sum()), 1e-300)
 
 
 def _t_stat(x: np.ndarray) -> float:
@@ -798,9 +838,10 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
             if r.n_joints != n:
                 raise DiagnosisError(f"{role} recording {k}: has {r.n_joints} joints but the model robot "
                                      f"'{model.robot.name}' has {n} (mismatched robots)")
-            rob = r.meta.get("robot")
-            if isinstance(rob, str) and r.meta.get("strict_robot") and rob != model.robot.name:
-                raise DiagnosisError(f"{role} recording {k}: recorded on '{rob}', model is '{model.robot.name}'")
+            try:
+                validate_recording(r, model.robot, source=f"{role} recording {k}")
+            except ValueError as exc:
+                raise DiagnosisError(f"{exc} (mismatched robots?)") from exc
     hold_len = min(r.duration for r in holdout_recs)
     need = MIN_BLOCKS * MIN_BLOCK_S / len(holdout_recs) + 2 * trim_s
     if sum(r.duration for r in holdout_recs) - 2 * trim_s * len(holdout_recs) < MIN_BLOCKS * MIN_BLOCK_S:
@@ -833,7 +874,8 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
             f_c = _fit(selected + [c], train, w, fit.thetas, sweeps=1 if c.linear else 2)
             delta = _predict(selected + [c], f_c, hold) - pred_h
             db, g = _block_gain(r_s, delta, w, blk, n_blk)
-            scored.append((c, f_c, db, g, _t_stat(db)))
+            raw = float((r_s ** 2).sum() - ((r_s - delta) ** 2).sum())    # unweighted held-out SSE change
+            scored.append((c, f_c, db, g if raw > 0 else min(g, 0.0), _t_stat(db)))
         k_test = len(scored)
         t_crit = stats.t.ppf(1 - alpha / k_test, n_blk - 1)
         if not steps:
@@ -851,7 +893,7 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
         chosen = group[0]
         c, f_c = chosen[0], chosen[1]
         selected.append(c)
-        remaining = [x for x in remaining if x is not c and x not in [g[0] for g in group]]
+        remaining = [x for x in remaining if x is not c]     # tied partners stay: they may still add later
         fit = _fit(selected, train, w, f_c.thetas, sweeps=3) if any(not s.linear for s in selected) else f_c
         pred_h = _predict(selected, fit, hold)
         r_tr = e_tr - _predict(selected, fit, train)

@@ -206,11 +206,11 @@ def order_spectrum(e: np.ndarray, q: np.ndarray, qd: np.ndarray, orders: np.ndar
 
 
 def peak_orders(e: np.ndarray, q: np.ndarray, qd: np.ndarray, max_order: float = 400.0,
-                min_speed: float = 0.05) -> np.ndarray:
+                min_speed: float = 0.05, min_order: float = 1.0) -> np.ndarray:
     """Per joint, the order [cycles/rev] of the strongest angle-locked sinusoid in ``e`` (coarse grid of 0.5, then
     refined to 0.005 around the peak; the peak of a long sweep is located far more finely than its width)."""
     n = e.shape[1]
-    coarse = np.arange(1.0, max_order + 0.5, 0.5)
+    coarse = np.arange(min_order, max_order + 0.5, 0.5)
     out = np.full(n, 2.0 * 160.0)
     sub = slice(None, None, max(1, len(e) // 3000))
     for j in range(n):

@@ -25,6 +25,7 @@ __all__ = ["Diagnosis", "diagnose", "demo_diagnosis", "verdict_text"]
 PLAIN = {"viscous_coulomb": "viscous + Coulomb friction", "stribeck": "Stribeck (static) friction",
          "hysteresis": "torque-sensor hysteresis", "lost_motion": "lost motion after reversals",
          "ripple": "harmonic-drive torque ripple", "sensor_offset_gain": "torque-sensor offset / gain error",
+         "sensor_offset": "torque-sensor offsets", "sensor_gain": "torque-sensor gain error",
          "torque_noise": "torque-sensor noise", "encoder_noise": "position-encoder noise",
          "elasticity": "joint elasticity (deflection unseen by the position sensor)",
          "rigid_body": "rigid-body (inertial) parameter error", "payload": "an unmodelled payload at the flange",
@@ -48,8 +49,6 @@ def _localise(model: SimModel, recs: Sequence[Recording], trim_s: float) -> tupl
         s = signals_of(rec)
         keep = (rec.t >= rec.t[0] + trim_s) & (rec.t <= rec.t[-1] - trim_s)
         e = (rec.tau - model.predict(s))[keep]
-        sub = rec.slice(0, rec.n_samples)
-        sub.truth = {k: v for k, v in rec.truth.items()}
         fam = regime_families(s.q, s.qd, rob.lower, rob.upper, rob.velocity_limits, rec)
         fams.append([type(f)(f.name, f.names, f.labels[keep]) for f in fam])
         es.append(e)

@@ -16,13 +16,18 @@ The recursion is the thesis' Algorithm 4.7 in link frames: motion (ω, ω̇, lin
 projected onto link ``j``'s wrench through joint ``i``'s unit screw expressed in frame ``j`` (axis ``u_ij``, moment
 ``v_ij = u_ij × (o_j − o_i)``): ``τ_i ← u_ij · n_j + v_ij · f_j`` (eq. 3.43–3.45 collapsed to one projection).
 
-Memory layout: all internal arrays are component-major with the sample axis last and contiguous (``[3, N]``), so
-every operation is a long vectorised loop and every rotation is one small GEMM. :func:`regressor` returns
-``Y [N, n, 12n]`` as a strided *view* of a ``[n, 12n, N]`` buffer (``Y.base``): estimators that form normal
+Memory layout and cost: every internal array is component-major with the sample axis last (``[3, S]``), samples
+processed in chunks of :data:`CHUNK`, so every operation is a long vectorised loop. The constant joint geometry is
+kept as sparse rows (:class:`RegressorGeometry`): with axis-aligned joint frames (the iiwa, the LWR) a frame change is
+a handful of multiply-adds on ``[3, S]`` arrays, not a 3×3 product; the projection of link ``j``'s 6 × 10 wrench
+regressor on the screws of joints ``i ≤ j`` is one fused ``einsum`` writing straight into the output, and the blocks
+below the diagonal (joint ``i`` never sees links ``j < i``) are never computed nor touched. :func:`regressor`
+returns ``Y [N, n, 12n]`` as a strided *view* of a ``[n, 12n, N]`` buffer (``Y.base``): estimators that form normal
 equations use the buffer directly (:func:`regressor_buffer`), each joint row block ``[12n, N]`` being contiguous.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -90,52 +95,101 @@ def friction_from_parameters(phi: np.ndarray, n: int) -> tuple[tuple[float, ...]
     return tuple(float(x) for x in p[:, 10]), tuple(float(x) for x in p[:, 11])
 
 
+_Terms = tuple[tuple[float, int], ...]     # sparse row of a constant 3×3 matrix: ((coefficient, column), ...)
+
+
+def _sparse_rows(m: np.ndarray) -> tuple[_Terms, ...]:
+    """Rows of a constant matrix as ``(coefficient, column)`` terms, entries within ``1e-14`` of 0 or ±1 snapped to
+    them (URDF ``rpy`` of ±π/2 gives entries like 6e-17: rounding noise) so that products skip zero and unit
+    factors."""
+    rows = []
+    for row in m:
+        terms = []
+        for k, x in enumerate(row):
+            x = float(x)
+            if abs(x) < 1e-14:
+                continue
+            if abs(abs(x) - 1.0) < 1e-14:
+                x = math.copysign(1.0, x)
+            terms.append((x, k))
+        rows.append(tuple(sorted(terms, key=lambda t: t[0] < 0)))      # a positive term first: no negation
+    return tuple(rows)
+
+
 @dataclass(frozen=True)
 class RegressorGeometry:
-    """Constant kinematics of the chain in the form the regressor uses."""
-    rot: np.ndarray        # [n, 9, 3] stacked [(I−kkᵀ)R_oᵀ; [k×]R_oᵀ; kkᵀR_oᵀ]: child ← parent is c·A1 − s·A2 + A3
-    offset: np.ndarray     # [n, 3] joint origin in the parent link frame [m]
-    axis: np.ndarray       # [n, 3] unit joint axis in the joint (= child link) frame
-    gravity: np.ndarray    # [3] gravity in the base frame [m/s²]
+    """Constant kinematics of the chain in the form the regressor uses: per joint, the sparse rows (see
+    :func:`_sparse_rows`) of its constant matrices, so that every product with them skips zero and unit entries."""
+    to_child: tuple[tuple[tuple[_Terms, ...], ...], ...]  # (A1, A2, A3): child ← parent is c·A1 − s·A2 + A3,
+    #                                                      A1 = (I−kkᵀ)R_oᵀ, A2 = [k×]R_oᵀ, A3 = kkᵀR_oᵀ (Rodrigues)
+    cross_offset: tuple[tuple[_Terms, ...], ...]          # −[o×]: x × o, o the joint origin in the parent frame [m]
+    cross_axis: tuple[tuple[_Terms, ...], ...]            # −[k×]: x × k, k the unit joint axis (child frame)
+    axis: tuple[_Terms, ...]                              # k as one row ((k_r, r), ...)
+    gravity: np.ndarray                                   # [3] gravity in the base frame [m/s²]
 
 
 def regressor_geometry(desc: RobotDescription) -> RegressorGeometry:
-    """Precompute the constant rotations of ``desc`` (Rodrigues split so that ``R(q)ᵀ x`` is one 9×3 GEMM)."""
-    rots, offsets, axes = [], [], []
+    """Precompute the constant matrices of ``desc`` (joint frames, origins and axes) in sparse form."""
+    to_child, cross_o, cross_k, axes = [], [], [], []
     for jt in desc.joints:
         k = np.asarray(jt.axis, dtype=float)
         k = k / np.linalg.norm(k)
         r_o_t = rpy_to_matrix(jt.origin_rpy).T
         kk = np.outer(k, k)
-        rots.append(np.vstack([(np.eye(3) - kk) @ r_o_t, _skew(k) @ r_o_t, kk @ r_o_t]))
-        offsets.append(np.asarray(jt.origin_xyz, dtype=float))
-        axes.append(k)
+        to_child.append(tuple(_sparse_rows(a) for a in ((np.eye(3) - kk) @ r_o_t, _skew(k) @ r_o_t, kk @ r_o_t)))
+        cross_o.append(_sparse_rows(-_skew(np.asarray(jt.origin_xyz, dtype=float))))
+        cross_k.append(_sparse_rows(-_skew(k)))
+        axes.append(_sparse_rows(k[None])[0])
     g_base = rpy_to_matrix(desc.world_to_base_rpy).T @ np.asarray(desc.gravity, dtype=float)
-    return RegressorGeometry(np.array(rots), np.array(offsets), np.array(axes), g_base)
+    return RegressorGeometry(tuple(to_child), tuple(cross_o), tuple(cross_k), tuple(axes), g_base)
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Cross product over the leading axis of component-major arrays ``[3, ...]`` (broadcasting the rest)."""
-    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+def _accumulate(out: np.ndarray, tmp: np.ndarray, terms, add: bool = False) -> None:
+    """``out (+)= Σ coef · a · b`` over ``terms`` ``(coef, a, b)`` (``b`` may be ``None``), in place: one multiply per
+    product, unit coefficients folded into add/subtract (``tmp``: scratch of ``out``'s shape)."""
+    first = not add
+    for coef, a, b in terms:
+        dst = out if first else tmp
+        if b is not None:
+            np.multiply(a, b, out=dst)
+            a = dst
+        if coef != 1.0 and coef != -1.0:
+            np.multiply(a, coef, out=dst)
+            a, coef = dst, 1.0
+        if first:
+            if coef == -1.0:
+                np.negative(a, out=out)
+            elif a is not out:
+                np.copyto(out, a)
+            first = False
+        elif coef == 1.0:
+            np.add(out, a, out=out)
+        else:
+            np.subtract(out, a, out=out)
+    if first:
+        out[...] = 0.0
 
 
-def _fma(x: np.ndarray, y: np.ndarray, out: np.ndarray, tmp: np.ndarray) -> None:
-    """``out += x * y`` without allocating (``tmp`` is scratch of ``out``'s shape)."""
-    np.multiply(x, y, out=tmp)
-    out += tmp
+def _apply(rows: tuple[_Terms, ...], x: np.ndarray, out: np.ndarray, tmp: np.ndarray, add: bool = False) -> None:
+    """``out[r] (+)= Σ_k M[r, k] x[k]`` for a constant ``M`` given by its sparse rows; ``x, out [3, ...]``."""
+    for r, row in enumerate(rows):
+        _accumulate(out[r], tmp, [(coef, x[k], None) for coef, k in row], add)
 
 
-def _dot3(x: np.ndarray, y: np.ndarray, out: np.ndarray, tmp: np.ndarray) -> None:
-    """``out = Σ_k x[k] y[k]`` over the leading component axis, written in place."""
-    np.multiply(x[0], y[0], out=out)
-    _fma(x[1], y[1], out, tmp)
-    _fma(x[2], y[2], out, tmp)
-
-
-def _to_child(rot: np.ndarray, x: np.ndarray, c: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """Express parent-frame vectors ``x [3, ..., N]`` in the child frame: ``R_axis(q)ᵀ R_oᵀ x``."""
-    y = np.einsum("ij,jm->im", rot, x.reshape(3, -1)).reshape((9,) + x.shape[1:])   # no BLAS threads for 9×3
-    return c * y[0:3] - s * y[3:6] + y[6:9]
+def _to_child(plan: tuple[tuple[_Terms, ...], ...], x: np.ndarray, c: np.ndarray, s: np.ndarray,
+              out: np.ndarray, tmp: np.ndarray, scratch: np.ndarray) -> None:
+    """``out = R_axis(q)ᵀ R_oᵀ x = c·A1 x − s·A2 x + A3 x`` for parent-frame vectors ``x [3, ..., S]``;
+    ``c, s [S]`` broadcast; ``scratch [3, ...]`` holds the rows of ``A x`` that are not a single ±x_k."""
+    for r in range(3):
+        terms = []
+        for g, (rows, sign, scale) in enumerate(zip(plan, (1.0, -1.0, 1.0), (c, s, None))):
+            row = rows[r]
+            if len(row) == 1:
+                terms.append((sign * row[0][0], x[row[0][1]], scale))
+            elif row:
+                _accumulate(scratch[g], tmp, [(coef, x[k], None) for coef, k in row])
+                terms.append((sign, scratch[g], scale))
+        _accumulate(out[r], tmp, terms)
 
 
 def _as_samples(name: str, x: np.ndarray, n: int) -> np.ndarray:
@@ -147,7 +201,7 @@ def _as_samples(name: str, x: np.ndarray, n: int) -> np.ndarray:
     return x
 
 
-CHUNK = 4096  # samples per pass: keeps every temporary of the inner loop in cache
+CHUNK = 8192  # samples per pass: long enough to amortise the per-call overhead, short enough to stay in cache
 
 
 def regressor_buffer(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
@@ -164,10 +218,14 @@ def regressor_buffer(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd:
     if not q.shape == qd.shape == qdd.shape:
         raise ValueError(f"regressor: q, qd, qdd must have the same shape, got {q.shape}, {qd.shape}, {qdd.shape}")
     n_s = q.shape[1]
+    # zero-filled by the OS on first touch: the blocks below the diagonal are never written (and cost nothing)
     out = np.zeros((n, PARAMS_PER_JOINT * n, n_s))
+    work = None
     for s0 in range(0, n_s, CHUNK):
         sl = slice(s0, min(s0 + CHUNK, n_s))
-        _rigid_body_block(geo, q[:, sl], qd[:, sl], qdd[:, sl], out[:, :, sl])
+        if work is None or work.n_s != sl.stop - s0:
+            work = _Workspace(n, sl.stop - s0)
+        _rigid_body_block(geo, q[:, sl], qd[:, sl], qdd[:, sl], out[:, :, sl], work)
     for j in range(n):
         out[j, 12 * j + 10] = qd[j]
         out[j, 12 * j + 11] = (np.sign(qd[j]) if coulomb_velocity_scale == 0.0
@@ -175,58 +233,122 @@ def regressor_buffer(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd:
     return out
 
 
+class _Workspace:
+    """Scratch arrays of :func:`_rigid_body_block` for chunks of ``n_s`` samples (sample axis last)."""
+
+    def __init__(self, n: int, n_s: int):
+        self.n_s = n_s
+        self.motion = np.empty((2, 3, 3, n_s))       # ping-pong [frame, component, (ω, ω̇, a), S]
+        self.screw = np.empty((2, 2, 3, n, n_s))     # ping-pong [frame, (u, v), component, joint i, S]
+        self.wrench = np.zeros((6, 10, n_s))         # link regressor A (rows n; f); its structural zeros stay 0
+        self.outer = np.empty((3, 3, n_s))           # ω ωᵀ
+        self.vec = np.empty((3, n_s))
+        self.tmp = np.empty((max(2 * n, 9), n_s))
+        self.scratch = np.empty((3, max(2 * n, 3), n_s))
+
+
+def _link_regressor(w: np.ndarray, wd: np.ndarray, a: np.ndarray, out: np.ndarray, ww: np.ndarray,
+                    nrm: np.ndarray) -> None:
+    """Link wrench about its origin as ``[n; f] = A φ_link`` (eq. 3.35), ``A [6, 10, S]``, from ``ω, ω̇, a [3, S]``
+    (link frame, ``a`` with gravity folded in): ``f = m a + W mc``, ``n = mc × a + N_I ι`` with
+    ``W = [ω̇×] + ωωᵀ − |ω|²·1`` and ``N_I ι = I ω̇ + ω × (I ω)``. Only the entries that are not structurally
+    zero are written (``out`` must hold zeros there)."""
+    np.multiply(w[:, None], w[None], out=ww)                                    # ω ωᵀ
+    p01, p02, p12 = ww[0, 1], ww[0, 2], ww[1, 2]
+    s0, s1, s2 = ww[0, 0], ww[1, 1], ww[2, 2]
+    # n rows, mc columns: u·(mc × a) = mc·(a × u), so A[k, 1 + c] = [a×][c, k] (zero for k = c)
+    np.copyto(out[0, 2], a[2])
+    np.negative(a[1], out=out[0, 3])
+    np.negative(a[2], out=out[1, 1])
+    np.copyto(out[1, 3], a[0])
+    np.copyto(out[2, 1], a[1])
+    np.negative(a[0], out=out[2, 2])
+    # n rows, I columns (xx, xy, xz, yy, yz, zz): N_I
+    ni = out[:3, 4:]
+    np.copyto(ni[0, 0], wd[0])
+    np.copyto(ni[1, 0], p02)
+    np.negative(p01, out=ni[2, 0])
+    np.subtract(wd[1], p02, out=ni[0, 1])
+    np.add(wd[0], p12, out=ni[1, 1])
+    np.subtract(s0, s1, out=ni[2, 1])
+    np.add(wd[2], p01, out=ni[0, 2])
+    np.subtract(s2, s0, out=ni[1, 2])
+    np.subtract(wd[0], p12, out=ni[2, 2])
+    np.negative(p12, out=ni[0, 3])
+    np.copyto(ni[1, 3], wd[1])
+    np.copyto(ni[2, 3], p01)
+    np.subtract(s1, s2, out=ni[0, 4])
+    np.subtract(wd[2], p01, out=ni[1, 4])
+    np.add(wd[1], p02, out=ni[2, 4])
+    np.copyto(ni[0, 5], p12)
+    np.negative(p02, out=ni[1, 5])
+    np.copyto(ni[2, 5], wd[2])
+    # f rows: m column a, mc columns W
+    f = out[3:, :4]
+    np.copyto(f[:, 0], a)
+    np.add(s0, s1, out=nrm)
+    nrm += s2
+    for r in range(3):
+        np.subtract(ww[r, r], nrm, out=f[r, 1 + r])
+    np.subtract(p01, wd[2], out=f[0, 2])
+    np.add(p02, wd[1], out=f[0, 3])
+    np.add(p01, wd[2], out=f[1, 1])
+    np.subtract(p12, wd[0], out=f[1, 3])
+    np.subtract(p02, wd[1], out=f[2, 1])
+    np.add(p12, wd[0], out=f[2, 2])
+
+
 def _rigid_body_block(geo: RegressorGeometry, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
-                      out: np.ndarray) -> None:
-    """Fill the 10 inertial columns of every link of ``out [n, 12n, S]`` for samples ``q, qd, qdd [n, S]``."""
+                      out: np.ndarray, work: _Workspace) -> None:
+    """Fill the 10 inertial columns of every link of ``out [n, 12n, S]`` for samples ``q, qd, qdd [n, S]``.
+
+    Link ``j``'s wrench ``[n; f] = A_j φ_j`` (:func:`_link_regressor`) is projected on every joint ``i ≤ j``
+    through joint ``i``'s unit screw ``[u; v]`` expressed in frame ``j``: row ``i`` of block ``j`` is
+    ``[u; v]ᵀ A_j``. Joint ``j``'s own screw is the constant ``[k; 0]``; the screws of joints ``i < j`` move from
+    frame ``j − 1`` to frame ``j`` as ``v ← v + u × o_j`` and a rotation.
+    """
     n, n_s = q.shape
     cos, sin = np.cos(q), np.sin(q)
-    w = np.zeros((3, n_s))                                   # ω of the parent, parent frame
-    wd = np.zeros((3, n_s))                                  # ω̇
-    acc = np.repeat(-geo.gravity[:, None], n_s, axis=1)     # linear acceleration of the origin minus g
-    u = np.zeros((3, 0, n_s))                                # screws of joints < j: axis, moment about the origin
-    v = np.zeros((3, 0, n_s))
+    mot, wrench, vec, tmp = work.motion, work.wrench, work.vec, work.tmp
+    t_s = tmp[0]
+    mot[0] = 0.0
+    mot[0, :, 2] = -geo.gravity[:, None]                                        # base: ω = ω̇ = 0, a = −g
     for j in range(n):
-        s_j, k = geo.offset[j], geo.axis[j]
-        c_j, s_jn = cos[j], sin[j]
-        # motion of link j (eq. 3.40–3.42): origin acceleration in the parent frame, then rotate all at once
-        acc_par = acc + _cross(wd, s_j[:, None]) + _cross(w, _cross(w, s_j[:, None]))
-        w_c, wd_c, acc = _to_child(geo.rot[j], np.stack([w, wd, acc_par], axis=1), c_j, s_jn).transpose(1, 0, 2)
-        k_col = k[:, None]
-        w = w_c + k_col * qd[j]
-        wd = wd_c + _cross(w_c, k_col) * qd[j] + k_col * qdd[j]
-        # screws of joints < j move to frame j; joint j's own screw is (k, 0)
+        c, s, cross_o = cos[j], sin[j], geo.cross_offset[j]
+        # motion of link j (eq. 3.40–3.42): acceleration of its origin in the parent frame, then ω, ω̇, a → frame j
+        par, cur = mot[j % 2], mot[(j + 1) % 2]
+        w, wd, acc = par[:, 0], par[:, 1], par[:, 2]
+        if any(cross_o):
+            _apply(cross_o, w, vec, t_s)                                        # ω × o
+            _apply(cross_o, wd, acc, t_s, add=True)                             # a += ω̇ × o
+            for r, (p, q_) in enumerate(((1, 2), (2, 0), (0, 1))):              # a += ω × (ω × o)
+                _accumulate(acc[r], t_s, [(1.0, w[p], vec[q_]), (-1.0, w[q_], vec[p])], add=True)
+        _to_child(geo.to_child[j], par, c, s, cur, tmp[:3], work.scratch[:, :3])
+        w, wd, a = cur[:, 0], cur[:, 1], cur[:, 2]
+        _apply(geo.cross_axis[j], w, vec, t_s)                                  # ω × k
+        for r, row in enumerate(geo.cross_axis[j]):
+            if row:
+                _accumulate(wd[r], t_s, [(1.0, vec[r], qd[j])], add=True)       # ω̇ += (ω × k) q̇ + k q̈
+        for coef, r in geo.axis[j]:
+            _accumulate(w[r], t_s, [(coef, qd[j], None)], add=True)             # ω += k q̇
+            _accumulate(wd[r], t_s, [(coef, qdd[j], None)], add=True)
+        _link_regressor(w, wd, a, wrench, work.outer, t_s)
+        blk = out[:, 12 * j:12 * j + 10]                                        # [n, 10, S]
+        # joint j's own row: [k; 0]ᵀ A (its m column stays 0)
+        _accumulate(blk[j, 1:], tmp[:9], [(coef, wrench[r, 1:], None) for coef, r in geo.axis[j]])
+        scr = work.screw[j % 2]
         if j:
-            v = v + _cross(u, s_j[:, None, None])
-            uv = _to_child(geo.rot[j], np.concatenate([u, v], axis=1), c_j, s_jn)
-            u, v = uv[:, :j], uv[:, j:]
-        u = np.concatenate([u, np.broadcast_to(k[:, None, None], (3, 1, n_s))], axis=1)
-        v = np.concatenate([v, np.zeros((3, 1, n_s))], axis=1)
-        # link j's wrench about its origin is linear in its 10 parameters (eq. 3.35); project on every joint i ≤ j:
-        # τ_i = u·n + v·f with f = m a + ω̇×mc + ω×(ω×mc), n = I ω̇ + ω×(I ω) + mc×a, i.e.
-        # m: v·a;  mc: vᵀW + a×u with W = [ω̇×] + ωωᵀ − |ω|²·1;  I_ab: u_a ω̇_b + (u×ω)_a ω_b (+ a↔b)
-        wm = np.einsum("as,bs->abs", w, w)
-        wm -= np.einsum("aas->s", wm) * np.eye(3)[:, :, None]
-        wm[0, 1] -= wd[2]
-        wm[0, 2] += wd[1]
-        wm[1, 0] += wd[2]
-        wm[1, 2] -= wd[0]
-        wm[2, 0] -= wd[1]
-        wm[2, 1] += wd[0]
-        blk = out[:j + 1, 12 * j:12 * j + 10]                 # [j+1, 10, S] view
-        tmp = np.empty_like(v[0])
-        _dot3(v, acc, blk[:, 0], tmp)
-        a_u = _cross(acc[:, None], u)
-        for c in range(3):
-            _dot3(v, wm[:, c], blk[:, 1 + c], tmp)
-            blk[:, 1 + c] += a_u[c]
-        uw = _cross(u, w[:, None])
-        for col, (a_, b_) in zip(range(4, 10), ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))):
-            out_c = blk[:, col]
-            np.multiply(u[a_], wd[b_], out=out_c)
-            _fma(uw[a_], w[b_], out_c, tmp)
-            if a_ != b_:
-                _fma(u[b_], wd[a_], out_c, tmp)
-                _fma(uw[b_], w[a_], out_c, tmp)
+            # screws of joints < j: shift the moment to link j's origin (frame j − 1), then rotate into frame j
+            old = work.screw[(j - 1) % 2][:, :, :j]
+            _apply(cross_o, old[0], old[1], tmp[:j], add=True)                  # v += u × o
+            _to_child(geo.to_child[j], old.transpose(1, 0, 2, 3), c, s, scr[:, :, :j].transpose(1, 0, 2, 3),
+                      tmp[:2 * j].reshape(2, j, n_s), work.scratch[:, :2 * j].reshape(3, 2, j, n_s))
+            screws = scr.reshape(6, n, n_s)[:, :j]                              # [u; v] of joints < j
+            np.einsum("kis,kcs->ics", screws, wrench[:, :4], out=blk[:j, :4])          # m, mc
+            np.einsum("kis,kcs->ics", screws[:3], wrench[:3, 4:], out=blk[:j, 4:])     # I (f has no I terms)
+        scr[:, :, j] = 0.0                                                      # joint j's screw [k; 0]
+        for coef, r in geo.axis[j]:
+            scr[0, r, j] = coef
 
 
 def regressor(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,

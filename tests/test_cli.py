@@ -199,37 +199,49 @@ def demo_dir(tmp_path_factory) -> Path:
     return out
 
 
-def test_demo_writes_outputs(demo_dir):
-    for name in ("twin_recording.npz", "twin_recording.png", "twin_diagram.dot"):
-        assert (demo_dir / name).stat().st_size > 0
+def test_demo_writes_every_stage_output(demo_dir):
+    for path in demo_dir.rglob("*"):
+        if path.is_file():
+            assert path.stat().st_size > 0, path
+    for name in ("rfma_demo.npz", "rfma_demo.png", "twin_rfma.npz", "twin_rfma.png", "twin_diagram.dot",
+                 "twin_excitation.npz", "identified_model.npz", "identification.txt", "payload_rbd/table.txt"):
+        assert (demo_dir / name).stat().st_size > 0, name
+
+
+def test_demo_twin_recording_carries_truth(demo_dir):
+    desc = load_robot("iiwa14_identified")
+    rec = load_recording(demo_dir / "twin_rfma.npz", robot=desc)
+    assert rec.meta["source"] == "twin" and rec.rate_hz == pytest.approx(1000.0)
+    assert {"hysteresis", "lost_motion", "viscous_coulomb"} <= set(rec.meta["effects"])
+    # the truth channels add up: tau_J_true = tau_rbd + link friction, and the rigid-body part is RNEA of the motion
+    np.testing.assert_allclose(rec.truth["tau_rbd"],
+                               inverse_dynamics(desc, rec.truth["q_true"], rec.qd, rec.qdd), atol=1e-6)
+    assert np.abs(rec.tau - rec.truth["tau_J_true"]).std() > 0.05        # the sensor effects are really there
     assert "controller" in (demo_dir / "twin_diagram.dot").read_text()
 
 
-def test_demo_recording_is_consistent_with_rnea(demo_dir):
-    desc = load_robot("iiwa14_identified")
-    rec = load_recording(demo_dir / "twin_recording.npz", robot=desc)
-    assert rec.meta["robot"] == "iiwa14_identified"
-    assert rec.duration == pytest.approx(5.0) and rec.rate_hz == pytest.approx(1000.0)
-    assert np.abs(rec.qd).max(axis=0).min() > 0.1                                  # every joint moves
-    assert np.all(np.abs(rec.qd).max(axis=0) < desc.velocity_limits)
-    # without joint effects the logged controller torque is the link torque: τ = RNEA(q, q̇, q̈)
-    np.testing.assert_allclose(rec.tau, inverse_dynamics(desc, rec.q, rec.qd, rec.qdd), rtol=0, atol=1e-9)
+def test_demo_payload_table_sees_the_payload(demo_dir):
+    table = (demo_dir / "payload_rbd" / "table.txt").read_text()
+    assert "1000g" in table and "Payload seen after taring" in table
 
 
 def test_demo_stages_are_pluggable(tmp_path, capsys):
-    from proprio.demo import STAGES, Stage, run_demo
+    from proprio.demo import Stage, run_demo
 
-    assert [s.name for s in STAGES][:2] == ["robot", "twin"]
     seen = []
 
+    def first(ctx, out):
+        ctx["value"] = 42
+        return []
+
     def extra(ctx, out):
-        seen.append(ctx["robot"].name)
+        seen.append(ctx["value"])
         (out / "extra.txt").write_text("x")
         return [out / "extra.txt"]
 
-    ctx = run_demo(tmp_path, stages=[STAGES[0], Stage("extra", "a later stage", extra)])
-    assert seen == ["iiwa14_identified"]
-    assert ctx["outputs"]["extra"] == [tmp_path / "extra.txt"] and set(ctx["timings_s"]) == {"robot", "extra"}
+    ctx = run_demo(tmp_path, stages=[Stage("first", "a stage", first), Stage("extra", "a later stage", extra)])
+    assert seen == [42]
+    assert ctx["outputs"]["extra"] == [tmp_path / "extra.txt"] and set(ctx["timings_s"]) == {"first", "extra"}
     out = capsys.readouterr().out
     assert "== [2/2] extra: a later stage" in out and str(tmp_path / "extra.txt") in out
 

@@ -98,7 +98,7 @@ def test_unmodelled_offset_is_not_confused_with_friction(robot):
     off = np.linspace(-0.6, 0.6, n)
     train, hold = _recs(robot, [EFFECTS["sensor_offset_gain"](n, offset=off)], seeds=(21, 22, 23))
     att = attribute(robot, train, hold, candidates=["viscous_coulomb", "sensor_offset_gain", "hysteresis"])
-    assert att.steps[0].name == "sensor_offset_gain"
+    assert att.steps[0].name == "sensor_offset"
     assert "viscous_coulomb" not in att.selected
 
 
