@@ -319,16 +319,18 @@ def _rigid_body_block(geo: RegressorGeometry, q: np.ndarray, qd: np.ndarray, qdd
         par, cur = mot[j % 2], mot[(j + 1) % 2]
         w, wd, acc = par[:, 0], par[:, 1], par[:, 2]
         if any(cross_o):
-            _apply(cross_o, w, vec, t_s)                                        # ω × o
+            for r, row in enumerate(cross_o):
+                if row:
+                    _accumulate(vec[r], t_s, [(coef, w[k], None) for coef, k in row])     # ω × o
             _apply(cross_o, wd, acc, t_s, add=True)                             # a += ω̇ × o
             for r, (p, q_) in enumerate(((1, 2), (2, 0), (0, 1))):              # a += ω × (ω × o)
-                _accumulate(acc[r], t_s, [(1.0, w[p], vec[q_]), (-1.0, w[q_], vec[p])], add=True)
+                _accumulate(acc[r], t_s, [term for term, nonzero in (((1.0, w[p], vec[q_]), cross_o[q_]),
+                                                                     ((-1.0, w[q_], vec[p]), cross_o[p])) if nonzero],
+                            add=True)
         _to_child(geo.to_child[j], par, c, s, cur, tmp[:3], work.scratch[:, :3])
         w, wd, a = cur[:, 0], cur[:, 1], cur[:, 2]
-        _apply(geo.cross_axis[j], w, vec, t_s)                                  # ω × k
-        for r, row in enumerate(geo.cross_axis[j]):
-            if row:
-                _accumulate(wd[r], t_s, [(1.0, vec[r], qd[j])], add=True)       # ω̇ += (ω × k) q̇ + k q̈
+        for r, row in enumerate(geo.cross_axis[j]):                             # ω̇ += (ω × k) q̇ + k q̈
+            _accumulate(wd[r], t_s, [(coef, w[k], qd[j]) for coef, k in row], add=True)
         for coef, r in geo.axis[j]:
             _accumulate(w[r], t_s, [(coef, qd[j], None)], add=True)             # ω += k q̇
             _accumulate(wd[r], t_s, [(coef, qdd[j], None)], add=True)
