@@ -77,6 +77,18 @@ class Recording:
                          f_ext=cut(self.f_ext), truth={k: cut(v) for k, v in self.truth.items()},
                          meta=dict(self.meta))
 
+    def downsample(self, step: int) -> "Recording":
+        """Every ``step``-th sample of every channel (no anti-alias filter: the caller decides), ``meta.rate_hz``
+        updated."""
+        if step < 1:
+            raise RecordingError(f"downsample: step must be >= 1, got {step}")
+        pick = lambda a: None if a is None else np.array(a[::step])  # noqa: E731
+        rec = Recording(t=pick(self.t), q=pick(self.q), tau=pick(self.tau), qd=pick(self.qd), qdd=pick(self.qdd),
+                        f_ext=pick(self.f_ext), truth={k: pick(v) for k, v in self.truth.items()},
+                        meta=dict(self.meta))
+        rec.meta["rate_hz"] = rec.rate_hz
+        return rec
+
     def replace(self, **changes: Any) -> "Recording":
         return dataclasses.replace(self, **changes)
 

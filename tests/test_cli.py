@@ -204,7 +204,8 @@ def test_demo_writes_every_stage_output(demo_dir):
         if path.is_file():
             assert path.stat().st_size > 0, path
     for name in ("rfma_demo.npz", "rfma_demo.png", "twin_rfma.npz", "twin_rfma.png", "twin_diagram.dot",
-                 "twin_excitation.npz", "identified_model.npz", "identification.txt", "payload_rbd/table.txt"):
+                 "twin_excitation.npz", "identified_model.npz", "identification.txt", "payload_rbd/table.txt",
+                 "hybrid_lstm.pt", "hybrid.txt"):
         assert (demo_dir / name).stat().st_size > 0, name
 
 
