@@ -324,7 +324,7 @@ def _rigid_body_block(geo: RegressorGeometry, q: np.ndarray, qd: np.ndarray, qdd
                     _accumulate(vec[r], t_s, [(coef, w[k], None) for coef, k in row])  # ω × o
             _apply(cross_o, wd, acc, t_s, add=True)                             # a += ω̇ × o
             for r, (p, q_) in enumerate(((1, 2), (2, 0), (0, 1))):              # a += ω × (ω × o)
-                terms = [(1.0, w[p], vec[q_])] if cross_o[q_] else []           # (ω × o)_m = 0 if its row is
+                terms = [(1.0, w[p], vec[q_])] if cross_o[q_] else []           # skip (ω × o)_m ≡ 0
                 terms += [(-1.0, w[q_], vec[p])] if cross_o[p] else []
                 _accumulate(acc[r], t_s, terms, add=True)
         _to_child(geo.to_child[j], par, c, s, cur, tmp[:3], work.scratch[:, :3])
