@@ -30,7 +30,7 @@ from scipy.signal import butter, sosfiltfilt
 
 from proprio.description import RobotDescription, load_robot
 from proprio.dynamics import inverse_dynamics
-from proprio.io import atomic_path
+from proprio.io import atomic_path, save_figure
 from proprio.kinematics import chain_geometry, flange_jacobian, flange_pose, point_jacobian
 from proprio.plant import DrakeRobot
 from proprio.recording import Recording, RecordingError, validate_recording
@@ -325,11 +325,7 @@ class EstimationResult:
         axs[-1].set_xlabel("t [s]  (grey: start-up / filter edges, excluded from statistics)")
         fig.suptitle(title or f"external force at the flange (world frame), model {self.meta.get('model', '?')}")
         fig.tight_layout()
-        path = Path(path)
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=110, format="png")
-        plt.close(fig)
-        return path
+        return save_figure(fig, path)
 
 
 def resample_uniform(rec: Recording) -> Recording:

@@ -32,7 +32,7 @@ from tqdm.auto import tqdm
 
 from proprio.description import load_robot
 from proprio.dynamics import inverse_dynamics
-from proprio.io import atomic_path, atomic_write_text
+from proprio.io import atomic_write_text, save_figure
 from proprio.kinematics import point_jacobian
 from proprio.payload import Payload
 from proprio.recording import Recording, save_recording
@@ -285,10 +285,7 @@ def _plot_errors(exp: PayloadExperiment, path: Path) -> Path:
     axs[-1].legend(fontsize=7)
     fig.suptitle(f"payload experiment, model {exp.model} (ours) vs thesis Table 5.4 RBD")
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def demo_payload_experiment(model: str | Path | TorqueModel, out_dir: str | Path, seconds: float = 5.0) -> str:

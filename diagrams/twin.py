@@ -487,7 +487,7 @@ def run_hysteresis_test(config: TwinConfig, out_dir: str | Path, progress: bool 
     import matplotlib.pyplot as plt
     from scipy.signal import savgol_filter
 
-    from proprio.io import atomic_path
+    from proprio.io import save_figure
     from proprio.recording import save_recording
 
     out = Path(out_dir)
@@ -508,10 +508,7 @@ def run_hysteresis_test(config: TwinConfig, out_dir: str | Path, progress: bool 
     axes.ravel()[0].legend(loc="best", fontsize=8)
     fig.suptitle(f"{config.name}: joint-wise triangular motion ±10° at 10 % speed (cf. thesis Fig. 2.5)")
     fig.tight_layout()
-    png = out / "hysteresis_test.png"
-    with atomic_path(png) as tmp:
-        fig.savefig(tmp, dpi=110)
-    plt.close(fig)
+    png = save_figure(fig, out / "hysteresis_test.png")
     save_recording(rec, out / "hysteresis_test.npz")
     return png, rec
 

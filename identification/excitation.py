@@ -97,7 +97,7 @@ class _CondCost:
         return buf[:, self.base.independent, :].transpose(2, 0, 1)          # [T, n, r]
 
     def value_and_gradient(self, x: np.ndarray) -> tuple[float, np.ndarray]:
-        n, L, T = self.desc.n, self.L, self.t.size
+        n, T = self.desc.n, self.t.size
         q, qd, qdd = self._traj(x)
         k = self._kb(q, qd, qdd)
         u, s, vt = np.linalg.svd(k.reshape(T * n, -1), full_matrices=False)

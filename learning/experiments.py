@@ -192,7 +192,7 @@ def _plot_grid(rows: list[TableRow], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from proprio.io import atomic_path
+    from proprio.io import save_figure
     fig, ax = plt.subplots(figsize=(8, 0.3 * len(rows) + 1.5))
     y = np.arange(len(rows))
     ax.barh(y - 0.2, [r.train.mean() for r in rows], 0.4, label="train")
@@ -203,9 +203,7 @@ def _plot_grid(rows: list[TableRow], path: Path) -> None:
     ax.set_xlabel("average joint-torque MSE [N·m²]")
     ax.legend()
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=120)
-    plt.close(fig)
+    save_figure(fig, path, dpi=120)
 
 
 def demo_hybrid(train_recs: Sequence[Recording], test_recs: Sequence[Recording], robot: RobotDescription | str,

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from proprio.description import RobotDescription, load_robot
-from proprio.io import atomic_path
+from proprio.io import save_figure
 from proprio.recording import Recording, RecordingError, load_recording, recording_from_csv, validate_recording
 
 __all__ = ["DEFAULT_DEADBAND", "load_any", "joint_velocities", "reversal_counts", "summarize_recording",
@@ -127,10 +127,7 @@ def plot_recording(rec: Recording, path: str | Path, robot: RobotDescription | N
     for ax in (ax_q, ax_t):
         ax.grid(alpha=0.3)
     ax_q.set_title(title or str(rec.meta.get("source", "recording")))
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def load_any(path: str | Path, robot: RobotDescription | None = None, angle_unit: str = "rad") -> Recording:

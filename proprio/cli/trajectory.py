@@ -61,17 +61,12 @@ def plot_trajectory(traj, desc, out: Path, rate_hz: float = 50.0, title: str = "
     """Write the Fig. 4.9 views of ``traj`` (:func:`proprio.systems.rfma.trajectory_figure`) as a PNG, atomically."""
     import matplotlib
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    from proprio.io import atomic_path
+    from proprio.io import save_figure
     from proprio.systems.rfma import trajectory_figure
 
     fig = trajectory_figure(traj, desc, rate_hz=rate_hz, title=title)
-    out = Path(out)
-    with atomic_path(out, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    return out
+    return save_figure(fig, out)
 
 
 def _cmd_plot(args: argparse.Namespace) -> int:
