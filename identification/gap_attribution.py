@@ -18,7 +18,7 @@ least squares where it is linear in its parameters (the effect's own ``regressor
 HELD-OUT recordings. Greedy forward selection adds the best candidate, refits all selected ones jointly
 (linear ones exactly, nonlinear ones by back-fitting) and repeats while the gain is significant.
 
-**Selection test.** The held-out samples are cut into ``B`` contiguous time blocks (≥ 20, each ≥ 0.5 s: much
+**Selection test.** The held-out samples are cut into ``B`` contiguous time blocks of ≈ 0.5 s (at least 20;
 longer than the residual's correlation time, so block statistics are close to independent even when ``e`` is
 strongly autocorrelated — the reason for blocks rather than samples). With ``w_j = 1/mean(e_train,j²)`` (every
 joint counts, whatever its torque scale) and ``SSE_b = Σ_{t∈b,j} w_j r²``, the per-block statistic is the
@@ -854,7 +854,8 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
     cands = candidate_set(model, train, candidates)
     e_tr, e_h = train.residual, hold.residual
     w = 1.0 / np.maximum((e_tr ** 2).mean(axis=0), 1e-12)
-    n_blk = MIN_BLOCKS
+    held_s = sum(r.duration for r in holdout_recs) - 2 * trim_s * len(holdout_recs)
+    n_blk = max(MIN_BLOCKS, int(held_s / MIN_BLOCK_S))
     blk = hold.blocks(n_blk)
     n_blk = int(blk.max()) + 1
     sig = np.sqrt((hold.stack(hold.tau) ** 2).mean(axis=0))
