@@ -714,6 +714,8 @@ class Step:
 
 @dataclass
 class NoiseFinding:
+    """Unmodelled white noise: ``rms [n]`` N·m per joint (0 on joints where the residual is structured or within
+    the model's own noise)."""
     name: str
     rms: np.ndarray
     explanation: str
@@ -933,6 +935,6 @@ def _noise_findings(model: SimModel, structure: ResidualStructure, hold: GapData
     if not excess.any():
         return out
     if "torque_noise" not in present and "torque_noise" in EFFECTS:
-        out.append(NoiseFinding("torque_noise", np.sqrt(np.maximum(var - expected, 0.0)),
+        out.append(NoiseFinding("torque_noise", np.where(excess, np.sqrt(np.maximum(var - expected, 0.0)), 0.0),
                                 "white residual above the model's noise level"))
     return out

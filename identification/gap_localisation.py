@@ -24,7 +24,7 @@ from typing import Sequence
 import numpy as np
 from scipy import signal
 
-from proprio.io import atomic_path
+from proprio.io import save_figure
 
 __all__ = ["RegimeFamily", "GapMap", "Spectra", "travel_since_reversal", "regime_families", "gap_map",
            "spectra", "order_spectrum", "peak_orders", "plot_gap_map", "plot_spectra"]
@@ -201,7 +201,7 @@ def order_spectrum(e: np.ndarray, q: np.ndarray, qd: np.ndarray, orders: np.ndar
     if m.sum() < 20:
         return np.zeros(len(orders)), 0.0
     x, y = q[m], e[m] - e[m].mean()
-    pw = signal.lombscargle(x, y, orders, precenter=False, normalize=False) * 4.0 / len(y)
+    pw = signal.lombscargle(x, y, orders, normalize=False) * 4.0 / len(y)
     return pw, float(np.var(y))
 
 
@@ -278,11 +278,7 @@ def plot_gap_map(gm: GapMap, path: str | Path, title: str = "Where the torque ga
     fig.colorbar(im, ax=ax, label="% of total squared error")
     ax.set_title(title + " (each family's cells add up to the joint's share)", fontsize=10)
     fig.tight_layout()
-    path = Path(path)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def plot_spectra(sp: Spectra, joint_names: list[str], path: str | Path) -> Path:
@@ -303,8 +299,4 @@ def plot_spectra(sp: Spectra, joint_names: list[str], path: str | Path) -> Path:
     a2.set_title("Order spectrum (e against joint angle)")
     a2.legend(fontsize=7, ncol=2)
     fig.tight_layout()
-    path = Path(path)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)

@@ -17,7 +17,7 @@ from proprio.description import RobotDescription
 from proprio.identification.gap_attribution import (Attribution, DiagnosisError, SimModel, attribute, signals_of)
 from proprio.identification.gap_localisation import (GapMap, Spectra, gap_map, plot_gap_map, plot_spectra,
                                                      regime_families, spectra)
-from proprio.io import atomic_path, atomic_write_text
+from proprio.io import atomic_write_text, save_figure
 from proprio.recording import Recording
 
 __all__ = ["Diagnosis", "diagnose", "demo_diagnosis", "verdict_text"]
@@ -110,8 +110,10 @@ def verdict_text(att: Attribution, gm: GapMap) -> str:
         parts.append("What remains is structured — " + "; ".join(bits) + " — so part of the gap is an effect "
                      "outside the candidate set (or a candidate in a form the library does not model).")
     for f in att.noise:
-        parts.append(f"The remaining residual is white and larger than the model's own noise: "
-                     f"{PLAIN.get(f.name, f.name)} of about {', '.join(f'{x:.2g}' for x in f.rms)} N·m is unmodelled.")
+        joints = np.flatnonzero(f.rms > 0)
+        parts.append(f"On {', '.join(att.joint_names[j] for j in joints)} the remaining residual is white and larger "
+                     f"than the model's own noise: {PLAIN.get(f.name, f.name)} of about "
+                     f"{', '.join(f'{f.rms[j]:.2g}' for j in joints)} N·m is unmodelled.")
     return " ".join(parts)
 
 
@@ -142,10 +144,7 @@ def _plot_before_after(att: Attribution, path: Path) -> Path:
     axes[0, 1].set_title("held-out RMSE per step [N·m]", fontsize=9)
     axes[-1, 0].set_xlabel("t [s] (first held-out recording)")
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=100)
 
 
 def _fmt(x: float) -> str:

@@ -39,6 +39,7 @@ RFMA_SCAFFOLDS = 3
 TWIN_SECONDS = 30.0          # s of RFMA motion simulated on the twin
 EXCITATION_SPEEDS = [1.0, 0.8]  # the first two periods of the §4.1 protocol (20 s + 25 s)
 PAYLOAD_SECONDS = 6.0        # s of motion per payload mass
+DIAGNOSIS_DOWNSAMPLE = 5     # 1 kHz -> 200 Hz for the diagnosis
 HYBRID_DOWNSAMPLE = 7        # 1 kHz twin logs -> ≈143 Hz, the thesis' data rate (the model halves it again, §4.4)
 HYBRID_EPOCHS = 30
 HYBRID_PAYLOAD_SECONDS = 20.0
@@ -125,6 +126,16 @@ def _stage_payload(ctx: dict[str, Any], out: Path) -> list[Path]:
     return [out / "payload_rbd" / "table.txt"]
 
 
+def _stage_diagnosis(ctx: dict[str, Any], out: Path) -> list[Path]:
+    from proprio.identification.gap_report import diagnose
+
+    step = DIAGNOSIS_DOWNSAMPLE
+    result = diagnose(load_robot(NOMINAL_ROBOT), [ctx["twin_excitation"].downsample(step)],
+                      [ctx["twin_rfma"].downsample(step)], out / "diagnosis")
+    print(_indent(result.verdict))
+    return list(result.files.values())
+
+
 def _stage_hybrid(ctx: dict[str, Any], out: Path) -> list[Path]:
     import dataclasses
 
@@ -156,6 +167,7 @@ STAGES: list[Stage] = [
     Stage("excitation", "calibrated twin on the optimal excitation (§4.1)", _stage_excitation),
     Stage("identification", "rigid-body identification: train on excitation, validate on RFMA", _stage_identification),
     Stage("payload", "payload experiment with the identified RBD model (Table 5.4)", _stage_payload),
+    Stage("diagnosis", "sim-to-real gap of the twin against the nominal CAD model", _stage_diagnosis),
     Stage("hybrid", "hybrid LSTM residual on the identified backbone, and its payload table", _stage_hybrid),
 ]
 
