@@ -17,7 +17,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "the gain is significant, and write report.html / report.md to --out.")
     p.add_argument("--model", required=True,
                    help="simulation model: a built-in robot name (iiwa14_nominal, ...), a robot YAML/URDF, or a "
-                   "directory with robot.yaml (e.g. /work/shared/data/kuka_lwr4)")
+                   "directory with robot.yaml (e.g. ../shared/data/kuka_lwr4)")
     p.add_argument("--effects", nargs="*", default=[], metavar="EFFECT",
                    help="library effects the simulation already has (at the parameters of --effects-config, else "
                    "the library defaults)")
