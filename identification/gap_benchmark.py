@@ -17,6 +17,19 @@ on the *recorded* q (encoder noise + quantisation; a motor-side position sensor 
 τ_J/K), which is how they reach a torque residual. Recordings store q only (q̇, q̈ are differentiated by the
 diagnosis, as from a real recorder). This applies the twin's effect library offline to twin-like motion; it does
 not run the Drake twin diagram (``diagrams/twin.py``).
+
+**Twin mode** (``make_cases(twin=True)``, ``proprio gap-benchmark --twin``): the recordings come from the Drake
+twin diagram instead, i.e. twin data with the effect present and a sim model without it. Each case's twin is the
+shipped ``iiwa14_twin`` (real robot ``iiwa14_identified``, inverse-dynamics controller, hidden motor-side drive)
+with its joint effects replaced by the case's withheld + modelled effects (parameters drawn as above, at the case's
+magnitude) and the background noise; a withheld payload is attached with ``TwinConfig.with_payload``. It runs
+:func:`proprio.diagrams.twin.simulate_twin` along short RFMA trajectories (``proprio.systems.rfma``: 2 scaffolds,
+600–800 waypoints per exploration, ≈30 s each; separate seeds for the 2 training and the held-out recording), and
+the 1 kHz log is downsampled to 200 Hz; only q and τ are kept (q̇, q̈ differentiated by the diagnosis). The model
+is ``iiwa14_identified`` without friction + the modelled effects. Effect types: those of ``iiwa14_twin.yaml``
+(:data:`TWIN_EFFECT_TYPES`) and payload; null and two-effect cases as above. Scores are computed by the same
+:func:`summarise`. The measured shrinkage still counts only the sensor noise as what remains, so in twin mode it is
+an upper bound: the controller's tracking and the differentiation of q leave a little more.
 """
 from __future__ import annotations
 
@@ -38,12 +51,17 @@ from proprio.recording import Recording
 from proprio.systems.joint_effects import EFFECTS, MotionSignals
 
 __all__ = ["BenchmarkCase", "CaseResult", "make_cases", "generate_case_data", "run_case", "run_benchmark",
-           "summarise", "rfma_like_motion", "EFFECT_TYPES"]
+           "summarise", "rfma_like_motion", "twin_case_config", "EFFECT_TYPES", "TWIN_EFFECT_TYPES"]
 
 RATE_HZ = 200.0
 NOISE_STD = 0.05                 # background torque-sensor noise [N·m] (present in data AND model unless withheld)
 EXTRA_TYPES = ("rigid_body", "payload", "signal_lag")
 EFFECT_TYPES = tuple(EFFECTS) + EXTRA_TYPES
+# twin mode: every effect of the shipped iiwa14_twin.yaml, plus the payload (TwinConfig.with_payload)
+TWIN_EFFECT_TYPES = ("viscous_coulomb", "hysteresis", "lost_motion", "ripple", "sensor_offset_gain", "torque_noise",
+                     "encoder_noise", "payload")
+TWIN_DOWNSAMPLE = 5              # 1 kHz twin log → 200 Hz recordings (= RATE_HZ)
+TWIN_SMOOTH_VELOCITY = 0.05      # rad/s, tanh width of the twin's Coulomb friction (explicit-friction stability)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -116,13 +134,15 @@ def rfma_like_motion(robot: RobotDescription, seed: int, duration: float, rate_h
 class BenchmarkCase:
     """``withheld``: effect types present in the data and absent from the model (empty = null case);
     ``modelled``: library effects present in the data and in the model (same parameters); ``magnitude`` scales
-    the withheld effects' base level; ``seed`` draws their parameters and the motion."""
+    the withheld effects' base level; ``seed`` draws their parameters and the motion; ``twin``: the recordings
+    come from the Drake twin diagram on RFMA trajectories (``duration_s`` unused) instead of the offline model."""
     name: str
     withheld: tuple[str, ...]
     magnitude: float
     seed: int
     modelled: tuple[str, ...] = ()
     duration_s: float = 20.0
+    twin: bool = False
 
 
 def _draw(kind: str, n: int, mag: float, rng: np.random.Generator) -> dict[str, Any]:
@@ -157,8 +177,12 @@ def _draw(kind: str, n: int, mag: float, rng: np.random.Generator) -> dict[str, 
     raise ValueError(f"unknown benchmark effect {kind!r}")
 
 
-def make_cases(quick: bool = False, seed: int = 0) -> list[BenchmarkCase]:
-    """The case list: every effect type × magnitudes (0.5, 1, 2; quick: 1) + null cases + two-effect cases."""
+def make_cases(quick: bool = False, seed: int = 0, twin: bool = False) -> list[BenchmarkCase]:
+    """The case list: every effect type × magnitudes (0.5, 1, 2; quick: 1) + null cases + two-effect cases.
+
+    ``twin``: the twin-diagram cases instead (:data:`TWIN_EFFECT_TYPES`; quick: 4 single, 1 null, 1 pair)."""
+    if twin:
+        return _twin_cases(quick, seed)
     rng = np.random.default_rng(seed)
     mags = (1.0,) if quick else (0.5, 1.0, 2.0)
     cases = []
@@ -175,6 +199,26 @@ def make_cases(quick: bool = False, seed: int = 0) -> list[BenchmarkCase]:
              ("rigid_body", "viscous_coulomb"), ("lost_motion", "sensor_offset_gain"), ("elasticity", "ripple")]
     for a, b in pairs[:1 if quick else len(pairs)]:
         cases.append(BenchmarkCase(f"{a}+{b}", (a, b), 1.0, int(rng.integers(1 << 30))))
+    return cases
+
+
+def _twin_cases(quick: bool, seed: int) -> list[BenchmarkCase]:
+    rng = np.random.default_rng(seed)
+    mags = (0.5, 1.0, 2.0)
+    kinds = ("viscous_coulomb", "hysteresis", "sensor_offset_gain", "payload") if quick else TWIN_EFFECT_TYPES
+    cases = []
+    for kind in kinds:
+        for m in (1.0,) if quick else mags:
+            cases.append(BenchmarkCase(f"twin:{kind}@{m:g}", (kind,), m, int(rng.integers(1 << 30)), twin=True))
+    library = [k for k in TWIN_EFFECT_TYPES if k not in ("payload", "torque_noise", "encoder_noise")]
+    for k in range(1 if quick else 4):
+        present = tuple(sorted(rng.choice(library, size=k % 3, replace=False))) if k else ()
+        cases.append(BenchmarkCase(f"twin:null#{k}" + (f"({'+'.join(present)})" if present else ""), (), 1.0,
+                                   int(rng.integers(1 << 30)), modelled=present, twin=True))
+    pairs = [("viscous_coulomb", "sensor_offset_gain"), ("hysteresis", "ripple"), ("payload", "viscous_coulomb"),
+             ("lost_motion", "sensor_offset_gain")]
+    for a, b in pairs[:1 if quick else len(pairs)]:
+        cases.append(BenchmarkCase(f"twin:{a}+{b}", (a, b), 1.0, int(rng.integers(1 << 30)), twin=True))
     return cases
 
 
@@ -198,7 +242,10 @@ def _perturbed(robot: RobotDescription, p: dict[str, Any]) -> RobotDescription:
 
 
 def generate_case_data(case: BenchmarkCase, robot: RobotDescription | None = None) -> CaseData:
-    """Training (2 recordings) and held-out (1) data of a case, and the model's effect list (module docstring)."""
+    """Training (2 recordings) and held-out (1) data of a case, and the model's effect list (module docstring).
+    Twin cases (``case.twin``) go through :func:`generate_twin_case_data` (``robot`` is then ignored)."""
+    if case.twin:
+        return generate_twin_case_data(case)
     robot = robot or load_robot("iiwa14_nominal")
     n = robot.n
     rng = np.random.default_rng(case.seed)
@@ -243,6 +290,62 @@ def generate_case_data(case: BenchmarkCase, robot: RobotDescription | None = Non
         recs.append(Recording(t=t, q=q_rec, tau=tau_meas, truth={"segment": seg},
                               meta={"robot": robot.name, "rate_hz": RATE_HZ, "source": "gap-benchmark (offline)"}))
         noises.append(nz)
+    return CaseData(robot, model_effects, model_params, recs[:2], recs[2:], noises[2:])
+
+
+def twin_case_config(case: BenchmarkCase) -> tuple[Any, dict[str, dict[str, Any]]]:
+    """The twin of a case: the shipped ``iiwa14_twin`` (robot ``iiwa14_identified``, its controller and its hidden
+    motor-side drive, whose reflected rotor inertia keeps the explicit friction stable at 1 ms) with its joint
+    effects replaced by the case's withheld and modelled ones (parameters drawn as in the offline mode, ``_draw``),
+    the payload via ``TwinConfig.with_payload``, and the background torque noise (``NOISE_STD``) unless that is
+    what is withheld. Returns ``(TwinConfig, modelled parameters)``."""
+    from proprio.diagrams.twin import load_twin_config
+
+    bad = sorted(set(case.withheld + case.modelled) - set(TWIN_EFFECT_TYPES))
+    if bad:
+        raise ValueError(f"twin case {case.name!r}: effect(s) {bad} cannot act in the twin; "
+                         f"valid: {list(TWIN_EFFECT_TYPES)}")
+    config = load_twin_config("iiwa14_twin").with_payload(None)
+    n = config.robot.n
+    rng = np.random.default_rng(case.seed)
+    params = {k: _draw(k, n, case.magnitude, rng) for k in case.withheld}
+    modelled = {k: _draw(k, n, 1.0, rng) for k in case.modelled}
+    for block in (params, modelled):
+        if "viscous_coulomb" in block:
+            block["viscous_coulomb"]["smooth_velocity"] = np.full(n, TWIN_SMOOTH_VELOCITY)
+    present = {**modelled, **{k: v for k, v in params.items() if k in EFFECTS}}
+    present.setdefault("torque_noise", {"std": np.full(n, NOISE_STD)})
+    config = config.with_effects([EFFECTS[k](n, **present[k]) for k in EFFECTS if k in present])
+    if "payload" in params:
+        config = config.with_payload(Payload(params["payload"]["mass"], tuple(params["payload"]["com"])))
+    return config, modelled
+
+
+def generate_twin_case_data(case: BenchmarkCase) -> CaseData:
+    """Twin-mode data of a case (module docstring): 2 training + 1 held-out recordings of
+    :func:`proprio.diagrams.twin.simulate_twin` (the :func:`twin_case_config` twin) along short RFMA trajectories
+    (2 scaffolds, 600–800 waypoints per exploration, own seed per recording), downsampled 1 kHz → 200 Hz; q̇, q̈ and
+    f_ext are dropped (the diagnosis differentiates q as for a real recorder). Model: ``iiwa14_identified`` without
+    friction + the modelled effects + the background noise."""
+    import dataclasses
+
+    from proprio.diagrams.twin import simulate_twin
+    from proprio.systems.rfma import generate_rfma, load_rfma_config
+
+    config, modelled = twin_case_config(case)
+    robot = config.robot.without_friction()
+    n = robot.n
+    model_effects = tuple(modelled) + (() if "torque_noise" in case.withheld else ("torque_noise",))
+    model_params = {**modelled, "torque_noise": {"std": np.full(n, NOISE_STD)}}
+    recs, noises = [], []
+    for k in range(3):
+        seed = (case.seed + 7919 * k) % (1 << 31)
+        _, timed = generate_rfma(load_rfma_config(scaffolds=2, seed=seed, waypoints=(600, 800)), config.robot)
+        rec = simulate_twin(dataclasses.replace(config, seed=seed), timed.trajectory, progress=False)
+        rec = rec.downsample(TWIN_DOWNSAMPLE)
+        meta = {**rec.meta, "source": "gap-benchmark (twin)"}
+        recs.append(Recording(t=rec.t, q=rec.q, tau=rec.tau, truth=rec.truth, meta=meta))
+        noises.append(rec.truth.get("tau_torque_noise", np.zeros_like(rec.tau)))
     return CaseData(robot, model_effects, model_params, recs[:2], recs[2:], noises[2:])
 
 
@@ -361,7 +464,7 @@ def write_results(results: list[CaseResult], out_dir: str | Path) -> tuple[dict[
     scores, text = summarise(results)
     out = Path(out_dir)
     atomic_write_text(out / "benchmark.txt", text + "\n")
-    rows = [{"case": r.case.name, "withheld": list(r.case.withheld), "magnitude": r.case.magnitude,
+    rows = [{"case": r.case.name, "source": "twin" if r.case.twin else "offline", "withheld": list(r.case.withheld), "magnitude": r.case.magnitude,
              "seed": r.case.seed, "modelled": list(r.case.modelled), "top": r.top, "selected": r.steps,
              "predicted_shrinkage": r.predicted_shrinkage, "measured_shrinkage": r.measured_shrinkage,
              "seconds": r.seconds, "error": r.error} for r in results]

@@ -69,15 +69,25 @@ class DrakeRobot:
         self.joints = [self.plant.GetJointByName(j.name) for j in desc.joints]
         self._q_index = np.array([j.position_start() for j in self.joints])
         self._v_index = np.array([j.velocity_start() for j in self.joints])
+        # the common case: the arm's joints are the plant's whole state, in order (no re-indexing per call)
+        self._in_order = (self.plant.num_positions() == self.plant.num_velocities() == desc.n
+                          and np.array_equal(self._q_index, np.arange(desc.n))
+                          and np.array_equal(self._v_index, np.arange(desc.n)))
 
     def _set(self, q: np.ndarray, qd: np.ndarray | None = None) -> None:
+        """Set the joint positions and, when given, velocities (position-only queries leave velocities alone)."""
+        if self._in_order:
+            self.plant.SetPositions(self.context, q)
+            if qd is not None:
+                self.plant.SetVelocities(self.context, qd)
+            return
         q_full = np.zeros(self.plant.num_positions())
         q_full[self._q_index] = q
         self.plant.SetPositions(self.context, q_full)
-        v_full = np.zeros(self.plant.num_velocities())
         if qd is not None:
+            v_full = np.zeros(self.plant.num_velocities())
             v_full[self._v_index] = qd
-        self.plant.SetVelocities(self.context, v_full)
+            self.plant.SetVelocities(self.context, v_full)
 
     def inverse_dynamics(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """``CalcInverseDynamics`` with gravity as the only applied force [N·m] (eq. 3.5 without friction)."""
@@ -101,7 +111,7 @@ class DrakeRobot:
         world = self.plant.world_frame()
         jac = self.plant.CalcJacobianSpatialVelocity(self.context, JacobianWrtVariable.kV, self.flange, p, world,
                                                      world)
-        return jac[:, self._v_index]
+        return jac if self._in_order else jac[:, self._v_index]
 
     def mass_matrix(self, q: np.ndarray) -> np.ndarray:
         self._set(q)

@@ -96,17 +96,19 @@ def wrench_from_joint_torque(jac: np.ndarray, tau_ext: np.ndarray, mapping: Wren
     jac = np.asarray(jac, dtype=float)
     tau_ext = np.asarray(tau_ext, dtype=float)
     a_t = np.swapaxes(jac[:, _VW[:3]] if mapping.force_only else jac[:, _VW], 1, 2)        # Jᵀ [N,n,k]
-    n = a_t.shape[1]
-    sqrt_w = np.ones(n) if mapping.joint_weights is None else np.sqrt(np.asarray(mapping.joint_weights, float))
-    if sqrt_w.shape != (n,):
-        raise ValueError(f"WrenchMapping.joint_weights has {sqrt_w.size} entries, the arm has {n} joints")
-    u, s, vt = np.linalg.svd(sqrt_w[:, None] * a_t, full_matrices=False)                 # [N,n,k],[N,k],[N,k,k]
+    if mapping.joint_weights is not None:                                                  # W^½ Jᵀ, W^½ τ
+        sqrt_w = np.sqrt(np.asarray(mapping.joint_weights, float))
+        if sqrt_w.shape != (a_t.shape[1],):
+            raise ValueError(f"WrenchMapping.joint_weights has {sqrt_w.size} entries, the arm has {a_t.shape[1]} "
+                             "joints")
+        a_t, tau_ext = sqrt_w[:, None] * a_t, sqrt_w * tau_ext
+    u, s, vt = np.linalg.svd(a_t, full_matrices=False)                                     # [N,n,k],[N,k],[N,k,k]
     s_min = s[:, -1]
     eps = mapping.sigma_threshold
     lam2 = np.where(s_min < eps, mapping.damping_max ** 2 * (1.0 - (s_min / eps) ** 2), 0.0)
     gain = s / (s ** 2 + lam2[:, None])                                                    # damped 1/σ
-    b = np.einsum("sik,si->sk", u, sqrt_w * tau_ext)                                       # Uᵀ W^½ τ
-    sol = np.einsum("sjk,sj->sk", vt, gain * b)                                            # V diag(gain) Uᵀ W^½ τ
+    b = (np.swapaxes(u, 1, 2) @ tau_ext[:, :, None])[:, :, 0]                              # Uᵀ W^½ τ
+    sol = (np.swapaxes(vt, 1, 2) @ (gain * b)[:, :, None])[:, :, 0]                        # V diag(gain) Uᵀ W^½ τ
     wrench = np.zeros((jac.shape[0], 6))
     wrench[:, :sol.shape[1]] = sol
     return wrench, np.prod(s, axis=1), s_min < eps

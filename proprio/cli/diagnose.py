@@ -35,8 +35,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         "gap-benchmark", help="withheld-effect benchmark of the gap diagnosis",
         description="Generate data with an effect the model lacks (every effect type, several magnitudes and "
         "seeds; null and two-effect cases), diagnose without being told, and print the confusion matrix, "
-        "top-1/top-2 accuracy, null false-positive rate and shrinkage-prediction error.")
-    b.add_argument("--quick", action="store_true", help="one magnitude per effect type, 2 null, 1 two-effect case")
+        "top-1/top-2 accuracy, null false-positive rate and shrinkage-prediction error. By default the data are "
+        "made offline (closed-form RFMA-like motion + rigid-body torque + the effect library); --twin simulates "
+        "them with the Drake twin diagram instead.")
+    b.add_argument("--twin", action="store_true",
+                   help="record every case with the twin diagram (iiwa14_twin with the case's effects, or payload, "
+                   "on short RFMA trajectories, 1 kHz downsampled to 200 Hz); covers the twin's effects "
+                   "(viscous_coulomb, hysteresis, lost_motion, ripple, sensor_offset_gain, torque_noise, "
+                   "encoder_noise) and payload; slower (~30 s of CPU per case)")
+    b.add_argument("--quick", action="store_true", help="one magnitude per effect type, 2 null, 1 two-effect case "
+                   "(with --twin: 4 effect types, 1 null, 1 two-effect case)")
     b.add_argument("--out", required=True, type=Path, help="directory for benchmark.txt / benchmark.json")
     b.add_argument("--workers", type=int, default=None, help="parallel processes (default: os.cpu_count())")
     b.add_argument("--seed", type=int, default=0, help="seed of the case list (default 0)")
@@ -91,7 +99,7 @@ def _benchmark(args: argparse.Namespace) -> int:
 
     if args.workers is not None and args.workers < 1:
         raise UserError(f"--workers must be >= 1, got {args.workers}")
-    cases = make_cases(quick=args.quick, seed=args.seed)
+    cases = make_cases(quick=args.quick, seed=args.seed, twin=args.twin)
     results = run_benchmark(cases, workers=args.workers)
     _, text = write_results(results, args.out)
     print(text)
