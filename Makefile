@@ -24,7 +24,7 @@ test: $(STAMP)
 	MPLBACKEND=Agg $(PY) -m pytest -q tests --nbmake notebooks
 
 benchmarks: $(STAMP)
-	for f in benchmarks/bench_*.py; do echo "== $$f"; $(PY) $$f || exit 1; done
+	for f in benchmarks/bench_*.py; do echo "== $$f"; OPENBLAS_NUM_THREADS=1 $(PY) $$f || exit 1; done
 
 clean:
 	rm -rf $(VENV) demo_output .pytest_cache

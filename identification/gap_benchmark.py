@@ -36,7 +36,7 @@ from __future__ import annotations
 import os
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -327,8 +327,6 @@ def generate_twin_case_data(case: BenchmarkCase) -> CaseData:
     (2 scaffolds, 600–800 waypoints per exploration, own seed per recording), downsampled 1 kHz → 200 Hz; q̇, q̈ and
     f_ext are dropped (the diagnosis differentiates q as for a real recorder). Model: ``iiwa14_identified`` without
     friction + the modelled effects + the background noise."""
-    import dataclasses
-
     from proprio.diagrams.twin import simulate_twin
     from proprio.systems.rfma import generate_rfma, load_rfma_config
 
@@ -341,7 +339,7 @@ def generate_twin_case_data(case: BenchmarkCase) -> CaseData:
     for k in range(3):
         seed = (case.seed + 7919 * k) % (1 << 31)
         _, timed = generate_rfma(load_rfma_config(scaffolds=2, seed=seed, waypoints=(600, 800)), config.robot)
-        rec = simulate_twin(dataclasses.replace(config, seed=seed), timed.trajectory, progress=False)
+        rec = simulate_twin(replace(config, seed=seed), timed.trajectory, progress=False)
         rec = rec.downsample(TWIN_DOWNSAMPLE)
         meta = {**rec.meta, "source": "gap-benchmark (twin)"}
         recs.append(Recording(t=rec.t, q=rec.q, tau=rec.tau, truth=rec.truth, meta=meta))

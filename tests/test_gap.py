@@ -7,7 +7,7 @@ import pytest
 from proprio.description import load_robot
 from proprio.dynamics import inverse_dynamics
 from proprio.identification.gap_attribution import DiagnosisError, SimModel, attribute
-from proprio.identification.gap_benchmark import rfma_like_motion
+from proprio.identification.gap_benchmark import BenchmarkCase, generate_case_data, make_cases, rfma_like_motion
 from proprio.identification.gap_localisation import gap_map, regime_families, travel_since_reversal
 from proprio.identification.gap_report import diagnose
 from proprio.recording import Recording
@@ -24,7 +24,6 @@ def robot():
 
 def _recs(robot, effects, seeds=(1, 2, 3), duration=14.0):
     out = []
-    n = robot.n
     for k, seed in enumerate(seeds):
         t, q, qd, qdd, seg = rfma_like_motion(robot, seed, duration, RATE)
         s = MotionSignals(t, q, qd, qdd)
@@ -126,3 +125,25 @@ def test_cli_reports_bad_model(tmp_path, capsys):
                "--out", str(tmp_path)])
     assert rc == 2
     assert "error" in capsys.readouterr().err
+
+
+def test_twin_case_records_the_withheld_effects_through_the_twin():
+    case = BenchmarkCase("twin:payload+sensor_offset_gain", ("payload", "sensor_offset_gain"), 1.0, 5,
+                         modelled=("ripple",), twin=True)
+    data = generate_case_data(case)
+    assert data.model_effects == ("ripple", "torque_noise") and data.robot.name == "iiwa14_identified"
+    assert not data.robot.has_friction
+    recs = data.train + data.holdout
+    assert len(data.train) == 2 and len(data.holdout) == 1
+    for rec in recs:
+        assert rec.meta["source"] == "gap-benchmark (twin)" and rec.rate_hz == pytest.approx(200.0)
+        assert set(rec.meta["effects"]) == {"ripple", "sensor_offset_gain", "torque_noise"}
+        assert rec.meta["payload"]["mass"] > 0 and rec.qd is None and rec.qdd is None
+    assert recs[0].q.shape != recs[1].q.shape or not np.allclose(recs[0].q, recs[1].q)   # own RFMA seeds
+    np.testing.assert_array_equal(data.noise_holdout[0], data.holdout[0].truth["tau_torque_noise"])
+    # the twin's τ_J before the sensor = rigid-body torque of the true motion incl. payload (no link friction here)
+    truth = data.holdout[0].truth
+    np.testing.assert_allclose(truth["tau_J_true"], truth["tau_rbd"], atol=1e-6)
+    with pytest.raises(ValueError, match="cannot act in the twin"):
+        generate_case_data(BenchmarkCase("x", ("rigid_body",), 1.0, 0, twin=True))
+    assert all(c.twin for c in make_cases(quick=True, twin=True))
