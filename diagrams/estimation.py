@@ -38,7 +38,7 @@ from proprio.systems.observers import (JacobianWrenchObserver, MomentumObserver,
                                        momentum_observer, wrench_from_joint_torque)
 
 __all__ = ["TorqueModel", "RigidBodyTorqueModel", "load_torque_model", "TorqueModelSystem", "FilterSettings",
-           "preprocess", "check_recording_matches", "resample_uniform", "AddWrenchObservers",
+           "preprocess", "lowpass", "check_recording_matches", "resample_uniform", "AddWrenchObservers",
            "build_estimation_diagram", "EstimationResult", "estimate_wrench", "estimate_wrench_offline", "OBSERVERS",
            "DEFAULT_GAIN"]
 
@@ -156,16 +156,19 @@ def preprocess(rec: Recording, settings: FilterSettings = FilterSettings()) -> d
     if n_s < settings.min_samples(h):
         raise RecordingError(f"recording: 't' has {n_s} samples; the derivative filters ({settings.cutoff_hz:g} Hz "
                              f"cutoff at {1 / h:g} Hz) need at least {settings.min_samples(h)}")
-    sos = butter(settings.order, settings.cutoff_hz / nyquist, output="sos")
-    pad = min(n_s - 1, int(np.ceil(settings.edge_cycles / (settings.cutoff_hz * h))))
+    q = lowpass(rec.q, h, settings)
+    qd = lowpass(np.gradient(q, h, axis=0), h, settings)
+    qdd = lowpass(np.gradient(qd, h, axis=0), h, settings)
+    return {"t": rec.t - rec.t[0], "q": q, "qd": qd, "qdd": qdd, "tau": lowpass(rec.tau, h, settings), "time_step": h}
 
-    def low(x: np.ndarray) -> np.ndarray:
-        return sosfiltfilt(sos, x, axis=0, padlen=pad)
 
-    q = low(rec.q)
-    qd = low(np.gradient(q, h, axis=0))
-    qdd = low(np.gradient(qd, h, axis=0))
-    return {"t": rec.t - rec.t[0], "q": q, "qd": qd, "qdd": qdd, "tau": low(rec.tau), "time_step": h}
+def lowpass(x: np.ndarray, time_step: float, settings: FilterSettings) -> np.ndarray:
+    """The zero-phase Butterworth low-pass of :func:`preprocess` (forward–backward, ``settings.order`` at
+    ``settings.cutoff_hz``, padded by ``edge_cycles`` periods of the cutoff) on any ``[N, ...]`` channel sampled every
+    ``time_step`` [s]."""
+    sos = butter(settings.order, settings.cutoff_hz * 2.0 * time_step, output="sos")
+    pad = min(x.shape[0] - 1, int(np.ceil(settings.edge_cycles / (settings.cutoff_hz * time_step))))
+    return sosfiltfilt(sos, x, axis=0, padlen=pad)
 
 
 def check_recording_matches(rec: Recording, desc: RobotDescription) -> Recording:

@@ -37,7 +37,7 @@ from proprio.kinematics import point_jacobian
 from proprio.payload import Payload
 from proprio.recording import Recording, save_recording
 from proprio.diagrams.estimation import (DEFAULT_GAIN, OBSERVERS, EstimationResult, FilterSettings, TorqueModel,
-                                         estimate_wrench, load_torque_model, preprocess,
+                                         estimate_wrench, load_torque_model, lowpass, preprocess,
                                          resample_uniform)
 from proprio.systems.observers import WrenchMapping, wrench_from_joint_torque
 
@@ -71,12 +71,6 @@ def validation_trajectory(seconds: float, seed: int = 7, scaffolds: int = 3,
     return sub
 
 
-def _filtered(x: np.ndarray, h: float, filters: FilterSettings) -> np.ndarray:
-    """The zero-phase filter :func:`preprocess` applies to τ, applied to any ``[N,n]`` channel."""
-    rec = Recording(t=np.arange(x.shape[0]) * h, q=np.zeros_like(x), tau=x)
-    return preprocess(rec, filters)["tau"]
-
-
 def error_budget(model: TorqueModel, rec: Recording, mapping: WrenchMapping = WrenchMapping(),
                  filters: FilterSettings = FilterSettings()) -> dict[str, np.ndarray]:
     """Sources of the Jacobian observer's force error on a twin Recording (module docstring): ``name → [N,3]`` [N].
@@ -97,7 +91,7 @@ def error_budget(model: TorqueModel, rec: Recording, mapping: WrenchMapping = Wr
     q_true, qd, qdd = rec.truth["q_true"], rec.qd, rec.qdd
 
     def low(x: np.ndarray) -> np.ndarray:
-        return _filtered(x, h, filters)
+        return lowpass(x, h, filters)
 
     rbd_model_true = inverse_dynamics(desc, q_true, qd, qdd)
     terms = {

@@ -68,7 +68,7 @@ from proprio.systems.sensors import PositionSensor, TorqueSensor
 from proprio.systems.trajectories import AddTrajectorySource, sample_trajectory
 
 __all__ = ["TwinConfig", "TwinConfigError", "load_twin_config", "TwinDiagram", "build_twin_diagram",
-           "simulate_twin", "payload_wrench", "hysteresis_test_trajectory", "run_hysteresis_test", "demo_twin"]
+           "simulate_twin", "payload_wrench", "hysteresis_test_trajectory", "run_hysteresis_test"]
 
 _TOP_KEYS = {"name", "robot", "time_step", "log_rate_hz", "seed", "controller", "drive", "payload", "effects"}
 _CONTROLLER_KEYS = {"kp", "ki", "kd", "payload_model"}
@@ -511,23 +511,3 @@ def run_hysteresis_test(config: TwinConfig, out_dir: str | Path, progress: bool 
     png = save_figure(fig, out / "hysteresis_test.png")
     save_recording(rec, out / "hysteresis_test.npz")
     return png, rec
-
-
-def demo_twin(out_dir: str | Path, trajectory: Trajectory, seconds: float = 20.0,
-              config: str | Path | TwinConfig = "iiwa14_twin", progress: bool = True) -> Recording:
-    """Simulate the calibrated twin on the first ``seconds`` of ``trajectory`` (whole segments) and save
-    ``twin.npz`` (the Recording) and ``twin_diagram.dot`` (Graphviz of the diagram) in ``out_dir`` (for
-    ``proprio demo``)."""
-    from proprio.io import atomic_write_text
-    from proprio.recording import save_recording
-
-    cfg = config if isinstance(config, TwinConfig) else load_twin_config(config)
-    t0 = trajectory.start_time()
-    end = min(trajectory.end_time(), t0 + seconds)
-    if isinstance(trajectory, PiecewisePolynomial) and end < trajectory.end_time():
-        trajectory = trajectory.slice(0, int(np.searchsorted(trajectory.get_segment_times(), end, side="left")))
-    rec = simulate_twin(cfg, trajectory, progress=progress)
-    save_recording(rec, Path(out_dir) / "twin.npz")
-    atomic_write_text(Path(out_dir) / "twin_diagram.dot",
-                      build_twin_diagram(cfg, trajectory).diagram.GetGraphvizString(max_depth=1))
-    return rec

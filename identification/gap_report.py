@@ -20,7 +20,7 @@ from proprio.identification.gap_localisation import (GapMap, Spectra, gap_map, p
 from proprio.io import atomic_write_text, save_figure
 from proprio.recording import Recording
 
-__all__ = ["Diagnosis", "diagnose", "demo_diagnosis", "verdict_text"]
+__all__ = ["Diagnosis", "diagnose", "verdict_text"]
 
 PLAIN = {"viscous_coulomb": "viscous + Coulomb friction", "stribeck": "Stribeck (static) friction",
          "hysteresis": "torque-sensor hysteresis", "lost_motion": "lost motion after reversals",
@@ -257,12 +257,6 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
     atomic_write_text(out / "diagnosis.json", json.dumps(summary, indent=1))
     files.update(report_md=out / "report.md", report_html=out / "report.html", json=out / "diagnosis.json")
     return Diagnosis(gm, sp, att, verdict, files)
-
-
-def demo_diagnosis(model: SimModel | RobotDescription, train_recs: Sequence[Recording],
-                   holdout_recs: Sequence[Recording], out_dir: str | Path) -> str:
-    """For ``proprio demo``: run :func:`diagnose` and return the plain-language verdict."""
-    return diagnose(model, train_recs, holdout_recs, out_dir).verdict
 
 
 __all__ += ["DiagnosisError"]

@@ -31,7 +31,6 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from scipy.signal import butter, filtfilt
 
 __all__ = ["R_MAX_DEG", "DEFAULT_DEADBAND_DEG", "TauRbdProvider", "rotational_displacement", "ReversalEncoder",
            "feature_matrix", "feature_names", "feature_columns", "filtered_derivatives", "rbd_provider"]
@@ -158,14 +157,15 @@ def filtered_derivatives(t: np.ndarray, q: np.ndarray, cutoff_hz: float, order: 
                          ) -> tuple[np.ndarray, np.ndarray]:
     """q̇, q̈ ``[N, n]`` by central differences (``np.gradient`` on the time stamps) of q, each followed by a
     zero-phase Butterworth low-pass (forward–backward, §4.1) of ``order`` at ``cutoff_hz``. Offline only."""
+    from proprio.identification.preprocessing import PreprocessConfig, differentiate
+
     t = np.asarray(t, dtype=float)
     rate = 1.0 / float(np.median(np.diff(t)))
     if not 0 < cutoff_hz < rate / 2:
         raise ValueError(f"derivative_cutoff_hz = {cutoff_hz} must lie in (0, {rate / 2:.1f}) Hz (Nyquist of the data)")
-    b, a = butter(order, cutoff_hz / (rate / 2))
-    qd = filtfilt(b, a, np.gradient(q, t, axis=0), axis=0)
-    qdd = filtfilt(b, a, np.gradient(qd, t, axis=0), axis=0)
-    return qd, qdd
+    cfg = PreprocessConfig(cutoff_hz=cutoff_hz, order=order)
+    qd = differentiate(t, q, cfg)
+    return qd, differentiate(t, qd, cfg)
 
 
 def rbd_provider(desc) -> TauRbdProvider:

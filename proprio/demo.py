@@ -24,10 +24,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-import numpy as np
 
 from proprio.description import load_robot
-from proprio.io import atomic_write_text
+from proprio.io import atomic_write_text, save_figure
 from proprio.recording import save_recording
 
 __all__ = ["Stage", "STAGES", "run_demo", "DEFAULT_OUT"]
@@ -63,9 +62,8 @@ def _stage_trajectory(ctx: dict[str, Any], out: Path) -> list[Path]:
     traj, path = demo_trajectory(out, scaffolds=RFMA_SCAFFOLDS, seed=0)
     ctx["rfma"] = traj
     desc = load_robot("iiwa14_identified")
-    fig = trajectory_figure(traj, desc, title="proprio demo: RFMA trajectory (Fig. 4.9 views)")
-    png = out / "rfma_demo.png"
-    fig.savefig(png, dpi=110)
+    png = save_figure(trajectory_figure(traj, desc, title="proprio demo: RFMA trajectory (Fig. 4.9 views)"),
+                      out / "rfma_demo.png")
     print(f"  RFMA: {RFMA_SCAFFOLDS} scaffolds, {traj.end_time():.1f} s of motion")
     return [path, png]
 
@@ -73,11 +71,10 @@ def _stage_trajectory(ctx: dict[str, Any], out: Path) -> list[Path]:
 def _stage_twin(ctx: dict[str, Any], out: Path) -> list[Path]:
     from proprio.cli.inspect import format_summary, plot_recording, summarize_recording
     from proprio.diagrams.twin import build_twin_diagram, load_twin_config, simulate_twin
+    from proprio.systems.trajectories import truncate_trajectory
 
     cfg = load_twin_config(TWIN)
-    traj = ctx["rfma"]
-    end = min(traj.end_time(), TWIN_SECONDS)
-    traj = traj.slice(0, int(np.searchsorted(traj.get_segment_times(), end, side="left")))
+    traj = truncate_trajectory(ctx["rfma"], TWIN_SECONDS)
     t0 = time.perf_counter()
     rec = simulate_twin(cfg, traj, progress=False)
     wall = time.perf_counter() - t0

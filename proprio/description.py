@@ -629,6 +629,9 @@ def load_robot(name_or_path: str | Path) -> RobotDescription:
         p = p / "robot.yaml"
     if p.suffix.lower() == ".urdf" and p.exists():
         return robot_from_urdf(p)
+    if p.exists() and p.suffix.lower() not in (".yaml", ".yml"):
+        raise DescriptionError(f"{p}: not a robot description — give a built-in name ({', '.join(builtin_robots())}), "
+                               "a .yaml or .urdf file, or a directory with robot.yaml")
     if p.exists():
         text = p.read_text()
         source = str(p)

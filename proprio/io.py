@@ -5,9 +5,9 @@ import contextlib
 import os
 import tempfile
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Iterator
 
-__all__ = ["atomic_path", "atomic_write_text", "atomic_write_bytes", "atomic_save", "save_figure"]
+__all__ = ["atomic_path", "atomic_write_text", "atomic_write_bytes", "save_figure"]
 
 
 @contextlib.contextmanager
@@ -41,12 +41,6 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
 
 def atomic_write_text(path: str | Path, text: str) -> None:
     atomic_write_bytes(path, text.encode())
-
-
-def atomic_save(path: str | Path, writer: Callable[[Path], None]) -> None:
-    """Call ``writer(tmp_path)`` and atomically move the result to ``path``."""
-    with atomic_path(path) as tmp:
-        writer(tmp)
 
 
 def save_figure(fig: Any, path: str | Path, dpi: int = 110) -> Path:

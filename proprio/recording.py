@@ -30,9 +30,10 @@ from proprio.description import RobotDescription
 from proprio.io import atomic_path
 
 __all__ = ["Recording", "RecordingError", "save_recording", "load_recording", "validate_recording",
-           "recording_from_csv", "load_lwr4", "is_lwr4_file"]
+           "recording_from_csv", "load_lwr4", "is_lwr4_file", "LWR4_KEYS"]
 
 TRUTH_PREFIX = "truth__"
+LWR4_KEYS = frozenset({"times", "positions", "torques"})   # FloBaRoID's measurement layout
 _OPTIONAL = ("qd", "qdd", "f_ext")
 
 
@@ -187,7 +188,7 @@ def is_lwr4_file(path: str | Path) -> bool:
     """True if ``path`` is an npz in FloBaRoID's measurement layout (``times``, ``positions``, ``torques``)."""
     try:
         with np.load(path, allow_pickle=False) as z:
-            return {"times", "positions", "torques"} <= set(z.files)
+            return LWR4_KEYS <= set(z.files)
     except (OSError, ValueError, zipfile.BadZipFile):
         return False
 
@@ -204,7 +205,7 @@ def load_recording(path: str | Path, robot: RobotDescription | None = None) -> R
     try:
         with np.load(path, allow_pickle=False) as z:
             files = set(z.files)
-            if {"times", "positions", "torques"} <= files and "t" not in files:
+            if LWR4_KEYS <= files and "t" not in files:
                 return _lwr4_from_npz(z, path, robot)
             missing = [k for k in ("t", "q", "tau") if k not in files]
             if missing:

@@ -31,7 +31,8 @@ effect (YAML key)             place   model / calibration source
 ============================ ======= =============================================================================
 
 Hysteresis and lost motion share one state, the *reversal travel* ``r`` (signed joint travel since the last
-direction reversal, :func:`reversal_travel`), which is also the thesis' feature ``r`` (§4.2). Reversals are detected
+direction reversal, :func:`reversal_travel`) — the quantity behind the thesis' feature ``r`` (§4.2), which the learning
+stack encodes causally with a position deadband and ±10° clipping in :mod:`proprio.learning.features`. Reversals are detected
 with a velocity deadband (Schmitt trigger on q̇) so that noise around standstill does not create spurious reversals;
 the travel is measured from the extremum of q reached before the reversal. Stateful effects are evaluated per
 segment between reversals; the values carried across segments follow an affine recursion that is solved with a

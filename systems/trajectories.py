@@ -54,7 +54,7 @@ from proprio.io import atomic_path
 
 __all__ = ["Phase", "TimedPath", "time_parameterize", "sample_trajectory", "check_limits", "JointTrajectorySource",
            "AddTrajectorySource", "AddReplaySource", "replay_trajectory", "save_trajectory", "load_trajectory",
-           "TrajectoryFileError"]
+           "TrajectoryFileError", "truncate_trajectory"]
 
 TRAJECTORY_FORMAT = "proprio-trajectory/v1"
 
@@ -199,6 +199,17 @@ def time_parameterize(phases: Sequence[Phase], desc: RobotDescription, knot_dt: 
 # ---------------------------------------------------------------------------------------------------------------
 # sampling and checks
 # ---------------------------------------------------------------------------------------------------------------
+def truncate_trajectory(traj: PiecewisePolynomial, seconds: float) -> PiecewisePolynomial:
+    """The first ``seconds`` [s] of ``traj`` in whole segments (ends at the first break at or after
+    ``start + seconds``; the whole trajectory if it is shorter)."""
+    if not seconds > 0:
+        raise ValueError(f"seconds must be > 0, got {seconds}")
+    end = traj.start_time() + seconds
+    if end >= traj.end_time():
+        return traj
+    return traj.slice(0, int(np.searchsorted(traj.get_segment_times(), end, side="left")))
+
+
 def sample_trajectory(traj: Trajectory, rate_hz: float, t0: float | None = None,
                       t1: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Sample ``traj`` at ``rate_hz`` over [t0, t1] (default: its whole span), vectorised in Drake's C++.

@@ -18,7 +18,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Run every pipeline stage on the built-in default, the calibrated iiwa 14 twin: an RFMA "
                     "trajectory, the twin simulated in Drake, identification on the optimal excitation, the payload "
                     "experiment with both wrench observers, the gap diagnosis against the nominal CAD model and a "
-                    "hybrid residual network. Prints where each output is (about 3-5 min on 2 cores).")
+                    "hybrid residual network. Prints where each output is (about 2.5 min on 2 idle cores).")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, metavar="DIR",
                    help=f"output directory (default {DEFAULT_OUT}/)")
     p.set_defaults(func=run)

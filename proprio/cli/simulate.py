@@ -14,7 +14,7 @@ __all__ = ["register", "load_any_trajectory"]
 def load_any_trajectory(path: str | Path):
     """A trajectory file for the twin: a ``proprio trajectory`` file (``breaks, q, qd, meta``), or a Recording
     ``.npz`` whose q(t) is replayed (shape-preserving cubic through the samples)."""
-    from proprio.recording import load_recording
+    from proprio.recording import LWR4_KEYS, load_recording
     from proprio.systems.trajectories import load_trajectory, replay_trajectory
 
     path = Path(path)
@@ -27,7 +27,7 @@ def load_any_trajectory(path: str | Path):
         raise UserError(f"--trajectory: {path} is not a readable .npz ({exc})") from exc
     if {"breaks", "q", "qd"} <= keys:
         return load_trajectory(path)[0]
-    if {"t", "q"} <= keys or {"times", "positions"} <= keys:
+    if {"t", "q"} <= keys or LWR4_KEYS <= keys:
         return replay_trajectory(load_recording(path), interpolation="cubic")
     raise UserError(f"--trajectory: {path} is neither a proprio trajectory (breaks, q, qd) nor a Recording (t, q, tau)")
 
@@ -36,6 +36,7 @@ def _simulate(args: argparse.Namespace) -> int:
     import time
 
     from proprio.diagrams.twin import load_twin_config, simulate_twin
+    from proprio.systems.trajectories import truncate_trajectory
     from proprio.payload import Payload
     from proprio.recording import save_recording
 
@@ -50,8 +51,7 @@ def _simulate(args: argparse.Namespace) -> int:
     if args.seconds is not None:
         if args.seconds <= 0:
             raise UserError(f"--seconds must be > 0, got {args.seconds}")
-        end = min(traj.end_time(), traj.start_time() + args.seconds)
-        traj = traj.slice(0, int(np.searchsorted(traj.get_segment_times(), end, side="left")))
+        traj = truncate_trajectory(traj, args.seconds)
     payload = None
     if args.payload_kg is not None:
         if args.payload_kg < 0:
