@@ -103,11 +103,13 @@ def _stage_excitation(ctx: dict[str, Any], out: Path) -> list[Path]:
 
 
 def _stage_identification(ctx: dict[str, Any], out: Path) -> list[Path]:
-    from proprio.cli.identify import demo_identification
+    from proprio.cli.identify import identify_recordings
+    from proprio.identification.model_io import save_model
 
-    model, table = demo_identification([ctx["twin_excitation"]], [ctx["twin_rfma"]], load_robot(NOMINAL_ROBOT), out,
+    model, table = identify_recordings([ctx["twin_excitation"]], [ctx["twin_rfma"]], load_robot(NOMINAL_ROBOT),
                                        method="sdp")
     ctx["identified_model_path"] = out / "identified_model.npz"
+    save_model(model, ctx["identified_model_path"])
     print(f"  {model.method.upper()} on the nominal kinematics: {model.base.n_base} base parameters + offsets")
     print(_indent(table))
     atomic_write_text(out / "identification.txt", table + "\n")

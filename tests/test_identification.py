@@ -213,15 +213,14 @@ def test_real_lwr_identification_beats_flobaroid(lwr_dir, tmp_path, capsys):
     assert rmse.mean() < flobaroid.mean() + 0.01
 
 
-def test_demo_identification_on_recordings(tmp_path, robot, prior, data):
-    from proprio.cli.identify import demo_identification
+def test_identify_recordings(robot, prior, data):
+    from proprio.cli.identify import identify_recordings
     from proprio.recording import Recording
 
     q, qd, qdd, tau = data
     t = np.arange(q.shape[0]) * 0.01
     train = Recording(t=t[:1500], q=q[:1500], tau=tau[:1500], qd=qd[:1500], qdd=qdd[:1500])
     val = Recording(t=t[1500:], q=q[1500:], tau=tau[1500:], qd=qd[1500:], qdd=qdd[1500:])
-    model, text = demo_identification([train], [val], prior, tmp_path, coulomb_velocity_scale=0.0)
-    assert (tmp_path / "identified_model.npz").exists()
+    model, text = identify_recordings([train], [val], prior, coulomb_velocity_scale=0.0)
     assert "validation" in text and "mean ||e||_2" in text
     np.testing.assert_allclose(model.torque(q[1500:], qd[1500:], qdd[1500:]), tau[1500:], atol=1e-6)

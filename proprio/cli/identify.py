@@ -3,31 +3,22 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 
 import numpy as np
 
 from proprio.cli import UserError
 
-__all__ = ["register", "demo_identification", "load_training_data"]
+__all__ = ["register", "identify_recordings"]
 
 
-def load_training_data(paths: list[str | Path], robot=None, trim: int = 0
-                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list]:
-    """Concatenate ``q, qd, qdd, tau`` of Recording files (``.npz``; FloBaRoID LWR files are detected by their
-    ``positions/torques/times`` keys), dropping ``trim`` samples at both ends of each (filter start-up).
-    Recordings without ``qd``/``qdd`` get them by the §4.1 preprocessing chain (central differences +
-    Butterworth)."""
-    from proprio.identification.preprocessing import PreprocessConfig, differentiate
+def _stack(recs: list, trim: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Concatenate ``q, qd, qdd, tau`` of Recordings, dropping ``trim`` samples at both ends of each (filter
+    start-up). Recordings without ``qd``/``qdd`` get them by the §4.1 preprocessing chain (central differences +
+    Butterworth, ``excitation.yaml``)."""
     from proprio.identification.excitation import load_excitation_config
-    from proprio.recording import load_recording
+    from proprio.identification.preprocessing import PreprocessConfig, differentiate
 
-    recs = [load_recording(p, robot) for p in paths]
-    return (*_stack(recs, trim, PreprocessConfig.from_dict(load_excitation_config()["preprocessing"]),
-                    differentiate), recs)
-
-
-def _stack(recs, trim, cfg, differentiate):
+    cfg = PreprocessConfig.from_dict(load_excitation_config()["preprocessing"])
     parts = {k: [] for k in ("q", "qd", "qdd", "tau")}
     for rec in recs:
         if rec.n_samples <= 2 * trim:
@@ -40,49 +31,36 @@ def _stack(recs, trim, cfg, differentiate):
     return tuple(np.concatenate(parts[k]) for k in ("q", "qd", "qdd", "tau"))
 
 
-def demo_identification(train_recs: list, validate_recs: list, robot, out_dir: str | Path,
-                        method: str = "ols", trim: int = 100, offsets: bool = True,
-                        coulomb_velocity_scale: float = 0.02):
-    """Identify ``robot`` (a RobotDescription: kinematics + a-priori inertials) on Recording objects, validate on
-    others, save ``out_dir/identified_model.npz`` and return ``(model, table_text)`` (Table 4.4-style)."""
+def identify_recordings(train_recs: list, validate_recs: list, robot, method: str = "ols", trim: int = 100,
+                        offsets: bool = True, coulomb_velocity_scale: float = 0.02):
+    """Identify ``robot`` (a RobotDescription: kinematics + a-priori inertials) on Recordings and validate on
+    others. Returns ``(model, table_text)`` with the Table 4.4-style per-joint MSE/σ on training and validation."""
     from proprio.identification.estimators import identify, torque_error_table
-    from proprio.identification.excitation import load_excitation_config
-    from proprio.identification.model_io import save_model
-    from proprio.identification.preprocessing import PreprocessConfig, differentiate
 
-    cfg = PreprocessConfig.from_dict(load_excitation_config()["preprocessing"])
-    q, qd, qdd, tau = _stack(train_recs, trim, cfg, differentiate)
-    model = identify(robot, q, qd, qdd, tau, method, coulomb_velocity_scale=coulomb_velocity_scale,
-                     offsets=offsets)
-    text = _tables(model, (q, qd, qdd, tau), _stack(validate_recs, trim, cfg, differentiate) if validate_recs
-                   else None, torque_error_table)
-    out = Path(out_dir)
-    save_model(model, out / "identified_model.npz")
-    return model, text
-
-
-def _tables(model, train, validate, torque_error_table) -> str:
+    train = _stack(train_recs, trim)
+    model = identify(robot, *train, method, coulomb_velocity_scale=coulomb_velocity_scale, offsets=offsets)
     parts = [torque_error_table(train[3], model.torque(*train[:3]), "training (Table 4.4 layout)")[0]]
-    if validate is not None:
-        parts.append(torque_error_table(validate[3], model.torque(*validate[:3]), "validation")[0])
-    return "\n\n".join(parts)
+    if validate_recs:
+        val = _stack(validate_recs, trim)
+        parts.append(torque_error_table(val[3], model.torque(*val[:3]), "validation")[0])
+    return model, "\n\n".join(parts)
 
 
 def _identify(args: argparse.Namespace) -> int:
     from proprio.description import load_robot
-    from proprio.identification.estimators import identify, torque_error_table
     from proprio.identification.model_io import save_model
+    from proprio.recording import load_recording
 
     robot = load_robot(args.robot)
-    q, qd, qdd, tau, _ = load_training_data(args.train, robot, args.trim)
-    model = identify(robot, q, qd, qdd, tau, args.method, coulomb_velocity_scale=args.coulomb_velocity_scale,
-                     offsets=args.offsets)
-    validate = load_training_data(args.validate, robot, args.trim)[:4] if args.validate else None
-    print(f"{args.method.upper()} on {q.shape[0]} samples: {model.phi_b.size} parameters "
+    train = [load_recording(p, robot) for p in args.train]
+    validate = [load_recording(p, robot) for p in args.validate]
+    model, text = identify_recordings(train, validate, robot, args.method, args.trim, args.offsets,
+                                      args.coulomb_velocity_scale)
+    print(f"{args.method.upper()} on {model.n_train_samples} samples: {model.phi_b.size} parameters "
           f"({model.base.n_base} base{' + offsets' if args.offsets else ''})")
     if args.show_parameters:
         print(model.parameter_table())
-    print(_tables(model, (q, qd, qdd, tau), validate, torque_error_table))
+    print(text)
     save_model(model, args.out)
     print(f"wrote {args.out}")
     return 0
