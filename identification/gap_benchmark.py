@@ -324,11 +324,12 @@ def twin_case_config(case: BenchmarkCase) -> tuple[Any, dict[str, dict[str, Any]
 def generate_twin_case_data(case: BenchmarkCase) -> CaseData:
     """Twin-mode data of a case (module docstring): 2 training + 1 held-out recordings of
     :func:`proprio.diagrams.twin.simulate_twin` (the :func:`twin_case_config` twin) along short RFMA trajectories
-    (2 scaffolds, 600–800 waypoints per exploration, own seed per recording), downsampled 1 kHz → 200 Hz; q̇, q̈ and
+    (2 scaffolds, 600–800 waypoints per exploration, own seed per recording; a seed for which RFMA finds no
+    collision-free reach is replaced by a derived one), downsampled 1 kHz → 200 Hz; q̇, q̈ and
     f_ext are dropped (the diagnosis differentiates q as for a real recorder). Model: ``iiwa14_identified`` without
     friction + the modelled effects + the background noise."""
     from proprio.diagrams.twin import simulate_twin
-    from proprio.systems.rfma import generate_rfma, load_rfma_config
+    from proprio.systems.rfma import RfmaError, generate_rfma, load_rfma_config
 
     config, modelled = twin_case_config(case)
     robot = config.robot.without_friction()
@@ -338,7 +339,15 @@ def generate_twin_case_data(case: BenchmarkCase) -> CaseData:
     recs, noises = [], []
     for k in range(3):
         seed = (case.seed + 7919 * k) % (1 << 31)
-        _, timed = generate_rfma(load_rfma_config(scaffolds=2, seed=seed, waypoints=(600, 800)), config.robot)
+        for attempt in range(5):                # RFMA may find no collision-free reach: next seed
+            try:
+                _, timed = generate_rfma(load_rfma_config(scaffolds=2, seed=seed, waypoints=(600, 800)),
+                                         config.robot)
+                break
+            except RfmaError:
+                if attempt == 4:
+                    raise
+                seed = (seed + 104729) % (1 << 31)
         rec = simulate_twin(replace(config, seed=seed), timed.trajectory, progress=False)
         rec = rec.downsample(TWIN_DOWNSAMPLE)
         meta = {**rec.meta, "source": "gap-benchmark (twin)"}
@@ -364,7 +373,11 @@ def run_case(case: BenchmarkCase) -> CaseResult:
     from proprio.identification.gap_attribution import SimModel, attribute
 
     t0 = time.perf_counter()
-    data = generate_case_data(case)
+    try:
+        data = generate_case_data(case)
+    except ValueError as exc:                  # e.g. a twin whose friction is too stiff for its time step
+        return CaseResult(case, [], [], float("nan"), float("nan"), time.perf_counter() - t0,
+                          error=f"data: {exc}")
     n = data.robot.n
     model = SimModel(data.robot, tuple(EFFECTS[k](n, **data.model_params[k]) for k in data.model_effects))
     try:
