@@ -25,32 +25,16 @@ import numpy as np
 from scipy import signal
 
 from proprio.io import save_figure
+from proprio.systems.joint_effects import reversal_travel
 
-__all__ = ["RegimeFamily", "GapMap", "Spectra", "travel_since_reversal", "regime_families", "gap_map",
+__all__ = ["RegimeFamily", "GapMap", "Spectra", "regime_families", "gap_map",
            "spectra", "order_spectrum", "peak_orders", "plot_gap_map", "plot_spectra"]
 
 REVERSAL_WINDOW_RAD = np.radians(1.0)       # lost-motion window after a reversal (§2.1)
+REVERSAL_DEADBAND = 1e-3                     # rad/s: |q̇| below this never counts as a direction change
 HYSTERESIS_SATURATION_RAD = np.radians(6.0)  # hysteresis saturates after ≈6° of travel (§2.1, Fig. 2.5)
 SPEED_EDGES = (0.0, 0.02, 0.10, 0.30, 0.60, np.inf)   # |q̇| / velocity limit
 REACH_SPEED_FRACTION = 0.35                 # reach segments run at 60–90 %, exploration at 10–30 % (Table 2.3)
-
-
-def travel_since_reversal(q: np.ndarray, qd: np.ndarray, deadband: float = 1e-3) -> np.ndarray:
-    """Signed joint travel r [rad] since each joint's last motion reversal, ``[N,n]`` (the thesis' rotational
-    displacement r, §4.2, unclipped). A reversal is a sign change of q̇ outside ``|q̇| < deadband`` [rad/s];
-    r restarts at 0 there. Vectorised: the start index of the current run is a running maximum."""
-    q, qd = np.atleast_2d(q), np.atleast_2d(qd)
-    n_s, n = q.shape
-    direction = np.sign(qd) * (np.abs(qd) > deadband)
-    # carry the last non-zero direction forward through the dead band
-    idx = np.where(direction != 0, np.arange(n_s)[:, None], 0)
-    idx = np.maximum.accumulate(idx, axis=0)
-    held = np.take_along_axis(direction, idx, axis=0)
-    flip = np.zeros((n_s, n), dtype=bool)
-    flip[1:] = (held[1:] != held[:-1]) & (held[:-1] != 0)
-    start = np.where(flip, np.arange(n_s)[:, None], 0)
-    start = np.maximum.accumulate(start, axis=0)
-    return q - np.take_along_axis(q, start, axis=0)
 
 
 @dataclass(frozen=True)
@@ -89,7 +73,7 @@ def regime_families(q: np.ndarray, qd: np.ndarray, lower: np.ndarray, upper: np.
     sp = np.clip(np.digitize(speed, SPEED_EDGES[1:-1]), 0, len(SPEED_EDGES) - 2)
     sp_names = tuple(f"speed {100 * a:.0f}–{100 * b:.0f}%" if np.isfinite(b) else f"speed >{100 * a:.0f}%"
                      for a, b in zip(SPEED_EDGES[:-1], SPEED_EDGES[1:]))
-    r = np.abs(travel_since_reversal(q, qd))
+    r = np.abs(reversal_travel(q, qd, REVERSAL_DEADBAND).r)
     rb = np.digitize(r, [REVERSAL_WINDOW_RAD, HYSTERESIS_SATURATION_RAD])
     seg = np.repeat(_segment_labels(rec, qd, vlim)[:, None], n, axis=1)
     pos = (q - lower) / np.maximum(upper - lower, 1e-9)

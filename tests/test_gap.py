@@ -8,7 +8,8 @@ from proprio.description import load_robot
 from proprio.dynamics import inverse_dynamics
 from proprio.identification.gap_attribution import DiagnosisError, SimModel, attribute
 from proprio.identification.gap_benchmark import BenchmarkCase, generate_case_data, make_cases, rfma_like_motion
-from proprio.identification.gap_localisation import gap_map, regime_families, travel_since_reversal
+from proprio.identification.gap_localisation import REVERSAL_DEADBAND, gap_map, regime_families
+from proprio.systems.joint_effects import reversal_travel
 from proprio.identification.gap_report import diagnose
 from proprio.recording import Recording
 from proprio.systems.joint_effects import EFFECTS, MotionSignals
@@ -35,15 +36,14 @@ def _recs(robot, effects, seeds=(1, 2, 3), duration=14.0):
     return out[:2], out[2:]
 
 
-def test_travel_since_reversal_restarts_at_reversals():
+def test_reversal_regimes_measure_travel_from_the_extremum():
+    # q rises from 0 to 1, falls to -1, rises again: |r| is measured from each extremum, not from the late detection
     t = np.linspace(0, 2 * np.pi, 2001)
-    q = np.sin(t)[:, None]
-    qd = np.cos(t)[:, None]
-    r = travel_since_reversal(q, qd)
-    # q rises from 0 to 1 (r = q), then falls from 1 to -1 (r = q - 1), then rises from -1 (r = q + 1)
+    q, qd = np.sin(t)[:, None], np.cos(t)[:, None]
+    r = reversal_travel(q, qd, REVERSAL_DEADBAND).r
     assert r[500, 0] == pytest.approx(1.0, abs=1e-3)
-    assert r[1500, 0] == pytest.approx(-2.0, abs=1e-3)
-    assert r[2000, 0] == pytest.approx(1.0, abs=2e-3)
+    assert r[1500, 0] == pytest.approx(-2.0, abs=1e-6)
+    assert r[2000, 0] == pytest.approx(1.0, abs=1e-6)
 
 
 def test_localisation_puts_lost_motion_in_its_joint_and_reversal_window(robot):

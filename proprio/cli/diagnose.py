@@ -60,7 +60,7 @@ def _model(args: argparse.Namespace):
 
     try:
         robot = load_robot(args.model)
-    except (FileNotFoundError, KeyError) as exc:
+    except (FileNotFoundError, KeyError, ValueError) as exc:
         raise UserError(f"--model: cannot load robot {args.model!r} ({exc})") from exc
     config = {}
     if args.effects_config:
@@ -69,8 +69,6 @@ def _model(args: argparse.Namespace):
         data = yaml.safe_load(args.effects_config.read_text()) or {}
         config = data.get("effects", data) if isinstance(data, dict) else {}
     chosen = {k: config.get(k) for k in args.effects}
-    if not args.effects:
-        chosen = {}
     return SimModel(robot, tuple(make_effects(chosen, robot.n)))
 
 
