@@ -49,7 +49,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 __all__ = [
-    "MotionSignals", "ReversalTravel", "reversal_travel", "JointEffect", "EffectConfigError",
+    "MotionSignals", "ReversalTravel", "motion_direction", "reversal_travel", "JointEffect", "EffectConfigError",
     "ViscousCoulomb", "Stribeck", "Hysteresis", "LostMotion", "Ripple", "SensorOffsetGain", "TorqueNoise",
     "EncoderNoise", "Motor", "Elasticity", "EFFECTS", "make_effects",
 ]
@@ -121,6 +121,18 @@ class ReversalTravel:
     seg_direction: tuple[np.ndarray, ...]
 
 
+def motion_direction(qd: np.ndarray, reversal_velocity: float | np.ndarray) -> np.ndarray:
+    """Direction of motion per joint, ``[N,n]`` ∈ {−1, 0, +1}: +1 while ``q̇ > reversal_velocity``, −1 while
+    ``q̇ < −reversal_velocity``, and the last such value inside the band (a Schmitt trigger, so noise around a
+    standstill does not flip it); 0 until the joint first leaves the band. ``reversal_velocity`` [rad/s], scalar or
+    per joint."""
+    qd = np.atleast_2d(np.asarray(qd, dtype=float))
+    eps = np.broadcast_to(np.asarray(reversal_velocity, dtype=float), (qd.shape[1],))
+    raw = np.where(qd > eps, 1.0, np.where(qd < -eps, -1.0, 0.0))
+    last = np.maximum.accumulate(np.where(raw != 0, np.arange(qd.shape[0])[:, None], 0), axis=0)
+    return np.take_along_axis(raw, last, axis=0)                          # forward-filled direction
+
+
 def reversal_travel(q: np.ndarray, qd: np.ndarray, reversal_velocity: float | np.ndarray = 2e-3) -> ReversalTravel:
     """Segment ``q [N,n]`` at direction reversals and return the signed travel since the last one.
 
@@ -131,16 +143,13 @@ def reversal_travel(q: np.ndarray, qd: np.ndarray, reversal_velocity: float | np
     q = np.asarray(q, dtype=float)
     qd = np.asarray(qd, dtype=float)
     n_s, n = q.shape
-    eps = np.broadcast_to(np.asarray(reversal_velocity, dtype=float), (n,))
+    held = motion_direction(qd, reversal_velocity)
     r = np.empty_like(q)
     direction = np.empty((n_s, n))
     segment = np.empty((n_s, n), dtype=np.int64)
     starts, anchors, seg_dirs = [], [], []
-    idx = np.arange(n_s)
     for j in range(n):                                                    # loop over joints only
-        raw = np.where(qd[:, j] > eps[j], 1.0, np.where(qd[:, j] < -eps[j], -1.0, 0.0))
-        last = np.maximum.accumulate(np.where(raw != 0, idx, 0))
-        d = raw[last]                                                     # forward-filled direction (Schmitt)
+        d = held[:, j]
         flip = np.zeros(n_s, dtype=bool)
         flip[1:] = (d[1:] != d[:-1]) & (d[:-1] != 0)
         seg = np.cumsum(flip)

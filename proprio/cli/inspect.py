@@ -16,6 +16,7 @@ import numpy as np
 from proprio.description import RobotDescription, load_robot
 from proprio.io import save_figure
 from proprio.recording import Recording, RecordingError, load_recording, recording_from_csv, validate_recording
+from proprio.systems.joint_effects import motion_direction
 
 __all__ = ["DEFAULT_DEADBAND", "load_any", "joint_velocities", "reversal_counts", "summarize_recording",
            "format_summary", "plot_recording", "register"]
@@ -40,12 +41,7 @@ def reversal_counts(qd: np.ndarray, deadband: float = DEFAULT_DEADBAND) -> np.nd
     """
     if deadband < 0:
         raise ValueError(f"deadband must be >= 0 rad/s, got {deadband}")
-    qd = np.atleast_2d(np.asarray(qd, dtype=float))
-    sign = np.where(qd > deadband, 1, np.where(qd < -deadband, -1, 0))
-    # forward-fill the last non-zero direction (vectorised: index of the last decided sample at each step)
-    idx = np.where(sign != 0, np.arange(sign.shape[0])[:, None], 0)
-    np.maximum.accumulate(idx, axis=0, out=idx)
-    held = np.take_along_axis(sign, idx, axis=0)
+    held = motion_direction(qd, deadband)
     return np.sum((held[1:] * held[:-1]) < 0, axis=0)
 
 
