@@ -10,6 +10,8 @@ hybrid estimator in a Drake Diagram.
    replay [q, q̇, q̈, τ_J] → Drake ``InverseDynamics`` (C++, τ_RBD incl. gravity) → :class:`ResidualNetworkSystem`
    (hybrid LSTM-2-FCL, float64) → :class:`JacobianWrenchObserver` (f̂ = J⁻ᵀ(τ_HYB − τ_J)) → logger. Prints µs per
    sample for the full Diagram and for the replay + residual System alone. Target: ≤ 100 µs per sample on one core.
+   Also: the estimation diagram ``proprio estimate`` builds for a hybrid ``.pt`` (Python backbone System, residual,
+   Jacobian AND momentum observer, six loggers), for reference.
 """
 from __future__ import annotations
 
@@ -25,6 +27,8 @@ from pydrake.systems.primitives import Demultiplexer, LogVectorOutput, Multiplex
 from pydrake.trajectories import PiecewisePolynomial
 
 from proprio.description import load_robot
+from proprio.diagrams.estimation import RigidBodyTorqueModel, build_estimation_diagram
+from proprio.diagrams.hybrid_torque_model import HybridTorqueModel
 from proprio.learning.datasets import DataConfig, PreparedRecording, make_split
 from proprio.learning.features import feature_matrix, rotational_displacement
 from proprio.learning.models import ARCHS, HybridModel, ModelConfig
@@ -129,7 +133,18 @@ def bench_streaming(steps: int) -> None:
     LogVectorOutput(residual.GetOutputPort("tau_hybrid"), builder, 1 / RATE)
     alone = _timed(builder, steps)
 
-    # (c) replay + logger only: the Diagram overhead the rows above include
+    # (c) the estimation diagram of `proprio estimate --model hybrid.pt`: Python backbone System (Drake inverse
+    # dynamics + friction), the residual, both observers (the momentum one evaluates M(q) three times) and 6 loggers
+    hybrid = HybridTorqueModel(RigidBodyTorqueModel(desc, coulomb_velocity=0.0), model, DataConfig())
+    signals = {"t": t, "q": q, "qd": qd, "qdd": qdd, "tau": values[:, 21:], "time_step": 1 / RATE}
+    diagram, _ = build_estimation_diagram(hybrid, signals)
+    sim = Simulator(diagram)
+    sim.Initialize()
+    t0 = time.perf_counter()
+    sim.AdvanceTo((steps - 1) / RATE)
+    estimation = (time.perf_counter() - t0) / steps * 1e6
+
+    # (d) replay + logger only: the Diagram overhead the rows above include
     builder = DiagramBuilder()
     demux = _replay_source(builder, values)
     LogVectorOutput(demux.get_output_port(3), builder, 1 / RATE)
@@ -141,6 +156,8 @@ def bench_streaming(steps: int) -> None:
     print(f"  replay + InverseDynamics (C++) + residual LSTM-2-FCL + logger (no observer):      {no_observer:7.1f} µs/sample")
     print(f"  replay + residual LSTM-2-FCL System + logger:                                    {alone:7.1f} µs/sample")
     print(f"  replay + logger only (Diagram overhead included above):                          {overhead:7.1f} µs/sample")
+    print(f"  estimation diagram with a hybrid .pt (Python backbone + residual + BOTH observers): {estimation:7.1f} "
+          "µs/sample")
 
 
 def main() -> None:

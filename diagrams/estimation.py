@@ -10,8 +10,10 @@ The preprocessing is offline and zero-phase like §4.1 (central differences, But
 cutoff, 20 Hz by default, keeps the RFMA exploration's few-Hz content that the 1 Hz excitation filter of
 :mod:`proprio.identification.preprocessing` would remove), so the signals are computed before the replay; the
 observers themselves are causal Systems that would run unchanged on live sensor ports. ``tau_dyn`` comes from any
-:class:`TorqueModel` (the rigid-body model now; the hybrid RBD + learned residual plugs into the same port).
-:func:`estimate_wrench` runs it and returns an :class:`EstimationResult`.
+:class:`TorqueModel`: the rigid-body model (:class:`TorqueModelSystem`), or the hybrid RBD + learned residual
+(:mod:`proprio.diagrams.hybrid_torque_model`), whose network then runs online in the diagram, one step per sample with
+its LSTM and r-encoder state carried from sample to sample. :func:`estimate_wrench` runs it and returns an
+:class:`EstimationResult`.
 """
 from __future__ import annotations
 
@@ -23,7 +25,7 @@ from typing import Any, Protocol
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.analysis import Simulator
-from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem, ValueProducer
+from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem, System, ValueProducer
 from pydrake.systems.primitives import Demultiplexer, LogVectorOutput, TrajectorySource, VectorLogSink
 from pydrake.trajectories import PiecewisePolynomial
 from scipy.signal import butter, sosfiltfilt
@@ -53,7 +55,12 @@ class TorqueModel(Protocol):
     ``description`` gives the kinematics and the rigid-body inertials: τ_rbd is its inverse dynamics (Drake's
     ``CalcInverseDynamics`` per step in the diagram, :func:`proprio.dynamics.inverse_dynamics` offline) and the
     momentum observer takes M(q) from it. ``tau_int`` is everything the model adds to the rigid body (link friction,
-    a learned residual)."""
+    a learned residual).
+
+    A model with memory (the hybrid model, :mod:`proprio.diagrams.hybrid_torque_model`) also provides
+    ``make_system(time_step) -> System`` (the ports of :class:`TorqueModelSystem`, run online by the diagram instead of
+    it) and ``signals(rec) -> (Recording, signals)`` (its own preprocessing at its own rate, instead of
+    :func:`preprocess`), plus ``filter_edge_s()`` (the filters' edge transient [s]) and a ``name``."""
     description: RobotDescription
 
     def tau_int(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray: ...
@@ -79,11 +86,15 @@ class RigidBodyTorqueModel:
         return tau
 
 
-def load_torque_model(spec: str | Path) -> RigidBodyTorqueModel:
-    """A model from a shipped robot name or robot YAML/URDF (its RBD + friction, e.g. ``iiwa14_identified``), or an
+def load_torque_model(spec: str | Path) -> TorqueModel:
+    """A model from a shipped robot name or robot YAML/URDF (its RBD + friction, e.g. ``iiwa14_identified``), an
     identified-model ``.npz`` from ``proprio identify`` (its identified inertials, friction, Coulomb law and torque
-    offsets; Drake must accept the identified inertials, which an SDP model always satisfies)."""
+    offsets; Drake must accept the identified inertials, which an SDP model always satisfies), or a hybrid model
+    ``.pt`` from ``proprio train`` (its network on the backbone it was trained with, run online by the diagram)."""
     path = Path(spec)
+    if path.suffix == ".pt":
+        from proprio.diagrams.hybrid_torque_model import load_hybrid_torque_model
+        return load_hybrid_torque_model(path)
     if path.suffix == ".npz":
         from proprio.identification.model_io import load_model
         ident = load_model(path)
@@ -198,11 +209,13 @@ def check_recording_matches(rec: Recording, desc: RobotDescription) -> Recording
 def AddWrenchObservers(builder: DiagramBuilder, model: TorqueModel, time_step: float,
                        gain: float | np.ndarray = DEFAULT_GAIN,
                        mapping: WrenchMapping = WrenchMapping()
-                       ) -> tuple[TorqueModelSystem, JacobianWrenchObserver, MomentumObserver]:
-    """Add the torque model and both observers to ``builder`` and wire the model into them. The caller connects
-    the ``q``, ``qd``, ``qdd`` inputs of the model and ``q``/``qd``/``tau_meas`` of the observers."""
+                       ) -> tuple[System, JacobianWrenchObserver, MomentumObserver]:
+    """Add the torque model (a :class:`TorqueModelSystem`, or the model's own ``make_system(time_step)``) and both
+    observers to ``builder`` and wire the model into them. The caller connects the ``q``, ``qd``, ``qdd`` inputs of
+    the model and ``q``/``qd``/``tau_meas`` of the observers."""
     desc = model.description
-    torque_model = builder.AddNamedSystem("torque_model", TorqueModelSystem(model))
+    system = model.make_system(time_step) if hasattr(model, "make_system") else TorqueModelSystem(model)
+    torque_model = builder.AddNamedSystem("torque_model", system)
     jac = builder.AddNamedSystem("jacobian_observer", JacobianWrenchObserver(desc, mapping))
     mom = builder.AddNamedSystem("momentum_observer", MomentumObserver(desc, time_step, gain, mapping))
     builder.Connect(torque_model.GetOutputPort("tau_dyn"), jac.GetInputPort("tau_dyn"))
@@ -353,16 +366,26 @@ def resample_uniform(rec: Recording) -> Recording:
 
 
 def _prepare(model: TorqueModel | RobotDescription, rec: Recording, settings: FilterSettings
-             ) -> tuple[TorqueModel, Recording, dict[str, np.ndarray]]:
+             ) -> tuple[TorqueModel, Recording, dict[str, np.ndarray], float]:
+    """The model, the Recording at the rate the diagram runs, its signals and the filters' edge transient [s]."""
     if isinstance(model, RobotDescription):
         model = RigidBodyTorqueModel(model)
     rec = resample_uniform(check_recording_matches(rec, model.description))
-    return model, rec, preprocess(rec, settings)
+    if hasattr(model, "signals"):
+        rec, sig = model.signals(rec)
+        return model, rec, sig, model.filter_edge_s(settings.edge_cycles)
+    return model, rec, preprocess(rec, settings), settings.edge_cycles / settings.cutoff_hz
 
 
-def _skips(gain: float | np.ndarray, filters: FilterSettings) -> dict[str, float]:
-    edge = filters.edge_cycles / filters.cutoff_hz
-    return {"skip_start_s": max(float(5.0 / np.min(gain)), edge), "skip_end_s": edge}
+def _skips(gain: float | np.ndarray, edge_s: float) -> dict[str, float]:
+    return {"skip_start_s": max(float(5.0 / np.min(gain)), edge_s), "skip_end_s": edge_s}
+
+
+def _meta(model: TorqueModel, rec: Recording, gain: float | np.ndarray, mapping: WrenchMapping,
+          filters: FilterSettings, engine: str) -> dict[str, Any]:
+    return {"model": getattr(model, "name", model.description.name), "recording": dict(rec.meta),
+            "gain": np.asarray(gain).tolist(), "mapping": asdict(mapping), "filters": asdict(filters),
+            "engine": engine}
 
 
 def estimate_wrench(model: TorqueModel | RobotDescription, rec: Recording, gain: float | np.ndarray = DEFAULT_GAIN,
@@ -372,9 +395,10 @@ def estimate_wrench(model: TorqueModel | RobotDescription, rec: Recording, gain:
     its rigid-body model + friction). ``gain`` is the momentum observer's K_O [1/s] (scalar or per joint).
 
     A Recording with jittery time stamps is first resampled onto a uniform grid (:func:`resample_uniform`; the
-    result's ``t`` is that grid). Raises :class:`RecordingError` when the Recording does not match the model robot
-    or is too short for the filters."""
-    model, rec, sig = _prepare(model, rec, filters)
+    result's ``t`` is that grid). A hybrid model (``model.signals``) replaces ``filters`` by its own training-time
+    preprocessing and runs at its own rate: the result then holds the Recording's samples at that rate. Raises
+    :class:`RecordingError` when the Recording does not match the model robot or is too short for the filters."""
+    model, rec, sig, edge_s = _prepare(model, rec, filters)
     diagram, loggers = build_estimation_diagram(model, sig, gain, mapping)
     simulator = Simulator(diagram)
     simulator.Initialize()
@@ -386,9 +410,8 @@ def estimate_wrench(model: TorqueModel | RobotDescription, rec: Recording, gain:
         t=rec.t.copy(), q=sig["q"], wrench={o: logs[f"{o}.wrench"] for o in OBSERVERS},
         tau_ext={o: logs[f"{o}.tau_ext"] for o in OBSERVERS},
         manipulability=logs["jacobian.manipulability"][:, 0], unreliable=logs["jacobian.unreliable"][:, 0] > 0.5,
-        f_true=None if rec.f_ext is None else rec.f_ext.copy(), **_skips(gain, filters),
-        meta={"model": model.description.name, "recording": dict(rec.meta), "gain": np.asarray(gain).tolist(),
-              "mapping": asdict(mapping), "filters": asdict(filters), "engine": "diagram"})
+        f_true=None if rec.f_ext is None else rec.f_ext.copy(), **_skips(gain, edge_s),
+        meta=_meta(model, rec, gain, mapping, filters, "diagram"))
 
 
 def estimate_wrench_offline(model: TorqueModel | RobotDescription, rec: Recording,
@@ -397,7 +420,7 @@ def estimate_wrench_offline(model: TorqueModel | RobotDescription, rec: Recordin
                             ) -> EstimationResult:
     """The same estimates as :func:`estimate_wrench`, vectorised over samples with the observers' offline functions
     (:func:`jacobian_wrench`, :func:`momentum_observer`) instead of stepping the diagram."""
-    model, rec, sig = _prepare(model, rec, filters)
+    model, rec, sig, edge_s = _prepare(model, rec, filters)
     desc = model.description
     q, qd, qdd, tau = sig["q"], sig["qd"], sig["qdd"], sig["tau"]
     tau_int = model.tau_int(q, qd, qdd)
@@ -410,6 +433,4 @@ def estimate_wrench_offline(model: TorqueModel | RobotDescription, rec: Recordin
         t=rec.t.copy(), q=q, wrench={"jacobian": w_jac, "momentum": w_mom}, tau_ext={"jacobian": tau_dyn - tau,
                                                                                  "momentum": r},
         manipulability=manip, unreliable=flag, f_true=None if rec.f_ext is None else rec.f_ext.copy(),
-        **_skips(gain, filters),
-        meta={"model": desc.name, "recording": dict(rec.meta), "gain": np.asarray(gain).tolist(),
-              "mapping": asdict(mapping), "filters": asdict(filters), "engine": "offline"})
+        **_skips(gain, edge_s), meta=_meta(model, rec, gain, mapping, filters, "offline"))

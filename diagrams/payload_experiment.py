@@ -210,7 +210,9 @@ def payload_experiment(model: str | Path | TorqueModel, out_dir: str | Path, sec
     ``payload_errors.png`` to ``out_dir``.
 
     Args:
-        model: a :class:`TorqueModel` or a spec for :func:`load_torque_model` (shipped robot / identified .npz).
+        model: a :class:`TorqueModel` or a spec for :func:`load_torque_model` (shipped robot / identified .npz /
+            hybrid .pt, whose network then runs online in the estimation diagram; the error budget is computed
+            for rigid-body models only).
         seconds: duration of the RFMA validation trajectory [s]. masses: payloads [kg] (point masses at
             ``com_flange`` in the flange frame [m]). seed: seed of the RFMA trajectory (the same motion for every
             mass) and of the twin's sensor noise (``seed + k`` for the k-th mass). gain: momentum observer K_O [1/s].
@@ -223,8 +225,8 @@ def payload_experiment(model: str | Path | TorqueModel, out_dir: str | Path, sec
     if not seconds > 0:
         raise ValueError(f"seconds must be > 0, got {seconds}")
     torque_model = model if not isinstance(model, (str, Path)) else load_torque_model(model)
-    name = Path(model).name if isinstance(model, (str, Path)) and Path(model).suffix == ".npz" else \
-        torque_model.description.name
+    name = Path(model).name if isinstance(model, (str, Path)) and Path(model).suffix in (".npz", ".pt") else \
+        getattr(torque_model, "name", torque_model.description.name)
     twin = load_twin_config(twin_config)
     traj = validation_trajectory(seconds, seed=seed)
     out = Path(out_dir)
@@ -241,7 +243,8 @@ def payload_experiment(model: str | Path | TorqueModel, out_dir: str | Path, sec
         for obs in OBSERVERS:
             res.wrench[f"{obs} force-only"] = _force_only(res, obs, mapping, torque_model.description)
         results[m] = res
-        budgets[m] = error_budget(torque_model, rec, mapping, filters)
+        if not hasattr(torque_model, "signals"):     # the budget's terms are those of a rigid-body model
+            budgets[m] = error_budget(torque_model, rec, mapping, filters)
         files.append(res.plot(out / f"payload_{int(round(m * 1000))}g.png",
                               title=f"{int(round(m * 1000))} g at the flange: f̂ (model {name}) vs truth"))
     table = format_table(results, tuple(masses), name, budgets)

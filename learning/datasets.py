@@ -27,7 +27,7 @@ from proprio.learning.features import (DEFAULT_DEADBAND_DEG, R_MAX_DEG, TauRbdPr
                                        filtered_derivatives, rotational_displacement)
 from proprio.recording import Recording
 
-__all__ = ["DataConfig", "PreparedRecording", "Windows", "Split", "prepare_recording", "make_split"]
+__all__ = ["DataConfig", "PreparedRecording", "Windows", "Split", "kept_samples", "prepare_recording", "make_split"]
 
 
 @dataclass
@@ -113,6 +113,13 @@ def _lowpass(x: np.ndarray, cutoff_hz: float, rate_hz: float, name: str) -> np.n
     return filtfilt(b, a, x, axis=0)
 
 
+def kept_samples(rec: Recording, cfg: DataConfig) -> np.ndarray:
+    """Indices of the samples of ``rec`` at the model rate: ``trim_s`` cut from both ends, then every
+    ``decimate``-th sample (step 1 and 2 of the module docstring)."""
+    trim = int(round(cfg.trim_s * rec.rate_hz))
+    return np.arange(trim, rec.n_samples - trim, cfg.decimate)
+
+
 def prepare_recording(rec: Recording, tau_rbd: TauRbdProvider, cfg: DataConfig, name: str = "recording"
                       ) -> PreparedRecording:
     """Steps 1–3 of the module docstring for one Recording."""
@@ -122,8 +129,7 @@ def prepare_recording(rec: Recording, tau_rbd: TauRbdProvider, cfg: DataConfig, 
     else:
         qd, qdd = filtered_derivatives(rec.t, rec.q, cfg.derivative_cutoff_hz)
     tau = rec.tau if cfg.tau_filter_hz is None else _lowpass(rec.tau, cfg.tau_filter_hz, rate, "tau_filter_hz")
-    trim = int(round(cfg.trim_s * rate))
-    keep = np.arange(trim, rec.n_samples - trim, cfg.decimate)
+    keep = kept_samples(rec, cfg)
     if keep.size < 2:
         raise ValueError(f"{name}: only {keep.size} sample(s) left after trim_s = {cfg.trim_s} and decimate = "
                          f"{cfg.decimate}")

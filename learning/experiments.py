@@ -22,16 +22,16 @@ import yaml
 
 from proprio.description import RobotDescription, load_robot
 from proprio.io import atomic_write_text
-from proprio.learning.datasets import DataConfig, Split, make_split, prepare_recording
+from proprio.learning.datasets import DataConfig, Split, kept_samples, make_split, prepare_recording
 from proprio.learning.evaluation import (TableRow, evaluate_model, format_table, predict_streaming, rbd_row,
                                          streaming_row)
-from proprio.learning.features import TauRbdProvider, feature_matrix, rbd_provider, rotational_displacement
+from proprio.learning.features import TauRbdProvider, rbd_provider
 from proprio.learning.models import ARCHS, HybridModel, ModelConfig, load_model, save_model
 from proprio.learning.training import TrainConfig, TrainResult, train_model
 from proprio.recording import Recording
 
 __all__ = ["load_config", "Backbone", "resolve_backbone", "prepare_split", "train_from_config", "evaluate_saved",
-           "train_grid", "demo_hybrid", "payload_table", "HybridTorqueModel", "GRID_VARIANTS"]
+           "train_grid", "demo_hybrid", "payload_table", "GRID_VARIANTS"]
 
 GRID_VARIANTS = ((True, True), (True, False), (False, False), (False, True))   # (hybrid, use_r), Table 5.3 order
 
@@ -242,9 +242,7 @@ def payload_table(models: dict[str, HybridModel | None], backbone: Backbone, rec
         if rec.f_ext is None:
             raise ValueError(f"payload_table: recording '{label}' has no f_ext (true wrench)")
         prep = prepare_recording(rec, backbone.tau_rbd, data, label)
-        keep = np.arange(int(round(data.trim_s * rec.rate_hz)), rec.n_samples - int(round(data.trim_s * rec.rate_hz)),
-                         data.decimate)
-        f_true = rec.f_ext[keep, :3]
+        f_true = rec.f_ext[kept_samples(rec, data), :3]
         q = prep.features[:, prep.n_joints:2 * prep.n_joints]
         for name, model in models.items():
             tau_model = prep.tau_rbd if model is None else predict_streaming(model, prep.features)
@@ -254,28 +252,3 @@ def payload_table(models: dict[str, HybridModel | None], backbone: Backbone, rec
             fmt = lambda v: "[" + " ".join(f"{x:6.2f}" for x in v) + "]"  # noqa: E731
             lines.append(f"{name:<28} {label:>8}  {fmt(rmse):>22}  {fmt(std):>22}  {len(err):>7}")
     return "\n".join(lines)
-
-
-@dataclass
-class HybridTorqueModel:
-    """τ_dyn = τ_HYB = τ_backbone + τ_NN for the estimation diagram's ``TorqueModel`` protocol (offline use, e.g.
-    ``estimate_wrench_offline``).
-
-    ``tau_rbd`` is the RNEA of ``description``; ``tau_int = τ_HYB − tau_rbd`` (the backbone's friction plus the network
-    residual), with the network run in streaming mode over the given samples, which must be ONE contiguous sequence
-    at the model rate (``model.cfg.rate_hz``: decimate a Recording first). ``backbone`` is the τ_RBD provider the
-    model was trained with (default: RNEA + friction of ``description``). Online, use
-    :class:`proprio.systems.residual_network.ResidualNetworkSystem` instead."""
-    description: RobotDescription
-    model: HybridModel
-    backbone: TauRbdProvider | None = None
-
-    def tau_rbd(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
-        from proprio.dynamics import inverse_dynamics
-        return inverse_dynamics(self.description, q, qd, qdd)
-
-    def tau_int(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
-        backbone = (self.backbone or rbd_provider(self.description))(q, qd, qdd)
-        r = rotational_displacement(q, self.model.cfg.reversal_deadband_deg, self.model.cfg.r_max_deg)
-        tau = predict_streaming(self.model, feature_matrix(backbone, q, qd, qdd, r))
-        return tau - self.tau_rbd(q, qd, qdd)

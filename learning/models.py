@@ -243,7 +243,11 @@ def load_model(path: str | Path, dtype: torch.dtype = torch.float32) -> tuple[Hy
 class StreamingStepper:
     """The same model as plain float64 numpy for one-sample-at-a-time inference (≈10× less overhead per sample than
     a torch call). ``step(x [5n], state [state_size]) -> (τ [n], state)``; equals :meth:`HybridModel.run` to
-    rounding (checked in the tests)."""
+    rounding (checked in the tests).
+
+    The normalisations are folded into the weights once (eq. 4.33/4.34 are affine, so ``W((x − μ)/σ) + b`` =
+    ``(W/σ) x + (b − W μ/σ)`` and the output de-normalisation scales the last layer), which leaves two matrix–vector
+    products per LSTM cell and one for the output layer."""
 
     def __init__(self, model: HybridModel):
         if not model.cfg.streamable:
@@ -251,38 +255,62 @@ class StreamingStepper:
         sd = {k: v.detach().cpu().double().numpy() for k, v in model.state_dict().items()}
         self.n, self.hybrid = model.cfg.n_joints, model.cfg.hybrid
         self.state_size = model.state_size
-        self.columns = sd["columns"].astype(int)
-        self.x_mean, self.x_std, self.y_mean, self.y_std = sd["x_mean"], sd["x_std"], sd["y_mean"], sd["y_std"]
+        columns = sd["columns"].astype(int)
+        self.columns = None if np.array_equal(columns, np.arange(5 * self.n)) else columns
+        inv_std = 1.0 / sd["x_std"]
+        y_mean, y_std = sd["y_mean"], sd["y_std"]
+
+        def fold_input(w: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            return w * inv_std, b - w @ (sd["x_mean"] * inv_std)
+
         self.arch = model.cfg.arch
         if self.arch == "mlp7":
-            self.w1, self.b1, self.w2, self.b2 = sd["net.w1"], sd["net.b1"], sd["net.w2"], sd["net.b2"]
+            w1 = sd["net.w1"]                                                   # [n, F, H]
+            self.w1 = w1 * inv_std[None, :, None]
+            self.b1 = sd["net.b1"] - np.einsum("f,jfh->jh", sd["x_mean"] * inv_std, w1)
+            self.w2, self.b2 = sd["net.w2"] * y_std[:, None], sd["net.b2"] * y_std + y_mean
         else:
-            self.cells = [(sd[f"net.cell{i}.weight_ih_l0"], sd[f"net.cell{i}.weight_hh_l0"],
-                           sd[f"net.cell{i}.bias_ih_l0"] + sd[f"net.cell{i}.bias_hh_l0"]) for i in (1, 2)]
+            w_ih, b1 = fold_input(sd["net.cell1.weight_ih_l0"], sd["net.cell1.bias_ih_l0"] + sd["net.cell1.bias_hh_l0"])
             self.sizes = model.net.sizes
-            self.fcl = (sd["net.fcl.weight"], sd["net.fcl.bias"]) if "net.fcl.weight" in sd else None
+
+            def scale(k: int) -> np.ndarray:
+                out = np.full(4 * k, 0.5)
+                out[2 * k:3 * k] = 1.0
+                return out
+
+            self.cells = [(np.hstack([w_ih, sd["net.cell1.weight_hh_l0"]]), b1, scale(self.sizes[0])),
+                          (np.hstack([sd["net.cell2.weight_ih_l0"], sd["net.cell2.weight_hh_l0"]]),
+                           sd["net.cell2.bias_ih_l0"] + sd["net.cell2.bias_hh_l0"], scale(self.sizes[2]))]
+            if "net.fcl.weight" in sd:
+                self.w_out, self.b_out = sd["net.fcl.weight"] * y_std[:, None], sd["net.fcl.bias"] * y_std + y_mean
+            else:
+                self.w_out, self.b_out = np.diag(y_std), y_mean
 
     @staticmethod
-    def _cell(x: np.ndarray, h: np.ndarray, c: np.ndarray, w_ih: np.ndarray, w_hh: np.ndarray, b: np.ndarray
+    def _cell(x: np.ndarray, h: np.ndarray, c: np.ndarray, w: np.ndarray, b: np.ndarray, scale: np.ndarray
               ) -> tuple[np.ndarray, np.ndarray]:
-        """One LSTM cell step (eq. 3.66–3.71), PyTorch gate order i, f, g, o."""
-        a = w_ih @ x + w_hh @ h + b
+        """One LSTM cell step (eq. 3.66–3.71), PyTorch gate order i, f, g, o, with ``w = [W_ih  W_hh]``. The gates
+        come from ONE tanh: σ(a) = ½ + ½ tanh(a/2) for i, f, o (``scale`` ½) and tanh(a) for g (``scale`` 1)."""
+        a = w @ np.concatenate((x, h))
+        a += b
+        a *= scale
+        t = np.tanh(a)
+        s = t * 0.5
+        s += 0.5
         k = h.shape[0]
-        s = 1.0 / (1.0 + np.exp(-a))
-        c = s[k:2 * k] * c + s[:k] * np.tanh(a[2 * k:3 * k])
+        c = s[k:2 * k] * c + s[:k] * t[2 * k:3 * k]
         return s[3 * k:] * np.tanh(c), c
 
     def step(self, x: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        z = (x[self.columns] - self.x_mean) / self.x_std
+        """τ [n] N·m for the features ``x [5n]`` of one sample, and the next recurrent state."""
+        z = x if self.columns is None else x[self.columns]
         if self.arch == "mlp7":
             h = np.maximum(np.einsum("f,jfh->jh", z, self.w1) + self.b1, 0.0)
-            y = np.einsum("jh,jh->j", h, self.w2) + self.b2
+            tau = np.einsum("jh,jh->j", h, self.w2) + self.b2
         else:
             k1, k2 = self.sizes[0], self.sizes[2]
-            h1, c1, h2, c2 = state[:k1], state[k1:2 * k1], state[2 * k1:2 * k1 + k2], state[2 * k1 + k2:]
-            h1, c1 = self._cell(z, h1, c1, *self.cells[0])
-            h2, c2 = self._cell(h1, h2, c2, *self.cells[1])
-            y = h2 if self.fcl is None else self.fcl[0] @ h2 + self.fcl[1]
+            h1, c1 = self._cell(z, state[:k1], state[k1:2 * k1], *self.cells[0])
+            h2, c2 = self._cell(h1, state[2 * k1:2 * k1 + k2], state[2 * k1 + k2:], *self.cells[1])
+            tau = self.w_out @ h2 + self.b_out
             state = np.concatenate([h1, c1, h2, c2])
-        tau = y * self.y_std + self.y_mean
         return (tau + x[:self.n] if self.hybrid else tau), state

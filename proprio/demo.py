@@ -138,10 +138,12 @@ def _stage_diagnosis(ctx: dict[str, Any], out: Path) -> list[Path]:
 def _stage_hybrid(ctx: dict[str, Any], out: Path) -> list[Path]:
     import dataclasses
 
+    from proprio.diagrams.estimation import estimate_wrench, load_torque_model
     from proprio.diagrams.payload_experiment import validation_trajectory
     from proprio.diagrams.twin import simulate_twin
     from proprio.learning.experiments import demo_hybrid
     from proprio.payload import Payload
+    from proprio.systems.observers import WrenchMapping
 
     step = HYBRID_DOWNSAMPLE
     traj = validation_trajectory(HYBRID_PAYLOAD_SECONDS, seed=11)
@@ -155,6 +157,14 @@ def _stage_hybrid(ctx: dict[str, Any], out: Path) -> list[Path]:
                               epochs=HYBRID_EPOCHS, payload_recs=payload_recs)
     print(f"  hybrid {model.cfg.label()} on the identified RBD backbone, {HYBRID_EPOCHS} epochs; test = a separate "
           "RFMA run; payload forces from the Jacobian observer (force-only)")
+    # the same model online: its network stepped inside the estimation diagram, state carried sample to sample
+    res = estimate_wrench(load_torque_model(out / "hybrid_lstm.pt"), payload_recs["1000 g"],
+                          mapping=WrenchMapping(force_only=True))
+    rmse, _ = res.force_stats("jacobian")
+    text += (f"\n\nOnline: the model inside the estimation diagram (ResidualNetworkSystem, {res.t.size} steps), "
+             f"1000 g: Jacobian force-only RMSE [{' '.join(f'{x:.2f}' for x in rmse)}] N, momentum "
+             f"[{' '.join(f'{x:.2f}' for x in res.force_stats('momentum')[0])}] N (after {res.skip_start_s:.1f} s "
+             "of filter start-up)")
     print(_indent(text))
     atomic_write_text(out / "hybrid.txt", text + "\n")
     return [out / "hybrid_lstm.pt", out / "hybrid.txt"]

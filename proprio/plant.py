@@ -66,6 +66,7 @@ class DrakeRobot:
         self.plant.Finalize()
         self.context = self.plant.CreateDefaultContext()
         self.flange = self.plant.GetFrameByName(desc.end_effector.name)
+        self._world, self._origin = self.plant.world_frame(), np.zeros(3)
         self.joints = [self.plant.GetJointByName(j.name) for j in desc.joints]
         self._q_index = np.array([j.position_start() for j in self.joints])
         self._v_index = np.array([j.velocity_start() for j in self.joints])
@@ -107,10 +108,9 @@ class DrakeRobot:
     def flange_jacobian(self, q: np.ndarray, p_flange: np.ndarray | None = None) -> np.ndarray:
         """``CalcJacobianSpatialVelocity`` of a point in the flange frame, expressed in world, ``[6,n]``."""
         self._set(q)
-        p = np.zeros(3) if p_flange is None else np.asarray(p_flange, dtype=float)
-        world = self.plant.world_frame()
-        jac = self.plant.CalcJacobianSpatialVelocity(self.context, JacobianWrtVariable.kV, self.flange, p, world,
-                                                     world)
+        p = self._origin if p_flange is None else p_flange
+        jac = self.plant.CalcJacobianSpatialVelocity(self.context, JacobianWrtVariable.kV, self.flange, p,
+                                                     self._world, self._world)
         return jac if self._in_order else jac[:, self._v_index]
 
     def mass_matrix(self, q: np.ndarray) -> np.ndarray:

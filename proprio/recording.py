@@ -83,7 +83,11 @@ class Recording:
         updated."""
         if step < 1:
             raise RecordingError(f"downsample: step must be >= 1, got {step}")
-        pick = lambda a: None if a is None else np.array(a[::step])  # noqa: E731
+        return self.take(np.arange(0, self.n_samples, step))
+
+    def take(self, index: np.ndarray) -> "Recording":
+        """The samples at the increasing indices ``index`` of every channel (copies), ``meta.rate_hz`` updated."""
+        pick = lambda a: None if a is None else np.array(a[index])  # noqa: E731
         rec = Recording(t=pick(self.t), q=pick(self.q), tau=pick(self.tau), qd=pick(self.qd), qdd=pick(self.qdd),
                         f_ext=pick(self.f_ext), truth={k: pick(v) for k, v in self.truth.items()},
                         meta=dict(self.meta))

@@ -3,19 +3,21 @@
     q, qd, qdd, tau_rbd ──▶ ResidualNetworkSystem ──▶ tau_hybrid   (τ_HYB = τ_RBD + τ_NN)
                                                   └─▶ tau_residual (τ_HYB − τ_RBD)
 
-One periodic discrete update per sample at the model's data rate (``1 / model.cfg.rate_hz``, the rate after the
-§4.4 decimation): it reads the four inputs, advances the rotational-displacement encoder (state: direction, running
-extremum and reversal point per joint), builds vec(τ_RBD, q, q̇, q̈, r), advances the network one step (LSTM state
-(h₁, c₁, h₂, c₂) carried in discrete state; MLP-7 is stateless) and stores the prediction in discrete state.
+A discrete-time system at the model's data rate (``1 / model.cfg.rate_hz``, the rate after the §4.4 decimation) in
+the usual state-space form ``y_k = g(x_k, u_k)``, ``x_{k+1} = f(x_k, u_k)``:
 
-Both outputs are state output ports (``DeclareStateOutputPort``): no direct feedthrough, so a feedback path through
-the observers or a controller never forms an algebraic loop. Latency: the update at sample time t_k stores the
-prediction from the inputs sampled at t_k; the outputs show it from then on and hold it until t_{k+1} (zero-order
-hold). A publish event at t_k (e.g. a ``VectorLogSink`` at the same rate) runs *before* that update — Drake publishes
-at the end of the step that reaches t_k and updates at the start of the next — so it logs the prediction of
-t_{k−1}: one sample of latency, exactly as an online estimator that outputs what it computed last period. A consumer that
-combines tau_hybrid with same-instant measurements (a wrench observer) should therefore sample with a small offset
-after t_k, or be compared against the measurements of t_{k−1}.
+* the state x (discrete state ``memory``) is the rotational-displacement encoder's state (direction, running extremum
+  and reversal point per joint) and the network's recurrent state (h₁, c₁, h₂, c₂ of the LSTM; none for MLP-7);
+* one step — advance the encoder with q_k, build vec(τ_RBD, q, q̇, q̈, r)_k, run the network one sample — gives both
+  the output y_k and the next state; it is a cache entry computed once per sample from the inputs and the state;
+* the outputs are **direct feedthrough**: at a sample time t_k they are the prediction for the inputs of t_k, with
+  no sample of latency, so an observer comparing τ_HYB with the same instant's τ_J sees matched samples;
+* a periodic discrete update at every t_k stores the next state (the same cache entry, so the network runs once).
+
+Because the outputs depend on the inputs at once, a loop from ``tau_hybrid`` back into ``q``/``qd``/``qdd``/
+``tau_rbd`` needs a state somewhere on the path (e.g. the plant, or a ``ZeroOrderHold``), as for any feedthrough
+system. Between sample times the outputs are not meaningful (they would apply one more step to interpolated
+inputs): sample them at the model rate, as the estimation diagram's loggers do.
 
 The step runs the model as float64 numpy (:class:`~proprio.learning.models.StreamingStepper`, the same weights and
 equations as the torch model, equal to it to rounding): a torch call per sample costs ≈10× more overhead than the
@@ -24,7 +26,8 @@ arithmetic. Transformers have no streaming form and are rejected.
 from __future__ import annotations
 
 import numpy as np
-from pydrake.systems.framework import DiagramBuilder, LeafSystem
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import DiagramBuilder, LeafSystem, ValueProducer
 
 from proprio.learning.features import ReversalEncoder
 from proprio.learning.models import HybridModel, StreamingStepper
@@ -35,8 +38,13 @@ __all__ = ["ResidualNetworkSystem", "AddResidualNetwork"]
 class ResidualNetworkSystem(LeafSystem):
     """A trained :class:`~proprio.learning.models.HybridModel` run online, one sample per period.
 
+    Args:
+        model: a trained MLP-7 or LSTM hybrid/standalone model.
+        period_s: update period [s]; default ``1 / model.cfg.rate_hz`` (the model's data rate).
+
     Input ports (size n each): ``q`` [rad], ``qd`` [rad/s], ``qdd`` [rad/s²], ``tau_rbd`` [N·m] (the backbone's
-    torque at the same sample). Output ports (size n, state): ``tau_hybrid`` [N·m], ``tau_residual`` [N·m].
+    torque at the same sample). Output ports (size n, direct feedthrough): ``tau_hybrid`` [N·m] = τ_RBD + τ_NN for a
+    hybrid model (τ_NN for a standalone one), ``tau_residual`` [N·m] = ``tau_hybrid − tau_rbd``.
     """
 
     def __init__(self, model: HybridModel, period_s: float | None = None):
@@ -48,28 +56,38 @@ class ResidualNetworkSystem(LeafSystem):
         cfg = model.cfg
         n = self.n = cfg.n_joints
         self.period_s = float(period_s) if period_s is not None else 1.0 / cfg.rate_hz
+        if not self.period_s > 0:
+            raise ValueError(f"ResidualNetworkSystem: period_s must be > 0 s, got {self.period_s}")
         self.encoder = ReversalEncoder(n, cfg.reversal_deadband_deg, cfg.r_max_deg)
         self._n_net = self.stepper.state_size
         self._ports = [self.DeclareVectorInputPort(name, n) for name in ("q", "qd", "qdd", "tau_rbd")]
         # memory: [started flag, encoder state (3n), network state]
         self._memory = self.DeclareDiscreteState(1 + 3 * n + self._n_net)
-        self._hybrid = self.DeclareDiscreteState(n)
-        self._residual = self.DeclareDiscreteState(n)
+        # one step: [τ_hybrid (n), next memory]
+        self._step = self.DeclareCacheEntry(
+            "step", ValueProducer(allocate=AbstractValue.Make(np.zeros(n + 1 + 3 * n + self._n_net)).Clone,
+                                  calc=self._calc_step),
+            {self.all_input_ports_ticket(), self.discrete_state_ticket(self._memory)})
         self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._update)
-        self.DeclareStateOutputPort("tau_hybrid", self._hybrid)
-        self.DeclareStateOutputPort("tau_residual", self._residual)
+        self.DeclareVectorOutputPort("tau_hybrid", n, lambda c, o: o.SetFromVector(self._step.Eval(c)[:n]))
+        self.DeclareVectorOutputPort("tau_residual", n, self._calc_residual)
 
-    def _update(self, context, discrete_state) -> None:
+    def _calc_step(self, context, value) -> None:
         q, qd, qdd, tau_rbd = (p.Eval(context) for p in self._ports)
         memory = context.get_discrete_state(self._memory).get_value()
         n = self.n
-        enc = memory[1:1 + 3 * n] if memory[0] else self.encoder.initial_state(q)
+        started = memory[0] > 0
+        enc = memory[1:1 + 3 * n] if started else self.encoder.initial_state(q)
         r, enc = self.encoder.step_state(enc, q)
-        net_state = memory[1 + 3 * n:] if memory[0] else np.zeros(self._n_net)
+        net_state = memory[1 + 3 * n:] if started else np.zeros(self._n_net)
         tau, net_state = self.stepper.step(np.concatenate([tau_rbd, q, qd, qdd, r]), net_state)
-        discrete_state.get_mutable_vector(self._memory).set_value(np.concatenate([[1.0], enc, net_state]))
-        discrete_state.get_mutable_vector(self._hybrid).set_value(tau)
-        discrete_state.get_mutable_vector(self._residual).set_value(tau - tau_rbd)
+        value.set_value(np.concatenate([tau, [1.0], enc, net_state]))
+
+    def _calc_residual(self, context, output) -> None:
+        output.SetFromVector(self._step.Eval(context)[:self.n] - self._ports[3].Eval(context))
+
+    def _update(self, context, discrete_state) -> None:
+        discrete_state.get_mutable_vector(self._memory).set_value(self._step.Eval(context)[self.n:])
 
 
 def AddResidualNetwork(builder: DiagramBuilder, model: HybridModel, period_s: float | None = None,

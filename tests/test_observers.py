@@ -15,14 +15,14 @@ from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput, Tr
 from pydrake.trajectories import PiecewisePolynomial
 
 from proprio.dynamics import gravity_torque, inverse_dynamics
-from proprio.kinematics import flange_jacobian
+from proprio.kinematics import flange_jacobian, point_jacobian
 from proprio.payload import Payload, attach_payload
 from proprio.recording import Recording, RecordingError
 from proprio.urdf import to_urdf
 from proprio.diagrams.estimation import (FilterSettings, RigidBodyTorqueModel, estimate_wrench,
                                          estimate_wrench_offline, preprocess)
-from proprio.systems.observers import (DrakeArm, JacobianWrenchObserver, MomentumObserver, WrenchMapping,
-                                       jacobian_wrench, momentum_observer, momentum_terms)
+from proprio.systems.observers import (DrakeArm, JacobianWrenchObserver, MomentumObserver, WrenchMapping, WrenchSolver,
+                                       jacobian_wrench, momentum_observer, momentum_terms, wrench_from_joint_torque)
 
 G = np.array([0.0, 0.0, -9.81])
 HOME = np.array([0.0, 0.5, 0.0, -1.2, 0.0, 0.8, 0.0])
@@ -345,3 +345,21 @@ def test_payload_experiment_end_to_end_on_nominal_twin(rigid, nominal_twin, tmp_
         exp.results[0.0].wrench["jacobian"][exp.results[0.0].valid(), 2].mean()
     assert seen == pytest.approx(-9.81, abs=0.2)
     assert all(p.exists() and p.stat().st_size > 0 for p in exp.files)
+
+
+@pytest.mark.parametrize("mapping", [WrenchMapping(), WrenchMapping(force_only=True),
+                                     WrenchMapping(joint_weights=(1, 2, 3, 4, 5, 6, 7), contact_point=(0, 0, 0.1))])
+def test_single_sample_solver_equals_the_batched_one(rigid, mapping):
+    """The Systems' per-step LAPACK solve gives the batched solver's wrench, manipulability and flag, also damped
+    near and at the stretched-arm singularity."""
+    rng = np.random.default_rng(4)
+    q = np.vstack([_nonsingular_poses(rigid, 20, seed=5), np.zeros(7), [0, 0.01, 0, 0.02, 0, 0.01, 0]])
+    jac = point_jacobian(rigid, q, np.asarray(mapping.contact_point, float))
+    tau = rng.normal(size=q.shape)
+    wrench, manip, flag = wrench_from_joint_torque(jac, tau, mapping)
+    solver = WrenchSolver(mapping, 7)
+    single = np.array([solver(j, t) for j, t in zip(jac, tau)])
+    assert flag[-2:].all() and not flag[:-2].any()
+    np.testing.assert_allclose(single[:, :6], wrench, rtol=0, atol=1e-9 * (1 + np.abs(wrench).max()))
+    np.testing.assert_allclose(single[:, 6], manip, rtol=1e-10, atol=1e-15)
+    np.testing.assert_array_equal(single[:, 7] > 0.5, flag)

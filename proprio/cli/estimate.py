@@ -13,7 +13,9 @@ from proprio.cli import UserError
 __all__ = ["register", "run_estimate", "run_payload_experiment"]
 
 MODEL_HELP = ("a shipped robot name or robot YAML/URDF (its rigid-body model + friction, e.g. iiwa14_identified), "
-              "or an identified-model .npz written by `proprio identify`")
+              "an identified-model .npz written by `proprio identify`, or a hybrid model .pt written by `proprio "
+              "train` (MLP-7/LSTM; its network runs online in the diagram, with its own training-time filters and "
+              "rate, so --cutoff-hz does not apply to it)")
 
 
 def _add_observer_options(p: argparse.ArgumentParser) -> None:
@@ -43,7 +45,7 @@ def run_estimate(args: argparse.Namespace) -> int:
     mapping, filters = _options(args)
     res = estimate_wrench(model, rec, gain=args.gain, mapping=mapping, filters=filters)
     out = Path(args.out)
-    title = f"{Path(args.recording).name}: estimated external force, model {model.description.name}"
+    title = f"{Path(args.recording).name}: estimated external force, model {res.meta['model']}"
     written = res.save(out) + [res.plot(out / "wrench.png", title=title)]
     print(f"{rec.n_samples} samples, {res.unreliable.sum()} flagged unreliable (near a singularity)")
     if res.f_true is not None:

@@ -1,0 +1,149 @@
+"""The hybrid torque model τ_HYB = τ_RBD + f_NN(τ_RBD, q, q̇, q̈, r) (§4.2, eq. 4.29/4.30) as a ``TorqueModel`` of
+the estimation diagram (:mod:`proprio.diagrams.estimation`), so both wrench observers run on it online.
+
+Online (``make_system``), a sub-Diagram with the same ports as :class:`~proprio.diagrams.estimation.TorqueModelSystem`
+(inputs ``q``, ``qd``, ``qdd``; outputs ``tau_dyn``, ``tau_int``)::
+
+    q, qd, qdd ──▶ backbone (TorqueModelSystem) ──tau_dyn (τ_RBD)──▶ residual_network ──tau_hybrid──▶ tau_dyn
+        └──────────────────────────────────────────────────────────▶ (q, qd, qdd)    └─tau_residual─┐
+                   backbone ──tau_int──────────────────────────────────────────────────────▶ Adder ──▶ tau_int
+
+``tau_dyn`` = τ_HYB feeds the Jacobian observer; ``tau_int`` = τ_HYB − τ_rigid (the backbone's friction and offsets
+plus the network's residual) feeds the momentum observer, which takes M(q) from the backbone's rigid body. The
+network keeps its LSTM state and its r-encoder state from sample to sample, one step per sample at the model rate.
+
+Offline (``tau_int``), the same model over one contiguous sequence at the model rate, vectorised
+(:func:`~proprio.learning.evaluation.predict_streaming`); the diagram matches it to rounding (tests).
+
+The backbone is the τ_RBD the network was trained with (the ``backbone`` spec stored in the model file): a robot's
+RNEA + viscous/Coulomb friction with ``sign(q̇)`` (:func:`~proprio.learning.features.rbd_provider`), or an identified
+``.npz`` (its inertials, friction law and offsets, as :func:`~proprio.diagrams.estimation.load_torque_model` reads it).
+:meth:`HybridTorqueModel.signals` prepares a Recording exactly as the training data were (the §4.4 pipeline of
+:mod:`proprio.learning.datasets`: filtered derivatives, optional τ low-pass, decimation to the model rate).
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import Adder
+
+from proprio.description import RobotDescription, load_robot
+from proprio.diagrams.estimation import RigidBodyTorqueModel, TorqueModelSystem, load_torque_model
+from proprio.dynamics import inverse_dynamics
+from proprio.learning.datasets import DataConfig, kept_samples, prepare_recording
+from proprio.learning.evaluation import predict_streaming
+from proprio.learning.features import feature_matrix, rotational_displacement
+from proprio.learning.models import HybridModel, load_model
+from proprio.recording import Recording, RecordingError
+from proprio.systems.residual_network import ResidualNetworkSystem
+
+__all__ = ["HybridTorqueModel", "load_hybrid_torque_model"]
+
+_RATE_TOLERANCE = 0.02   # a Recording's decimated rate may differ from the model rate by 2 %
+
+
+@dataclass
+class HybridTorqueModel:
+    """A trained hybrid network on its backbone, for :func:`~proprio.diagrams.estimation.estimate_wrench`.
+
+    Attributes:
+        backbone: the τ_RBD model the network was trained with (rigid body + friction + offsets).
+        network: the trained MLP-7 / LSTM model (float64 for the offline path; Transformers have no streaming form).
+        data: the data pipeline it was trained with (filters, deadband, r_max; ``decimate`` is chosen per Recording).
+        name: a label for reports (e.g. the model file's name).
+    """
+    backbone: RigidBodyTorqueModel
+    network: HybridModel
+    data: DataConfig
+    name: str = "hybrid"
+
+    def __post_init__(self) -> None:
+        if not self.network.cfg.streamable:
+            raise ValueError(f"{self.name}: {self.network.cfg.label()} has no streaming form (Transformer); the "
+                             "estimation diagram needs an MLP-7 or LSTM model")
+        if self.network.cfg.n_joints != self.backbone.description.n:
+            raise ValueError(f"{self.name}: the network has {self.network.cfg.n_joints} joints, the backbone "
+                             f"'{self.backbone.description.name}' {self.backbone.description.n}")
+        self.network = self.network.double().eval()
+
+    @property
+    def description(self) -> RobotDescription:
+        return self.backbone.description
+
+    @property
+    def rate_hz(self) -> float:
+        """The model's sample rate [Hz] (after the §4.4 decimation)."""
+        return float(self.network.cfg.rate_hz)
+
+    def tau_backbone(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """τ_RBD ``[N,n]`` [N·m] of the backbone: the network's τ_RBD input."""
+        return inverse_dynamics(self.description, q, qd, qdd) + self.backbone.tau_int(q, qd, qdd)
+
+    def tau_int(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """τ_HYB − τ_rigid ``[N,n]`` [N·m] over ONE contiguous sequence at the model rate (state carried through)."""
+        cfg = self.network.cfg
+        r = rotational_displacement(q, cfg.reversal_deadband_deg, cfg.r_max_deg)
+        tau = predict_streaming(self.network, feature_matrix(self.tau_backbone(q, qd, qdd), q, qd, qdd, r))
+        return tau - inverse_dynamics(self.description, q, qd, qdd)
+
+    def make_system(self, time_step: float) -> Diagram:
+        """The online model (module docstring), stepping every ``time_step`` [s] (the replayed data's step).
+        Inputs ``q``, ``qd``, ``qdd``; outputs ``tau_dyn`` = τ_HYB and ``tau_int`` = τ_HYB − τ_rigid [N·m]."""
+        n = self.description.n
+        builder = DiagramBuilder()
+        backbone = builder.AddNamedSystem("backbone", TorqueModelSystem(self.backbone))
+        network = builder.AddNamedSystem("residual_network", ResidualNetworkSystem(self.network, time_step))
+        tau_int = builder.AddNamedSystem("tau_int", Adder(2, n))
+        for name in ("q", "qd", "qdd"):
+            builder.ExportInput(backbone.GetInputPort(name), name)
+            builder.ConnectInput(name, network.GetInputPort(name))
+        builder.Connect(backbone.GetOutputPort("tau_dyn"), network.GetInputPort("tau_rbd"))
+        builder.Connect(backbone.GetOutputPort("tau_int"), tau_int.get_input_port(0))
+        builder.Connect(network.GetOutputPort("tau_residual"), tau_int.get_input_port(1))
+        builder.ExportOutput(network.GetOutputPort("tau_hybrid"), "tau_dyn")
+        builder.ExportOutput(tau_int.get_output_port(), "tau_int")
+        diagram = builder.Build()
+        diagram.set_name("hybrid_torque_model")
+        return diagram
+
+    def signals(self, rec: Recording) -> tuple[Recording, dict[str, np.ndarray]]:
+        """``rec`` at the model rate (the kept samples) and its signals ``t, q, qd, qdd, tau, time_step`` prepared
+        like the training data. The Recording's rate divided by a whole decimation factor must give the model
+        rate within 2 % (e.g. 1 kHz → every 13th sample for a 76.9 Hz model); raises :class:`RecordingError`."""
+        k = max(1, int(round(rec.rate_hz / self.rate_hz)))
+        if abs(rec.rate_hz / k - self.rate_hz) > _RATE_TOLERANCE * self.rate_hz:
+            raise RecordingError(f"recording: sampled at {rec.rate_hz:.4g} Hz, which no whole decimation brings to "
+                                 f"the model rate {self.rate_hz:.4g} Hz (nearest: every {k}th sample, "
+                                 f"{rec.rate_hz / k:.4g} Hz); resample the recording")
+        data = dataclasses.replace(self.data, decimate=k)
+        prep = prepare_recording(rec, self.tau_backbone, data, name=self.name)
+        n = self.description.n
+        q, qd, qdd = (prep.features[:, i * n:(i + 1) * n] for i in (1, 2, 3))
+        at_rate = rec.take(kept_samples(rec, data))
+        return at_rate, {"t": at_rate.t - at_rate.t[0], "q": q, "qd": qd, "qdd": qdd, "tau": prep.tau,
+                         "time_step": k / rec.rate_hz}
+
+    def filter_edge_s(self, edge_cycles: float = 3.0) -> float:
+        """Start-up/edge transient of its zero-phase filters [s]: ``edge_cycles`` periods of the lowest cutoff."""
+        cutoffs = [c for c in (self.data.derivative_cutoff_hz, self.data.tau_filter_hz) if c]
+        return edge_cycles / min(cutoffs) if cutoffs else 0.0
+
+
+def load_hybrid_torque_model(path: str | Path) -> HybridTorqueModel:
+    """A :class:`HybridTorqueModel` from a model file written by ``proprio train`` (its stored backbone spec and data
+    config)."""
+    network, extra = load_model(path, dtype=torch.float64)
+    spec = extra.get("backbone")
+    if not spec:
+        raise ValueError(f"{path}: the model file names no backbone; train it with `proprio train`")
+    if Path(spec).suffix == ".npz":
+        backbone = load_torque_model(spec)
+    else:   # the training backbone rbd_provider(): RNEA + f_v q̇ + f_c sign(q̇)
+        backbone = RigidBodyTorqueModel(load_robot(spec), coulomb_velocity=0.0)
+    return HybridTorqueModel(backbone, network, DataConfig.from_dict(extra.get("data")), Path(path).name)
+

@@ -1,0 +1,83 @@
+"""The hybrid model in the estimation diagram: the network runs online (ResidualNetworkSystem inside the torque-model
+sub-Diagram) and matches the offline streaming path; its backbone and preprocessing are the training ones."""
+import numpy as np
+import pytest
+import torch
+
+from proprio.description import load_robot
+from proprio.diagrams.estimation import estimate_wrench, estimate_wrench_offline, load_torque_model
+from proprio.diagrams.hybrid_torque_model import HybridTorqueModel
+from proprio.dynamics import inverse_dynamics
+from proprio.learning.datasets import DataConfig, prepare_recording
+from proprio.learning.features import rbd_provider
+from proprio.learning.models import HybridModel, ModelConfig, save_model
+from proprio.payload import Payload, attach_payload
+from proprio.recording import Recording, RecordingError
+
+RATE = 150.0
+DATA = DataConfig(decimate=2, window=20, derivatives="filtered", derivative_cutoff_hz=10.0, tau_filter_hz=5.0)
+
+
+@pytest.fixture(scope="module")
+def desc():
+    return load_robot("iiwa14_identified")
+
+
+def _recording(desc, seconds=8.0, rate=RATE, mass=1.0, seed=0) -> Recording:
+    rng = np.random.default_rng(seed)
+    t = np.arange(int(seconds * rate)) / rate
+    w = rng.uniform(0.3, 0.9, desc.n)
+    home = np.array([0.0, 0.5, 0.0, -1.2, 0.0, 0.8, 0.0])
+    q = home + 0.3 * np.sin(np.outer(t, w))
+    qd = 0.3 * w * np.cos(np.outer(t, w))
+    qdd = -0.3 * w ** 2 * np.sin(np.outer(t, w))
+    tau = inverse_dynamics(attach_payload(desc, Payload(mass)), q, qd, qdd) + rbd_provider(desc)(q, qd, qdd) \
+        - inverse_dynamics(desc, q, qd, qdd) + rng.normal(0, 0.05, q.shape)
+    return Recording(t=t, q=q, tau=tau, meta={"robot": desc.name})
+
+
+def _model_file(tmp_path, desc, arch="lstm2_fcl"):
+    torch.manual_seed(0)
+    cfg = ModelConfig(arch=arch, window=20, lstm_hidden=6, mlp_hidden=8, tf_d_model=8, tf_heads=2, tf_layers=1,
+                      tf_ff=16, rate_hz=RATE / DATA.decimate)
+    model = HybridModel(cfg)
+    prep = prepare_recording(_recording(desc, seed=5), rbd_provider(desc), DATA)
+    model.set_normalisation(prep.features, prep.tau)
+    return save_model(model, tmp_path / f"{arch}.pt", {"backbone": desc.name, "data": DATA.to_dict()})
+
+
+def test_backbone_and_signals_are_the_training_ones(tmp_path, desc):
+    hybrid = load_torque_model(_model_file(tmp_path, desc))
+    assert isinstance(hybrid, HybridTorqueModel) and hybrid.description.name == desc.name
+    rec = _recording(desc)
+    at_rate, sig = hybrid.signals(rec)
+    prep = prepare_recording(rec, rbd_provider(desc), DATA)
+    np.testing.assert_allclose(hybrid.tau_backbone(sig["q"], sig["qd"], sig["qdd"]), prep.tau_rbd, atol=1e-10)
+    np.testing.assert_array_equal(at_rate.t, prep.t)
+    np.testing.assert_array_equal(sig["tau"], prep.tau)
+    assert sig["time_step"] == pytest.approx(2 / RATE)
+
+
+def test_network_runs_online_in_the_diagram_and_equals_offline(tmp_path, desc):
+    hybrid = load_torque_model(_model_file(tmp_path, desc))
+    rec = _recording(desc, seconds=6.0)
+    online, offline = estimate_wrench(hybrid, rec), estimate_wrench_offline(hybrid, rec)
+    assert online.t.shape == (rec.n_samples // 2,) and online.meta["model"] == "lstm2_fcl.pt"
+    # the network's residual is not zero, so the equality below exercises its online state
+    assert np.abs(hybrid.tau_int(*(hybrid.signals(rec)[1][k] for k in ("q", "qd", "qdd")))).max() > 0.1
+    np.testing.assert_allclose(online.wrench["jacobian"], offline.wrench["jacobian"], atol=1e-9)
+    # the momentum System's state output is visible one sample after its update (Drake discrete semantics)
+    np.testing.assert_allclose(online.tau_ext["momentum"][1:], offline.tau_ext["momentum"][:-1], atol=1e-8)
+
+
+def test_a_recording_at_another_rate_is_decimated_or_rejected(tmp_path, desc):
+    hybrid = load_torque_model(_model_file(tmp_path, desc))
+    at_rate, sig = hybrid.signals(_recording(desc, seconds=3.0, rate=750.0))       # every 10th sample → 75 Hz
+    assert sig["time_step"] == pytest.approx(1 / 75.0) and at_rate.n_samples == 225
+    with pytest.raises(RecordingError, match="model rate"):
+        hybrid.signals(_recording(desc, seconds=3.0, rate=110.0))
+
+
+def test_a_transformer_cannot_run_online(tmp_path, desc):
+    with pytest.raises(ValueError, match="streaming"):
+        load_torque_model(_model_file(tmp_path, desc, arch="transformer"))
