@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
+import torch
 import yaml
 
 from proprio.description import RobotDescription, load_robot
@@ -110,6 +111,7 @@ def train_from_config(cfg: dict[str, Any], train_recs: Sequence[Recording], back
     data = DataConfig.from_dict(cfg.get("data"))
     tcfg = TrainConfig.from_dict(cfg.get("train"))
     split = split or prepare_split(train_recs, backbone, data, test_recs, names)
+    torch.manual_seed(tcfg.seed)            # the initial weights too come from the config's seed
     model = HybridModel(_model_config(cfg, data, split, backbone.description.n, **model_override))
     out = Path(out)
     ckpt = out.with_name(out.name + ".ckpt")

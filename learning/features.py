@@ -121,7 +121,7 @@ class ReversalEncoder:
         run = np.maximum(s, d * e)
         rev = run - s > self.h
         nxt = np.concatenate([d, d * run, a])                     # no reversal: d, e = extremum, a
-        if rev.any():
+        if np.count_nonzero(rev):                                 # (cheaper than rev.any() for one sample)
             nxt[:n][rev] = -d[rev]
             nxt[n:2 * n][rev] = q[rev]
             nxt[2 * n:][rev] = d[rev] * run[rev]

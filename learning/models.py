@@ -273,27 +273,28 @@ class StreamingStepper:
             w_ih, b1 = fold_input(sd["net.cell1.weight_ih_l0"], sd["net.cell1.bias_ih_l0"] + sd["net.cell1.bias_hh_l0"])
             self.sizes = model.net.sizes
 
-            def scale(k: int) -> np.ndarray:
-                out = np.full(4 * k, 0.5)
-                out[2 * k:3 * k] = 1.0
-                return out
+            def cell(w_ih: np.ndarray, w_hh: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                k = w_hh.shape[1]
+                scale = np.full(4 * k, 0.5)          # σ(a) = ½ + ½ tanh(a/2) on i, f, o; tanh(a) on g
+                scale[2 * k:3 * k] = 1.0
+                return scale[:, None] * np.hstack([w_ih, w_hh]), scale * b
 
-            self.cells = [(np.hstack([w_ih, sd["net.cell1.weight_hh_l0"]]), b1, scale(self.sizes[0])),
-                          (np.hstack([sd["net.cell2.weight_ih_l0"], sd["net.cell2.weight_hh_l0"]]),
-                           sd["net.cell2.bias_ih_l0"] + sd["net.cell2.bias_hh_l0"], scale(self.sizes[2]))]
+            self.cells = [cell(w_ih, sd["net.cell1.weight_hh_l0"], b1),
+                          cell(sd["net.cell2.weight_ih_l0"], sd["net.cell2.weight_hh_l0"],
+                               sd["net.cell2.bias_ih_l0"] + sd["net.cell2.bias_hh_l0"])]
             if "net.fcl.weight" in sd:
                 self.w_out, self.b_out = sd["net.fcl.weight"] * y_std[:, None], sd["net.fcl.bias"] * y_std + y_mean
             else:
                 self.w_out, self.b_out = np.diag(y_std), y_mean
 
     @staticmethod
-    def _cell(x: np.ndarray, h: np.ndarray, c: np.ndarray, w: np.ndarray, b: np.ndarray, scale: np.ndarray
+    def _cell(x: np.ndarray, h: np.ndarray, c: np.ndarray, w: np.ndarray, b: np.ndarray
               ) -> tuple[np.ndarray, np.ndarray]:
-        """One LSTM cell step (eq. 3.66–3.71), PyTorch gate order i, f, g, o, with ``w = [W_ih  W_hh]``. The gates
-        come from ONE tanh: σ(a) = ½ + ½ tanh(a/2) for i, f, o (``scale`` ½) and tanh(a) for g (``scale`` 1)."""
+        """One LSTM cell step (eq. 3.66–3.71), PyTorch gate order i, f, g, o. The gates come from ONE tanh,
+        σ(a) = ½ + ½ tanh(a/2), so ``w = S [W_ih  W_hh]`` and ``b = S b`` are pre-scaled by S = ½ on the i, f, o rows
+        and 1 on the g rows."""
         a = w @ np.concatenate((x, h))
         a += b
-        a *= scale
         t = np.tanh(a)
         s = t * 0.5
         s += 0.5

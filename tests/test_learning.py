@@ -205,6 +205,24 @@ def test_training_learns_the_residual():
     assert result.history[-1]["train"] < 0.3 * result.history[0]["train"]
 
 
+def test_the_same_config_trains_the_same_model(tmp_path):
+    """Initial weights, batch order and training all follow ``train.seed``: whatever the global torch RNG did
+    before (another model, another process), the same config gives bit-identical weights."""
+    from proprio.learning.experiments import Backbone, train_from_config
+    from proprio.description import load_robot
+    cfg = {"model": {"arch": "lstm2_fcl", "lstm_hidden": 6}, "data": {"window": 20},
+           "train": {"max_epochs": 2, "batch_size": 8, "seed": 3}}
+    backbone = Backbone("toy", load_robot("iiwa14_identified"), _toy_backbone)
+    recs = [_recording(3000, s) for s in (0, 1)]
+    weights = []
+    for k in range(2):
+        torch.manual_seed(100 + k)                       # a different global RNG state each time
+        model, _, _ = train_from_config(cfg, recs, backbone, tmp_path / f"m{k}.pt", progress=False)
+        weights.append(model.state_dict())
+    for name, value in weights[0].items():
+        assert torch.equal(value, weights[1][name]), name
+
+
 def test_resume_after_a_killed_run_continues_from_the_last_epoch(tmp_path):
     split, _, _ = _split()
     cfg = TrainConfig(max_epochs=5, batch_size=8, early_stop_patience=100)
