@@ -96,8 +96,10 @@ def rotational_displacement(q: np.ndarray, deadband_deg: float = DEFAULT_DEADBAN
 class ReversalEncoder:
     """Streaming form of :func:`rotational_displacement`: call :meth:`step` once per sample.
 
-    The state (``d, e, a`` per joint, see the module docstring) is a flat vector ``[3n]`` so a Drake System can keep it
-    as discrete state: :meth:`initial_state`, :meth:`step_state` are the pure functions the System uses.
+    The state is a flat vector ``[3n]`` so a Drake System can keep it as discrete state: per joint the direction
+    ``d``, the signed running extremum ``m = d·e`` and the reversal point ``a`` (module docstring; keeping ``d·e``
+    saves two products per sample and is exact, d = ±1). :meth:`initial_state`, :meth:`step_state` are the pure
+    functions the System uses.
     """
     n: int
     deadband_deg: float = DEFAULT_DEADBAND_DEG
@@ -109,22 +111,22 @@ class ReversalEncoder:
         self.state: np.ndarray | None = None
 
     def initial_state(self, q0: np.ndarray) -> np.ndarray:
-        """State ``[d(n), e(n), a(n)]`` before the first sample ``q0`` (direction up, reversal point q0)."""
+        """State ``[d(n), m(n), a(n)]`` before the first sample ``q0`` (direction up, reversal point q0)."""
         q0 = np.asarray(q0, dtype=float)
         return np.concatenate([np.ones(self.n), q0, q0])
 
     def step_state(self, state: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(r [n] rad, next state)`` for one sample ``q [n]``; ``state`` is not modified."""
         n = self.n
-        d, e, a = state[:n], state[n:2 * n], state[2 * n:]
+        d = state[:n]
         s = d * q
-        run = np.maximum(s, d * e)
+        run = np.maximum(s, state[n:2 * n])                       # signed running extremum d·e
         rev = run - s > self.h
-        nxt = np.concatenate([d, d * run, a])                     # no reversal: d, e = extremum, a
+        nxt = np.concatenate([d, run, state[2 * n:]])             # no reversal: d, d·e, a
         if np.count_nonzero(rev):                                 # (cheaper than rev.any() for one sample)
-            nxt[:n][rev] = -d[rev]
-            nxt[n:2 * n][rev] = q[rev]
-            nxt[2 * n:][rev] = d[rev] * run[rev]
+            nxt[2 * n:][rev] = d[rev] * run[rev]                  # a ← e, the extremum
+            nxt[:n][rev] = -d[rev]                                # d ← −d
+            nxt[n:2 * n][rev] = -s[rev]                           # d·e ← (−d)·q
         r = np.minimum(np.maximum(q - nxt[2 * n:], -self.r_max), self.r_max)   # = np.clip, less call overhead
         return r, nxt
 

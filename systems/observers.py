@@ -52,6 +52,7 @@ __all__ = ["WrenchMapping", "wrench_from_joint_torque", "WrenchSolver", "jacobia
            "momentum_terms", "DrakeArm", "momentum_observer", "MomentumObserver"]
 
 _VW = [3, 4, 5, 0, 1, 2]   # rows of our [ω; v] Jacobian in [v; ω] order, so that Jᵀ[f; m] = τ
+_NO_MOMENT = np.zeros(3)
 
 
 @dataclass(frozen=True)
@@ -149,14 +150,8 @@ class WrenchSolver:
         # (the common undamped case skips np.where's overhead)
         lam2 = float(_damping(s_min, self.mapping)) if s_min < self.mapping.sigma_threshold else 0.0
         sol = vt.T @ (s / (s * s + lam2) * (tau_ext @ u))            # [m; f] (6-D) or f (force only)
-        out = np.zeros(8)
-        if len(sv) == 6:
-            out[:3], out[3:6] = sol[3:], sol[:3]
-        else:
-            out[:3] = sol
-        out[6] = math.prod(sv)
-        out[7] = float(s_min < self.mapping.sigma_threshold)
-        return out
+        quality = (math.prod(sv), float(s_min < self.mapping.sigma_threshold))
+        return np.concatenate((sol[3:], sol[:3], quality) if len(sv) == 6 else (sol, _NO_MOMENT, quality))
 
 
 def jacobian_wrench(desc: RobotDescription | ChainGeometry, q: np.ndarray, tau_meas: np.ndarray,

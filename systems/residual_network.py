@@ -6,8 +6,8 @@
 A discrete-time system at the model's data rate (``1 / model.cfg.rate_hz``, the rate after the §4.4 decimation) in
 the usual state-space form ``y_k = g(x_k, u_k)``, ``x_{k+1} = f(x_k, u_k)``:
 
-* the state x (discrete state ``memory``) is the rotational-displacement encoder's state (direction, running extremum
-  and reversal point per joint) and the network's recurrent state (h₁, c₁, h₂, c₂ of the LSTM; none for MLP-7);
+* the state x (discrete state ``memory``) is the rotational-displacement encoder's state (direction, signed running
+  extremum and reversal point per joint) and the network's recurrent state (h₁, c₁, h₂, c₂ of the LSTM; none for MLP-7);
 * one step — advance the encoder with q_k, build vec(τ_RBD, q, q̇, q̈, r)_k, run the network one sample — gives both
   the output y_k and the next state; it is a cache entry computed once per sample from the inputs and the state;
 * the outputs are **direct feedthrough**: at a sample time t_k they are the prediction for the inputs of t_k, with
@@ -33,6 +33,8 @@ from proprio.learning.features import ReversalEncoder
 from proprio.learning.models import HybridModel, StreamingStepper
 
 __all__ = ["ResidualNetworkSystem", "AddResidualNetwork"]
+
+_STARTED = np.ones(1)
 
 
 class ResidualNetworkSystem(LeafSystem):
@@ -63,13 +65,13 @@ class ResidualNetworkSystem(LeafSystem):
         self._ports = [self.DeclareVectorInputPort(name, n) for name in ("q", "qd", "qdd", "tau_rbd")]
         # memory: [started flag, encoder state (3n), network state]
         self._memory = self.DeclareDiscreteState(1 + 3 * n + self._n_net)
-        # one step: [τ_hybrid (n), next memory]
+        # one step: (τ_hybrid [n], next memory)
         self._step = self.DeclareCacheEntry(
-            "step", ValueProducer(allocate=AbstractValue.Make(np.zeros(n + 1 + 3 * n + self._n_net)).Clone,
+            "step", ValueProducer(allocate=AbstractValue.Make((np.zeros(n), np.zeros(1 + 3 * n + self._n_net))).Clone,
                                   calc=self._calc_step),
             {self.all_input_ports_ticket(), self.discrete_state_ticket(self._memory)})
         self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._update)
-        self.DeclareVectorOutputPort("tau_hybrid", n, lambda c, o: o.SetFromVector(self._step.Eval(c)[:n]))
+        self.DeclareVectorOutputPort("tau_hybrid", n, lambda c, o: o.SetFromVector(self._step.Eval(c)[0]))
         self.DeclareVectorOutputPort("tau_residual", n, self._calc_residual)
 
     def _calc_step(self, context, value) -> None:
@@ -81,13 +83,13 @@ class ResidualNetworkSystem(LeafSystem):
         r, enc = self.encoder.step_state(enc, q)
         net_state = memory[1 + 3 * n:] if started else np.zeros(self._n_net)
         tau, net_state = self.stepper.step(np.concatenate([tau_rbd, q, qd, qdd, r]), net_state)
-        value.set_value(np.concatenate([tau, [1.0], enc, net_state]))
+        value.set_value((tau, np.concatenate([_STARTED, enc, net_state])))
 
     def _calc_residual(self, context, output) -> None:
-        output.SetFromVector(self._step.Eval(context)[:self.n] - self._ports[3].Eval(context))
+        output.SetFromVector(self._step.Eval(context)[0] - self._ports[3].Eval(context))
 
     def _update(self, context, discrete_state) -> None:
-        discrete_state.get_mutable_vector(self._memory).set_value(self._step.Eval(context)[self.n:])
+        discrete_state.get_mutable_vector(self._memory).set_value(self._step.Eval(context)[1])
 
 
 def AddResidualNetwork(builder: DiagramBuilder, model: HybridModel, period_s: float | None = None,
