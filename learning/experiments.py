@@ -24,8 +24,8 @@ import yaml
 from proprio.description import RobotDescription, load_robot
 from proprio.io import atomic_write_text
 from proprio.learning.datasets import DataConfig, Split, kept_samples, make_split, prepare_recording
-from proprio.learning.evaluation import (TableRow, evaluate_model, format_table, predict_streaming, rbd_row,
-                                         streaming_row)
+from proprio.learning.evaluation import (TableRow, evaluate_model, format_table, predict_streaming, predict_windowed,
+                                         rbd_row, streaming_row)
 from proprio.learning.features import TauRbdProvider, rbd_provider
 from proprio.learning.models import ARCHS, HybridModel, ModelConfig, load_model, save_model
 from proprio.learning.training import TrainConfig, TrainResult, train_model
@@ -236,6 +236,9 @@ def payload_table(models: dict[str, HybridModel | None], backbone: Backbone, rec
     ``models``: name → model (None = the backbone alone, "RBD"); ``recordings``: label (e.g. "500 g") → Recording
     with ``f_ext``, prepared with ``data`` like the training data. Per model and recording: RMSE [N] and the standard
     deviation of the error [N] along x, y, z (world frame); samples flagged unreliable (near-singular J) are skipped.
+    τ_model is the streaming prediction (state carried over the recording) of a model that has a streaming form
+    (MLP-7, LSTMs), else the windowed one (a Transformer: consecutive windows of T, fresh state per window, as in
+    :func:`evaluate_model`), marked "(windowed)".
     """
     from proprio.systems.observers import WrenchMapping, jacobian_wrench
     mapping = WrenchMapping(force_only=True, contact_point=contact_point)
@@ -247,7 +250,12 @@ def payload_table(models: dict[str, HybridModel | None], backbone: Backbone, rec
         f_true = rec.f_ext[kept_samples(rec, data), :3]
         q = prep.features[:, prep.n_joints:2 * prep.n_joints]
         for name, model in models.items():
-            tau_model = prep.tau_rbd if model is None else predict_streaming(model, prep.features)
+            if model is None:
+                tau_model = prep.tau_rbd
+            elif model.cfg.streamable:
+                tau_model = predict_streaming(model, prep.features)
+            else:
+                tau_model, name = predict_windowed(model, prep.features), f"{name} (windowed)"
             wrench, _, unreliable = jacobian_wrench(backbone.description, q, prep.tau, tau_model, mapping)
             err = (wrench[:, :3] - f_true)[~unreliable]
             rmse, std = np.sqrt((err ** 2).mean(0)), err.std(0)

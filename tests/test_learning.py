@@ -205,6 +205,39 @@ def test_training_learns_the_residual():
     assert result.history[-1]["train"] < 0.3 * result.history[0]["train"]
 
 
+@pytest.mark.parametrize("kind, power", [("nm2", 0), ("inv_std", 1), ("normalised", 2)])
+def test_loss_weights_each_joint_by_a_power_of_its_target_std(kind, power):
+    from proprio.learning.training import _loss
+    split, _, _ = _split()
+    torch.manual_seed(0)
+    model = HybridModel(_small("mlp7"))
+    model.set_normalisation(split.train.features, split.train.tau)
+    x, tau = (torch.as_tensor(a[:4], dtype=torch.float32) for a in (split.train.features, split.train.tau))
+    expected = ((model(x) - tau) ** 2 / model.y_std ** power).mean()
+    assert _loss(model, x, tau, kind).item() == pytest.approx(expected.item(), rel=1e-6)
+    with pytest.raises(ValueError, match="inv_std"):
+        TrainConfig.from_dict({"loss": "l1"})
+
+
+def test_payload_table_runs_a_transformer_windowed(tmp_path):
+    from proprio.description import load_robot
+    from proprio.learning.experiments import Backbone, payload_table
+    cfg = DataConfig(window=20, decimate=2)
+    rec = _recording(1200, 3)
+    rec = rec.replace(f_ext=np.zeros((rec.n_samples, 6)))
+    models = {}
+    for arch in ("lstm2_fcl", "transformer"):
+        torch.manual_seed(0)
+        models[arch] = HybridModel(_small(arch))
+        prep = prepare_recording(rec, _toy_backbone, cfg)
+        models[arch].set_normalisation(prep.features, prep.tau)
+    text = payload_table({"RBD": None, **models}, Backbone("toy", load_robot("iiwa14_identified"), _toy_backbone),
+                         {"0 g": rec}, cfg)
+    rows = text.splitlines()[1:]
+    assert [r.split()[0] for r in rows] == ["RBD", "lstm2_fcl", "transformer"] and "(windowed)" in rows[2]
+    assert all(np.isfinite(float(v)) for r in rows for v in r.split("[")[1].split("]")[0].split())
+
+
 def test_the_same_config_trains_the_same_model(tmp_path):
     """Initial weights, batch order and training all follow ``train.seed``: whatever the global torch RNG did
     before (another model, another process), the same config gives bit-identical weights."""
