@@ -370,10 +370,11 @@ def _prepare(model: TorqueModel | RobotDescription, rec: Recording, settings: Fi
     """The model, the Recording at the rate the diagram runs, its signals and the filters' edge transient [s]."""
     if isinstance(model, RobotDescription):
         model = RigidBodyTorqueModel(model)
-    rec = resample_uniform(check_recording_matches(rec, model.description))
-    if hasattr(model, "signals"):
+    rec = check_recording_matches(rec, model.description)
+    if hasattr(model, "signals"):             # its own pipeline: decimation to its rate, as in training
         rec, sig = model.signals(rec)
         return model, rec, sig, model.filter_edge_s(settings.edge_cycles)
+    rec = resample_uniform(rec)
     return model, rec, preprocess(rec, settings), settings.edge_cycles / settings.cutoff_hz
 
 
@@ -395,8 +396,9 @@ def estimate_wrench(model: TorqueModel | RobotDescription, rec: Recording, gain:
     its rigid-body model + friction). ``gain`` is the momentum observer's K_O [1/s] (scalar or per joint).
 
     A Recording with jittery time stamps is first resampled onto a uniform grid (:func:`resample_uniform`; the
-    result's ``t`` is that grid). A hybrid model (``model.signals``) replaces ``filters`` by its own training-time
-    preprocessing and runs at its own rate: the result then holds the Recording's samples at that rate. Raises
+    result's ``t`` is that grid). A hybrid model (``model.signals``) replaces ``filters`` and the resampling by its
+    own training-time preprocessing and runs at its own rate: the result then holds the Recording's samples kept at
+    that rate. Raises
     :class:`RecordingError` when the Recording does not match the model robot or is too short for the filters."""
     model, rec, sig, edge_s = _prepare(model, rec, filters)
     diagram, loggers = build_estimation_diagram(model, sig, gain, mapping)

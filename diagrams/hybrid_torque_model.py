@@ -44,7 +44,8 @@ from proprio.systems.residual_network import ResidualNetworkSystem
 
 __all__ = ["HybridTorqueModel", "load_hybrid_torque_model"]
 
-_RATE_TOLERANCE = 0.02   # a Recording's decimated rate may differ from the model rate by 2 %
+_RATE_TOLERANCE = 0.02      # a Recording's decimated rate may differ from the model rate by 2 %
+_UNIFORM_TOLERANCE = 0.01   # and its decimated time steps from their median by 1 %
 
 
 @dataclass
@@ -113,20 +114,28 @@ class HybridTorqueModel:
 
     def signals(self, rec: Recording) -> tuple[Recording, dict[str, np.ndarray]]:
         """``rec`` at the model rate (the kept samples) and its signals ``t, q, qd, qdd, tau, time_step`` prepared
-        like the training data. The Recording's rate divided by a whole decimation factor must give the model
-        rate within 2 % (e.g. 1 kHz → every 13th sample for a 76.9 Hz model); raises :class:`RecordingError`."""
-        k = max(1, int(round(rec.rate_hz / self.rate_hz)))
-        if abs(rec.rate_hz / k - self.rate_hz) > _RATE_TOLERANCE * self.rate_hz:
-            raise RecordingError(f"recording: sampled at {rec.rate_hz:.4g} Hz, which no whole decimation brings to "
-                                 f"the model rate {self.rate_hz:.4g} Hz (nearest: every {k}th sample, "
-                                 f"{rec.rate_hz / k:.4g} Hz); resample the recording")
+        like the training data. The Recording's mean rate divided by a whole decimation factor must give the model
+        rate within 2 % (e.g. 1 kHz → every 13th sample for a 76.9 Hz model), and the kept samples must be uniformly
+        spaced within 1 % (a log alternating 6 and 7 ms steps, as the twin's 150 Hz log, decimated by 2 is); raises
+        :class:`RecordingError` otherwise."""
+        rate = (rec.n_samples - 1) / rec.duration
+        k = max(1, int(round(rate / self.rate_hz)))
+        if abs(rate / k - self.rate_hz) > _RATE_TOLERANCE * self.rate_hz:
+            raise RecordingError(f"recording: sampled at {rate:.4g} Hz, which no whole decimation brings to the model "
+                                 f"rate {self.rate_hz:.4g} Hz (nearest: 1 sample in {k}, {rate / k:.4g} Hz); "
+                                 "resample the recording")
         data = dataclasses.replace(self.data, decimate=k)
+        at_rate = rec.take(kept_samples(rec, data))
+        steps = np.diff(at_rate.t)
+        step = float(np.median(steps))
+        if np.max(np.abs(steps - step)) > _UNIFORM_TOLERANCE * step:
+            raise RecordingError(f"recording: the samples kept at the model rate are not uniformly spaced (steps "
+                                 f"{steps.min() * 1e3:.4g}–{steps.max() * 1e3:.4g} ms); resample the recording")
         prep = prepare_recording(rec, self.tau_backbone, data, name=self.name)
         n = self.description.n
         q, qd, qdd = (prep.features[:, i * n:(i + 1) * n] for i in (1, 2, 3))
-        at_rate = rec.take(kept_samples(rec, data))
         return at_rate, {"t": at_rate.t - at_rate.t[0], "q": q, "qd": qd, "qdd": qdd, "tau": prep.tau,
-                         "time_step": k / rec.rate_hz}
+                         "time_step": step}
 
     def filter_edge_s(self, edge_cycles: float = 3.0) -> float:
         """Start-up/edge transient of its zero-phase filters [s]: ``edge_cycles`` periods of the lowest cutoff."""

@@ -246,8 +246,8 @@ class StreamingStepper:
     rounding (checked in the tests).
 
     The normalisations are folded into the weights once (eq. 4.33/4.34 are affine, so ``W((x − μ)/σ) + b`` =
-    ``(W/σ) x + (b − W μ/σ)`` and the output de-normalisation scales the last layer), which leaves two matrix–vector
-    products per LSTM cell and one for the output layer."""
+    ``(W/σ) x + (b − W μ/σ)`` and the output de-normalisation scales the last layer), which leaves one matrix–vector
+    product per LSTM cell (on [x; h]) and one for the output layer."""
 
     def __init__(self, model: HybridModel):
         if not model.cfg.streamable:

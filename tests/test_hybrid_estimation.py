@@ -76,6 +76,15 @@ def test_a_recording_at_another_rate_is_decimated_or_rejected(tmp_path, desc):
     assert sig["time_step"] == pytest.approx(1 / 75.0) and at_rate.n_samples == 225
     with pytest.raises(RecordingError, match="model rate"):
         hybrid.signals(_recording(desc, seconds=3.0, rate=110.0))
+    rec = _recording(desc, seconds=3.0)
+    with pytest.raises(RecordingError, match="uniformly"):
+        hybrid.signals(rec.replace(t=rec.t + np.random.default_rng(0).uniform(0, 2e-3, rec.n_samples)))
+    # a log alternating 6 and 7 ms steps (the twin's "150 Hz") decimated by 2 is uniform at 13 ms: accepted as it is
+    jittered = rec.replace(t=np.concatenate([[0.0], np.cumsum(np.tile([0.006, 0.007], rec.n_samples // 2))])[
+        :rec.n_samples])
+    hybrid.network.cfg.rate_hz = 1 / 0.013
+    at_rate, sig = hybrid.signals(jittered)
+    np.testing.assert_allclose(np.diff(at_rate.t), 0.013, atol=1e-12)
 
 
 def test_a_transformer_cannot_run_online(tmp_path, desc):
