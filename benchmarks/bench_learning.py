@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.controllers import InverseDynamics
-from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import Demultiplexer, LogVectorOutput, Multiplexer, TrajectorySource
 from pydrake.trajectories import PiecewisePolynomial
 
@@ -78,12 +78,19 @@ def _replay_source(builder: DiagramBuilder, values: np.ndarray) -> Demultiplexer
     return demux
 
 
-def _timed(builder: DiagramBuilder, steps: int) -> float:
-    sim = Simulator(builder.Build())
-    sim.Initialize()
-    t0 = time.perf_counter()
-    sim.AdvanceTo((steps - 1) / RATE)
-    return (time.perf_counter() - t0) / steps * 1e6
+REPEATS = 3
+
+
+def _timed(diagram: Diagram, steps: int) -> float:
+    """Median over REPEATS fresh simulations of ``diagram``: µs per sample (one step per sample at RATE)."""
+    runs = []
+    for _ in range(REPEATS):
+        sim = Simulator(diagram)
+        sim.Initialize()
+        t0 = time.perf_counter()
+        sim.AdvanceTo((steps - 1) / RATE)
+        runs.append((time.perf_counter() - t0) / steps * 1e6)
+    return float(np.median(runs))
 
 
 def bench_streaming(steps: int) -> None:
@@ -113,13 +120,13 @@ def bench_streaming(steps: int) -> None:
         builder.Connect(rbd.get_output_port_generalized_force(), residual.GetInputPort("tau_rbd"))
         if not with_observer:
             LogVectorOutput(residual.GetOutputPort("tau_hybrid"), builder, 1 / RATE)
-            return _timed(builder, steps)
+            return _timed(builder.Build(), steps)
         observer = builder.AddSystem(JacobianWrenchObserver(desc))
         builder.Connect(demux.get_output_port(0), observer.GetInputPort("q"))
         builder.Connect(demux.get_output_port(3), observer.GetInputPort("tau_meas"))
         builder.Connect(residual.GetOutputPort("tau_hybrid"), observer.GetInputPort("tau_dyn"))
         LogVectorOutput(observer.GetOutputPort("wrench"), builder, 1 / RATE)
-        return _timed(builder, steps)
+        return _timed(builder.Build(), steps)
 
     plant = build_plant(desc).plant          # kinematics/dynamics only: not simulated in these Diagrams
     full, no_observer = estimator(True), estimator(False)
@@ -131,26 +138,22 @@ def bench_streaming(steps: int) -> None:
     for i, name in enumerate(("q", "qd", "qdd", "tau_rbd")):
         builder.Connect(demux.get_output_port(i), residual.GetInputPort(name))
     LogVectorOutput(residual.GetOutputPort("tau_hybrid"), builder, 1 / RATE)
-    alone = _timed(builder, steps)
+    alone = _timed(builder.Build(), steps)
 
     # (c) the estimation diagram of `proprio estimate --model hybrid.pt`: Python backbone System (Drake inverse
     # dynamics + friction), the residual, both observers (the momentum one evaluates M(q) three times) and 6 loggers
     hybrid = HybridTorqueModel(RigidBodyTorqueModel(desc, coulomb_velocity=0.0), model, DataConfig())
     signals = {"t": t, "q": q, "qd": qd, "qdd": qdd, "tau": values[:, 21:], "time_step": 1 / RATE}
-    diagram, _ = build_estimation_diagram(hybrid, signals)
-    sim = Simulator(diagram)
-    sim.Initialize()
-    t0 = time.perf_counter()
-    sim.AdvanceTo((steps - 1) / RATE)
-    estimation = (time.perf_counter() - t0) / steps * 1e6
+    estimation = _timed(build_estimation_diagram(hybrid, signals)[0], steps)
 
     # (d) replay + logger only: the Diagram overhead the rows above include
     builder = DiagramBuilder()
     demux = _replay_source(builder, values)
     LogVectorOutput(demux.get_output_port(3), builder, 1 / RATE)
-    overhead = _timed(builder, steps)
+    overhead = _timed(builder.Build(), steps)
 
-    print(f"\nStreaming hybrid estimator, one sample per step at {RATE:.0f} Hz, {steps} steps, 1 torch thread:")
+    print(f"\nStreaming hybrid estimator, one sample per step at {RATE:.0f} Hz, {steps} steps, 1 torch thread, median "
+          f"of {REPEATS} runs:")
     print(f"  replay + InverseDynamics (C++) + residual LSTM-2-FCL + Jacobian observer + logger: {full:7.1f} µs/sample"
           f"  (target ≤ 100; real-time factor at {RATE:.0f} Hz: {1e6 / RATE / full:.0f}×)")
     print(f"  replay + InverseDynamics (C++) + residual LSTM-2-FCL + logger (no observer):      {no_observer:7.1f} µs/sample")
