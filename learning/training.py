@@ -4,9 +4,9 @@ validation loss, a checkpoint after every epoch and resume after an interruption
 Loss (``loss``), per joint j with σ_j the std of its training target (τ − τ_RBD for a hybrid): ``nm2`` — the mean
 squared torque error in N·m² of eq. 4.38, the metric of Table 5.3 (joints with large residuals, J2 and J4, dominate
 and the wrist joints are hardly learned); ``normalised`` — e_j²/σ_j² (every joint weighs the same, the large joints
-suffer); or ``inv_std`` — e_j²/σ_j, in between (on 83 min of twin data it gave the lowest Table 5.3 average MSE,
-0.033 vs 0.041 N·m² for nm2 with LSTM-2-FCL, see the README). The learning-rate scheduler and early stopping watch the validation loss; the weights of the best validation
-epoch are restored at the end.
+suffer); or ``inv_std`` — e_j²/σ_j, in between: on 203 min of twin data it gives the lower Table 5.3 average MSE,
+0.026 vs 0.032 N·m² for nm2 with LSTM-2-FCL (README, "Hybrid models on the twin"). The learning-rate scheduler and
+early stopping watch the validation loss; the weights of the best validation epoch are restored at the end.
 
 The checkpoint (written atomically after each epoch) holds the model, optimizer, scheduler, epoch, best weights,
 history and every RNG state (torch global, the batch-order generator, CUDA), so a resumed run continues exactly where

@@ -160,11 +160,10 @@ def _stage_hybrid(ctx: dict[str, Any], out: Path) -> list[Path]:
     # the same model online: its network stepped inside the estimation diagram, state carried sample to sample
     res = estimate_wrench(load_torque_model(out / "hybrid_lstm.pt"), payload_recs["1000 g"],
                           mapping=WrenchMapping(force_only=True))
-    rmse, _ = res.force_stats("jacobian")
+    jac, mom = (" ".join(f"{x:.2f}" for x in res.force_stats(obs)[0]) for obs in ("jacobian", "momentum"))
     text += (f"\n\nOnline: the model inside the estimation diagram (ResidualNetworkSystem, {res.t.size} steps), "
-             f"1000 g: Jacobian force-only RMSE [{' '.join(f'{x:.2f}' for x in rmse)}] N, momentum "
-             f"[{' '.join(f'{x:.2f}' for x in res.force_stats('momentum')[0])}] N (after {res.skip_start_s:.1f} s "
-             "of filter start-up)")
+             f"1000 g: force-only RMSE [{jac}] N (Jacobian observer), [{mom}] N (momentum observer), after "
+             f"{res.skip_start_s:.1f} s of filter start-up")
     print(_indent(text))
     atomic_write_text(out / "hybrid.txt", text + "\n")
     return [out / "hybrid_lstm.pt", out / "hybrid.txt"]

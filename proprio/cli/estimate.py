@@ -47,7 +47,7 @@ def run_estimate(args: argparse.Namespace) -> int:
     out = Path(args.out)
     title = f"{Path(args.recording).name}: estimated external force, model {res.meta['model']}"
     written = res.save(out) + [res.plot(out / "wrench.png", title=title)]
-    print(f"{rec.n_samples} samples, {res.unreliable.sum()} flagged unreliable (near a singularity)")
+    print(f"{res.t.size} samples, {res.unreliable.sum()} flagged unreliable (near a singularity)")
     if res.f_true is not None:
         print(f"{'observer':<10} {'RMSE [fx fy fz] N':<28} {'σ [fx fy fz] N'}")
         for obs in OBSERVERS:
