@@ -88,9 +88,10 @@ class HybridTorqueModel:
     def tau_int(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """τ_HYB − τ_rigid ``[N,n]`` [N·m] over ONE contiguous sequence at the model rate (state carried through)."""
         cfg = self.network.cfg
+        rigid = inverse_dynamics(self.description, q, qd, qdd)
         r = rotational_displacement(q, cfg.reversal_deadband_deg, cfg.r_max_deg)
-        tau = predict_streaming(self.network, feature_matrix(self.tau_backbone(q, qd, qdd), q, qd, qdd, r))
-        return tau - inverse_dynamics(self.description, q, qd, qdd)
+        backbone = rigid + self.backbone.tau_int(q, qd, qdd)                # = tau_backbone(q, qd, qdd)
+        return predict_streaming(self.network, feature_matrix(backbone, q, qd, qdd, r)) - rigid
 
     def make_system(self, time_step: float) -> Diagram:
         """The online model (module docstring), stepping every ``time_step`` [s] (the replayed data's step).

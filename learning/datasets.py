@@ -17,7 +17,7 @@
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from typing import Any, Sequence
 
 import numpy as np
@@ -25,6 +25,7 @@ from scipy.signal import butter, filtfilt
 
 from proprio.learning.features import (DEFAULT_DEADBAND_DEG, R_MAX_DEG, TauRbdProvider, feature_matrix,
                                        filtered_derivatives, rotational_displacement)
+from proprio.learning.sections import section_from_dict
 from proprio.recording import Recording
 
 __all__ = ["DataConfig", "PreparedRecording", "Windows", "Split", "kept_samples", "prepare_recording", "make_split"]
@@ -47,12 +48,7 @@ class DataConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> "DataConfig":
-        d = dict(d or {})
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ValueError(f"data: unknown key(s) {unknown}; allowed: {sorted(known)}")
-        cfg = cls(**d)
+        cfg = section_from_dict(cls, d, "data")
         if cfg.derivatives not in ("auto", "filtered"):
             raise ValueError(f"data: derivatives must be 'auto' or 'filtered', got {cfg.derivatives!r}")
         if cfg.decimate < 1 or cfg.window < 1:

@@ -19,7 +19,7 @@ residual System; it exists for MLP-7 (stateless) and the LSTMs. The Transformer 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +29,7 @@ from torch import nn
 
 from proprio.io import atomic_path
 from proprio.learning.features import DEFAULT_DEADBAND_DEG, R_MAX_DEG, feature_columns
+from proprio.learning.sections import section_from_dict
 
 __all__ = ["ARCHS", "ModelConfig", "HybridModel", "StreamingStepper", "save_model", "load_model"]
 
@@ -57,11 +58,7 @@ class ModelConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "ModelConfig":
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ValueError(f"model: unknown key(s) {unknown}; allowed: {sorted(known)}")
-        cfg = cls(**d)
+        cfg = section_from_dict(cls, d, "model")
         if cfg.arch not in ARCHS:
             raise ValueError(f"model: arch '{cfg.arch}' unknown; choose one of {list(ARCHS)}")
         return cfg

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import copy
 import time
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
@@ -27,6 +27,7 @@ from tqdm.auto import tqdm
 from proprio.io import atomic_path
 from proprio.learning.datasets import Split, Windows
 from proprio.learning.models import HybridModel
+from proprio.learning.sections import section_from_dict
 
 __all__ = ["TrainConfig", "TrainResult", "train_model", "pick_device"]
 
@@ -53,12 +54,7 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> "TrainConfig":
-        d = dict(d or {})
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ValueError(f"train: unknown key(s) {unknown}; allowed: {sorted(known)}")
-        cfg = cls(**d)
+        cfg = section_from_dict(cls, d, "train")
         if cfg.max_epochs < 1 or cfg.batch_size < 1:
             raise ValueError("train: max_epochs and batch_size must be >= 1")
         if cfg.loss not in _LOSS_WEIGHT_POWER:
