@@ -21,6 +21,7 @@ demo: $(STAMP)
 	$(VENV)/bin/proprio demo --out demo_output
 
 test: $(STAMP)
+	$(VENV)/bin/lint-imports
 	MPLBACKEND=Agg $(PY) -m pytest -q tests --nbmake notebooks
 
 benchmarks: $(STAMP)

@@ -13,7 +13,7 @@ import numpy as np
 
 from proprio.description import load_robot
 from proprio.systems.rfma import generate_rfma_path, load_rfma_config, rfma_trajectory
-from proprio.systems.collision import CollisionChecker
+from proprio.collision import CollisionChecker
 from proprio.systems.trajectories import check_limits, sample_trajectory
 
 

@@ -69,7 +69,7 @@ def _stage_trajectory(ctx: dict[str, Any], out: Path) -> list[Path]:
 
 
 def _stage_twin(ctx: dict[str, Any], out: Path) -> list[Path]:
-    from proprio.cli.inspect import format_summary, plot_recording, summarize_recording
+    from proprio.inspection import format_summary, plot_recording, summarize_recording
     from proprio.diagrams.twin import build_twin_diagram, load_twin_config, simulate_twin
     from proprio.systems.trajectories import truncate_trajectory
 
@@ -103,7 +103,7 @@ def _stage_excitation(ctx: dict[str, Any], out: Path) -> list[Path]:
 
 
 def _stage_identification(ctx: dict[str, Any], out: Path) -> list[Path]:
-    from proprio.cli.identify import identify_recordings
+    from proprio.identification.recordings import identify_recordings
     from proprio.identification.model_io import save_model
 
     model, table = identify_recordings([ctx["twin_excitation"]], [ctx["twin_rfma"]], load_robot(NOMINAL_ROBOT),
@@ -117,7 +117,7 @@ def _stage_identification(ctx: dict[str, Any], out: Path) -> list[Path]:
 
 
 def _stage_payload(ctx: dict[str, Any], out: Path) -> list[Path]:
-    from proprio.diagrams.payload_experiment import demo_payload_experiment
+    from proprio.experiments.payload import demo_payload_experiment
 
     table = demo_payload_experiment(ctx["identified_model_path"], out / "payload_rbd", seconds=PAYLOAD_SECONDS)
     ctx["payload_table_rbd"] = table
@@ -126,7 +126,7 @@ def _stage_payload(ctx: dict[str, Any], out: Path) -> list[Path]:
 
 
 def _stage_diagnosis(ctx: dict[str, Any], out: Path) -> list[Path]:
-    from proprio.identification.gap_report import diagnose
+    from proprio.diagnosis.report import diagnose
 
     step = DIAGNOSIS_DOWNSAMPLE
     result = diagnose(load_robot(NOMINAL_ROBOT), [ctx["twin_excitation"].downsample(step)],
@@ -139,9 +139,9 @@ def _stage_hybrid(ctx: dict[str, Any], out: Path) -> list[Path]:
     import dataclasses
 
     from proprio.diagrams.estimation import estimate_wrench, load_torque_model
-    from proprio.diagrams.payload_experiment import validation_trajectory
+    from proprio.experiments.payload import validation_trajectory
     from proprio.diagrams.twin import simulate_twin
-    from proprio.learning.experiments import demo_hybrid
+    from proprio.experiments.hybrid import demo_hybrid
     from proprio.payload import Payload
     from proprio.systems.observers import WrenchMapping
 

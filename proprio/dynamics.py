@@ -1,7 +1,7 @@
 """Rigid-body inverse dynamics and gravity torques, vectorised over samples (recursive Newton–Euler in numpy).
 
 ``τ = M(q) q̈ + C(q, q̇) q̇ − τ_g(q)`` — the rigid-body torque of the chain, no friction (friction lives in
-``systems/joint_effects.py``). Shapes ``[N, n]`` (or ``[n]``), SI units. The recursion is the thesis' Algorithm 4.7
+``proprio/effects/``). Shapes ``[N, n]`` (or ``[n]``), SI units. The recursion is the thesis' Algorithm 4.7
 written in the world frame, with the loop over the 7 joints and every operation batched over the N samples.
 Cross-checked against Drake's ``MultibodyPlant.CalcInverseDynamics`` and pinocchio's ``rnea`` to 1e-10 in ``tests/``.
 """

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from proprio.cli import build_parser, main
-from proprio.cli.inspect import reversal_counts, summarize_recording
+from proprio.inspection import reversal_counts, summarize_recording
 from proprio.description import load_robot
 from proprio.dynamics import inverse_dynamics
 from proprio.recording import Recording, load_recording, save_recording

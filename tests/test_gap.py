@@ -6,13 +6,15 @@ import pytest
 
 from proprio.description import load_robot
 from proprio.dynamics import inverse_dynamics
-from proprio.identification.gap_attribution import DiagnosisError, SimModel, attribute
-from proprio.identification.gap_benchmark import BenchmarkCase, generate_case_data, make_cases, rfma_like_motion
-from proprio.identification.gap_localisation import REVERSAL_DEADBAND, gap_map, regime_families
-from proprio.systems.joint_effects import reversal_travel
-from proprio.identification.gap_report import diagnose
+from proprio.diagnosis.data import DiagnosisError, SimModel
+from proprio.diagnosis.selection import attribute
+from proprio.diagnosis.benchmark import BenchmarkCase, generate_case_data, make_cases, rfma_like_motion
+from proprio.diagnosis.localisation import REVERSAL_DEADBAND, gap_map, regime_families
+from proprio.reversals import reversal_travel
+from proprio.diagnosis.report import diagnose
 from proprio.recording import Recording
-from proprio.systems.joint_effects import EFFECTS, MotionSignals
+from proprio.effects import EFFECTS
+from proprio.signals import MotionSignals
 
 RATE = 100.0
 NOISE = 0.05

@@ -176,7 +176,7 @@ def test_excitation_optimiser_improves_cond_and_respects_constraints(robot, base
 
 
 def test_preprocessing_recovers_derivatives():
-    from proprio.identification.preprocessing import PreprocessConfig, preprocess
+    from proprio.signals import PreprocessConfig, preprocess
 
     t = np.arange(0, 40, 1 / 150)
     q = np.sin(0.5 * t)[:, None] * np.ones((1, 2))
@@ -214,7 +214,7 @@ def test_real_lwr_identification_beats_flobaroid(lwr_dir, tmp_path, capsys):
 
 
 def test_identify_recordings(robot, prior, data):
-    from proprio.cli.identify import identify_recordings
+    from proprio.identification.recordings import identify_recordings
     from proprio.recording import Recording
 
     q, qd, qdd, tau = data

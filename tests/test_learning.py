@@ -221,7 +221,7 @@ def test_loss_weights_each_joint_by_a_power_of_its_target_std(kind, power):
 
 def test_payload_table_runs_a_transformer_windowed(tmp_path):
     from proprio.description import load_robot
-    from proprio.learning.experiments import Backbone, payload_table
+    from proprio.experiments.hybrid import Backbone, payload_table
     cfg = DataConfig(window=20, decimate=2)
     rec = _recording(1200, 3)
     rec = rec.replace(f_ext=np.zeros((rec.n_samples, 6)))
@@ -241,7 +241,7 @@ def test_payload_table_runs_a_transformer_windowed(tmp_path):
 def test_the_same_config_trains_the_same_model(tmp_path):
     """Initial weights, batch order and training all follow ``train.seed``: whatever the global torch RNG did
     before (another model, another process), the same config gives bit-identical weights."""
-    from proprio.learning.experiments import Backbone, train_from_config
+    from proprio.experiments.hybrid import Backbone, train_from_config
     from proprio.description import load_robot
     cfg = {"model": {"arch": "lstm2_fcl", "lstm_hidden": 6}, "data": {"window": 20},
            "train": {"max_epochs": 2, "batch_size": 8, "seed": 3}}

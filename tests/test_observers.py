@@ -264,7 +264,7 @@ def test_static_1kg_payload_on_the_twin(rigid, nominal_twin):
 def test_rfma_motion_on_the_twin_both_observers(rigid, nominal_twin):
     """RFMA exploration on the twin (effects and noise off) with 1 kg at the flange: the force error of both
     observers against the twin's true payload wrench (weight + inertial force) is below 0.2 N RMS per axis."""
-    from proprio.diagrams.payload_experiment import validation_trajectory
+    from proprio.experiments.payload import validation_trajectory
     twin, cfg = nominal_twin
     rec = twin.simulate_twin(cfg, validation_trajectory(3.0, seed=3, scaffolds=1, waypoints=(300, 400)),
                              payload=Payload(1.0), progress=False)
@@ -331,7 +331,7 @@ def test_payload_experiment_end_to_end_on_nominal_twin(rigid, nominal_twin, tmp_
     """The experiment's plumbing on a short run: table rows per observer and mass, the payload seen after taring,
     figures written, and the error budget's terms adding up to the Jacobian observer's force error."""
     from proprio.diagrams.estimation import RigidBodyTorqueModel
-    from proprio.diagrams.payload_experiment import payload_experiment
+    from proprio.experiments.payload import payload_experiment
     exp = payload_experiment(RigidBodyTorqueModel(rigid), tmp_path, seconds=2.0, masses=(0.0, 1.0),
                              twin_config="iiwa14_nominal_twin", progress=False)
     assert exp.table_text.count("1000g") >= 8 and "thesis RBD" in exp.table_text

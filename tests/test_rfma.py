@@ -9,7 +9,7 @@ import yaml
 from scipy import stats
 
 from proprio.description import load_robot
-from proprio.systems.collision import CollisionChecker, EnvironmentBox
+from proprio.collision import CollisionChecker, EnvironmentBox
 from proprio.systems.rfma import (RfmaError, exploration_waypoints, flange_in_workspace, generate_rfma,
                                   load_rfma_config, sample_scaffolds, unvisited_by_distance)
 from proprio.systems.trajectories import check_limits, sample_trajectory

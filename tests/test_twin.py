@@ -16,7 +16,9 @@ from proprio.dynamics import inverse_dynamics
 from proprio.payload import Payload
 from proprio.plant import DrakeRobot
 from proprio.recording import Recording, load_recording, save_recording
-from proprio.systems.joint_effects import MotionSignals, make_effects, reversal_travel
+from proprio.effects import make_effects
+from proprio.reversals import reversal_travel
+from proprio.signals import MotionSignals
 
 Q_A = np.array([0.1, 0.5, -0.2, -1.2, 0.3, 0.7, 0.2])
 

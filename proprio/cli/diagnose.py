@@ -55,8 +55,8 @@ def _model(args: argparse.Namespace):
     import yaml
 
     from proprio.description import load_robot
-    from proprio.identification.gap_attribution import SimModel
-    from proprio.systems.joint_effects import make_effects
+    from proprio.diagnosis.data import SimModel
+    from proprio.effects import make_effects
 
     try:
         robot = load_robot(args.model)
@@ -75,7 +75,7 @@ def _model(args: argparse.Namespace):
 def _diagnose(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from proprio.identification.gap_report import diagnose
+    from proprio.diagnosis.report import diagnose
     from proprio.recording import load_recording
 
     model = _model(args)
@@ -93,7 +93,7 @@ def _diagnose(args: argparse.Namespace) -> int:
 
 
 def _benchmark(args: argparse.Namespace) -> int:
-    from proprio.identification.gap_benchmark import make_cases, run_benchmark, write_results
+    from proprio.diagnosis.benchmark import make_cases, run_benchmark, write_results
 
     if args.workers is not None and args.workers < 1:
         raise UserError(f"--workers must be >= 1, got {args.workers}")

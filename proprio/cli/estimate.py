@@ -1,7 +1,7 @@
 """``proprio estimate`` (wrench estimates over a Recording) and ``proprio payload-experiment`` (thesis §5, Table 5.4).
 
 Both are thin wrappers: :func:`proprio.diagrams.estimation.estimate_wrench` and
-:func:`proprio.diagrams.payload_experiment.payload_experiment` do the work.
+:func:`proprio.experiments.payload.payload_experiment` do the work.
 """
 from __future__ import annotations
 
@@ -63,7 +63,7 @@ def _vec(v) -> str:
 
 
 def run_payload_experiment(args: argparse.Namespace) -> int:
-    from proprio.diagrams.payload_experiment import payload_experiment
+    from proprio.experiments.payload import payload_experiment
 
     if not args.seconds > 0:
         raise UserError(f"--seconds must be > 0, got {args.seconds}")

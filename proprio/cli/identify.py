@@ -6,49 +6,14 @@ import json
 
 import numpy as np
 
-from proprio.cli import UserError
 
-__all__ = ["register", "identify_recordings"]
-
-
-def _stack(recs: list, trim: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Concatenate ``q, qd, qdd, tau`` of Recordings, dropping ``trim`` samples at both ends of each (filter
-    start-up). Recordings without ``qd``/``qdd`` get them by the §4.1 preprocessing chain (central differences +
-    Butterworth, ``excitation.yaml``)."""
-    from proprio.identification.excitation import load_excitation_config
-    from proprio.identification.preprocessing import PreprocessConfig, differentiate
-
-    cfg = PreprocessConfig.from_dict(load_excitation_config()["preprocessing"])
-    parts = {k: [] for k in ("q", "qd", "qdd", "tau")}
-    for rec in recs:
-        if rec.n_samples <= 2 * trim:
-            raise UserError(f"recording with {rec.n_samples} samples is shorter than 2 × --trim {trim}")
-        qd = rec.qd if rec.qd is not None else differentiate(rec.t, rec.q, cfg)
-        qdd = rec.qdd if rec.qdd is not None else differentiate(rec.t, qd, cfg)
-        sl = slice(trim, rec.n_samples - trim)
-        for k, v in (("q", rec.q), ("qd", qd), ("qdd", qdd), ("tau", rec.tau)):
-            parts[k].append(np.asarray(v)[sl])
-    return tuple(np.concatenate(parts[k]) for k in ("q", "qd", "qdd", "tau"))
-
-
-def identify_recordings(train_recs: list, validate_recs: list, robot, method: str = "ols", trim: int = 100,
-                        offsets: bool = True, coulomb_velocity_scale: float = 0.02):
-    """Identify ``robot`` (a RobotDescription: kinematics + a-priori inertials) on Recordings and validate on
-    others. Returns ``(model, table_text)`` with the Table 4.4-style per-joint MSE/σ on training and validation."""
-    from proprio.identification.estimators import identify, torque_error_table
-
-    train = _stack(train_recs, trim)
-    model = identify(robot, *train, method, coulomb_velocity_scale=coulomb_velocity_scale, offsets=offsets)
-    parts = [torque_error_table(train[3], model.torque(*train[:3]), "training (Table 4.4 layout)")[0]]
-    if validate_recs:
-        val = _stack(validate_recs, trim)
-        parts.append(torque_error_table(val[3], model.torque(*val[:3]), "validation")[0])
-    return model, "\n\n".join(parts)
+__all__ = ["register"]
 
 
 def _identify(args: argparse.Namespace) -> int:
     from proprio.description import load_robot
     from proprio.identification.model_io import save_model
+    from proprio.identification.recordings import identify_recordings
     from proprio.recording import load_recording
 
     robot = load_robot(args.robot)

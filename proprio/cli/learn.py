@@ -1,6 +1,6 @@
 """``proprio train``, ``proprio evaluate`` and ``proprio train-grid``: hybrid models (§4.2, §4.4, §5.1).
 
-The work is done by :mod:`proprio.learning.experiments`; these commands only parse arguments and load Recordings.
+The work is done by :mod:`proprio.experiments.hybrid`; these commands only parse arguments and load Recordings.
 """
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ def _load(paths: list[str]) -> tuple[list[Recording], list[str]]:
 
 
 def _backbone(spec: str | None, recs: list[Recording]):
-    from proprio.learning.experiments import resolve_backbone
+    from proprio.experiments.hybrid import resolve_backbone
     spec = spec or recs[0].meta.get("robot")
     if not spec:
         raise UserError("--backbone is required: the Recording's meta names no robot")
@@ -37,7 +37,7 @@ def _train(args: argparse.Namespace) -> int:
     import torch
 
     from proprio.learning.evaluation import format_table
-    from proprio.learning.experiments import load_config, train_from_config
+    from proprio.experiments.hybrid import load_config, train_from_config
     torch.set_num_threads(args.threads)
     cfg = load_config(args.config)
     recs, names = _load(args.data)
@@ -53,7 +53,7 @@ def _train(args: argparse.Namespace) -> int:
 def _evaluate(args: argparse.Namespace) -> int:
     import torch
 
-    from proprio.learning.experiments import evaluate_saved
+    from proprio.experiments.hybrid import evaluate_saved
     torch.set_num_threads(args.threads)
     recs, names = _load(args.data)
     tests, tnames = _load(args.test_data or [])
@@ -65,7 +65,7 @@ def _evaluate(args: argparse.Namespace) -> int:
 def _train_grid(args: argparse.Namespace) -> int:
     import torch
 
-    from proprio.learning.experiments import load_config, train_grid
+    from proprio.experiments.hybrid import load_config, train_grid
     torch.set_num_threads(args.threads)
     cfg = load_config(args.config)
     if args.epochs is not None:

@@ -159,7 +159,7 @@ def filtered_derivatives(t: np.ndarray, q: np.ndarray, cutoff_hz: float, order: 
                          ) -> tuple[np.ndarray, np.ndarray]:
     """q̇, q̈ ``[N, n]`` by central differences (``np.gradient`` on the time stamps) of q, each followed by a
     zero-phase Butterworth low-pass (forward–backward, §4.1) of ``order`` at ``cutoff_hz``. Offline only."""
-    from proprio.identification.preprocessing import PreprocessConfig, differentiate
+    from proprio.signals import PreprocessConfig, differentiate
 
     t = np.asarray(t, dtype=float)
     rate = 1.0 / float(np.median(np.diff(t)))

@@ -26,7 +26,7 @@ A twin is described by one YAML file (``proprio/configs/iiwa14_twin.yaml``)::
     controller: {kp: [...], ki: [...], kd: [...], payload_model: false}   # IDC gains (1/s², 1/s³, 1/s)
     drive: {motor_inertia: [...], motor_viscous: [...], motor_coulomb: [...]}   # motor side (hidden), or null
     payload: {mass: 1.0, com_flange: [0, 0, 0.05]}                        # or null
-    effects: {viscous_coulomb: {...}, hysteresis: {...}, ...}             # see proprio.systems.joint_effects
+    effects: {viscous_coulomb: {...}, hysteresis: {...}, ...}             # see proprio.effects
 """
 from __future__ import annotations
 
@@ -61,9 +61,8 @@ from proprio.urdf import to_urdf
 from proprio.systems.joint_drive import (
     AddJointDrive, JointDrive, check_elastic_stability, check_explicit_friction, friction_slope,
 )
-from proprio.systems.joint_effects import (
-    Elasticity, EncoderNoise, JointEffect, MotionSignals, Motor, make_effects,
-)
+from proprio.effects import Elasticity, EncoderNoise, JointEffect, Motor, make_effects
+from proprio.signals import MotionSignals
 from proprio.systems.sensors import PositionSensor, TorqueSensor
 from proprio.systems.trajectories import AddTrajectorySource, sample_trajectory
 

@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 from pydrake.systems.framework import BasicVector, Context, DiagramBuilder, DiscreteValues, LeafSystem
 
-from proprio.systems.joint_effects import Elasticity, JointEffect, Motor, Stribeck, ViscousCoulomb
+from proprio.effects import Elasticity, JointEffect, Motor, Stribeck, ViscousCoulomb
 
 __all__ = ["JointDrive", "AddJointDrive", "check_explicit_friction", "check_elastic_stability", "friction_slope"]
 

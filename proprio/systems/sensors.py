@@ -1,6 +1,6 @@
 """Sensor models of the twin: the link-side joint torque sensor and the joint position encoder.
 
-Two forms of the same models (built from the :mod:`proprio.systems.joint_effects` classes the identification and gap
+Two forms of the same models (built from the :mod:`proprio.effects` classes the identification and gap
 diagnosis fit):
 
 * :class:`TorqueSensor` / :class:`PositionSensor` — vectorised over all samples of a logged motion. Neither sensor
@@ -22,9 +22,9 @@ from pydrake.common import RandomDistribution
 from pydrake.systems.framework import BasicVector, Context, DiagramBuilder, DiscreteValues, LeafSystem
 from pydrake.systems.primitives import Adder, Gain, RandomSource
 
-from proprio.systems.joint_effects import (
-    EncoderNoise, Hysteresis, JointEffect, LostMotion, MotionSignals, Ripple, SensorOffsetGain, TorqueNoise,
-)
+from proprio.effects import (EncoderNoise, Hysteresis, JointEffect, LostMotion, Ripple, SensorOffsetGain,
+                             TorqueNoise)
+from proprio.signals import MotionSignals
 
 __all__ = ["TorqueSensor", "PositionSensor", "TorqueSensorSystem", "AddTorqueSensor"]
 
@@ -79,7 +79,7 @@ class TorqueSensorSystem(LeafSystem):
 
     Input ports: ``tau_J`` [n] N·m (true transmitted torque), ``link_state`` [2n] = [q; q̇]. Output port:
     ``tau_measured`` [n] N·m = ``(1+g)(τ_J + hysteresis + lost motion + ripple) + o``. Discrete state per joint
-    (the online form of :func:`~proprio.systems.joint_effects.reversal_travel`): direction d, has-reversed flag,
+    (the online form of :func:`~proprio.effects.reversal_travel`): direction d, has-reversed flag,
     running max/min of q in the current segment, anchor, hysteresis value at the last reversal, and the previous
     sample's saturation level. The output at a sample uses the state updated with that sample (direct feedthrough).
     """

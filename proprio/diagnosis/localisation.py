@@ -25,7 +25,7 @@ import numpy as np
 from scipy import signal
 
 from proprio.io import save_figure
-from proprio.systems.joint_effects import reversal_travel
+from proprio.reversals import reversal_travel
 
 __all__ = ["RegimeFamily", "GapMap", "Spectra", "regime_families", "gap_map",
            "spectra", "order_spectrum", "peak_orders", "plot_gap_map", "plot_spectra"]

@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from proprio.systems.joint_effects import (
-    EFFECTS, EffectConfigError, Hysteresis, LostMotion, MotionSignals, Ripple, ViscousCoulomb, affine_scan,
-    make_effects, reversal_travel,
-)
+from proprio.effects import (EFFECTS, EffectConfigError, Hysteresis, LostMotion, Ripple, ViscousCoulomb, affine_scan,
+                             make_effects)
+from proprio.reversals import reversal_travel
+from proprio.signals import MotionSignals
 
 N_J = 7
 

@@ -78,7 +78,7 @@ def error_budget(model: TorqueModel, rec: Recording, mapping: WrenchMapping = Wr
     Needs the twin's truth channels ``q_true``, ``tau_J_true`` and ``tau_<effect>`` and its ``meta`` (robot,
     effects). Also returns ``"total"`` (the observer's force error) so that the terms can be checked to add up.
     """
-    from proprio.systems.joint_effects import EFFECTS
+    from proprio.effects import EFFECTS
 
     rec = resample_uniform(rec)
     missing = [k for k in ("q_true", "tau_J_true") if k not in rec.truth]

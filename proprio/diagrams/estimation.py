@@ -8,7 +8,7 @@ observers, logged at the data rate.
 
 The preprocessing is offline and zero-phase like §4.1 (central differences, Butterworth forward–backward; its
 cutoff, 20 Hz by default, keeps the RFMA exploration's few-Hz content that the 1 Hz excitation filter of
-:mod:`proprio.identification.preprocessing` would remove), so the signals are computed before the replay; the
+:mod:`proprio.signals` would remove), so the signals are computed before the replay; the
 observers themselves are causal Systems that would run unchanged on live sensor ports. ``tau_dyn`` comes from any
 :class:`TorqueModel`: the rigid-body model (:class:`TorqueModelSystem`), or the hybrid RBD + learned residual
 (:mod:`proprio.diagrams.hybrid_torque_model`), whose network then runs online in the diagram, one step per sample with

@@ -1,5 +1,5 @@
 """The gap diagnosis as one call and one report: :func:`diagnose` localises the residual
-(:mod:`~proprio.identification.gap_localisation`), attributes it (:mod:`~proprio.identification.gap_attribution`)
+(:mod:`~proprio.diagnosis.localisation`), attributes it (:mod:`~proprio.diagnosis.selection`)
 and writes ``report.md`` / ``report.html`` with the gap map, the ranked effects, per-joint before/after plots and a
 plain-language verdict (all files written atomically).
 """
@@ -14,23 +14,22 @@ from typing import Callable, Sequence
 import numpy as np
 
 from proprio.description import RobotDescription
-from proprio.identification.gap_attribution import (Attribution, DiagnosisError, SimModel, attribute, signals_of)
-from proprio.identification.gap_localisation import (GapMap, Spectra, gap_map, plot_gap_map, plot_spectra,
-                                                     regime_families, spectra)
+from proprio.diagnosis.data import DiagnosisError, SimModel, signals_of
+from proprio.diagnosis.localisation import (
+    GapMap,
+    Spectra,
+    gap_map,
+    plot_gap_map,
+    plot_spectra,
+    regime_families,
+    spectra,
+)
+from proprio.diagnosis.selection import Attribution, attribute
+from proprio.diagnosis.verdict import verdict_text
 from proprio.io import atomic_write_text, save_figure
 from proprio.recording import Recording
 
-__all__ = ["Diagnosis", "diagnose", "verdict_text"]
-
-PLAIN = {"viscous_coulomb": "viscous + Coulomb friction", "stribeck": "Stribeck (static) friction",
-         "hysteresis": "torque-sensor hysteresis", "lost_motion": "lost motion after reversals",
-         "ripple": "harmonic-drive torque ripple", "sensor_offset_gain": "torque-sensor offset / gain error",
-         "sensor_offset": "torque-sensor offsets", "sensor_gain": "torque-sensor gain error",
-         "torque_noise": "torque-sensor noise", "encoder_noise": "position-encoder noise",
-         "elasticity": "joint elasticity (deflection unseen by the position sensor)",
-         "rigid_body": "rigid-body (inertial) parameter error", "payload": "an unmodelled payload at the flange",
-         "signal_lag": "a time lag between measured and modelled torque (filter delay)"}
-
+__all__ = ["Diagnosis", "diagnose"]
 
 @dataclass
 class Diagnosis:
@@ -57,64 +56,6 @@ def _localise(model: SimModel, recs: Sequence[Recording], trim_s: float) -> tupl
         qds.append(s.qd[keep])
     rate = float(np.median([r.rate_hz for r in recs]))
     return gap_map(es, fams, taus, rob.joint_names), spectra(es, qs, qds, rate)
-
-
-def verdict_text(att: Attribution, gm: GapMap) -> str:
-    """One plain-language paragraph: where the gap is, which effects explain it, how far it shrinks, what stays."""
-    rmse0, sig = att.rmse_before, att.signal_rms
-    tot0 = float(np.sqrt((rmse0 ** 2).mean()))
-    share = (rmse0 ** 2) / max(float((rmse0 ** 2).sum()), 1e-300)
-    order = np.argsort(-share)
-    where = ", ".join(f"{att.joint_names[j]} ({100 * share[j]:.0f} %)" for j in order[:3] if share[j] > 0.05)
-    parts = [f"Against the held-out data the model's torque gap is {tot0:.3g} N·m RMS over the joints "
-             f"(per joint {', '.join(f'{x:.2g}' for x in rmse0)} N·m, i.e. "
-             f"{', '.join(f'{100 * x / max(s, 1e-12):.0f}' for x, s in zip(rmse0, sig))} % of the signal RMS); "
-             f"most of the squared error sits in {where or 'no single joint'}."]
-    hs = gm.hotspots(2)
-    if hs:
-        parts.append("It concentrates in " + " and ".join(f"{j} at {b} ({f}, {c:.1f}× its average)"
-                                                         for j, f, b, _, c in hs) + ".")
-    if att.steps:
-        prev = rmse0
-        sents = []
-        for st in att.steps:
-            name = PLAIN.get(st.name, st.name)
-            if st.tied:
-                name += " (or, equally well, " + " or ".join(PLAIN.get(t, t) for t in st.tied) + \
-                    " — the data cannot tell them apart)"
-            a = float(np.sqrt((prev ** 2).mean()))
-            b = float(np.sqrt((st.rmse_after ** 2).mean()))
-            sents.append(f"{name} shrinks it from {a:.3g} to {b:.3g} N·m RMS "
-                         f"({100 * st.gain:.0f} % of the weighted held-out squared error)")
-            prev = st.rmse_after
-        parts.append("Adding " + "; then ".join(sents) + ".")
-        fin = att.steps[-1].rmse_after
-        parts.append(f"With {len(att.steps)} effect(s) added the gap is {float(np.sqrt((fin ** 2).mean())):.3g} "
-                     f"N·m RMS ({100 * (1 - float((fin ** 2).sum()) / float((rmse0 ** 2).sum())):.0f} % less "
-                     "squared error).")
-    else:
-        parts.append("No candidate effect shrinks the held-out gap significantly: the model explains the data "
-                     "as well as any of the candidates can.")
-    rs = att.residual
-    if rs.white:
-        parts.append("What remains is white (no autocorrelation, no dependence on the motion state): noise.")
-    else:
-        jt = [att.joint_names[j] for j in np.flatnonzero(rs.structured_time)]
-        js = [att.joint_names[j] for j in np.flatnonzero(rs.structured_state)]
-        bits = []
-        if jt:
-            bits.append(f"autocorrelated in time on {', '.join(jt)}")
-        if js:
-            bits.append(f"still predictable from the motion state on {', '.join(js)} (held-out R² up to "
-                        f"{float(rs.r2_state.max()):.2f})")
-        parts.append("What remains is structured — " + "; ".join(bits) + " — so part of the gap is an effect "
-                     "outside the candidate set (or a candidate in a form the library does not model).")
-    for f in att.noise:
-        joints = np.flatnonzero(f.rms > 0)
-        parts.append(f"On {', '.join(att.joint_names[j] for j in joints)} the remaining residual is white and larger "
-                     f"than the model's own noise: {PLAIN.get(f.name, f.name)} of about "
-                     f"{', '.join(f'{f.rms[j]:.2g}' for j in joints)} N·m is unmodelled.")
-    return " ".join(parts)
 
 
 def _plot_before_after(att: Attribution, path: Path) -> Path:

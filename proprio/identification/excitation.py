@@ -255,23 +255,12 @@ def check_collisions(desc: RobotDescription, q: np.ndarray) -> list[tuple[int, s
 
     Pairs already in contact at the zero configuration are treated as modelling artefacts of the primitive
     shapes and ignored. Returns ``(sample index, geometry A, geometry B)`` for every new contact."""
-    from pydrake.systems.framework import DiagramBuilder
+    from proprio.collision import CollisionChecker
 
-    from proprio.plant import AddRobot
+    checker = CollisionChecker(desc)
 
-    builder = DiagramBuilder()
-    rp = AddRobot(builder, desc)
-    diagram = builder.Build()
-    ctx = diagram.CreateDefaultContext()
-    pctx = rp.plant.GetMyContextFromRoot(ctx)
-    port = rp.plant.get_geometry_query_input_port()
-    inspector = rp.scene_graph.model_inspector()
-
-    def pairs(qk):
-        rp.plant.SetPositions(pctx, rp.instance, qk)
-        query = port.Eval(pctx)
-        return {tuple(sorted((inspector.GetName(p.id_A), inspector.GetName(p.id_B))))
-                for p in query.ComputePointPairPenetration()}
+    def pairs(qk: np.ndarray) -> set[tuple[str, str]]:
+        return {tuple(sorted(p)) for p in checker.colliding_pairs(qk)}
 
     home = pairs(np.zeros(desc.n))
     hits = []

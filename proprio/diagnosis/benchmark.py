@@ -1,8 +1,8 @@
 """The withheld-effect benchmark of the gap diagnosis (DESIGN.md "Gap diagnosis", step 5).
 
 Each *case* generates data of a robot with some effect(s) present, and a simulation model without the withheld
-one(s); :func:`proprio.identification.gap_attribution.attribute` is run without being told what was withheld.
-Cases: every effect of the twin's library (``systems/joint_effects.py``) plus rigid-body parameter error, payload
+one(s); :func:`proprio.diagnosis.selection.attribute` is run without being told what was withheld.
+Cases: every effect of the twin's library (``proprio/effects/``) plus rigid-body parameter error, payload
 and signal lag, at several magnitudes and seeds; null cases (effects present in the data are also in the model);
 two-effect cases. Scores: confusion matrix, top-1 / top-2 accuracy, null false-positive rate, and the error of the
 predicted shrinkage (the diagnosis' own held-out SSE reduction after its first step) against the measured one
@@ -45,10 +45,11 @@ from scipy import signal
 
 from proprio.description import Link, RobotDescription, load_robot
 from proprio.dynamics import inverse_dynamics
+from proprio.effects import EFFECTS
 from proprio.io import atomic_write_text
 from proprio.payload import Payload, attach_payload
 from proprio.recording import Recording
-from proprio.systems.joint_effects import EFFECTS, MotionSignals
+from proprio.signals import MotionSignals
 
 __all__ = ["BenchmarkCase", "CaseResult", "make_cases", "generate_case_data", "run_case", "run_benchmark",
            "summarise", "rfma_like_motion", "twin_case_config", "EFFECT_TYPES", "TWIN_EFFECT_TYPES"]
@@ -370,7 +371,8 @@ class CaseResult:
 
 def run_case(case: BenchmarkCase) -> CaseResult:
     """Generate, diagnose (not told what was withheld) and score one case."""
-    from proprio.identification.gap_attribution import SimModel, attribute
+    from proprio.diagnosis.data import SimModel
+    from proprio.diagnosis.selection import attribute
 
     t0 = time.perf_counter()
     try:

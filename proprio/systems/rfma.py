@@ -7,7 +7,7 @@ The path alternates *reach* and *explore* phases around L random scaffold config
    kept if the flange position p_EE, measured from the **robot base origin** (base-link frame), lies in the
    quarter sphere ``x > x_min, z > z_min, ‖p_EE‖ < radius`` (0, 0, 0.8 m); only the survivors are checked for
    self-collision and collision with the configured environment boxes by Drake's SceneGraph
-   (:class:`proprio.systems.collision.CollisionChecker`). Sampling stops with :class:`RfmaError` ("found K of N
+   (:class:`proprio.collision.CollisionChecker`). Sampling stops with :class:`RfmaError` ("found K of N
    after M tries") when ``sampling.max_tries`` candidates do not give L scaffolds.
 2. **Ordering.** Greedy nearest neighbour in joint space on a scipy kd-tree, starting from the scaffold nearest the
    home configuration (Algorithm 4.10 starts from the first sample; starting near home shortens the first reach).
@@ -51,7 +51,7 @@ from tqdm.auto import tqdm
 
 from proprio.description import RobotDescription, load_robot
 from proprio.kinematics import chain_geometry, flange_position
-from proprio.systems.collision import CollisionChecker, EnvironmentBox, boxes_from_config
+from proprio.collision import CollisionChecker, EnvironmentBox, boxes_from_config
 from proprio.systems.trajectories import Phase, TimedPath, save_trajectory, time_parameterize
 
 __all__ = ["RfmaError", "RfmaConfig", "RfmaPath", "load_rfma_config", "flange_in_workspace", "sample_scaffolds",

@@ -11,12 +11,13 @@ All parameters live in ``proprio/configs/excitation.yaml`` (section ``preprocess
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import scipy.ndimage
 import scipy.signal
 
-__all__ = ["PreprocessConfig", "average_repetitions", "gaussian_moving_average", "differentiate", "preprocess"]
+__all__ = ["MotionSignals", "PreprocessConfig", "average_repetitions", "gaussian_moving_average", "differentiate", "preprocess"]
 
 
 @dataclass(frozen=True)
@@ -73,3 +74,44 @@ def preprocess(t: np.ndarray, q_runs: list[np.ndarray], tau_runs: list[np.ndarra
     qd = differentiate(t, q, cfg)
     qdd = differentiate(t, qd, cfg)
     return q, qd, qdd, tau
+
+
+@dataclass(frozen=True)
+class MotionSignals:
+    """Link-side motion that effects are functions of (SI units, shapes ``[N]`` / ``[N, n]``).
+
+    ``tau`` (optional) is the link-side torque the sensor sees before the effect is applied: the gain error scales
+    it, and load-dependent amplitudes (``load_gain``) grow with ``|tau|``. The twin passes its true τ_J; a fit on
+    measured data may pass the measured or modelled τ.
+    """
+    t: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    tau: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.q.ndim != 2 or self.qd.shape != self.q.shape or self.qdd.shape != self.q.shape:
+            raise ValueError(f"MotionSignals: q, qd, qdd must all be [N, n], got {self.q.shape}, {self.qd.shape}, "
+                             f"{self.qdd.shape}")
+        if self.t.shape != (self.q.shape[0],):
+            raise ValueError(f"MotionSignals: t must be [N] = [{self.q.shape[0]}], got {self.t.shape}")
+        if self.tau is not None and self.tau.shape != self.q.shape:
+            raise ValueError(f"MotionSignals: tau must be {self.q.shape}, got {self.tau.shape}")
+
+    @property
+    def n(self) -> int:
+        return int(self.q.shape[1])
+
+    @classmethod
+    def from_recording(cls, rec: Any, tau: np.ndarray | None = None) -> "MotionSignals":
+        """Signals of a :class:`proprio.recording.Recording`: its ``qd``/``qdd`` if present, else central differences
+        (``np.gradient``, second order inside). ``tau`` defaults to the recording's measured torque."""
+        t = np.asarray(rec.t, dtype=float)
+        q = np.asarray(rec.q, dtype=float)
+        qd = np.asarray(rec.qd, dtype=float) if rec.qd is not None else np.gradient(q, t, axis=0)
+        qdd = np.asarray(rec.qdd, dtype=float) if rec.qdd is not None else np.gradient(qd, t, axis=0)
+        return cls(t=t, q=q, qd=qd, qdd=qdd, tau=np.asarray(rec.tau if tau is None else tau, dtype=float))
+
+    def with_tau(self, tau: np.ndarray | None) -> "MotionSignals":
+        return MotionSignals(self.t, self.q, self.qd, self.qdd, tau)

@@ -1,0 +1,19 @@
+"""The sim-to-real gap diagnosis (DESIGN.md "Gap diagnosis"): where the torque gap lies, which unmodelled effect causes
+it and how far it shrinks once that effect is added, checked by a withheld-effect benchmark.
+
+Modules, in the order the diagnosis runs:
+
+- :mod:`~proprio.diagnosis.data` — the simulation model (:class:`SimModel`) and recordings prepared for it;
+- :mod:`~proprio.diagnosis.localisation` — *where*: the gap by joint × motion regime × frequency;
+- :mod:`~proprio.diagnosis.candidates` — *which*: the candidate effects;
+- :mod:`~proprio.diagnosis.fitting` — fitting candidates to the training residual;
+- :mod:`~proprio.diagnosis.selection` — greedy forward selection, scored on held-out blocks, and its statistics;
+- :mod:`~proprio.diagnosis.verdict` — the plain-language verdict;
+- :mod:`~proprio.diagnosis.report` — :func:`diagnose`: all of the above as one call and one report;
+- :mod:`~proprio.diagnosis.benchmark` — the withheld-effect benchmark.
+"""
+from proprio.diagnosis.data import DiagnosisError, SimModel
+from proprio.diagnosis.report import Diagnosis, diagnose
+from proprio.diagnosis.selection import Attribution, attribute
+
+__all__ = ["DiagnosisError", "SimModel", "Diagnosis", "diagnose", "Attribution", "attribute"]

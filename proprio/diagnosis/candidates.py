@@ -1,0 +1,311 @@
+"""Candidate explanations of the torque gap: every library effect the model lacks, plus rigid-body parameter error,
+an unmodelled payload, signal lag, encoder noise and elasticity (see :mod:`proprio.diagnosis.selection`)."""
+from __future__ import annotations
+
+import math
+from typing import Any, Callable, Sequence
+
+import numpy as np
+from scipy import linalg, signal
+
+from proprio.description import RobotDescription
+from proprio.diagnosis.data import DiagnosisError, GapData, SimModel
+from proprio.diagnosis.localisation import peak_orders
+from proprio.dynamics import inverse_dynamics
+from proprio.effects import EFFECTS, JointEffect
+from proprio.identification.regressor import PARAMS_PER_JOINT, parameter_names, regressor
+from proprio.signals import MotionSignals
+
+__all__ = ["Candidate", "EffectCandidate", "RigidBodyCandidate", "PayloadCandidate", "SignalLagCandidate",
+           "EncoderNoiseCandidate", "ElasticityCandidate", "ripple_candidate", "candidate_set"]
+
+
+class Candidate:
+    """Something that may explain part of the residual. Linear ones provide ``design(data) -> [M, n, p]`` (at the
+    data's kept samples); nonlinear ones ``torque(theta, data) -> [M, n]``, ``starts``, ``bounds``."""
+    name: str = ""
+    linear: bool = True
+    place: str = ""
+
+    def param_names(self) -> list[str]:
+        raise NotImplementedError
+
+    @property
+    def n_params(self) -> int:
+        return len(self.param_names())
+
+    def design(self, data: GapData) -> np.ndarray:
+        raise NotImplementedError
+
+    def torque(self, theta: np.ndarray, data: GapData) -> np.ndarray:
+        raise NotImplementedError
+
+    def starts(self, data: GapData) -> list[np.ndarray]:
+        raise NotImplementedError
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        return -np.inf * np.ones(self.n_params), np.inf * np.ones(self.n_params)
+
+    def joint_of_param(self, n: int) -> np.ndarray:
+        """Joint each parameter acts on (-1: several joints) — used for the sparse finite-difference Jacobian."""
+        return -np.ones(self.n_params, dtype=int)
+
+    def cached_design(self, data: GapData) -> np.ndarray:
+        key = ("design", self.name)
+        if key not in data.cache:
+            data.cache[key] = self.design(data)
+        return data.cache[key]
+
+
+class EffectCandidate(Candidate):
+    """A joint effect of the twin's library. Linear effects are fitted through their own ``regressor``; nonlinear
+    ones start from the library defaults with every torque-amplitude parameter (default 0) set to a fraction of
+    the residual's RMS per joint (two starts)."""
+    AMPLITUDE_KEYS = ("static", "saturation", "amplitude", "offset")
+
+    def __init__(self, name: str, n: int, keys: Sequence[str] | None = None, label: str | None = None,
+                 **settings: Any):
+        self.name = label or name
+        self.effect = name
+        self.proto: JointEffect = EFFECTS[name](n, **settings)
+        self.linear = bool(self.proto.linear)
+        self.place = self.proto.place
+        all_keys = list(type(self.proto).parameters)
+        self._keys = list(keys) if keys else all_keys
+        self._cols = np.concatenate([np.arange(n) + n * all_keys.index(k) for k in self._keys])
+        self._n = n
+
+    def param_names(self) -> list[str]:
+        return [f"{k}[{j + 1}]" for k in self._keys for j in range(self._n)]
+
+    def design(self, data: GapData) -> np.ndarray:
+        return data.stack([self.proto.regressor(s)[..., self._cols] for s in data.signals])
+
+    def torque(self, theta: np.ndarray, data: GapData) -> np.ndarray:
+        eff = self.proto.with_vector(np.asarray(theta, dtype=float))
+        return data.stack([eff.torque(s) for s in data.signals])
+
+    def starts(self, data: GapData) -> list[np.ndarray]:
+        v = np.asarray(self.proto.vector(), dtype=float).reshape(len(self._keys), self._n)
+        scale = np.sqrt((data.residual ** 2).mean(axis=0))
+        out = []
+        for f in (1.0, 0.3):
+            x = v.copy()
+            for i, k in enumerate(self._keys):
+                if k in self.AMPLITUDE_KEYS and not np.any(x[i]):
+                    x[i] = f * scale
+            out.append(x.reshape(-1))
+        return out
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        lo, hi = self.proto.bounds()
+        return np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
+
+    def joint_of_param(self, n: int) -> np.ndarray:
+        return np.tile(np.arange(n), len(self._keys))
+
+
+def ripple_candidate(n: int, train: "GapData", max_order: float = 400.0) -> EffectCandidate:
+    """The library's ripple ``A sin(h·N·q + φ)`` with its order ``h·N`` per joint set to the peak of the training
+    residual's order spectrum (the ripple is linear once its order is known; the order is found, not assumed)."""
+    q = train.stack([s.q for s in train.signals])
+    qd = train.stack([s.qd for s in train.signals])
+    orders = peak_orders(train.residual, q, qd, max_order=max_order, min_order=10.0)
+    harmonic = 2.0
+    return EffectCandidate("ripple", n, gear_ratio=orders / harmonic, harmonic=harmonic)
+
+
+class EncoderNoiseCandidate(Candidate):
+    """Position-sensor noise: the residual is the model's error from noisy q (and q̇, q̈ derived from it). Its
+    signature is ``d_j = τ_sim(smoothed motion)_j − τ_sim(raw motion)_j`` (zero-phase low-pass at ``cutoff_hz``,
+    well above arm motion and below encoder noise); the fitted share ``c_j`` should be ≈ 1 where it is real."""
+    name = "encoder_noise"
+    place = "sensor"
+
+    def __init__(self, model: "SimModel", cutoff_hz: float = 8.0):
+        self.model, self.cutoff_hz = model, cutoff_hz
+
+    def param_names(self) -> list[str]:
+        return [f"share[{j + 1}]" for j in range(self.model.robot.n)]
+
+    def design(self, data: GapData) -> np.ndarray:
+        out = []
+        for s, sim in zip(data.signals, data.tau_sim):
+            rate = 1.0 / float(np.median(np.diff(s.t)))
+            if rate <= 2.5 * self.cutoff_hz:
+                out.append(np.zeros(s.q.shape + (s.n,)))
+                continue
+            sos = signal.butter(2, self.cutoff_hz, fs=rate, output="sos")
+            smooth = [signal.sosfiltfilt(sos, x, axis=0) for x in (s.q, s.qd, s.qdd)]
+            d = self.model.predict(MotionSignals(s.t, *smooth, tau=s.tau)) - sim
+            out.append(d[:, :, None] * np.eye(s.n)[None])
+        return data.stack(out)
+
+    def joint_of_param(self, n: int) -> np.ndarray:
+        return np.arange(n)
+
+
+class ElasticityCandidate(Candidate):
+    """Joint elasticity seen by a motor-side position sensor: the measured q includes the spring deflection
+    ``δ = c∘τ_J`` (compliance ``c_k = 1/K_k`` [rad/(N·m)]), so the model evaluates the rigid body at the wrong
+    motion: ``e ≈ −Σ_k (∂τ/∂q_k τ_k + ∂τ/∂q̇_k τ̇_k + ∂τ/∂q̈_k τ̈_k) c_k`` (linear in ``c``; τ the modelled
+    link torque, its derivatives by finite differences of its 5 Hz zero-phase low-pass). With a link-side position sensor elasticity leaves
+    τ_J = τ_rbd(q, q̇, q̈) exact and cannot show in this residual (``proprio.effects.Elasticity``)."""
+    name = "elasticity"
+    place = "motor"
+
+    def __init__(self, model: "SimModel", accel: float = 1.0):
+        self.model, self.accel = model, accel
+
+    def param_names(self) -> list[str]:
+        return [f"compliance[{j + 1}]" for j in range(self.model.robot.n)]
+
+    def design(self, data: GapData) -> np.ndarray:
+        out = []
+        for s in data.signals:
+            n, tau = s.n, s.tau
+            rate = 1.0 / float(np.median(np.diff(s.t)))
+            smooth = signal.sosfiltfilt(signal.butter(2, min(5.0, 0.2 * rate), fs=rate, output="sos"), tau, axis=0)
+            tau_d = np.gradient(smooth, s.t, axis=0)
+            tau_dd = np.gradient(tau_d, s.t, axis=0)
+            cols = np.empty(s.q.shape + (n,))
+            for k in range(n):
+                # directional derivative of τ_rbd along the deflection (τ_k, τ̇_k, τ̈_k)·c_k of joint k
+                h = 1e-3 / max(float(np.abs(tau[:, k]).max()), 1e-9)
+                dirs = [np.zeros_like(s.q) for _ in range(3)]
+                dirs[0][:, k], dirs[1][:, k], dirs[2][:, k] = h * tau[:, k], h * tau_d[:, k], h * tau_dd[:, k]
+                plus = inverse_dynamics(self.model.robot, s.q + dirs[0], s.qd + dirs[1], s.qdd + self.accel * dirs[2])
+                minus = inverse_dynamics(self.model.robot, s.q - dirs[0], s.qd - dirs[1], s.qdd - self.accel * dirs[2])
+                cols[:, :, k] = -(plus - minus) / (2 * h)
+            out.append(cols)
+        return data.stack(out)
+
+    def joint_of_param(self, n: int) -> np.ndarray:
+        return -np.ones(n, dtype=int)
+
+
+class RigidBodyCandidate(Candidate):
+    """Error of the rigid-body (inertial) parameters: the identifiable combinations kept by a rank-revealing QR of
+    the training regressor (friction columns excluded: friction is its own candidate)."""
+    name = "rigid_body"
+    place = "link"
+
+    def __init__(self, robot: RobotDescription, train: GapData, rank_tol: float = 1e-6):
+        self.robot = robot
+        full = self._inertial(train)
+        a = full.reshape(-1, full.shape[-1])
+        norms = np.linalg.norm(a, axis=0)
+        nz = np.flatnonzero(norms > 1e-9 * norms.max())
+        _, r, piv = linalg.qr(a[:, nz] / norms[nz], mode="economic", pivoting=True)
+        d = np.abs(np.diag(r))
+        rank = int((d > rank_tol * d[0]).sum())
+        self.columns = np.sort(nz[piv[:rank]])
+        names = [nm for k, nm in enumerate(parameter_names(robot.n)) if k % PARAMS_PER_JOINT < 10]
+        self._names = [f"δ{names[c]}" for c in self.columns]
+        train.cache[("design", self.name)] = full[..., self.columns]
+
+    def _inertial(self, data: GapData) -> np.ndarray:
+        keep = np.array([k % PARAMS_PER_JOINT < 10 for k in range(PARAMS_PER_JOINT * self.robot.n)])
+        return data.stack([regressor(self.robot, s.q, s.qd, s.qdd)[..., keep] for s in data.signals])
+
+    def param_names(self) -> list[str]:
+        return self._names
+
+    def design(self, data: GapData) -> np.ndarray:
+        return self._inertial(data)[..., self.columns]
+
+
+class PayloadCandidate(Candidate):
+    """An unmodelled payload at the flange: mass ``m`` [kg], first moment ``m·c`` [kg·m] (``c`` in the flange
+    frame) and rotational inertia about the last link's origin (6 entries, link axes; a point mass off the axis has
+    one). Its torque is the last link's 10 regressor columns with the first moment moved to the flange frame —
+    the same columns a rigid-body error of the last link has, which is why payload and inertial error are a
+    confusable pair (reported as tied when the data cannot separate them)."""
+    name = "payload"
+    place = "link"
+
+    def __init__(self, robot: RobotDescription):
+        from proprio.description import rpy_to_matrix
+        self.robot = robot
+        self.p_f = np.asarray(robot.end_effector.xyz, dtype=float)
+        self.r_f = rpy_to_matrix(robot.end_effector.rpy)
+
+    def param_names(self) -> list[str]:
+        return ["mass", "m·cx", "m·cy", "m·cz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz"]
+
+    def design(self, data: GapData) -> np.ndarray:
+        n = self.robot.n
+        c0 = PARAMS_PER_JOINT * (n - 1)
+        out = []
+        for s in data.signals:
+            y = regressor(self.robot, s.q, s.qd, s.qdd)[..., c0:c0 + 10]
+            out.append(np.concatenate([y[..., :1] + y[..., 1:4] @ self.p_f[:, None], y[..., 1:4] @ self.r_f,
+                                       y[..., 4:10]], axis=-1))
+        return data.stack(out)
+
+
+class SignalLagCandidate(Candidate):
+    """A first-order lag of time constant ``T_j`` [s] between the modelled and the measured torque (a causal
+    filter in the torque channel): ``e ≈ LP_T(τ_sim) − τ_sim`` with ``LP_T`` the exactly discretised first-order
+    low-pass. Nonlinear in ``T``, one parameter per joint."""
+    name = "signal_lag"
+    place = "sensor"
+    linear = False
+
+    def __init__(self, n: int):
+        self.n = n
+
+    def param_names(self) -> list[str]:
+        return [f"time_constant[{j + 1}]" for j in range(self.n)]
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        return np.zeros(self.n), np.full(self.n, 0.2)
+
+    def starts(self, data: GapData) -> list[np.ndarray]:
+        return [np.full(self.n, 0.005), np.full(self.n, 0.03)]
+
+    def torque(self, theta: np.ndarray, data: GapData) -> np.ndarray:
+        out = []
+        for s, sim in zip(data.signals, data.tau_sim):
+            dt = float(np.median(np.diff(s.t)))
+            y = np.empty_like(sim)
+            for j in range(self.n):
+                a = math.exp(-dt / theta[j]) if theta[j] > 1e-9 else 0.0
+                y[:, j] = signal.lfilter([1 - a], [1, -a], sim[:, j] - sim[0, j]) + sim[0, j]
+            out.append(y - sim)
+        return data.stack(out)
+
+    def joint_of_param(self, n: int) -> np.ndarray:
+        return np.arange(n)
+
+
+def candidate_set(model: SimModel, train: GapData, names: Sequence[str] | None = None) -> list[Candidate]:
+    """All deterministic candidates the model lacks (or only ``names``, which must be among them)."""
+    n = model.robot.n
+    present = model.effect_names
+    special = {"ripple": lambda: ripple_candidate(n, train), "encoder_noise": lambda: EncoderNoiseCandidate(model),
+               "elasticity": lambda: ElasticityCandidate(model)}
+    available: dict[str, Callable[[], Candidate]] = {
+        k: special.get(k, lambda k=k: EffectCandidate(k, n)) for k in EFFECTS
+        if k not in present and k not in ("torque_noise", "sensor_offset_gain")}
+    if "sensor_offset_gain" not in present:
+        # offset and gain error are tested apart: a gain error aliases a scaled rigid body, an offset does not
+        available["sensor_offset"] = lambda: EffectCandidate("sensor_offset_gain", n, ("offset",), "sensor_offset")
+        available["sensor_gain"] = lambda: EffectCandidate("sensor_offset_gain", n, ("gain",), "sensor_gain")
+    names = None if names is None else [x for k in names for x in
+                                        (("sensor_offset", "sensor_gain") if k == "sensor_offset_gain" else (k,))]
+    available["rigid_body"] = lambda: RigidBodyCandidate(model.robot, train)
+    available["payload"] = lambda: PayloadCandidate(model.robot)
+    available["signal_lag"] = lambda: SignalLagCandidate(n)
+    if names is not None:
+        unknown = [k for k in names if k not in available and k != "torque_noise"]
+        if unknown:
+            why = [f"{k} (already in the model)" if k in present else f"{k} (unknown)" for k in unknown]
+            raise DiagnosisError(f"candidates: cannot test {', '.join(why)}; available: {sorted(available)}")
+        chosen = [k for k in names if k in available]
+    else:
+        chosen = list(available)
+    if not chosen:
+        raise DiagnosisError("candidates: no candidate effects left to test — the model already has every effect "
+                             "of the library (or only noise effects were requested)")
+    return [available[k]() for k in chosen]

@@ -1,0 +1,325 @@
+"""Which unmodelled effect causes the sim-to-real torque gap, and how far does it shrink? (DESIGN.md "Gap
+diagnosis", steps 3–4.)
+
+Candidates are every deterministic effect of the twin's joint-effect library (``proprio.effects``)
+that the simulation model lacks, plus
+
+* ``rigid_body``: an error of the rigid-body parameters — a correction ``δβ`` of the identifiable (base) inertial
+  parameters, ``e ≈ Y_b(q, q̇, q̈) δβ`` with ``Y_b`` the columns of the Newton–Euler regressor
+  (``identification/regressor.py``) kept by a rank-revealing QR of the training regressor;
+* ``payload``: an unmodelled point mass at the flange, linear in ``(m, m·c)`` with ``c`` in the flange frame (the
+  payload's own rotational inertia is neglected), i.e. ``Jᵀ`` of the point's weight and inertial force;
+* ``signal_lag``: a time shift ``δ_j`` between measured and simulated torque, ``e ≈ −δ_j dτ_sim/dt`` — the usual
+  alias of elasticity and of a causal filter in the torque channel (a confusable pair DESIGN.md names).
+
+Each candidate is fitted to the residual ``e = τ_meas − τ_sim`` of the TRAINING recordings — by weighted linear
+least squares where it is linear in its parameters (the effect's own ``regressor``), by bounded
+``scipy.optimize.least_squares`` otherwise — and scored by the reduction of the weighted squared residual on the
+HELD-OUT recordings. Greedy forward selection adds the best candidate, refits all selected ones jointly
+(linear ones exactly, nonlinear ones by back-fitting) and repeats while the gain is significant.
+
+**Selection test.** The held-out samples are cut into ``B`` contiguous time blocks of ≈ 0.5 s (at least 20;
+longer than the residual's correlation time, so block statistics are close to independent even when ``e`` is
+strongly autocorrelated — the reason for blocks rather than samples). With ``w_j = 1/mean(e_train,j²)`` (every
+joint counts, whatever its torque scale) and ``SSE_b = Σ_{t∈b,j} w_j r²``, the per-block statistic is the
+log-ratio ``l_b = log(SSE_b(S) / SSE_b(S+c))`` — scale-free, so a lag or friction that matters in every block is
+not drowned by the few blocks of fast reaches. A candidate is *significant* when (i) its relative gain
+``G = 1 − Σ SSE_b(S+c) / Σ SSE_b(S)`` is at least ``min_gain`` (2 %, the practical resolution) and (ii) a
+one-sided t-test over the blocks rejects ``E[l_b] ≤ 0`` at ``α/K`` (Bonferroni over the ``K`` candidates of the
+step, α = 1 %). Overfitting a candidate to noise makes ``l_b`` slightly negative on held-out data, so the null
+case stays clean.
+
+**Ties.** A significant runner-up whose paired block log-ratio differences against the best are not significant
+(one-sided t-test, 5 %) explains the same held-out variance within the test's resolution: it is reported as tied
+("X or Y") and the simpler one (fewer parameters) is the one added; the others stay candidates for later steps.
+A candidate that lowers the weighted error but raises the unweighted held-out SSE counts as no gain.
+
+**Noise.** Torque noise cannot shrink a held-out error. After the deterministic steps, an unmodelled
+``torque_noise`` is reported when the remaining residual is white (Ljung–Box and state R²) and its variance
+exceeds the noise the model already predicts. Encoder noise *can* be predicted: its signature is the change of the
+modelled torque when the measured motion is de-noised (``EncoderNoiseCandidate``). Elasticity leaves τ_J exact for
+a link-side position sensor; it is tested as the deflection a motor-side position sensor would miss
+(``ElasticityCandidate``).
+
+Confidence intervals come from the Jacobian of the fit (``σ² (JᵀWJ)⁻¹``) inflated by ``N / N_eff``, the
+effective sample size of the autocorrelated residual (Bartlett), i.e. 95 % CI = ``± 1.96 σ_θ``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
+import numpy as np
+from scipy import stats
+
+from proprio.description import RobotDescription
+from proprio.diagnosis.candidates import Candidate, candidate_set
+from proprio.diagnosis.data import MIN_BLOCK_S, MIN_BLOCKS, DiagnosisError, GapData, SimModel
+from proprio.diagnosis.fitting import Fit, fit_candidates, predict_candidates
+from proprio.effects import EFFECTS
+from proprio.recording import Recording, validate_recording
+
+__all__ = ["Step", "NoiseFinding", "ResidualStructure", "Attribution", "attribute"]
+
+
+def _n_eff_factor(r: np.ndarray, max_lag: int = 200) -> float:
+    """N / N_eff of an autocorrelated residual (Bartlett: 1 + 2 Σ ρ_k up to the first non-positive ρ), the
+    factor by which the white-noise covariance of a fit understates its true covariance (averaged over joints)."""
+    fac = []
+    for col in r.T:
+        x = col - col.mean()
+        v = float(x @ x)
+        if v <= 0:
+            continue
+        s = 1.0
+        for k in range(1, min(max_lag, len(x) // 4)):
+            rho = float(x[:-k] @ x[k:]) / v
+            if rho <= 0:
+                break
+            s += 2 * rho
+        fac.append(s)
+    return float(np.mean(fac)) if fac else 1.0
+
+
+
+
+@dataclass
+class Step:
+    """One accepted step: ``name`` (``tied`` lists the candidates that explain the same held-out variance),
+    relative held-out gain, t statistic over blocks, per-joint held-out RMSE after the step [N·m], fitted
+    parameters with 95 % CI half-widths."""
+    name: str
+    tied: list[str]
+    gain: float
+    t_stat: float
+    rmse_after: np.ndarray
+    params: dict[str, tuple[np.ndarray, np.ndarray, list[str]]]
+
+
+@dataclass
+class NoiseFinding:
+    """Unmodelled white noise: ``rms [n]`` N·m per joint (0 on joints where the residual is structured or within
+    the model's own noise)."""
+    name: str
+    rms: np.ndarray
+    explanation: str
+
+
+@dataclass
+class ResidualStructure:
+    """What stays unexplained on the held-out data: per joint RMSE [N·m], Ljung–Box p-value (lags 1..20 of the
+    residual decimated to ≥ 0.05 s spacing), held-out R² of the residual against state features, and a verdict."""
+    rmse: np.ndarray
+    ljung_box_p: np.ndarray
+    r2_state: np.ndarray
+    structured_time: np.ndarray
+    structured_state: np.ndarray
+
+    @property
+    def white(self) -> bool:
+        return not (self.structured_time.any() or self.structured_state.any())
+
+
+@dataclass
+class Attribution:
+    """Result of :func:`attribute`."""
+    joint_names: list[str]
+    steps: list[Step]
+    ranking: list[dict[str, Any]]
+    rmse_before: np.ndarray
+    signal_rms: np.ndarray
+    residual: ResidualStructure
+    noise: list[NoiseFinding]
+    candidates: list[str]
+    holdout_e: list[np.ndarray]
+    holdout_pred: list[np.ndarray]
+    holdout_t: list[np.ndarray]
+
+    @property
+    def selected(self) -> list[str]:
+        return [s.name for s in self.steps] + [f.name for f in self.noise]
+
+    def top(self, k: int) -> list[str]:
+        """The first ``k`` distinct names in attribution order, tied alternatives included after each step."""
+        out: list[str] = []
+        for s in self.steps:
+            for nm in [s.name] + s.tied:
+                if nm not in out:
+                    out.append(nm)
+        for f in self.noise:
+            if f.name not in out:
+                out.append(f.name)
+        return out[:k]
+
+
+def _block_gain(r_s: np.ndarray, delta: np.ndarray, w: np.ndarray, blk: np.ndarray, n_blk: int):
+    """Per block the log-ratio ``l_b = log(SSE_S,b / SSE_S+c,b)`` of the weighted squared residual (scale-free, so
+    blocks of fast reaches and slow exploration weigh alike), and the overall relative gain ``G``."""
+    before = np.bincount(blk, weights=((r_s ** 2) * w).sum(axis=1), minlength=n_blk)
+    after = np.bincount(blk, weights=(((r_s - delta) ** 2) * w).sum(axis=1), minlength=n_blk)
+    lb = np.log(np.maximum(before, 1e-300) / np.maximum(after, 1e-300))
+    return lb, 1.0 - float(after.sum()) / max(float(before.sum()), 1e-300)
+
+
+def _t_stat(x: np.ndarray) -> float:
+    sd = float(np.std(x, ddof=1))
+    if sd <= 0:
+        return math.inf if x.mean() > 0 else -math.inf
+    return float(x.mean() / (sd / math.sqrt(len(x))))
+
+
+def _residual_structure(r_h: np.ndarray, r_tr: np.ndarray, train: GapData, hold: GapData,
+                        rate: float) -> ResidualStructure:
+    n = r_h.shape[1]
+    step = max(1, int(round(0.05 * rate)))
+    lb = np.ones(n)
+    for j in range(n):
+        ps = []
+        for e_k, idx in zip(_split(r_h[:, j], hold), hold.fit_index):
+            x = e_k[::step] - e_k[::step].mean()
+            m = min(20, len(x) // 5)
+            if m < 2 or x @ x <= 0:
+                continue
+            rho = np.array([x[:-k] @ x[k:] for k in range(1, m + 1)]) / (x @ x)
+            q = len(x) * (len(x) + 2) * np.sum(rho ** 2 / (len(x) - np.arange(1, m + 1)))
+            ps.append(stats.chi2.sf(q, m))
+        lb[j] = min(ps) if ps else 1.0
+
+    def feats(data: GapData) -> np.ndarray:
+        f = [np.concatenate([s.q, s.qd, np.sign(s.qd), s.qdd, np.sin(s.q), np.cos(s.q)], axis=1)
+             for s in data.signals]
+        f = data.stack(f)
+        return np.concatenate([np.ones((len(f), 1)), f], axis=1)
+
+    ft, fh = feats(train), feats(hold)
+    r2 = np.zeros(n)
+    for j in range(n):
+        coef, *_ = np.linalg.lstsq(ft, r_tr[:, j], rcond=1e-8)
+        res = r_h[:, j] - fh @ coef
+        r2[j] = 1.0 - float(res @ res) / max(float(r_h[:, j] @ r_h[:, j]), 1e-300)
+    return ResidualStructure(np.sqrt((r_h ** 2).mean(axis=0)), lb, r2, lb < 0.01, r2 > 0.05)
+
+
+def _split(x: np.ndarray, data: GapData) -> list[np.ndarray]:
+    sizes = np.cumsum([len(i) for i in data.fit_index])[:-1]
+    return np.split(x, sizes)
+
+
+def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording],
+              holdout_recs: Sequence[Recording], candidates: Sequence[str] | None = None, trim_s: float = 0.5,
+              alpha: float = 0.01, min_gain: float = 0.02, max_steps: int = 6,
+              progress: Callable[[str], None] | None = None) -> Attribution:
+    """Greedy forward attribution of the residual ``τ_meas − τ_sim`` to candidate effects (module docstring).
+
+    ``model``: the simulation model (a RobotDescription = rigid body + its friction, or a :class:`SimModel`);
+    ``train_recs`` / ``holdout_recs``: Recordings of the same robot; ``candidates``: restrict to these names;
+    ``trim_s``: seconds dropped at both ends of every recording (filter start-up). Raises :class:`DiagnosisError`
+    on bad input (no recordings, joint-count mismatch, holdout too short for the block test, nothing to test)."""
+    model = SimModel.of(model)
+    n = model.robot.n
+    if not train_recs or not holdout_recs:
+        raise DiagnosisError("recordings: need at least one training and one held-out recording")
+    for role, recs in (("training", train_recs), ("holdout", holdout_recs)):
+        for k, r in enumerate(recs):
+            if r.n_joints != n:
+                raise DiagnosisError(f"{role} recording {k}: has {r.n_joints} joints but the model robot "
+                                     f"'{model.robot.name}' has {n} (mismatched robots)")
+            try:
+                validate_recording(r, model.robot, source=f"{role} recording {k}")
+            except ValueError as exc:
+                raise DiagnosisError(f"{exc} (mismatched robots?)") from exc
+    hold_len = min(r.duration for r in holdout_recs)
+    need = MIN_BLOCKS * MIN_BLOCK_S / len(holdout_recs) + 2 * trim_s
+    if sum(r.duration for r in holdout_recs) - 2 * trim_s * len(holdout_recs) < MIN_BLOCKS * MIN_BLOCK_S:
+        raise DiagnosisError(f"holdout: {sum(r.duration for r in holdout_recs):.2f} s of held-out data is too short "
+                             f"for the block test ({MIN_BLOCKS} blocks of {MIN_BLOCK_S} s after trimming {trim_s} s "
+                             f"per end: ≥ {need:.1f} s per recording, shortest has {hold_len:.2f} s)")
+    say = progress or (lambda msg: None)
+    train = GapData.build(model, train_recs, trim_s, "training")
+    hold = GapData.build(model, holdout_recs, trim_s, "holdout")
+    cands = candidate_set(model, train, candidates)
+    e_tr, e_h = train.residual, hold.residual
+    w = 1.0 / np.maximum((e_tr ** 2).mean(axis=0), 1e-12)
+    held_s = sum(r.duration for r in holdout_recs) - 2 * trim_s * len(holdout_recs)
+    n_blk = max(MIN_BLOCKS, int(held_s / MIN_BLOCK_S))
+    blk = hold.blocks(n_blk)
+    n_blk = int(blk.max()) + 1
+    sig = np.sqrt((hold.stack(hold.tau) ** 2).mean(axis=0))
+    rmse0 = np.sqrt((e_h ** 2).mean(axis=0))
+
+    selected: list[Candidate] = []
+    fit = Fit({}, {})
+    pred_h = np.zeros_like(e_h)
+    steps: list[Step] = []
+    ranking: list[dict[str, Any]] = []
+    remaining = list(cands)
+    while remaining and len(steps) < max_steps:
+        r_s = e_h - pred_h
+        scored = []
+        for c in remaining:
+            say(f"step {len(steps) + 1}: fitting {c.name}")
+            f_c = fit_candidates(selected + [c], train, w, fit.thetas, sweeps=1 if c.linear else 2)
+            delta = predict_candidates(selected + [c], f_c, hold) - pred_h
+            db, g = _block_gain(r_s, delta, w, blk, n_blk)
+            raw = float((r_s ** 2).sum() - ((r_s - delta) ** 2).sum())    # unweighted held-out SSE change
+            scored.append((c, f_c, db, g if raw > 0 else min(g, 0.0), _t_stat(db)))
+        k_test = len(scored)
+        t_crit = stats.t.ppf(1 - alpha / k_test, n_blk - 1)
+        if not steps:
+            ranking = [{"name": c.name, "gain": g, "t": t, "n_params": c.n_params,
+                        "significant": bool(g >= min_gain and t >= t_crit)} for c, _, _, g, t in scored]
+            ranking.sort(key=lambda x: -x["gain"])
+        sig_ok = [x for x in scored if x[3] >= min_gain and x[4] >= t_crit]
+        if not sig_ok:
+            break
+        sig_ok.sort(key=lambda x: -x[3])
+        best = sig_ok[0]
+        t_tie = stats.t.ppf(0.95, n_blk - 1)
+        group = [best] + [x for x in sig_ok[1:] if _t_stat(best[2] - x[2]) < t_tie]
+        group.sort(key=lambda x: (x[0].n_params, -x[3]))
+        chosen = group[0]
+        c, f_c = chosen[0], chosen[1]
+        selected.append(c)
+        remaining = [x for x in remaining if x is not c]     # tied partners stay: they may still add later
+        fit = fit_candidates(selected, train, w, f_c.thetas, sweeps=3) if any(not s.linear for s in selected) else f_c
+        pred_h = predict_candidates(selected, fit, hold)
+        r_tr = e_tr - predict_candidates(selected, fit, train)
+        infl = _n_eff_factor(r_tr)
+        s2 = float(((r_tr ** 2) * w).sum()) / max(r_tr.size - sum(s.n_params for s in selected), 1)
+        params = {s.name: (fit.thetas[s.name], 1.96 * np.sqrt(np.maximum(np.diag(fit.cov[s.name]), 0) * s2 * infl),
+                           s.param_names()) for s in selected}
+        steps.append(Step(c.name, [g[0].name for g in group[1:]], chosen[3], chosen[4],
+                          np.sqrt(((e_h - pred_h) ** 2).mean(axis=0)), params))
+        say(f"step {len(steps)}: added {c.name} (held-out gain {100 * chosen[3]:.1f} %)")
+
+    r_h = e_h - pred_h
+    r_tr = e_tr - predict_candidates(selected, fit, train)
+    rate = float(np.median([r.rate_hz for r in holdout_recs]))
+    structure = _residual_structure(r_h, r_tr, train, hold, rate)
+    noise = _noise_findings(model, structure, hold, r_h)
+    return Attribution(model.robot.joint_names, steps, ranking, rmse0, sig, structure, noise,
+                       [c.name for c in cands], _split(e_h, hold), _split(pred_h, hold),
+                       [r.t[i] for r, i in zip(hold.recordings, hold.fit_index)])
+
+
+def _noise_findings(model: SimModel, structure: ResidualStructure, hold: GapData,
+                    r_h: np.ndarray) -> list[NoiseFinding]:
+    """Unmodelled noise: the remaining residual is white in time and state, and larger than the model's own noise
+    (variance ratio beyond the χ² 99.9 % bound of the sample variance, plus 20 % of slack)."""
+    present = model.effect_names
+    out = []
+    white_j = ~(structure.structured_time | structure.structured_state)
+    if not white_j.any():
+        return out
+    expected = np.mean([model.noise_variance(s) for s in hold.signals], axis=0)
+    var = (r_h ** 2).mean(axis=0)
+    m = len(r_h)
+    bound = expected * 1.2 * stats.chi2.ppf(0.999, m) / m + 1e-12
+    excess = white_j & (var > bound)
+    if not excess.any():
+        return out
+    if "torque_noise" not in present and "torque_noise" in EFFECTS:
+        out.append(NoiseFinding("torque_noise", np.where(excess, np.sqrt(np.maximum(var - expected, 0.0)), 0.0),
+                                "white residual above the model's noise level"))
+    return out

@@ -1,0 +1,53 @@
+"""The joint-effect library: one class per effect that spoils a torque-sensing joint, each able to *simulate* its
+additive contribution to the measured link-side torque τ_J (vectorised over samples and joints) and to be *fitted*
+(flat parameter vector + bounds for nonlinear least squares, a regressor for the linear ones).
+
+Convention (DESIGN.md, thesis eq. 3.5–3.6): ``τ_J = τ_rbd(q, q̇, q̈) + Σ visible contributions − Jᵀ f_ext``. Every
+effect's :meth:`JointEffect.torque` returns its ``[N, n]`` contribution in N·m; motor-side effects contribute zero to
+τ_J (they are hidden behind the sensor and show up only through the motion).
+
+Effects, their place, and where their twin magnitudes come from (``proprio/configs/iiwa14_twin.yaml``):
+
+============================ ======= =============================================================================
+effect (YAML key)             place   model / calibration source
+============================ ======= =============================================================================
+``viscous_coulomb``           link    ``F_v q̇ + F_c tanh(q̇/v_s)``; identified iiwa14 set (Coulomb 0.03–0.32 N·m,
+                                      viscous 0.10–0.37 N·m·s/rad, ``proprio/robots/iiwa14_identified.yaml``)
+``stribeck``                  link    extra static friction ``F_s exp(−(q̇/v_st)²) tanh(q̇/v_s)``; low-speed
+                                      friction of harmonic drives (not in the thesis; off in the calibrated twin)
+``hysteresis``                sensor  Dahl law in the reversal-travel domain, saturating ≈95 % after 6° (§2.1,
+                                      Fig. 2.5); amplitude scaled with load on joints 2/4
+``lost_motion``               sensor  a ≈1° window after each reversal in which the direction-dependent torque
+                                      has not flipped yet (§4 intro, "absent changes ... of approximately 1°")
+``ripple``                    sensor  harmonic-drive ripple ``A sin(h·N·q + φ)``: frequency ``h·N·q̇/2π`` follows
+                                      joint speed (§6); amplitude chosen so raw τ is visibly noisy at 10 % speed
+``sensor_offset_gain``        sensor  ``g·τ + o``; offsets 0.1–0.9 N·m (DESIGN.md), gain error ≈1 %
+``torque_noise``              sensor  white Gaussian noise σ; "significant torque noise" at 10 % speed (Fig. 2.5)
+``encoder_noise``             sensor  position noise + quantisation of q (no torque contribution)
+(:class:`Motor`)              motor   reflected motor inertia B and motor friction, hidden behind the sensor;
+                                      the twin's ``drive`` block, not an ``EFFECTS`` entry (nothing to fit in τ_J)
+``elasticity``                motor   series elastic drive (K, D) with the motor's state, simulated by
+                                      ``proprio.systems.joint_drive``; zero direct contribution to τ_J
+============================ ======= =============================================================================
+
+Hysteresis and lost motion share one state, the *reversal travel* ``r`` (signed joint travel since the last
+direction reversal, :func:`reversal_travel`) — the quantity behind the thesis' feature ``r`` (§4.2), which the learning
+stack encodes causally with a position deadband and ±10° clipping in :mod:`proprio.learning.features`. Reversals are detected
+with a velocity deadband (Schmitt trigger on q̇) so that noise around standstill does not create spurious reversals;
+the travel is measured from the extremum of q reached before the reversal. Stateful effects are evaluated per
+segment between reversals; the values carried across segments follow an affine recursion that is solved with a
+vectorised prefix scan (no per-sample Python loop). The same laws run sample by sample, with the reversal state as
+Drake discrete state, in :class:`proprio.systems.sensors.TorqueSensorSystem` (tested equal to 1e-9).
+"""
+from __future__ import annotations
+
+from proprio.effects.base import EffectConfigError, JointEffect, affine_scan
+from proprio.effects.drive import Elasticity, Motor
+from proprio.effects.friction import Stribeck, ViscousCoulomb
+from proprio.effects.hysteresis import Hysteresis, LostMotion
+from proprio.effects.registry import EFFECTS, make_effects
+from proprio.effects.sensor import EncoderNoise, Ripple, SensorOffsetGain, TorqueNoise
+
+__all__ = ["JointEffect", "EffectConfigError", "affine_scan", "ViscousCoulomb", "Stribeck", "Hysteresis",
+           "LostMotion", "Ripple", "SensorOffsetGain", "TorqueNoise", "EncoderNoise", "Motor", "Elasticity",
+           "EFFECTS", "make_effects"]

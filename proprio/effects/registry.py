@@ -1,0 +1,29 @@
+"""The registry of fittable joint effects (YAML key → class) and the builder of an ``effects:`` block."""
+from __future__ import annotations
+
+from proprio.effects.base import EffectConfigError, JointEffect
+from proprio.effects.drive import Elasticity
+from proprio.effects.friction import Stribeck, ViscousCoulomb
+from proprio.effects.hysteresis import Hysteresis, LostMotion
+from proprio.effects.sensor import EncoderNoise, Ripple, SensorOffsetGain, TorqueNoise
+
+__all__ = ["EFFECTS", "make_effects"]
+
+EFFECTS: dict[str, type[JointEffect]] = {cls.name: cls for cls in (
+    ViscousCoulomb, Stribeck, Hysteresis, LostMotion, Ripple, SensorOffsetGain, TorqueNoise, EncoderNoise, Elasticity)}
+
+
+def make_effects(config: dict | None, n: int) -> list[JointEffect]:
+    """Build the effects of a YAML ``effects:`` mapping ``{name: block}`` in registry order (link, sensor, motor).
+
+    Unknown names raise :class:`EffectConfigError` listing the valid ones (the payload and the motor side have the
+    twin's own ``payload`` and ``drive`` blocks).
+    """
+    config = config or {}
+    if not isinstance(config, dict):
+        raise EffectConfigError(f"effects must be a mapping {{name: parameters}}, got {config!r}")
+    unknown = sorted(set(config) - set(EFFECTS))
+    if unknown:
+        hint = " (the payload has its own top-level 'payload' block)" if "payload" in unknown else ""
+        raise EffectConfigError(f"unknown joint effect(s) {unknown}{hint}; valid effects: {sorted(EFFECTS)}")
+    return [cls.from_config(config[name], n) for name, cls in EFFECTS.items() if name in config]
