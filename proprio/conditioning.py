@@ -1,0 +1,334 @@
+"""The one signal-conditioning path: from what a robot logs (jittered time stamps, encoder ``q``, ``τ_J``, perhaps its
+own filtered ``q̇``; never ``q̈``) to the uniformly sampled ``q, q̇, q̈, τ`` every later stage uses (identify, diagnose,
+estimate, the payload experiment, the learning datasets, the gap benchmark, the demo).
+
+Steps, all vectorised over samples and joints:
+
+1. **Time base.** A log with jittered stamps is *resampled* onto the uniform grid of its median step by linear
+   interpolation (interpolation error ``≈ dt²/8 · |q̈|``, ≈1e-7 rad at 1 kHz, far below encoder noise). A step longer
+   than ``max_gap_s`` is a *gap* (a dropout): the grid samples inside it are interpolated but flagged invalid
+   (``valid``), and every later stage drops them. Duplicate stamps cannot reach this point: a Recording's time is
+   strictly increasing (:func:`proprio.recording.recording_from_csv` averages duplicated stamps at import).
+2. **Cutoff per joint.** From the config, or ``auto``: the Welch spectrum ``P_q(f)`` of each joint's ``q`` and its
+   white-noise floor ``P_0`` (mean over the upper half of the band: encoder noise and quantisation) give the
+   estimated error of ``q̈`` for a cutoff ``f_c``: the signal power lost above it, ``∫_{f>f_c} (2πf)⁴ (P_q − P_0)⁺``,
+   plus the noise passed below it, ``∫_{f<f_c} (2πf)⁴ P_0``; the cutoff minimises the sum (a Wiener-style
+   trade-off), clipped to ``[min_cutoff_hz, max_cutoff_fraction · rate]``.
+3. **Zero-phase low-pass, then differentiation.** A Butterworth low-pass (``order``, forward–backward with
+   ``scipy.signal.sosfiltfilt``, odd padding over ``edge_cycles`` periods of the cutoff) of ``q`` (or of the robot's
+   own ``q̇`` when ``velocity: measured``), then second-order central differences (``np.gradient``) for ``q̇`` and
+   ``q̈``. **τ gets the same low-pass per joint**, so a prediction computed from the conditioned motion and the
+   measurement it is compared with have the same (zero-phase) transfer function.
+4. **Its own error.** ``sigma_qd``, ``sigma_qdd`` [rad/s, rad/s²]: the white floor propagated through the filter and
+   difference chain (the sum of the squared impulse response) combined with the signal power the low-pass removes
+   above the cutoff. Later stages turn them into torque (:func:`processing_torque_sigma`), so a gap the processing
+   itself could explain is never reported as physics.
+
+:func:`condition` returns a :class:`ConditionedSignals`; ``.describe()`` is the one line every output prints.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from typing import Any, Sequence
+
+import numpy as np
+import scipy.signal
+
+from proprio.recording import Recording, RecordingError
+from proprio.signals import MotionSignals
+
+__all__ = ["ConditioningConfig", "ConditionedSignals", "condition", "zero_phase_lowpass", "auto_cutoff",
+           "uniform_time_base", "processing_torque_sigma"]
+
+
+@dataclass(frozen=True)
+class ConditioningConfig:
+    """Settings of :func:`condition` (the ``conditioning:`` block of a config).
+
+    ``cutoff_hz``: ``"auto"`` (per joint from the noise floor, module docstring), one number [Hz] or one per joint.
+    ``velocity``: ``"auto"`` uses the robot's own ``q̇`` when the Recording has one (its ``q̈`` still comes from our
+    filter), ``"q"`` always differentiates ``q``, ``"measured"`` requires the robot's ``q̇``. A Recording's ``qdd`` is
+    never used: no robot measures it. ``tau_filter``: apply the same low-pass to τ (default) or leave it raw.
+    """
+    cutoff_hz: str | float | tuple[float, ...] = "auto"
+    order: int = 2
+    edge_cycles: float = 3.0
+    min_cutoff_hz: float = 1.0
+    max_cutoff_fraction: float = 0.2
+    velocity: str = "auto"
+    tau_filter: bool = True
+    max_gap_s: float = 0.02
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any] | None, where: str = "conditioning") -> "ConditioningConfig":
+        d = dict(d or {})
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ValueError(f"{where}: unknown key(s) {unknown}; known: {sorted(known)}")
+        if isinstance(d.get("cutoff_hz"), list):
+            d["cutoff_hz"] = tuple(float(x) for x in d["cutoff_hz"])
+        cfg = cls(**d)
+        cfg.check(where)
+        return cfg
+
+    def check(self, where: str = "conditioning") -> None:
+        c = self.cutoff_hz
+        if isinstance(c, str):
+            if c != "auto":
+                raise ValueError(f"{where}.cutoff_hz: 'auto', a number [Hz] or a list per joint, got {c!r}")
+        elif not np.all(np.asarray(c, dtype=float) > 0):
+            raise ValueError(f"{where}.cutoff_hz: must be > 0 Hz, got {c}")
+        if self.order < 1 or self.edge_cycles < 0 or self.min_cutoff_hz <= 0 or self.max_gap_s <= 0:
+            raise ValueError(f"{where}: order >= 1, edge_cycles >= 0, min_cutoff_hz > 0 and max_gap_s > 0 required")
+        if not 0 < self.max_cutoff_fraction < 0.5:
+            raise ValueError(f"{where}.max_cutoff_fraction must be in (0, 0.5) of the sample rate")
+        if self.velocity not in ("auto", "q", "measured"):
+            raise ValueError(f"{where}.velocity: 'auto', 'q' or 'measured', got {self.velocity!r}")
+
+
+@dataclass
+class ConditionedSignals:
+    """Uniformly sampled, zero-phase conditioned signals of one Recording.
+
+    ``t [N]`` s (uniform, from 0), ``q, qd, qdd, tau [N,n]`` (rad, rad/s, rad/s², N·m), ``valid [N]`` (False inside
+    gaps of the original log), ``cutoff_hz [n]``, ``rate_hz``, the estimated white noise of ``q`` (``sigma_q [n]``,
+    rad) and the estimated errors of the derivatives (``sigma_qd``, ``sigma_qdd [n]``), ``velocity_source`` and
+    ``notes`` (what was done to the time base)."""
+    t: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    tau: np.ndarray
+    valid: np.ndarray
+    rate_hz: float
+    cutoff_hz: np.ndarray
+    sigma_q: np.ndarray
+    sigma_qd: np.ndarray
+    sigma_qdd: np.ndarray
+    velocity_source: str
+    auto_cutoff: bool
+    notes: list[str] = field(default_factory=list)
+    source: Recording | None = None
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.t.shape[0])
+
+    def motion(self, tau: np.ndarray | None = None) -> MotionSignals:
+        """The conditioned motion as the effect library's :class:`MotionSignals` (``tau`` defaults to the conditioned
+        measured torque)."""
+        return MotionSignals(self.t, self.q, self.qd, self.qdd, self.tau if tau is None else tau)
+
+    def as_recording(self) -> Recording:
+        """A Recording on the uniform grid whose ``qd``/``qdd`` are the conditioned estimates (``meta.conditioned``
+        records how), for stages that take Recordings; truth channels and ``f_ext`` are resampled alongside."""
+        src = self.source
+        meta = dict(src.meta) if src is not None else {}
+        meta.update(conditioned=self.summary(), rate_hz=self.rate_hz)
+        extra: dict[str, Any] = {}
+        if src is not None:
+            t_src = src.t - src.t[0]
+            if src.f_ext is not None:
+                extra["f_ext"] = _resample(t_src, src.f_ext, self.t)
+            extra["truth"] = {k: _resample(t_src, v, self.t) if np.issubdtype(v.dtype, np.floating) else v
+                              for k, v in src.truth.items() if v.shape[:1] == src.t.shape}
+        return Recording(t=self.t, q=self.q, tau=self.tau, qd=self.qd, qdd=self.qdd, meta=meta, **extra)
+
+    def summary(self) -> dict[str, Any]:
+        return {"rate_hz": self.rate_hz, "cutoff_hz": [float(x) for x in self.cutoff_hz],
+                "auto_cutoff": self.auto_cutoff, "velocity_source": self.velocity_source,
+                "sigma_qd": [float(x) for x in self.sigma_qd], "sigma_qdd": [float(x) for x in self.sigma_qdd],
+                "invalid_samples": int((~self.valid).sum()), "notes": list(self.notes)}
+
+    def describe(self) -> str:
+        """One line for every output: time base, cutoffs (and whether chosen from the noise floor), q̇ source and the
+        estimated derivative errors."""
+        fc = ", ".join(f"{x:.3g}" for x in self.cutoff_hz)
+        parts = [f"{self.rate_hz:.4g} Hz uniform grid" + (f" ({'; '.join(self.notes)})" if self.notes else ""),
+                 f"zero-phase low-pass cutoff [{fc}] Hz ({'auto: noise floor' if self.auto_cutoff else 'config'})",
+                 f"q̇ from {self.velocity_source}, q̈ by central differences",
+                 f"est. error σ(q̇) ≤ {self.sigma_qd.max():.2g} rad/s, σ(q̈) ≤ {self.sigma_qdd.max():.2g} rad/s²"]
+        return "conditioning: " + "; ".join(parts)
+
+
+# ---- the time base ----------------------------------------------------------------------------------------------------
+
+def uniform_time_base(t: np.ndarray, max_gap_s: float) -> tuple[np.ndarray, np.ndarray, float, list[str]]:
+    """The uniform grid ``t_u`` [s, from 0] at the median step of ``t``, the ``valid [len(t_u)]`` flags (False inside
+    steps longer than ``max_gap_s``), the step [s] and notes on what was found (jitter, gaps)."""
+    t = np.asarray(t, dtype=float) - float(t[0])
+    dt = np.diff(t)
+    h = float(np.median(dt))
+    notes: list[str] = []
+    jitter = float(np.max(np.abs(dt - h)))
+    if jitter <= 1e-6 * h + 1e-12:
+        return t, np.ones(t.size, dtype=bool), h, notes
+    t_u = np.arange(int(np.floor(t[-1] / h + 1e-9)) + 1) * h
+    valid = np.ones(t_u.size, dtype=bool)
+    gaps = np.flatnonzero(dt > max(max_gap_s, 1.5 * h))
+    if gaps.size:
+        lo = np.searchsorted(t_u, t[gaps], side="right")
+        hi = np.searchsorted(t_u, t[gaps + 1], side="left")
+        mark = np.zeros(t_u.size + 1, dtype=int)
+        np.add.at(mark, lo, 1)
+        np.add.at(mark, hi, -1)
+        valid = np.cumsum(mark[:-1]) == 0
+        notes.append(f"{gaps.size} gap(s) > {1e3 * max_gap_s:.3g} ms, {int((~valid).sum())} samples flagged")
+    notes.append(f"resampled from steps {1e3 * dt.min():.3g}–{1e3 * dt.max():.3g} ms")
+    return t_u, valid, h, notes
+
+
+def _resample(t: np.ndarray, x: np.ndarray, t_u: np.ndarray) -> np.ndarray:
+    """Linear interpolation of ``x [N, ...]`` from ``t`` onto ``t_u`` (both from 0), vectorised over channels."""
+    if t.shape == t_u.shape and np.array_equal(t, t_u):
+        return np.asarray(x, dtype=float)
+    x = np.asarray(x, dtype=float)
+    k = np.clip(np.searchsorted(t, t_u, side="right") - 1, 0, t.size - 2)
+    w = ((t_u - t[k]) / (t[k + 1] - t[k])).reshape((-1,) + (1,) * (x.ndim - 1))
+    return x[k] * (1.0 - w) + x[k + 1] * w
+
+
+# ---- filtering ----------------------------------------------------------------------------------------------------
+
+def zero_phase_lowpass(x: np.ndarray, rate_hz: float, cutoff_hz: float | np.ndarray, order: int = 2,
+                       edge_cycles: float = 3.0) -> np.ndarray:
+    """Butterworth low-pass of ``x [N, n]`` forward and backward (zero phase, ``sosfiltfilt``), one cutoff [Hz] per
+    column or one for all, padded by odd extension over ``edge_cycles`` periods of the cutoff."""
+    x = np.asarray(x, dtype=float)
+    cut = np.broadcast_to(np.asarray(cutoff_hz, dtype=float), x.shape[1:2] or (1,))
+    nyq = 0.5 * rate_hz
+    if np.any(cut <= 0) or np.any(cut >= nyq):
+        raise ValueError(f"cutoff {cut} Hz must lie in (0, {nyq:.6g}) Hz, the Nyquist frequency of {rate_hz:.6g} Hz")
+    out = np.empty_like(x)
+    for c in np.unique(cut):                                   # one filter per distinct cutoff, not per column
+        cols = np.flatnonzero(cut == c) if x.ndim > 1 else slice(None)
+        sos = scipy.signal.butter(order, c, fs=rate_hz, output="sos")
+        pad = min(x.shape[0] - 1, int(np.ceil(edge_cycles * rate_hz / c)))
+        out[..., cols] = scipy.signal.sosfiltfilt(sos, x[..., cols], axis=0, padlen=pad)
+    return out
+
+
+def _spectra(q: np.ndarray, rate_hz: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Frequencies ``f [F]``, the q̈ signal spectrum ``S [F,n]`` and the q̈ noise spectrum ``N [F,n]`` [(rad/s²)²/Hz],
+    and the white floor of q ``P_0 [n]`` [rad²/Hz].
+
+    Estimated from the Welch spectrum of the raw second difference ``Δ²q / h²`` (pre-whitened, so the window's leakage
+    from the large low-frequency content of q does not pose as high-frequency signal): its white-noise part has the
+    known shape ``P_0 · 16 sin⁴(π f h) / h⁴``, whose level ``P_0`` is the mean over the upper half of the band;
+    signal is counted only in bins at least twice the floor."""
+    h = 1.0 / rate_hz
+    d2 = np.diff(q, n=2, axis=0) / h ** 2
+    nper = int(min(d2.shape[0], max(256, 2 ** int(np.floor(np.log2(max(d2.shape[0] // 8, 2)))))))
+    f, p = scipy.signal.welch(d2, fs=rate_hz, nperseg=nper, detrend="constant", axis=0)
+    shape = 16.0 * np.sin(np.pi * f * h) ** 4 / h ** 4                 # |Δ²/h²|² at f
+    top = f >= 0.25 * rate_hz
+    floor = np.mean(p[top] / shape[top, None], axis=0)             # the mean: unbiased for white noise
+    noise = floor[None, :] * (2 * np.pi * f[:, None]) ** 4          # q̈ noise through ideal differentiation
+    white = floor[None, :] * shape[:, None]
+    signal = np.where(p > 2.0 * white, p - white, 0.0)              # only bins clearly above the floor
+    return f, signal, noise, floor
+
+
+def auto_cutoff(q: np.ndarray, rate_hz: float, min_hz: float = 1.0, max_fraction: float = 0.2
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Per-joint cutoff [Hz] minimising the estimated q̈ error (module docstring, step 2) and the white noise σ of q
+    [rad] implied by the floor (``σ² = P_0 · rate / 2``)."""
+    f, signal, noise, floor = _spectra(q, rate_hz)
+    lost = np.cumsum(signal[::-1], axis=0)[::-1]               # power above each f (inclusive)
+    passed = np.cumsum(noise, axis=0)                          # power up to each f
+    err = np.vstack([lost[1:], np.zeros((1, q.shape[1]))]) + passed
+    ok = (f >= min_hz) & (f <= max_fraction * rate_hz)
+    if not ok.any():
+        return np.full(q.shape[1], min(min_hz, max_fraction * rate_hz)), np.sqrt(floor * rate_hz / 2.0)
+    err = np.where(ok[:, None], err, np.inf)
+    return f[np.argmin(err, axis=0)], np.sqrt(floor * rate_hz / 2.0)
+
+
+def _chain_gains(rate_hz: float, cutoff: float, order: int, edge_cycles: float) -> tuple[float, float, float]:
+    """Noise gains (sum of squared impulse responses) of the chain q → low-pass → (q, d/dt, d²/dt²)."""
+    h = 1.0 / rate_hz
+    m = int(np.ceil(16 * rate_hz / cutoff)) | 1
+    delta = np.zeros((2 * m + 1, 1))
+    delta[m] = 1.0
+    lp = zero_phase_lowpass(delta, rate_hz, cutoff, order, edge_cycles)
+    d1 = np.gradient(lp, h, axis=0)
+    d2 = np.gradient(d1, h, axis=0)
+    return float((lp ** 2).sum()), float((d1 ** 2).sum()), float((d2 ** 2).sum())
+
+
+def _lost_power(q: np.ndarray, rate_hz: float, cutoff: np.ndarray, power: int) -> np.ndarray:
+    """RMS of the ``power``-th derivative's signal content above each joint's cutoff (what the low-pass removes)."""
+    f, signal, _, _ = _spectra(q, rate_hz)
+    s = signal * (2 * np.pi * np.maximum(f[:, None], 1e-9)) ** (2 * power - 4)
+    return np.sqrt(np.sum(np.where(f[:, None] > cutoff[None, :], s, 0.0), axis=0) * (f[1] - f[0]))
+
+
+# ---- the path ----------------------------------------------------------------------------------------------------
+
+def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig()) -> ConditionedSignals:
+    """Condition one Recording (module docstring). Raises :class:`RecordingError` naming the problem when the
+    Recording is too short for its filter or lacks a q̇ that ``velocity: measured`` requires."""
+    config.check()
+    n = rec.n_joints
+    t_u, valid, h, notes = uniform_time_base(rec.t, config.max_gap_s)
+    rate = 1.0 / h
+    t_src = rec.t - rec.t[0]
+    q = _resample(t_src, rec.q, t_u)
+    tau = _resample(t_src, rec.tau, t_u)
+    if config.velocity == "measured" and rec.qd is None:
+        raise RecordingError("recording: conditioning.velocity = 'measured' but the Recording has no 'qd' channel")
+    use_qd = rec.qd is not None and config.velocity in ("auto", "measured")
+    if config.cutoff_hz == "auto":
+        if q.shape[0] < 64:
+            raise RecordingError(f"recording: {q.shape[0]} samples are too few to estimate the noise floor "
+                                 "(conditioning.cutoff_hz = auto needs ≥ 64); give cutoff_hz explicitly")
+        cutoff, sigma_q = auto_cutoff(q, rate, config.min_cutoff_hz, config.max_cutoff_fraction)
+    else:
+        cutoff = np.broadcast_to(np.asarray(config.cutoff_hz, dtype=float), (n,)).copy()
+        sigma_q = auto_cutoff(q, rate)[1] if q.shape[0] >= 64 else np.zeros(n)
+    if np.any(cutoff >= 0.5 * rate):
+        raise RecordingError(f"recording: cutoff {cutoff.max():g} Hz is not below the Nyquist frequency "
+                             f"{0.5 * rate:.6g} Hz of its {rate:.6g} Hz time base")
+    need = int(np.ceil(3 * (config.order + 1))) + 1
+    longest = int(np.ceil(rate / cutoff.min())) + 1
+    if q.shape[0] < max(need, longest):
+        raise RecordingError(f"recording: {q.shape[0]} samples ({q.shape[0] * h:.3g} s) are shorter than one period "
+                             f"of the {cutoff.min():.3g} Hz cutoff; the derivative filter needs ≥ {max(need, longest)}")
+    lp = lambda x: zero_phase_lowpass(x, rate, cutoff, config.order, config.edge_cycles)  # noqa: E731
+    q_f = lp(q)
+    if use_qd:
+        qd = lp(_resample(t_src, rec.qd, t_u))
+        velocity_source = "the robot's q̇ (low-passed)"
+    else:
+        qd = np.gradient(q_f, h, axis=0)
+        velocity_source = "q"
+    qdd = np.gradient(qd, h, axis=0)
+    gains = np.array([_chain_gains(rate, c, config.order, config.edge_cycles) for c in cutoff])     # [n, 3]
+    lost_qd = _lost_power(q, rate, cutoff, 1) if q.shape[0] >= 64 else np.zeros(n)
+    lost_qdd = _lost_power(q, rate, cutoff, 2) if q.shape[0] >= 64 else np.zeros(n)
+    sigma_qd = np.sqrt(sigma_q ** 2 * gains[:, 1] + lost_qd ** 2)
+    sigma_qdd = np.sqrt(sigma_q ** 2 * gains[:, 2] + lost_qdd ** 2)
+    return ConditionedSignals(t=t_u, q=q_f, qd=qd, qdd=qdd, tau=lp(tau) if config.tau_filter else tau, valid=valid,
+                              rate_hz=rate, cutoff_hz=cutoff, sigma_q=sigma_q, sigma_qd=sigma_qd,
+                              sigma_qdd=sigma_qdd, velocity_source=velocity_source,
+                              auto_cutoff=config.cutoff_hz == "auto", notes=notes, source=rec)
+
+
+def processing_torque_sigma(torque: Any, signals: Sequence[ConditionedSignals], samples: int = 2000,
+                            seed: int = 0) -> np.ndarray:
+    """Per-joint σ [N·m] of the torque error the conditioning itself causes: ``torque(q, q̇, q̈) -> τ [N,n]`` evaluated
+    with q̇, q̈ perturbed by their estimated errors (Gaussian, seeded) minus the unperturbed value, on up to
+    ``samples`` samples spread over the recordings."""
+    rng = np.random.default_rng(seed)
+    q, qd, qdd, sd, sdd = [], [], [], [], []
+    per = max(1, samples // max(len(signals), 1))
+    for s in signals:
+        idx = np.linspace(0, s.n_samples - 1, min(per, s.n_samples)).astype(int)
+        q.append(s.q[idx]), qd.append(s.qd[idx]), qdd.append(s.qdd[idx])
+        sd.append(np.broadcast_to(s.sigma_qd, (idx.size, s.q.shape[1])))
+        sdd.append(np.broadcast_to(s.sigma_qdd, (idx.size, s.q.shape[1])))
+    q, qd, qdd, sd, sdd = (np.concatenate(x) for x in (q, qd, qdd, sd, sdd))
+    d = torque(q, qd + sd * rng.standard_normal(qd.shape), qdd + sdd * rng.standard_normal(qdd.shape)) \
+        - torque(q, qd, qdd)
+    return np.sqrt(np.mean(d ** 2, axis=0))
