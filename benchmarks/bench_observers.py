@@ -10,7 +10,7 @@ import numpy as np
 
 from proprio.description import load_robot
 from proprio.diagrams.estimation import (RigidBodyTorqueModel, build_estimation_diagram, estimate_wrench_offline,
-                                         preprocess)
+                                         conditioned_signals)
 from proprio.dynamics import inverse_dynamics
 from proprio.payload import Payload, attach_payload
 from proprio.recording import Recording
@@ -44,7 +44,7 @@ def main() -> None:
     model = RigidBodyTorqueModel(desc)
     rec = _recording()
     n = rec.n_samples
-    sig = preprocess(rec)
+    _, sig, _ = conditioned_signals(rec)
 
     def run_diagram():
         diagram, _ = build_estimation_diagram(model, sig)

@@ -93,8 +93,9 @@ class ConditionedSignals:
 
     ``t [N]`` s (uniform, from 0), ``q, qd, qdd, tau [N,n]`` (rad, rad/s, rad/s², N·m), ``valid [N]`` (False inside
     gaps of the original log), ``cutoff_hz [n]``, ``rate_hz``, the estimated white noise of ``q`` (``sigma_q [n]``,
-    rad) and the estimated errors of the derivatives (``sigma_qd``, ``sigma_qdd [n]``), ``velocity_source`` and
-    ``notes`` (what was done to the time base)."""
+    rad) and the estimated errors of the derivatives (``sigma_qd``, ``sigma_qdd [n]``), ``velocity_source``,
+    ``tau_gain [n]`` (the factor by which the τ low-pass scales the variance of white noise: compare a noise level
+    with the conditioned τ through it) and ``notes`` (what was done to the time base)."""
     t: np.ndarray
     q: np.ndarray
     qd: np.ndarray
@@ -108,12 +109,21 @@ class ConditionedSignals:
     sigma_qdd: np.ndarray
     velocity_source: str
     auto_cutoff: bool
+    tau_gain: np.ndarray
     notes: list[str] = field(default_factory=list)
     source: Recording | None = None
 
     @property
     def n_samples(self) -> int:
         return int(self.t.shape[0])
+
+    def slice(self, i0: int, i1: int) -> "ConditionedSignals":
+        """Samples ``i0:i1`` (time kept as it is; the filters ran on the whole recording, so a piece has no new
+        edge transients)."""
+        sl = slice(i0, i1)
+        return ConditionedSignals(self.t[sl], self.q[sl], self.qd[sl], self.qdd[sl], self.tau[sl], self.valid[sl],
+                                  self.rate_hz, self.cutoff_hz, self.sigma_q, self.sigma_qd, self.sigma_qdd,
+                                  self.velocity_source, self.auto_cutoff, self.tau_gain, list(self.notes), None)
 
     def motion(self, tau: np.ndarray | None = None) -> MotionSignals:
         """The conditioned motion as the effect library's :class:`MotionSignals` (``tau`` defaults to the conditioned
@@ -139,7 +149,7 @@ class ConditionedSignals:
         return {"rate_hz": self.rate_hz, "cutoff_hz": [float(x) for x in self.cutoff_hz],
                 "auto_cutoff": self.auto_cutoff, "velocity_source": self.velocity_source,
                 "sigma_qd": [float(x) for x in self.sigma_qd], "sigma_qdd": [float(x) for x in self.sigma_qdd],
-                "invalid_samples": int((~self.valid).sum()), "notes": list(self.notes)}
+                "invalid_samples": int((~self.valid).sum()), "notes": list(self.notes), "line": self.describe()}
 
     def describe(self) -> str:
         """One line for every output: time base, cutoffs (and whether chosen from the noise floor), q̇ source and the
@@ -312,7 +322,8 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
     return ConditionedSignals(t=t_u, q=q_f, qd=qd, qdd=qdd, tau=lp(tau) if config.tau_filter else tau, valid=valid,
                               rate_hz=rate, cutoff_hz=cutoff, sigma_q=sigma_q, sigma_qd=sigma_qd,
                               sigma_qdd=sigma_qdd, velocity_source=velocity_source,
-                              auto_cutoff=config.cutoff_hz == "auto", notes=notes, source=rec)
+                              auto_cutoff=config.cutoff_hz == "auto",
+                              tau_gain=gains[:, 0] if config.tau_filter else np.ones(n), notes=notes, source=rec)
 
 
 def processing_torque_sigma(torque: Any, signals: Sequence[ConditionedSignals], samples: int = 2000,

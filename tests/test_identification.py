@@ -219,8 +219,11 @@ def test_identify_recordings(robot, prior, data):
 
     q, qd, qdd, tau = data
     t = np.arange(q.shape[0]) * 0.01
-    train = Recording(t=t[:1500], q=q[:1500], tau=tau[:1500], qd=qd[:1500], qdd=qdd[:1500])
-    val = Recording(t=t[1500:], q=q[1500:], tau=tau[1500:], qd=qd[1500:], qdd=qdd[1500:])
+    # what a robot logs: q and τ only; q̇, q̈ come from the conditioning path
+    train = Recording(t=t[:1500], q=q[:1500], tau=tau[:1500])
+    val = Recording(t=t[1500:], q=q[1500:], tau=tau[1500:])
     model, text = identify_recordings([train], [val], prior, coulomb_velocity_scale=0.0)
-    assert "validation" in text and "mean ||e||_2" in text
-    np.testing.assert_allclose(model.torque(q[1500:], qd[1500:], qdd[1500:]), tau[1500:], atol=1e-6)
+    assert "validation" in text and "mean ||e||_2" in text and "conditioning:" in text
+    err = model.torque(q[1500:], qd[1500:], qdd[1500:]) - tau[1500:]     # scored against the exact motion
+    rms = np.sqrt(np.mean(err ** 2, axis=0))
+    assert np.all(rms < 5e-3), rms           # N·m; what is left: Coulomb sign flips a filtered sample off a reversal

@@ -19,8 +19,8 @@ from proprio.kinematics import flange_jacobian, point_jacobian
 from proprio.payload import Payload, attach_payload
 from proprio.recording import Recording, RecordingError
 from proprio.urdf import to_urdf
-from proprio.diagrams.estimation import (FilterSettings, RigidBodyTorqueModel, estimate_wrench,
-                                         estimate_wrench_offline, preprocess)
+from proprio.conditioning import ConditioningConfig
+from proprio.diagrams.estimation import RigidBodyTorqueModel, estimate_wrench, estimate_wrench_offline
 from proprio.systems.observers import (DrakeArm, JacobianWrenchObserver, MomentumObserver, WrenchMapping, WrenchSolver,
                                        jacobian_wrench, momentum_observer, momentum_terms, wrench_from_joint_torque)
 
@@ -301,12 +301,8 @@ def test_too_short_or_irregular_recording_is_an_error(iiwa):
     model, rec = _payload_recording(iiwa, 1.0, duration=0.5)
     with pytest.raises(RecordingError, match="samples"):
         estimate_wrench(model, rec.slice(0, 20))
-    t = rec.t.copy()
-    t[100:] += 0.0004
-    with pytest.raises(RecordingError, match="uniformly"):
-        preprocess(rec.replace(t=t), FilterSettings())
     with pytest.raises(ValueError, match="Nyquist"):
-        preprocess(rec, FilterSettings(cutoff_hz=600.0))
+        estimate_wrench(model, rec, conditioning=ConditioningConfig(cutoff_hz=600.0))
 
 
 def test_cli_estimate_writes_outputs_and_rejects_mismatch(iiwa, tmp_path, capsys):

@@ -24,7 +24,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--effects-config", type=Path, help="YAML with an 'effects:' mapping {name: parameters}")
     p.add_argument("--train", nargs="+", required=True, type=Path, metavar="REC",
                    help="training recordings (.npz Recording or FloBaRoID LWR measurement files)")
-    p.add_argument("--holdout", nargs="+", required=True, type=Path, metavar="REC", help="held-out recordings")
+    p.add_argument("--holdout", nargs="*", default=[], type=Path, metavar="REC",
+                   help="held-out recordings; without them the training recordings are cross-validated over time "
+                   "blocks (alternate blocks fit and score, two folds; ≥ 15 s of data)")
+    p.add_argument("--cutoff", default="auto", metavar="HZ|auto",
+                   help="low-pass cutoff of the signal conditioning [Hz], or 'auto' (per joint from the data's noise "
+                   "floor; default)")
     p.add_argument("--candidates", nargs="*", metavar="NAME", help="test only these candidates")
     p.add_argument("--trim", type=float, default=0.5, help="seconds dropped at both ends of every recording "
                    "(filter start-up; default 0.5)")
@@ -69,27 +74,45 @@ def _model(args: argparse.Namespace):
         data = yaml.safe_load(args.effects_config.read_text()) or {}
         config = data.get("effects", data) if isinstance(data, dict) else {}
     chosen = {k: config.get(k) for k in args.effects}
+    if robot.has_friction and "viscous_coulomb" in chosen:
+        raise UserError(f"friction given twice: the robot file of --model {args.model!r} already has link friction "
+                        "(friction.viscous / friction.coulomb) and --effects names viscous_coulomb; drop one")
     return SimModel(robot, tuple(make_effects(chosen, robot.n)))
 
 
 def _diagnose(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from proprio.diagnosis.report import diagnose
+    from proprio.conditioning import ConditioningConfig
+    from proprio.diagnosis.report import DIAGNOSIS_CONDITIONING, diagnose
     from proprio.recording import load_recording
 
+    cutoff = args.cutoff if args.cutoff == "auto" else _positive_float(args.cutoff, "--cutoff")
+    conditioning = ConditioningConfig(**{**DIAGNOSIS_CONDITIONING.__dict__, "cutoff_hz": cutoff})
     model = _model(args)
     train = [load_recording(p, model.robot) for p in args.train]
     hold = [load_recording(p, model.robot) for p in args.holdout]
     bar = tqdm(desc="diagnose", bar_format="{desc}: {elapsed} {postfix}")
     try:
         d = diagnose(model, train, hold, args.out, candidates=args.candidates, trim_s=args.trim,
-                     progress=lambda msg: bar.set_postfix_str(msg))
+                     progress=lambda msg: bar.set_postfix_str(msg), conditioning=conditioning)
     finally:
         bar.close()
+    for line in d.attribution.conditioning:
+        print(line)
     print(d.verdict)
     print(f"report: {d.files['report_html']}")
     return 0
+
+
+def _positive_float(text: str, flag: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise UserError(f"{flag}: expected a number or 'auto', got {text!r}") from None
+    if not value > 0:
+        raise UserError(f"{flag}: must be > 0, got {value}")
+    return value
 
 
 def _benchmark(args: argparse.Namespace) -> int:

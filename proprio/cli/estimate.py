@@ -21,8 +21,8 @@ MODEL_HELP = ("a shipped robot name or robot YAML/URDF (its rigid-body model + f
 def _add_observer_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gain", type=float, default=100.0, help="momentum observer gain K_O [1/s] (default 100: time "
                    "constant 10 ms)")
-    p.add_argument("--cutoff-hz", type=float, default=20.0, help="zero-phase Butterworth cutoff for q, τ and their "
-                   "derivatives [Hz] (default 20)")
+    p.add_argument("--cutoff-hz", default="auto", metavar="HZ|auto", help="zero-phase Butterworth cutoff of the "
+                   "signal conditioning for q and τ [Hz], or 'auto' (per joint from the data's noise floor; default)")
     p.add_argument("--force-only", action="store_true", help="estimate the 3-D force only (moment reported as 0); "
                    "right for a payload whose CoM is the contact point")
     p.add_argument("--sigma-threshold", type=float, default=0.02, help="flag samples whose smallest Jacobian singular "
@@ -30,10 +30,20 @@ def _add_observer_options(p: argparse.ArgumentParser) -> None:
 
 
 def _options(args: argparse.Namespace):
-    from proprio.diagrams.estimation import FilterSettings
+    from proprio.conditioning import ConditioningConfig
     from proprio.systems.observers import WrenchMapping
+    cutoff = args.cutoff_hz
+    if cutoff != "auto":
+        try:
+            cutoff = float(cutoff)
+        except ValueError:
+            raise UserError(f"--cutoff-hz: expected a number [Hz] or 'auto', got {cutoff!r}") from None
+    try:
+        conditioning = ConditioningConfig.from_dict({"cutoff_hz": cutoff}, "--cutoff-hz")
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
     return (WrenchMapping(force_only=args.force_only, sigma_threshold=args.sigma_threshold,
-                          damping_max=args.sigma_threshold), FilterSettings(cutoff_hz=args.cutoff_hz))
+                          damping_max=args.sigma_threshold), conditioning)
 
 
 def run_estimate(args: argparse.Namespace) -> int:
@@ -42,11 +52,13 @@ def run_estimate(args: argparse.Namespace) -> int:
 
     model = load_torque_model(args.model)
     rec = load_recording(args.recording)
-    mapping, filters = _options(args)
-    res = estimate_wrench(model, rec, gain=args.gain, mapping=mapping, filters=filters)
+    mapping, conditioning = _options(args)
+    res = estimate_wrench(model, rec, gain=args.gain, mapping=mapping, conditioning=conditioning)
     out = Path(args.out)
     title = f"{Path(args.recording).name}: estimated external force, model {res.meta['model']}"
     written = res.save(out) + [res.plot(out / "wrench.png", title=title)]
+    if "line" in res.meta.get("conditioning", {}):
+        print(res.meta["conditioning"]["line"])
     print(f"{res.t.size} samples, {res.unreliable.sum()} flagged unreliable (near a singularity)")
     if res.f_true is not None:
         print(f"{'observer':<10} {'RMSE [fx fy fz] N':<28} {'σ [fx fy fz] N'}")
@@ -69,9 +81,9 @@ def run_payload_experiment(args: argparse.Namespace) -> int:
         raise UserError(f"--seconds must be > 0, got {args.seconds}")
     if any(not m >= 0 for m in args.masses):
         raise UserError(f"--masses must be >= 0 kg, got {args.masses}")
-    mapping, filters = _options(args)
+    mapping, conditioning = _options(args)
     result = payload_experiment(args.model, args.out, seconds=args.seconds, masses=tuple(args.masses),
-                                seed=args.seed, gain=args.gain, mapping=mapping, filters=filters,
+                                seed=args.seed, gain=args.gain, mapping=mapping, conditioning=conditioning,
                                 twin_config=args.twin_config, progress=True)
     print(result.table_text)
     for path in result.files:

@@ -26,6 +26,7 @@ class Candidate:
     name: str = ""
     linear: bool = True
     place: str = ""
+    processing: bool = False          # describes the data path, not the robot (reported apart, never as the cause)
 
     def param_names(self) -> list[str]:
         raise NotImplementedError
@@ -121,6 +122,7 @@ class EncoderNoiseCandidate(Candidate):
     well above arm motion and below encoder noise); the fitted share ``c_j`` should be ≈ 1 where it is real."""
     name = "encoder_noise"
     place = "sensor"
+    processing = True
 
     def __init__(self, model: "SimModel", cutoff_hz: float = 8.0):
         self.model, self.cutoff_hz = model, cutoff_hz
@@ -251,6 +253,7 @@ class SignalLagCandidate(Candidate):
     name = "signal_lag"
     place = "sensor"
     linear = False
+    processing = True
 
     def __init__(self, n: int):
         self.n = n

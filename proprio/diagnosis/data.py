@@ -1,5 +1,7 @@
 """The simulation model under diagnosis (:class:`SimModel`: a robot description plus the joint effects it already
-simulates) and recordings prepared for the diagnosis (:class:`GapData`: signals, residual, held-out blocks)."""
+simulates) and recordings prepared for the diagnosis (:class:`GapData`: conditioned signals, residual, held-out
+blocks). Every recording goes through the one conditioning path (:mod:`proprio.conditioning`): the residual is
+``e = LP(τ_meas) − τ_sim(conditioned q, q̇, q̈)`` with the same zero-phase low-pass on both sides."""
 from __future__ import annotations
 
 import math
@@ -11,22 +13,21 @@ import numpy as np
 from proprio.description import RobotDescription
 from proprio.dynamics import inverse_dynamics
 from proprio.effects import EFFECTS, JointEffect
+from proprio.conditioning import ConditionedSignals, ConditioningConfig, condition
 from proprio.recording import Recording
 from proprio.signals import MotionSignals
 
-__all__ = ["DiagnosisError", "SimModel", "GapData", "signals_of", "NOISE_EFFECTS"]
+__all__ = ["DiagnosisError", "SimModel", "GapData", "signals_of", "condition_all", "NOISE_EFFECTS"]
 
 
 NOISE_EFFECTS = ("torque_noise", "encoder_noise")
-MIN_BLOCKS = 20
-MIN_BLOCK_S = 0.5
+MIN_BLOCKS = 10
+MIN_BLOCK_S = 0.25
 MAX_FIT_SAMPLES = 4000
 
 
 class DiagnosisError(ValueError):
     """Bad input to the gap diagnosis; the message names the offending argument."""
-
-
 
 
 @dataclass(frozen=True)
@@ -36,6 +37,16 @@ class SimModel:
     effects contribute nothing to the prediction, only to the expected residual variance."""
     robot: RobotDescription
     effects: tuple[JointEffect, ...] = ()
+
+    def __post_init__(self) -> None:
+        names = [e.name for e in self.effects]
+        twice = sorted({k for k in names if names.count(k) > 1})
+        if twice:
+            raise DiagnosisError(f"effects: {twice} given more than once")
+        if self.robot.has_friction and "viscous_coulomb" in names:
+            raise DiagnosisError(f"effects: viscous_coulomb given twice — the robot description '{self.robot.name}' "
+                                 "already has link friction (friction.viscous / friction.coulomb) and the effect list "
+                                 "names viscous_coulomb; drop one of them")
 
     @classmethod
     def of(cls, model: "SimModel | RobotDescription") -> "SimModel":
@@ -77,6 +88,14 @@ class SimModel:
                 out = out + eff.torque(s_link)
         return tau, out
 
+    def rigid_torque(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """Rigid body + the description's link friction [N·m] (what the processing error propagates through)."""
+        tau = inverse_dynamics(self.robot, q, qd, qdd)
+        if self.robot.has_friction:
+            tau = tau + np.asarray(self.robot.friction_viscous) * qd \
+                + np.asarray(self.robot.friction_coulomb) * np.sign(qd)
+        return tau
+
     def noise_variance(self, s: MotionSignals, seed: int = 0) -> np.ndarray:
         """Variance per joint [(N·m)²] of the torque the model's noise effects add (0 without noise effects)."""
         var = np.zeros(self.robot.n)
@@ -87,46 +106,68 @@ class SimModel:
         return var
 
 
-def signals_of(rec: Recording) -> MotionSignals:
-    """Motion signals of a Recording (its own q̇, q̈ when present; otherwise the effect library's derivative
-    filter, which needs the recording to be longer than the filter — a clear error says so)."""
-    return MotionSignals.from_recording(rec)
+def signals_of(rec: Recording, config: ConditioningConfig = ConditioningConfig()) -> ConditionedSignals:
+    """The conditioned signals of a Recording (:func:`proprio.conditioning.condition`); a Recording too short for the
+    filter raises :class:`DiagnosisError` naming the problem."""
+    try:
+        return condition(rec, config)
+    except ValueError as exc:
+        raise DiagnosisError(str(exc)) from exc
+
+
+def condition_all(recs: Sequence[Recording], config: ConditioningConfig, role: str) -> list[ConditionedSignals]:
+    out = []
+    for k, rec in enumerate(recs):
+        try:
+            out.append(condition(rec, config))
+        except ValueError as exc:
+            raise DiagnosisError(f"{role} recording {k}: {exc}") from exc
+    return out
 
 
 @dataclass
 class GapData:
-    """One set of recordings (training or held-out) prepared for the diagnosis: motion signals, measured τ, the
-    model residual ``e``, block labels for the held-out test and a cache of candidate designs."""
-    recordings: list[Recording]
+    """One set of conditioned recordings (training or held-out) prepared for the diagnosis: motion signals (their
+    ``tau`` the modelled link-side torque), the conditioned measured τ, the model's τ, the residual ``e``, the kept
+    sample indices, time stamps [s] and a cache of candidate designs."""
+    conditioned: list[ConditionedSignals]
     signals: list[MotionSignals]
     tau: list[np.ndarray]
     tau_sim: list[np.ndarray]
     e: list[np.ndarray]
     fit_index: list[np.ndarray]
+    groups: list[int]
+    pieces: bool = False
     cache: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
-    def build(cls, model: SimModel, recs: Sequence[Recording], trim_s: float, role: str) -> "GapData":
+    def build(cls, model: SimModel, conditioned: Sequence[ConditionedSignals], keep: Sequence[np.ndarray],
+              role: str, groups: Sequence[int] | None = None) -> "GapData":
+        """``keep [N_k] bool`` per recording: the samples to use (trimmed ends, no gaps); the training set is strided
+        down to ``MAX_FIT_SAMPLES`` in total. ``groups``: for pieces cut from recordings (cross-validation blocks),
+        the index of the recording each piece comes from."""
         sigs, taus, sims, es, idx = [], [], [], [], []
-        total = sum(r.n_samples for r in recs)
+        total = sum(int(k.sum()) for k in keep)
         stride = max(1, int(math.ceil(total / MAX_FIT_SAMPLES)))
-        for k, rec in enumerate(recs):
-            try:
-                s = signals_of(rec)
-            except ValueError as exc:
-                raise DiagnosisError(f"{role} recording {k}: {exc}") from exc
+        for k, (cs, kp) in enumerate(zip(conditioned, keep)):
+            if kp.sum() < 10:
+                raise DiagnosisError(f"{role} recording {k}: {cs.n_samples} samples ({cs.t[-1]:.2f} s) leave "
+                                     "nothing after trimming the filter start-up at each end")
+            s = cs.motion()
             link, sim = model.predict_parts(s)
-            s = s.with_tau(link)          # candidates scale/load with the modelled, not the measured, torque
-            keep = (rec.t >= rec.t[0] + trim_s) & (rec.t <= rec.t[-1] - trim_s)
-            if keep.sum() < 10:
-                raise DiagnosisError(f"{role} recording {k}: {rec.n_samples} samples ({rec.duration:.2f} s) leave "
-                                     f"nothing after trimming {trim_s} s of filter start-up at each end")
-            sigs.append(s)
-            taus.append(rec.tau)
+            sigs.append(s.with_tau(link))     # candidates scale/load with the modelled, not the measured, torque
+            taus.append(cs.tau)
             sims.append(sim)
-            es.append(rec.tau - sim)
-            idx.append(np.flatnonzero(keep)[::stride] if role == "training" else np.flatnonzero(keep))
-        return cls(list(recs), sigs, taus, sims, es, idx)
+            es.append(cs.tau - sim)
+            idx.append(np.flatnonzero(kp)[::stride] if role == "training" else np.flatnonzero(kp))
+        pieces = groups is not None
+        return cls(list(conditioned), sigs, taus, sims, es, idx, list(groups) if pieces else list(range(len(idx))),
+                   pieces)
+
+    @property
+    def times(self) -> list[np.ndarray]:
+        """Time stamps [s] of the kept samples, per recording."""
+        return [cs.t[i] for cs, i in zip(self.conditioned, self.fit_index)]
 
     def stack(self, arrays: Sequence[np.ndarray]) -> np.ndarray:
         """Concatenate per-recording arrays ``[N_k, ...]`` at the kept samples."""

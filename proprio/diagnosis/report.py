@@ -14,6 +14,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from proprio.description import RobotDescription
+from proprio.conditioning import ConditioningConfig
 from proprio.diagnosis.data import DiagnosisError, SimModel, signals_of
 from proprio.diagnosis.localisation import (
     GapMap,
@@ -25,7 +26,7 @@ from proprio.diagnosis.localisation import (
     spectra,
 )
 from proprio.diagnosis.selection import Attribution, attribute
-from proprio.diagnosis.verdict import verdict_text
+from proprio.diagnosis.verdict import data_and_processing_text, verdict_text
 from proprio.io import atomic_write_text, save_figure
 from proprio.recording import Recording
 
@@ -41,12 +42,14 @@ class Diagnosis:
     files: dict[str, Path] = field(default_factory=dict)
 
 
-def _localise(model: SimModel, recs: Sequence[Recording], trim_s: float) -> tuple[GapMap, Spectra]:
+def _localise(model: SimModel, recs: Sequence[Recording], trim_s: float,
+              conditioning: ConditioningConfig) -> tuple[GapMap, Spectra]:
     es, fams, taus, qs, qds = [], [], [], [], []
     rob = model.robot
-    for rec in recs:
-        s = signals_of(rec)
-        keep = (rec.t >= rec.t[0] + trim_s) & (rec.t <= rec.t[-1] - trim_s)
+    for raw in recs:
+        cs = signals_of(raw, conditioning)
+        rec, s = cs.as_recording(), cs.motion()
+        keep = (rec.t >= rec.t[0] + trim_s) & (rec.t <= rec.t[-1] - trim_s) & cs.valid
         e = (rec.tau - model.predict(s))[keep]
         fam = regime_families(s.q, s.qd, rob.lower, rob.upper, rob.velocity_limits, rec)
         fams.append([type(f)(f.name, f.names, f.labels[keep]) for f in fam])
@@ -95,7 +98,8 @@ def _fmt(x: float) -> str:
 def _tables(att: Attribution) -> tuple[str, str, str]:
     rank = ["| candidate | held-out gain alone [%] | t (blocks) | parameters | significant |", "|---|---|---|---|---|"]
     for r in att.ranking:
-        rank.append(f"| {r['name']} | {100 * r['gain']:.2f} | {r['t']:.1f} | {r['n_params']} | "
+        kind = " (data path)" if r.get("processing") else ""
+        rank.append(f"| {r['name']}{kind} | {100 * r['gain']:.2f} | {r['t']:.1f} | {r['n_params']} | "
                     f"{'yes' if r['significant'] else 'no'} |")
     n = len(att.joint_names)
     shr = ["| step | " + " | ".join(att.joint_names) + " |", "|---" * (n + 1) + "|"]
@@ -104,7 +108,8 @@ def _tables(att: Attribution) -> tuple[str, str, str]:
     shr.append(f"| model | {fmt_row(att.rmse_before)} |")
     for st in att.steps:
         tie = f" (tied: {', '.join(st.tied)})" if st.tied else ""
-        shr.append(f"| + {st.name}{tie} | {fmt_row(st.rmse_after)} |")
+        kind = " [data path]" if st.processing else ""
+        shr.append(f"| + {st.name}{tie}{kind} | {fmt_row(st.rmse_after)} |")
     par = ["| effect | parameter | value | 95 % CI ± |", "|---|---|---|---|"]
     if att.steps:
         for name, (theta, ci, names) in att.steps[-1].params.items():
@@ -126,20 +131,29 @@ def _md_to_html_table(md: str) -> str:
     return "\n".join(out + ["</table>"])
 
 
+DIAGNOSIS_CONDITIONING = ConditioningConfig(tau_filter=False)
+"""The diagnosis conditions the motion (q̇, q̈ for the rigid body) but compares the raw τ_J: its effect candidates
+(ripple, noise, hysteresis steps) model τ's whole band, and a zero-phase filter would only hide it."""
+
+
 def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording],
              holdout_recs: Sequence[Recording], out_dir: str | Path, candidates: Sequence[str] | None = None,
-             trim_s: float = 0.5, progress: Callable[[str], None] | None = None) -> Diagnosis:
+             trim_s: float = 0.5, progress: Callable[[str], None] | None = None,
+             conditioning: ConditioningConfig = DIAGNOSIS_CONDITIONING) -> Diagnosis:
     """Diagnose the torque gap of ``model`` on measured recordings and write the report to ``out_dir``.
 
     ``model``: a :class:`RobotDescription` (rigid body + its friction, if any) or a :class:`SimModel` (+ the effects
-    the simulation already has); ``train_recs`` fit the candidate effects, ``holdout_recs`` score them;
-    ``candidates`` restricts the candidate set; ``trim_s`` [s] is dropped at both ends of every recording.
+    the simulation already has); ``train_recs`` fit the candidate effects, ``holdout_recs`` score them (empty: the
+    training recordings are cross-validated over time blocks, see :func:`~proprio.diagnosis.selection.attribute`);
+    ``candidates`` restricts the candidate set; ``trim_s`` [s] is dropped at both ends of every recording;
+    ``conditioning`` the signal conditioning (:mod:`proprio.conditioning`).
     Writes ``report.md``, ``report.html``, ``gap_map.png``, ``spectra.png``, ``before_after.png`` and
     ``diagnosis.json``. Raises :class:`DiagnosisError` (a ``ValueError``) on bad input."""
     model = SimModel.of(model)
     out = Path(out_dir)
-    att = attribute(model, train_recs, holdout_recs, candidates=candidates, trim_s=trim_s, progress=progress)
-    gm, sp = _localise(model, list(train_recs) + list(holdout_recs), trim_s)
+    att = attribute(model, train_recs, holdout_recs, candidates=candidates, trim_s=trim_s, progress=progress,
+                    conditioning=conditioning)
+    gm, sp = _localise(model, list(train_recs) + list(holdout_recs), trim_s, conditioning)
     verdict = verdict_text(att, gm)
     files = {"gap_map_png": plot_gap_map(gm, out / "gap_map.png"),
              "spectra_png": plot_spectra(sp, gm.joint_names, out / "spectra.png"),
@@ -156,6 +170,7 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
         freq.append(f"| {nm} | {sp.dominant_hz[j]:.2f} | {sp.peak_order[j]:.2f} | {100 * sp.peak_order_share[j]:.1f} % |")
     sections = [
         ("Verdict", verdict),
+        ("Data and processing", data_and_processing_text(att)),
         ("Where the gap lies: gap map (share of the total squared residual, %)",
          "![gap map](gap_map.png)\n\n" + gm.table(min_share=0.002)),
         ("Frequency content", "![spectra](spectra.png)\n\n" + "\n".join(freq)),
@@ -168,7 +183,8 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
     title = f"Sim-to-real gap diagnosis — {model.robot.name}"
     sim_desc = (f"Model: `{model.robot.name}`"
                 + (f" + {', '.join(sorted(model.effect_names))}" if model.effect_names else " (rigid body only)")
-                + f". Training recordings: {len(train_recs)}, held-out: {len(holdout_recs)}. "
+                + f". Training recordings: {len(train_recs)}, held-out: "
+                + (f"{len(holdout_recs)}" if holdout_recs else "none (cross-validated over time blocks)") + ". "
                 f"Candidates tested: {', '.join(att.candidates)}.")
     md = f"# {title}\n\n{sim_desc}\n\n" + "\n\n".join(f"## {h}\n\n{b}" for h, b in sections) + "\n"
     body = []

@@ -55,12 +55,15 @@ from scipy import stats
 
 from proprio.description import RobotDescription
 from proprio.diagnosis.candidates import Candidate, candidate_set
-from proprio.diagnosis.data import MIN_BLOCK_S, MIN_BLOCKS, DiagnosisError, GapData, SimModel
+from proprio.conditioning import ConditionedSignals, ConditioningConfig, processing_torque_sigma
+from proprio.diagnosis.data import MIN_BLOCK_S, MIN_BLOCKS, DiagnosisError, GapData, SimModel, condition_all
 from proprio.diagnosis.fitting import Fit, fit_candidates, predict_candidates
 from proprio.effects import EFFECTS
 from proprio.recording import Recording, validate_recording
 
-__all__ = ["Step", "NoiseFinding", "ResidualStructure", "Attribution", "attribute"]
+__all__ = ["Step", "NoiseFinding", "ResidualStructure", "CrossValidation", "Attribution", "attribute"]
+
+MAX_BLOCK_S = 2.0
 
 
 def _n_eff_factor(r: np.ndarray, max_lag: int = 200) -> float:
@@ -88,13 +91,16 @@ def _n_eff_factor(r: np.ndarray, max_lag: int = 200) -> float:
 class Step:
     """One accepted step: ``name`` (``tied`` lists the candidates that explain the same held-out variance),
     relative held-out gain, t statistic over blocks, per-joint held-out RMSE after the step [N·m], fitted
-    parameters with 95 % CI half-widths."""
+    parameters with 95 % CI half-widths. ``processing``: the step describes the data path (a processing candidate,
+    or an effect whose held-out torque stays within the processing error), ``reason`` says which."""
     name: str
     tied: list[str]
     gain: float
     t_stat: float
     rmse_after: np.ndarray
     params: dict[str, tuple[np.ndarray, np.ndarray, list[str]]]
+    processing: bool = False
+    reason: str = ""
 
 
 @dataclass
@@ -109,16 +115,31 @@ class NoiseFinding:
 @dataclass
 class ResidualStructure:
     """What stays unexplained on the held-out data: per joint RMSE [N·m], Ljung–Box p-value (lags 1..20 of the
-    residual decimated to ≥ 0.05 s spacing), held-out R² of the residual against state features, and a verdict."""
+    residual decimated to ≥ 0.05 s spacing), held-out R² of the residual against state features, and a verdict.
+    ``within_processing [n]``: the residual's non-white part (its variance less the white part estimated from
+    first differences) is within 1.5× the torque error the conditioning explains, so a joint's structure is not
+    taken for an effect outside the candidate set."""
     rmse: np.ndarray
     ljung_box_p: np.ndarray
     r2_state: np.ndarray
     structured_time: np.ndarray
     structured_state: np.ndarray
+    within_processing: np.ndarray
 
     @property
     def white(self) -> bool:
         return not (self.structured_time.any() or self.structured_state.any())
+
+
+@dataclass
+class CrossValidation:
+    """How a single recording (no held-out one given) was cross-validated: alternate time blocks of ``block_s`` [s]
+    train and score (2 folds, roles swapped); ``fold_top`` the physical effects each fold named, ``agreement`` the
+    share of named effects both folds name (1.0 when both name nothing)."""
+    block_s: float
+    n_blocks: int
+    fold_top: list[list[str]]
+    agreement: float
 
 
 @dataclass
@@ -135,15 +156,30 @@ class Attribution:
     holdout_e: list[np.ndarray]
     holdout_pred: list[np.ndarray]
     holdout_t: list[np.ndarray]
+    processing_sigma: np.ndarray
+    conditioning: list[str]
+    data_seconds: tuple[float, float]
+    block_s: float
+    cv: "CrossValidation | None" = None
+
+    @property
+    def physical_steps(self) -> list[Step]:
+        return [s for s in self.steps if not s.processing]
+
+    @property
+    def processing_steps(self) -> list[Step]:
+        return [s for s in self.steps if s.processing]
 
     @property
     def selected(self) -> list[str]:
-        return [s.name for s in self.steps] + [f.name for f in self.noise]
+        """The physical effects and noise findings named (never a data-path step)."""
+        return [s.name for s in self.physical_steps] + [f.name for f in self.noise]
 
     def top(self, k: int) -> list[str]:
-        """The first ``k`` distinct names in attribution order, tied alternatives included after each step."""
+        """The first ``k`` distinct physical names in attribution order, tied alternatives included after each
+        step (data-path steps are reported apart, :attr:`processing_steps`)."""
         out: list[str] = []
-        for s in self.steps:
+        for s in self.physical_steps:
             for nm in [s.name] + s.tied:
                 if nm not in out:
                     out.append(nm)
@@ -170,13 +206,13 @@ def _t_stat(x: np.ndarray) -> float:
 
 
 def _residual_structure(r_h: np.ndarray, r_tr: np.ndarray, train: GapData, hold: GapData,
-                        rate: float) -> ResidualStructure:
+                        rate: float, proc_sigma: np.ndarray) -> ResidualStructure:
     n = r_h.shape[1]
     step = max(1, int(round(0.05 * rate)))
     lb = np.ones(n)
     for j in range(n):
         ps = []
-        for e_k, idx in zip(_split(r_h[:, j], hold), hold.fit_index):
+        for e_k in _series(r_h[:, j], hold):
             x = e_k[::step] - e_k[::step].mean()
             m = min(20, len(x) // 5)
             if m < 2 or x @ x <= 0:
@@ -198,7 +234,13 @@ def _residual_structure(r_h: np.ndarray, r_tr: np.ndarray, train: GapData, hold:
         coef, *_ = np.linalg.lstsq(ft, r_tr[:, j], rcond=1e-8)
         res = r_h[:, j] - fh @ coef
         r2[j] = 1.0 - float(res @ res) / max(float(r_h[:, j] @ r_h[:, j]), 1e-300)
-    return ResidualStructure(np.sqrt((r_h ** 2).mean(axis=0)), lb, r2, lb < 0.01, r2 > 0.05)
+    series = _series(r_h, hold)
+    white_var = sum((np.diff(s, axis=0) ** 2).sum(axis=0) / 2 for s in series) / \
+        max(sum(len(s) - 1 for s in series), 1)
+    structured_rms = np.sqrt(np.maximum((r_h ** 2).mean(axis=0) - white_var, 0.0))
+    within = structured_rms <= 1.5 * proc_sigma
+    return ResidualStructure(np.sqrt((r_h ** 2).mean(axis=0)), lb, r2, (lb < 0.01) & ~within, (r2 > 0.05) & ~within,
+                             within)
 
 
 def _split(x: np.ndarray, data: GapData) -> list[np.ndarray]:
@@ -206,20 +248,66 @@ def _split(x: np.ndarray, data: GapData) -> list[np.ndarray]:
     return np.split(x, sizes)
 
 
+def _series(x: np.ndarray, data: GapData) -> list[np.ndarray]:
+    """``x`` per source recording: pieces cut from one recording (cross-validation blocks) joined in time order."""
+    parts = _split(x, data)
+    groups: dict[int, list[np.ndarray]] = {}
+    for g, part in zip(data.groups, parts):
+        groups.setdefault(g, []).append(part)
+    return [np.concatenate(v) for v in groups.values()]
+
+
+def _keep(cs: ConditionedSignals, trim_s: float) -> np.ndarray:
+    return (cs.t >= cs.t[0] + trim_s) & (cs.t <= cs.t[-1] - trim_s) & cs.valid
+
+
+def _correlation_time(model: SimModel, conditioned: Sequence[ConditionedSignals], keep: Sequence[np.ndarray]) -> float:
+    """Correlation time [s] of the model residual: the lag where its autocorrelation first falls below 1/e (FFT,
+    median over joints and recordings)."""
+    out = []
+    for cs, kp in zip(conditioned, keep):
+        e = (cs.tau - model.predict(cs.motion()))[kp]
+        e = e - e.mean(axis=0)
+        m = len(e)
+        spec = np.fft.rfft(e, n=2 * m, axis=0)
+        acf = np.fft.irfft(np.abs(spec) ** 2, axis=0)[:m]
+        acf = acf / np.maximum(acf[:1], 1e-300)
+        below = acf < math.exp(-1.0)
+        lag = np.where(below.any(axis=0), below.argmax(axis=0), m)
+        out.extend(lag / cs.rate_hz)
+    return float(np.median(out))
+
+
+def _time_blocks(hold: GapData, block_s: float) -> np.ndarray:
+    """Block label per kept held-out sample: consecutive ``block_s`` spans of each recording (a piece of a
+    cross-validated recording is one block)."""
+    out, base = [], 0
+    for t in hold.times:
+        k = np.zeros(len(t), dtype=int) if hold.pieces else np.floor((t - t[0]) / block_s).astype(int)
+        out.append(base + k)
+        base += int(k.max()) + 1
+    lab = np.concatenate(out)
+    return np.unique(lab, return_inverse=True)[1]
+
+
 def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording],
-              holdout_recs: Sequence[Recording], candidates: Sequence[str] | None = None, trim_s: float = 0.5,
+              holdout_recs: Sequence[Recording] = (), candidates: Sequence[str] | None = None, trim_s: float = 0.5,
               alpha: float = 0.01, min_gain: float = 0.02, max_steps: int = 6,
-              progress: Callable[[str], None] | None = None) -> Attribution:
+              progress: Callable[[str], None] | None = None,
+              conditioning: ConditioningConfig = ConditioningConfig()) -> Attribution:
     """Greedy forward attribution of the residual ``τ_meas − τ_sim`` to candidate effects (module docstring).
 
     ``model``: the simulation model (a RobotDescription = rigid body + its friction, or a :class:`SimModel`);
-    ``train_recs`` / ``holdout_recs``: Recordings of the same robot; ``candidates``: restrict to these names;
-    ``trim_s``: seconds dropped at both ends of every recording (filter start-up). Raises :class:`DiagnosisError`
-    on bad input (no recordings, joint-count mismatch, holdout too short for the block test, nothing to test)."""
+    ``train_recs`` / ``holdout_recs``: Recordings of the same robot, conditioned by ``conditioning``
+    (:mod:`proprio.conditioning`). Without ``holdout_recs`` the training recordings are cross-validated over time
+    blocks (sized from the residual's correlation time): alternate blocks train and score, in two folds with the roles
+    swapped, and the result reports how well the folds agree. ``candidates``: restrict to these names; ``trim_s``:
+    seconds dropped at both ends of every recording (filter start-up). Raises :class:`DiagnosisError` on bad input
+    (no recordings, joint-count mismatch, too little data for the block test, nothing to test)."""
     model = SimModel.of(model)
     n = model.robot.n
-    if not train_recs or not holdout_recs:
-        raise DiagnosisError("recordings: need at least one training and one held-out recording")
+    if not train_recs:
+        raise DiagnosisError("recordings: need at least one training recording")
     for role, recs in (("training", train_recs), ("holdout", holdout_recs)):
         for k, r in enumerate(recs):
             if r.n_joints != n:
@@ -229,24 +317,74 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
                 validate_recording(r, model.robot, source=f"{role} recording {k}")
             except ValueError as exc:
                 raise DiagnosisError(f"{exc} (mismatched robots?)") from exc
-    hold_len = min(r.duration for r in holdout_recs)
-    need = MIN_BLOCKS * MIN_BLOCK_S / len(holdout_recs) + 2 * trim_s
-    if sum(r.duration for r in holdout_recs) - 2 * trim_s * len(holdout_recs) < MIN_BLOCKS * MIN_BLOCK_S:
-        raise DiagnosisError(f"holdout: {sum(r.duration for r in holdout_recs):.2f} s of held-out data is too short "
-                             f"for the block test ({MIN_BLOCKS} blocks of {MIN_BLOCK_S} s after trimming {trim_s} s "
-                             f"per end: ≥ {need:.1f} s per recording, shortest has {hold_len:.2f} s)")
     say = progress or (lambda msg: None)
-    train = GapData.build(model, train_recs, trim_s, "training")
-    hold = GapData.build(model, holdout_recs, trim_s, "holdout")
+    say("conditioning")
+    cond_tr = condition_all(train_recs, conditioning, "training")
+    keep_tr = [_keep(cs, trim_s) for cs in cond_tr]
+    if holdout_recs:
+        cond_h = condition_all(holdout_recs, conditioning, "holdout")
+        keep_h = [_keep(cs, trim_s) for cs in cond_h]
+        held_s = sum(float(k.sum()) / cs.rate_hz for cs, k in zip(cond_h, keep_h))
+        if held_s < MIN_BLOCKS * MIN_BLOCK_S:
+            raise DiagnosisError(f"holdout: {held_s:.2f} s of held-out data after trimming {trim_s} s per end is too "
+                                 f"short for the block test ({MIN_BLOCKS} blocks of ≥ {MIN_BLOCK_S} s)")
+        block_s = float(np.clip(2.0 * _correlation_time(model, cond_h, keep_h), MIN_BLOCK_S,
+                                min(MAX_BLOCK_S, held_s / MIN_BLOCKS)))
+        train = GapData.build(model, cond_tr, keep_tr, "training")
+        hold = GapData.build(model, cond_h, keep_h, "holdout")
+        train_s = sum(float(k.sum()) / cs.rate_hz for cs, k in zip(cond_tr, keep_tr))
+        return _select(model, train, hold, _time_blocks(hold, block_s), block_s, (train_s, held_s), candidates,
+                       alpha, min_gain, max_steps, say)
+    total_s = sum(float(k.sum()) / cs.rate_hz for cs, k in zip(cond_tr, keep_tr))
+    if total_s < 2 * MIN_BLOCKS * MIN_BLOCK_S:
+        raise DiagnosisError(f"training: {total_s:.2f} s of data after trimming {trim_s} s per end; a diagnosis "
+                             f"without --holdout cross-validates over time blocks and needs ≥ "
+                             f"{2 * MIN_BLOCKS * MIN_BLOCK_S + 2 * trim_s:.1f} s")
+    block_s = float(np.clip(2.0 * _correlation_time(model, cond_tr, keep_tr), MIN_BLOCK_S,
+                            min(MAX_BLOCK_S, total_s / (2 * MIN_BLOCKS))))
+    halves: tuple[list, list] = ([], [])          # (conditioned piece, keep, source index) per half
+    n_blocks = 0
+    for g, (cs, kp) in enumerate(zip(cond_tr, keep_tr)):
+        idx = np.flatnonzero(kp)
+        label = np.floor((cs.t[idx] - cs.t[idx[0]]) / block_s).astype(int)
+        for b in np.unique(label):
+            sel = idx[label == b]
+            if len(sel) < 10:
+                continue
+            i0, i1 = int(sel[0]), int(sel[-1]) + 1
+            halves[n_blocks % 2].append((cs.slice(i0, i1), kp[i0:i1], g))
+            n_blocks += 1
+    fold_data = []
+    for tr, ho in ((halves[0], halves[1]), (halves[1], halves[0])):
+        gt = GapData.build(model, [x[0] for x in tr], [x[1] for x in tr], "training", groups=[x[2] for x in tr])
+        gh = GapData.build(model, [x[0] for x in ho], [x[1] for x in ho], "holdout", groups=[x[2] for x in ho])
+        fold_data.append((gt, gh))
+    results = []
+    for k, (gt, gh) in enumerate(fold_data):
+        say(f"fold {k + 1}/2")
+        secs = (sum(len(i) for i in gt.fit_index) / cond_tr[0].rate_hz, sum(len(i) for i in gh.fit_index)
+                / cond_tr[0].rate_hz)
+        results.append(_select(model, gt, gh, _time_blocks(gh, block_s), block_s, secs,
+                               candidates, alpha, min_gain, max_steps, say))
+    tops = [[s.name for s in a.physical_steps] for a in results]
+    both = set(tops[0]) | set(tops[1])
+    agreement = len(set(tops[0]) & set(tops[1])) / len(both) if both else 1.0
+    att = results[0]
+    att.cv = CrossValidation(block_s, n_blocks, tops, agreement)
+    return att
+
+
+def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, block_s: float,
+            data_seconds: tuple[float, float], candidates: Sequence[str] | None, alpha: float, min_gain: float,
+            max_steps: int, say: Callable[[str], None]) -> Attribution:
+    """The greedy forward selection on prepared training / held-out data with held-out block labels ``blk``."""
     cands = candidate_set(model, train, candidates)
     e_tr, e_h = train.residual, hold.residual
     w = 1.0 / np.maximum((e_tr ** 2).mean(axis=0), 1e-12)
-    held_s = sum(r.duration for r in holdout_recs) - 2 * trim_s * len(holdout_recs)
-    n_blk = max(MIN_BLOCKS, int(held_s / MIN_BLOCK_S))
-    blk = hold.blocks(n_blk)
     n_blk = int(blk.max()) + 1
     sig = np.sqrt((hold.stack(hold.tau) ** 2).mean(axis=0))
     rmse0 = np.sqrt((e_h ** 2).mean(axis=0))
+    proc_sigma = processing_torque_sigma(model.rigid_torque, hold.conditioned)
 
     selected: list[Candidate] = []
     fit = Fit({}, {})
@@ -263,12 +401,12 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
             delta = predict_candidates(selected + [c], f_c, hold) - pred_h
             db, g = _block_gain(r_s, delta, w, blk, n_blk)
             raw = float((r_s ** 2).sum() - ((r_s - delta) ** 2).sum())    # unweighted held-out SSE change
-            scored.append((c, f_c, db, g if raw > 0 else min(g, 0.0), _t_stat(db)))
+            scored.append((c, f_c, db, g if raw > 0 else min(g, 0.0), _t_stat(db), delta))
         k_test = len(scored)
         t_crit = stats.t.ppf(1 - alpha / k_test, n_blk - 1)
         if not steps:
-            ranking = [{"name": c.name, "gain": g, "t": t, "n_params": c.n_params,
-                        "significant": bool(g >= min_gain and t >= t_crit)} for c, _, _, g, t in scored]
+            ranking = [{"name": c.name, "gain": g, "t": t, "n_params": c.n_params, "processing": c.processing,
+                        "significant": bool(g >= min_gain and t >= t_crit)} for c, _, _, g, t, _ in scored]
             ranking.sort(key=lambda x: -x["gain"])
         sig_ok = [x for x in scored if x[3] >= min_gain and x[4] >= t_crit]
         if not sig_ok:
@@ -280,6 +418,15 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
         group.sort(key=lambda x: (x[0].n_params, -x[3]))
         chosen = group[0]
         c, f_c = chosen[0], chosen[1]
+        rms_delta = np.sqrt((chosen[5] ** 2).mean(axis=0))
+        if c.processing:
+            processing, reason = True, "describes the data path (filtering, derivative noise), not the robot"
+        elif np.all(rms_delta <= proc_sigma):
+            processing = True
+            reason = (f"its held-out torque (≤ {rms_delta.max():.2g} N·m RMS) stays within the error the signal "
+                      f"conditioning itself explains (σ up to {proc_sigma.max():.2g} N·m)")
+        else:
+            processing, reason = False, ""
         selected.append(c)
         remaining = [x for x in remaining if x is not c]     # tied partners stay: they may still add later
         fit = fit_candidates(selected, train, w, f_c.thetas, sweeps=3) if any(not s.linear for s in selected) else f_c
@@ -290,17 +437,17 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
         params = {s.name: (fit.thetas[s.name], 1.96 * np.sqrt(np.maximum(np.diag(fit.cov[s.name]), 0) * s2 * infl),
                            s.param_names()) for s in selected}
         steps.append(Step(c.name, [g[0].name for g in group[1:]], chosen[3], chosen[4],
-                          np.sqrt(((e_h - pred_h) ** 2).mean(axis=0)), params))
+                          np.sqrt(((e_h - pred_h) ** 2).mean(axis=0)), params, processing, reason))
         say(f"step {len(steps)}: added {c.name} (held-out gain {100 * chosen[3]:.1f} %)")
 
     r_h = e_h - pred_h
     r_tr = e_tr - predict_candidates(selected, fit, train)
-    rate = float(np.median([r.rate_hz for r in holdout_recs]))
-    structure = _residual_structure(r_h, r_tr, train, hold, rate)
+    rate = float(np.median([cs.rate_hz for cs in hold.conditioned]))
+    structure = _residual_structure(r_h, r_tr, train, hold, rate, proc_sigma)
     noise = _noise_findings(model, structure, hold, r_h)
     return Attribution(model.robot.joint_names, steps, ranking, rmse0, sig, structure, noise,
-                       [c.name for c in cands], _split(e_h, hold), _split(pred_h, hold),
-                       [r.t[i] for r, i in zip(hold.recordings, hold.fit_index)])
+                       [c.name for c in cands], _split(e_h, hold), _split(pred_h, hold), hold.times, proc_sigma,
+                       sorted({cs.describe() for cs in hold.conditioned + train.conditioned}), data_seconds, block_s)
 
 
 def _noise_findings(model: SimModel, structure: ResidualStructure, hold: GapData,
@@ -312,7 +459,8 @@ def _noise_findings(model: SimModel, structure: ResidualStructure, hold: GapData
     white_j = ~(structure.structured_time | structure.structured_state)
     if not white_j.any():
         return out
-    expected = np.mean([model.noise_variance(s) for s in hold.signals], axis=0)
+    expected = np.mean([model.noise_variance(s) * cs.tau_gain for s, cs in zip(hold.signals, hold.conditioned)],
+                       axis=0)          # through the same low-pass as the conditioned τ
     var = (r_h ** 2).mean(axis=0)
     m = len(r_h)
     bound = expected * 1.2 * stats.chi2.ppf(0.999, m) / m + 1e-12

@@ -34,10 +34,13 @@ def verdict_text(att: Attribution, gm: GapMap) -> str:
     if hs:
         parts.append("It concentrates in " + " and ".join(f"{j} at {b} ({f}, {c:.1f}× its average)"
                                                          for j, f, b, _, c in hs) + ".")
-    if att.steps:
+    if att.physical_steps:
         prev = rmse0
         sents = []
         for st in att.steps:
+            if st.processing:
+                prev = st.rmse_after
+                continue
             name = PLAIN.get(st.name, st.name)
             if st.tied:
                 name += " (or, equally well, " + " or ".join(PLAIN.get(t, t) for t in st.tied) + \
@@ -49,12 +52,12 @@ def verdict_text(att: Attribution, gm: GapMap) -> str:
             prev = st.rmse_after
         parts.append("Adding " + "; then ".join(sents) + ".")
         fin = att.steps[-1].rmse_after
-        parts.append(f"With {len(att.steps)} effect(s) added the gap is {float(np.sqrt((fin ** 2).mean())):.3g} "
+        parts.append(f"With {len(att.physical_steps)} effect(s) added the gap is {float(np.sqrt((fin ** 2).mean())):.3g} "
                      f"N·m RMS ({100 * (1 - float((fin ** 2).sum()) / float((rmse0 ** 2).sum())):.0f} % less "
                      "squared error).")
     else:
-        parts.append("No candidate effect shrinks the held-out gap significantly: the model explains the data "
-                     "as well as any of the candidates can.")
+        parts.append("No physical candidate shrinks the held-out gap significantly beyond what the signal "
+                     "processing explains: the model explains the data as well as any of the candidates can.")
     rs = att.residual
     if rs.white:
         parts.append("What remains is white (no autocorrelation, no dependence on the motion state): noise.")
@@ -75,3 +78,28 @@ def verdict_text(att: Attribution, gm: GapMap) -> str:
                      f"than the model's own noise: {PLAIN.get(f.name, f.name)} of about "
                      f"{', '.join(f'{f.rms[j]:.2g}' for j in joints)} N·m is unmodelled.")
     return " ".join(parts)
+
+
+def data_and_processing_text(att: Attribution) -> str:
+    """The data path, apart from the physics: the conditioning of every recording, how much data there was and how
+    the held-out test was made (and, for one cross-validated recording, how well the folds agree), the torque error
+    the processing itself explains, and the data-path candidates the selection found (never reported as a cause)."""
+    train_s, hold_s = att.data_seconds
+    parts = [f"Data: {train_s:.1f} s for fitting and {hold_s:.1f} s held out, scored in time blocks of "
+             f"{att.block_s:.2f} s (twice the residual's correlation time, within the limits the data length allows)."]
+    if att.cv is not None:
+        tops = [", ".join(x) or "nothing" for x in att.cv.fold_top]
+        sure = "consistent" if att.cv.agreement >= 0.99 else ("partly consistent" if att.cv.agreement > 0 else
+                                                               "not consistent")
+        parts.append(f"No held-out recording was given: the recording was cut into {att.cv.n_blocks} blocks, "
+                     f"alternate blocks fitted and scored, twice with the roles swapped. Fold 1 names {tops[0]}; "
+                     f"fold 2 names {tops[1]} — {sure} ({100 * att.cv.agreement:.0f} % agreement). "
+                     "The verdict is fold 1's.")
+    parts += att.conditioning
+    parts.append("Torque error the conditioning itself explains (derivative errors through the rigid body), per "
+                 "joint: " + ", ".join(f"{x:.2g}" for x in att.processing_sigma) + " N·m RMS; a physical effect "
+                 "must exceed it to be named.")
+    for st in att.processing_steps:
+        parts.append(f"Data path: {PLAIN.get(st.name, st.name)} lowers the held-out error by "
+                     f"{100 * st.gain:.0f} % — not a property of the robot: it {st.reason}.")
+    return "\n\n".join(parts)

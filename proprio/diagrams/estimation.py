@@ -1,15 +1,14 @@
 """The estimation diagram (DESIGN.md diagram 2): a Recording replayed through a dynamics model into both wrench
 observers, logged at the data rate.
 
-    TrajectorySource [q; q̇; q̈; τ_J] (zero-phase filtered, §4.1) → Demultiplexer
+    TrajectorySource [q; q̇; q̈; τ_J] (conditioned, zero phase) → Demultiplexer
         ├─ q, q̇, q̈ → TorqueModelSystem ──tau_dyn──→ JacobianWrenchObserver ──→ VectorLogSink (f̂, τ̂_ext, flags)
         │                               └─tau_int──→ MomentumObserver ───────→ VectorLogSink (f̂, τ̂_ext)
         └─ τ_J ───────────────────────────────────→ both observers' tau_meas
 
-The preprocessing is offline and zero-phase like §4.1 (central differences, Butterworth forward–backward; its
-cutoff, 20 Hz by default, keeps the RFMA exploration's few-Hz content that the 1 Hz excitation filter of
-:mod:`proprio.signals` would remove), so the signals are computed before the replay; the
-observers themselves are causal Systems that would run unchanged on live sensor ports. ``tau_dyn`` comes from any
+The signals come from the one conditioning path (:mod:`proprio.conditioning`: uniform time base, zero-phase
+Butterworth per joint with its cutoff from the data's noise floor or from the config, central differences), offline,
+so they are computed before the replay; the observers themselves are causal Systems that would run unchanged on live sensor ports. ``tau_dyn`` comes from any
 :class:`TorqueModel`: the rigid-body model (:class:`TorqueModelSystem`), or the hybrid RBD + learned residual
 (:mod:`proprio.diagrams.hybrid_torque_model`), whose network then runs online in the diagram, one step per sample with
 its LSTM and r-encoder state carried from sample to sample. :func:`estimate_wrench` runs it and returns an
@@ -28,8 +27,8 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem, System, ValueProducer
 from pydrake.systems.primitives import Demultiplexer, LogVectorOutput, TrajectorySource, VectorLogSink
 from pydrake.trajectories import PiecewisePolynomial
-from scipy.signal import butter, sosfiltfilt
 
+from proprio.conditioning import ConditioningConfig, condition
 from proprio.description import RobotDescription, load_robot
 from proprio.dynamics import inverse_dynamics
 from proprio.io import atomic_path, save_figure
@@ -39,8 +38,8 @@ from proprio.recording import Recording, RecordingError, validate_recording
 from proprio.systems.observers import (JacobianWrenchObserver, MomentumObserver, WrenchMapping, jacobian_wrench,
                                        momentum_observer, wrench_from_joint_torque)
 
-__all__ = ["TorqueModel", "RigidBodyTorqueModel", "load_torque_model", "TorqueModelSystem", "FilterSettings",
-           "preprocess", "lowpass", "check_recording_matches", "resample_uniform", "AddWrenchObservers",
+__all__ = ["TorqueModel", "RigidBodyTorqueModel", "load_torque_model", "TorqueModelSystem", "conditioned_signals",
+           "check_recording_matches", "AddWrenchObservers",
            "build_estimation_diagram", "EstimationResult", "estimate_wrench", "estimate_wrench_offline", "OBSERVERS",
            "DEFAULT_GAIN"]
 
@@ -132,54 +131,6 @@ class TorqueModelSystem(LeafSystem):
         q, qd, qdd = (self.get_input_port(i).Eval(context) for i in range(3))
         tau_int = self._model.tau_int(q[None, :], qd[None, :], qdd[None, :])[0]
         value.set_value(np.concatenate([self._arm.inverse_dynamics(q, qd, qdd) + tau_int, tau_int]))
-
-
-# ---- preprocessing (§4.1) --------------------------------------------------------------------------------------------
-
-@dataclass(frozen=True)
-class FilterSettings:
-    """Zero-phase low-pass (Butterworth, forward–backward, §4.1) applied to q and τ and after each central
-    difference. The signal is padded by odd extension over ``edge_cycles`` periods of the cutoff at each end."""
-    cutoff_hz: float = 20.0
-    order: int = 2
-    edge_cycles: float = 3.0
-
-    def min_samples(self, time_step: float) -> int:
-        """The shortest recording the filters accept: one period of the cutoff, and more than the filter order."""
-        return max(3 * (self.order + 1) + 1, int(np.ceil(1.0 / (self.cutoff_hz * time_step))) + 1)
-
-
-def preprocess(rec: Recording, settings: FilterSettings = FilterSettings()) -> dict[str, np.ndarray]:
-    """Filtered ``q, qd, qdd, tau`` ``[N,n]`` of a uniformly sampled Recording (zero-phase, §4.1).
-
-    Raises :class:`RecordingError` when the Recording is too short for the filter, not uniformly sampled, or the
-    cutoff is not below the Nyquist frequency.
-    """
-    n_s = rec.n_samples
-    dt = np.diff(rec.t)
-    h = float(np.median(dt))
-    if np.max(np.abs(dt - h)) > 1e-6 * h + 1e-9:
-        raise RecordingError(f"recording: 't' is not uniformly sampled (steps {dt.min():.6g}–{dt.max():.6g} s); "
-                             "resample it first")
-    nyquist = 0.5 / h
-    if not 0 < settings.cutoff_hz < nyquist:
-        raise ValueError(f"cutoff_hz = {settings.cutoff_hz} must be in (0, {nyquist:.6g}) Hz (the Nyquist frequency)")
-    if n_s < settings.min_samples(h):
-        raise RecordingError(f"recording: 't' has {n_s} samples; the derivative filters ({settings.cutoff_hz:g} Hz "
-                             f"cutoff at {1 / h:g} Hz) need at least {settings.min_samples(h)}")
-    q = lowpass(rec.q, h, settings)
-    qd = lowpass(np.gradient(q, h, axis=0), h, settings)
-    qdd = lowpass(np.gradient(qd, h, axis=0), h, settings)
-    return {"t": rec.t - rec.t[0], "q": q, "qd": qd, "qdd": qdd, "tau": lowpass(rec.tau, h, settings), "time_step": h}
-
-
-def lowpass(x: np.ndarray, time_step: float, settings: FilterSettings) -> np.ndarray:
-    """The zero-phase Butterworth low-pass of :func:`preprocess` (forward–backward, ``settings.order`` at
-    ``settings.cutoff_hz``, padded by ``edge_cycles`` periods of the cutoff) on any ``[N, ...]`` channel sampled every
-    ``time_step`` [s]."""
-    sos = butter(settings.order, settings.cutoff_hz * 2.0 * time_step, output="sos")
-    pad = min(x.shape[0] - 1, int(np.ceil(settings.edge_cycles / (settings.cutoff_hz * time_step))))
-    return sosfiltfilt(sos, x, axis=0, padlen=pad)
 
 
 def check_recording_matches(rec: Recording, desc: RobotDescription) -> Recording:
@@ -344,28 +295,16 @@ class EstimationResult:
         return save_figure(fig, path)
 
 
-def resample_uniform(rec: Recording) -> Recording:
-    """``rec`` linearly interpolated onto a uniform time grid with its median step (real data has jitter; the
-    filters and the momentum observer need a fixed rate). Returns ``rec`` itself when it is already uniform."""
-    dt = np.diff(rec.t)
-    h = float(np.median(dt))
-    if np.max(np.abs(dt - h)) <= 1e-6 * h + 1e-9:
-        return rec
-    t = rec.t[0] + h * np.arange(int(np.floor((rec.t[-1] - rec.t[0]) / h)) + 1)
-
-    def interp(a: np.ndarray | None) -> np.ndarray | None:
-        if a is None:
-            return None
-        flat = a.reshape(a.shape[0], -1)
-        return np.stack([np.interp(t, rec.t, flat[:, j]) for j in range(flat.shape[1])], axis=1).reshape(
-            (t.size,) + a.shape[1:])
-
-    return Recording(t=t, q=interp(rec.q), tau=interp(rec.tau), qd=interp(rec.qd), qdd=interp(rec.qdd),
-                     f_ext=interp(rec.f_ext), truth={k: interp(v) for k, v in rec.truth.items()},
-                     meta={**rec.meta, "resampled_uniform_step_s": h})
+def conditioned_signals(rec: Recording, conditioning: ConditioningConfig = ConditioningConfig()
+                        ) -> tuple[Recording, dict[str, np.ndarray], float]:
+    """The Recording on its uniform grid, the replayed signals ``t, q, qd, qdd, tau`` (+ ``time_step``) of the one
+    conditioning path (:func:`proprio.conditioning.condition`) and the filters' edge transient [s]."""
+    cs = condition(rec, conditioning)
+    sig = {"t": cs.t, "q": cs.q, "qd": cs.qd, "qdd": cs.qdd, "tau": cs.tau, "time_step": 1.0 / cs.rate_hz}
+    return cs.as_recording(), sig, conditioning.edge_cycles / float(cs.cutoff_hz.min())
 
 
-def _prepare(model: TorqueModel | RobotDescription, rec: Recording, settings: FilterSettings
+def _prepare(model: TorqueModel | RobotDescription, rec: Recording, conditioning: ConditioningConfig
              ) -> tuple[TorqueModel, Recording, dict[str, np.ndarray], float]:
     """The model, the Recording at the rate the diagram runs, its signals and the filters' edge transient [s]."""
     if isinstance(model, RobotDescription):
@@ -373,9 +312,8 @@ def _prepare(model: TorqueModel | RobotDescription, rec: Recording, settings: Fi
     rec = check_recording_matches(rec, model.description)
     if hasattr(model, "signals"):             # its own pipeline: decimation to its rate, as in training
         rec, sig = model.signals(rec)
-        return model, rec, sig, model.filter_edge_s(settings.edge_cycles)
-    rec = resample_uniform(rec)
-    return model, rec, preprocess(rec, settings), settings.edge_cycles / settings.cutoff_hz
+        return model, rec, sig, model.filter_edge_s(conditioning.edge_cycles)
+    return (model, *conditioned_signals(rec, conditioning))
 
 
 def _skips(gain: float | np.ndarray, edge_s: float) -> dict[str, float]:
@@ -383,24 +321,25 @@ def _skips(gain: float | np.ndarray, edge_s: float) -> dict[str, float]:
 
 
 def _meta(model: TorqueModel, rec: Recording, gain: float | np.ndarray, mapping: WrenchMapping,
-          filters: FilterSettings, engine: str) -> dict[str, Any]:
+          conditioning: ConditioningConfig, engine: str) -> dict[str, Any]:
     return {"model": getattr(model, "name", model.description.name), "recording": dict(rec.meta),
-            "gain": np.asarray(gain).tolist(), "mapping": asdict(mapping), "filters": asdict(filters),
+            "gain": np.asarray(gain).tolist(), "mapping": asdict(mapping), "conditioning": rec.meta.get("conditioned", asdict(conditioning)),
             "engine": engine}
 
 
 def estimate_wrench(model: TorqueModel | RobotDescription, rec: Recording, gain: float | np.ndarray = DEFAULT_GAIN,
-                    mapping: WrenchMapping = WrenchMapping(), filters: FilterSettings = FilterSettings()
+                    mapping: WrenchMapping = WrenchMapping(),
+                    conditioning: ConditioningConfig = ConditioningConfig()
                     ) -> EstimationResult:
     """Run the estimation diagram over ``rec`` with ``model`` (a :class:`TorqueModel` or a description, taken as
     its rigid-body model + friction). ``gain`` is the momentum observer's K_O [1/s] (scalar or per joint).
 
-    A Recording with jittery time stamps is first resampled onto a uniform grid (:func:`resample_uniform`; the
-    result's ``t`` is that grid). A hybrid model (``model.signals``) replaces ``filters`` and the resampling by its
-    own training-time preprocessing and runs at its own rate: the result then holds the Recording's samples kept at
-    that rate. Raises
+    The Recording goes through the one conditioning path (:func:`proprio.conditioning.condition`: a jittered log is
+    resampled onto a uniform grid, the result's ``t`` is that grid). A hybrid model (``model.signals``) replaces
+    ``conditioning`` by its own training-time preprocessing and runs at its own rate: the result then holds the
+    Recording's samples kept at that rate. Raises
     :class:`RecordingError` when the Recording does not match the model robot or is too short for the filters."""
-    model, rec, sig, edge_s = _prepare(model, rec, filters)
+    model, rec, sig, edge_s = _prepare(model, rec, conditioning)
     diagram, loggers = build_estimation_diagram(model, sig, gain, mapping)
     simulator = Simulator(diagram)
     simulator.Initialize()
@@ -413,16 +352,17 @@ def estimate_wrench(model: TorqueModel | RobotDescription, rec: Recording, gain:
         tau_ext={o: logs[f"{o}.tau_ext"] for o in OBSERVERS},
         manipulability=logs["jacobian.manipulability"][:, 0], unreliable=logs["jacobian.unreliable"][:, 0] > 0.5,
         f_true=None if rec.f_ext is None else rec.f_ext.copy(), **_skips(gain, edge_s),
-        meta=_meta(model, rec, gain, mapping, filters, "diagram"))
+        meta=_meta(model, rec, gain, mapping, conditioning, "diagram"))
 
 
 def estimate_wrench_offline(model: TorqueModel | RobotDescription, rec: Recording,
                             gain: float | np.ndarray = DEFAULT_GAIN,
-                            mapping: WrenchMapping = WrenchMapping(), filters: FilterSettings = FilterSettings()
+                            mapping: WrenchMapping = WrenchMapping(),
+                    conditioning: ConditioningConfig = ConditioningConfig()
                             ) -> EstimationResult:
     """The same estimates as :func:`estimate_wrench`, vectorised over samples with the observers' offline functions
     (:func:`jacobian_wrench`, :func:`momentum_observer`) instead of stepping the diagram."""
-    model, rec, sig, edge_s = _prepare(model, rec, filters)
+    model, rec, sig, edge_s = _prepare(model, rec, conditioning)
     desc = model.description
     q, qd, qdd, tau = sig["q"], sig["qd"], sig["qdd"], sig["tau"]
     tau_int = model.tau_int(q, qd, qdd)
@@ -435,4 +375,4 @@ def estimate_wrench_offline(model: TorqueModel | RobotDescription, rec: Recordin
         t=rec.t.copy(), q=q, wrench={"jacobian": w_jac, "momentum": w_mom}, tau_ext={"jacobian": tau_dyn - tau,
                                                                                  "momentum": r},
         manipulability=manip, unreliable=flag, f_true=None if rec.f_ext is None else rec.f_ext.copy(),
-        **_skips(gain, edge_s), meta=_meta(model, rec, gain, mapping, filters, "offline"))
+        **_skips(gain, edge_s), meta=_meta(model, rec, gain, mapping, conditioning, "offline"))

@@ -36,9 +36,9 @@ from proprio.io import atomic_write_text, save_figure
 from proprio.kinematics import point_jacobian
 from proprio.payload import Payload
 from proprio.recording import Recording, save_recording
-from proprio.diagrams.estimation import (DEFAULT_GAIN, OBSERVERS, EstimationResult, FilterSettings, TorqueModel,
-                                         estimate_wrench, load_torque_model, lowpass, preprocess,
-                                         resample_uniform)
+from proprio.conditioning import ConditioningConfig, zero_phase_lowpass
+from proprio.diagrams.estimation import (DEFAULT_GAIN, OBSERVERS, EstimationResult, TorqueModel,
+                                         conditioned_signals, estimate_wrench, load_torque_model)
 from proprio.systems.observers import WrenchMapping, wrench_from_joint_torque
 
 __all__ = ["THESIS_RBD", "PayloadExperiment", "validation_trajectory", "error_budget", "format_table",
@@ -72,7 +72,7 @@ def validation_trajectory(seconds: float, seed: int = 7, scaffolds: int = 3,
 
 
 def error_budget(model: TorqueModel, rec: Recording, mapping: WrenchMapping = WrenchMapping(),
-                 filters: FilterSettings = FilterSettings()) -> dict[str, np.ndarray]:
+                 conditioning: ConditioningConfig = ConditioningConfig()) -> dict[str, np.ndarray]:
     """Sources of the Jacobian observer's force error on a twin Recording (module docstring): ``name → [N,3]`` [N].
 
     Needs the twin's truth channels ``q_true``, ``tau_J_true`` and ``tau_<effect>`` and its ``meta`` (robot,
@@ -80,18 +80,20 @@ def error_budget(model: TorqueModel, rec: Recording, mapping: WrenchMapping = Wr
     """
     from proprio.effects import EFFECTS
 
-    rec = resample_uniform(rec)
     missing = [k for k in ("q_true", "tau_J_true") if k not in rec.truth]
     if missing or rec.f_ext is None:
         raise ValueError(f"error_budget needs a twin Recording with f_ext and truth {missing or ['q_true']}")
+    rec, sig, _ = conditioned_signals(rec, conditioning)
     real = load_robot(rec.meta["robot"])
     desc = model.description
-    sig = preprocess(rec, filters)
     h = sig["time_step"]
-    q_true, qd, qdd = rec.truth["q_true"], rec.qd, rec.qdd
+    cutoff = np.asarray(rec.meta["conditioned"]["cutoff_hz"])
+    q_true = rec.truth["q_true"]
+    qd = rec.truth["qd"] if "qd" in rec.truth else rec.qd          # the twin's exact motion (truth), for scoring
+    qdd = rec.truth["qdd"] if "qdd" in rec.truth else rec.qdd
 
     def low(x: np.ndarray) -> np.ndarray:
-        return lowpass(x, h, filters)
+        return zero_phase_lowpass(x, 1.0 / h, cutoff, conditioning.order, conditioning.edge_cycles)
 
     rbd_model_true = inverse_dynamics(desc, q_true, qd, qdd)
     terms = {
@@ -203,7 +205,8 @@ def format_table(exp_results: dict[float, EstimationResult], masses: tuple[float
 
 def payload_experiment(model: str | Path | TorqueModel, out_dir: str | Path, seconds: float = 30.0,
                        masses: tuple[float, ...] = (0.0, 0.5, 1.0), seed: int = 7, gain: float = DEFAULT_GAIN,
-                       mapping: WrenchMapping = WrenchMapping(), filters: FilterSettings = FilterSettings(),
+                       mapping: WrenchMapping = WrenchMapping(),
+                       conditioning: ConditioningConfig = ConditioningConfig(),
                        twin_config: str = "iiwa14_twin", com_flange: tuple[float, float, float] = (0.0, 0.0, 0.0),
                        progress: bool = True, save_recordings: bool = False) -> PayloadExperiment:
     """Run the payload experiment and write ``table.txt``, ``stats.json``, ``payload_<g>g.png`` (f̂ vs truth) and
@@ -239,19 +242,19 @@ def payload_experiment(model: str | Path | TorqueModel, out_dir: str | Path, sec
         rec = simulate_twin(run.with_payload(payload), traj, progress=False)
         if save_recordings:
             files.append(save_recording(rec, out / f"twin_{int(round(m * 1000))}g.npz"))
-        res = estimate_wrench(torque_model, rec, gain=gain, mapping=mapping, filters=filters)
+        res = estimate_wrench(torque_model, rec, gain=gain, mapping=mapping, conditioning=conditioning)
         for obs in OBSERVERS:
             res.wrench[f"{obs} force-only"] = _force_only(res, obs, mapping, torque_model.description)
         results[m] = res
         if not hasattr(torque_model, "signals"):     # the budget's terms are those of a rigid-body model
-            budgets[m] = error_budget(torque_model, rec, mapping, filters)
+            budgets[m] = error_budget(torque_model, rec, mapping, conditioning)
         files.append(res.plot(out / f"payload_{int(round(m * 1000))}g.png",
                               title=f"{int(round(m * 1000))} g at the flange: f̂ (model {name}) vs truth"))
     table = format_table(results, tuple(masses), name, budgets)
     exp = PayloadExperiment(name, tuple(masses), results, budgets, table)
     atomic_write_text(out / "table.txt", table + "\n")
     atomic_write_text(out / "stats.json", json.dumps({"model": name, "twin": twin.name, "seconds": seconds,
-                                                      "gain": gain, "filters": dataclasses.asdict(filters),
+                                                      "gain": gain, "conditioning": dataclasses.asdict(conditioning),
                                                       "stats": exp.stats()}, indent=2))
     files += [out / "table.txt", out / "stats.json", _plot_errors(exp, out / "payload_errors.png")]
     exp.files = files
