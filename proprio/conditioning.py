@@ -4,16 +4,16 @@ estimate, the payload experiment, the learning datasets, the gap benchmark, the 
 
 Steps, all vectorised over samples and joints:
 
-1. **Time base.** A log with jittered stamps is *resampled* onto the uniform grid of its median step by linear
-   interpolation (interpolation error ``≈ dt²/8 · |q̈|``, ≈1e-7 rad at 1 kHz, far below encoder noise). A step longer
+1. **Time base.** A log with jittered stamps is *resampled* onto the uniform grid of its median step by cubic-spline
+   interpolation (error ``≈ h⁴/384 · |q⁗|``, far below encoder noise even across an 8 ms step). A step longer
    than ``max_gap_s`` is a *gap* (a dropout): the grid samples inside it are interpolated but flagged invalid
    (``valid``), and every later stage drops them. Duplicate stamps cannot reach this point: a Recording's time is
    strictly increasing (:func:`proprio.recording.recording_from_csv` averages duplicated stamps at import).
 2. **Cutoff per joint.** From the config, or ``auto``: the Welch spectrum ``P_q(f)`` of each joint's ``q`` and its
    white-noise floor ``P_0`` (mean over the upper half of the band: encoder noise and quantisation) give the
-   estimated error of ``q̈`` for a cutoff ``f_c``: the signal power lost above it, ``∫_{f>f_c} (2πf)⁴ (P_q − P_0)⁺``,
-   plus the noise passed below it, ``∫_{f<f_c} (2πf)⁴ P_0``; the cutoff minimises the sum (a Wiener-style
-   trade-off), clipped to ``[min_cutoff_hz, max_cutoff_fraction · rate]``.
+   estimated error of ``q̈`` for a cutoff ``f_c``: the signal the filter's magnitude ``G`` removes,
+   ``∫ (2πf)⁴ (P_q − P_0)⁺ (1 − G)²``, plus the noise it passes, ``∫ (2πf)⁴ P_0 G²``; the cutoff minimises the sum
+   (a Wiener-style trade-off) within ``[min_cutoff_hz, max_cutoff_fraction · rate]``.
 3. **Zero-phase low-pass, then differentiation.** A Butterworth low-pass (``order``, forward–backward with
    ``scipy.signal.sosfiltfilt``, odd padding over ``edge_cycles`` periods of the cutoff) of ``q`` (or of the robot's
    own ``q̇`` when ``velocity: measured``), then second-order central differences (``np.gradient``) for ``q̇`` and
@@ -32,6 +32,7 @@ from dataclasses import dataclass, field, fields
 from typing import Any, Sequence
 
 import numpy as np
+import scipy.interpolate
 import scipy.signal
 
 from proprio.recording import Recording, RecordingError
@@ -190,13 +191,12 @@ def uniform_time_base(t: np.ndarray, max_gap_s: float) -> tuple[np.ndarray, np.n
 
 
 def _resample(t: np.ndarray, x: np.ndarray, t_u: np.ndarray) -> np.ndarray:
-    """Linear interpolation of ``x [N, ...]`` from ``t`` onto ``t_u`` (both from 0), vectorised over channels."""
+    """Cubic-spline interpolation of ``x [N, ...]`` from ``t`` onto ``t_u`` (both from 0), vectorised over channels.
+    Cubic, not linear: a linear segment across a long step puts kinks into q whose second difference would pose as
+    acceleration (interpolation error ``≈ h⁴/384 · |q⁗|`` instead of ``h²/8 · |q̈|``)."""
     if t.shape == t_u.shape and np.array_equal(t, t_u):
         return np.asarray(x, dtype=float)
-    x = np.asarray(x, dtype=float)
-    k = np.clip(np.searchsorted(t, t_u, side="right") - 1, 0, t.size - 2)
-    w = ((t_u - t[k]) / (t[k + 1] - t[k])).reshape((-1,) + (1,) * (x.ndim - 1))
-    return x[k] * (1.0 - w) + x[k + 1] * w
+    return scipy.interpolate.make_interp_spline(t, np.asarray(x, dtype=float), k=3, axis=0)(t_u)
 
 
 # ---- filtering ----------------------------------------------------------------------------------------------------
@@ -219,19 +219,36 @@ def zero_phase_lowpass(x: np.ndarray, rate_hz: float, cutoff_hz: float | np.ndar
     return out
 
 
-def _spectra(q: np.ndarray, rate_hz: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _second_difference(q: np.ndarray, rate_hz: float, t: np.ndarray | None) -> np.ndarray:
+    """``Δ²q / h²`` [rad/s²] at the samples' own stamps ``t`` (the three-point formula for unequal steps), or on the
+    uniform grid of ``rate_hz`` when ``t`` is None."""
+    if t is None:
+        return np.diff(q, n=2, axis=0) * rate_hz ** 2
+    h = np.diff(np.asarray(t, dtype=float))[:, None]
+    dq = np.diff(q, axis=0) / h
+    return 2.0 * np.diff(dq, axis=0) / (h[1:] + h[:-1])
+
+
+def _spectra(q: np.ndarray, rate_hz: float, t: np.ndarray | None = None
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Frequencies ``f [F]``, the q̈ signal spectrum ``S [F,n]`` and the q̈ noise spectrum ``N [F,n]`` [(rad/s²)²/Hz],
     and the white floor of q ``P_0 [n]`` [rad²/Hz].
 
     Estimated from the Welch spectrum of the raw second difference ``Δ²q / h²`` (pre-whitened, so the window's leakage
-    from the large low-frequency content of q does not pose as high-frequency signal): its white-noise part has the
+    from the large low-frequency content of q does not pose as high-frequency signal), taken at the log's own time
+    stamps ``t`` when given (a resampled log's interpolated stretches would hide the noise): its white-noise part has the
     known shape ``P_0 · 16 sin⁴(π f h) / h⁴``, whose level ``P_0`` is the mean over the upper half of the band;
     signal is counted only in bins at least twice the floor."""
     h = 1.0 / rate_hz
-    d2 = np.diff(q, n=2, axis=0) / h ** 2
+    d2 = _second_difference(q, rate_hz, t)
     nper = int(min(d2.shape[0], max(256, 2 ** int(np.floor(np.log2(max(d2.shape[0] // 8, 2)))))))
     f, p = scipy.signal.welch(d2, fs=rate_hz, nperseg=nper, detrend="constant", axis=0)
-    shape = 16.0 * np.sin(np.pi * f * h) ** 4 / h ** 4                 # |Δ²/h²|² at f
+    if t is None:
+        shape = 16.0 * np.sin(np.pi * f * h) ** 4 / h ** 4                 # |Δ²/h²|² at f
+    else:   # unequal steps colour the noise: its shape from unit white noise at the same stamps (fixed seed)
+        unit = np.random.default_rng(0).standard_normal((q.shape[0], 16))
+        shape = scipy.signal.welch(_second_difference(unit, rate_hz, t), fs=rate_hz, nperseg=nper,
+                                   detrend="constant", axis=0)[1].mean(axis=1) / (2.0 / rate_hz)
     top = f >= 0.25 * rate_hz
     floor = np.mean(p[top] / shape[top, None], axis=0)             # the mean: unbiased for white noise
     noise = floor[None, :] * (2 * np.pi * f[:, None]) ** 4          # q̈ noise through ideal differentiation
@@ -240,19 +257,22 @@ def _spectra(q: np.ndarray, rate_hz: float) -> tuple[np.ndarray, np.ndarray, np.
     return f, signal, noise, floor
 
 
-def auto_cutoff(q: np.ndarray, rate_hz: float, min_hz: float = 1.0, max_fraction: float = 0.2
-                ) -> tuple[np.ndarray, np.ndarray]:
+def auto_cutoff(q: np.ndarray, rate_hz: float, min_hz: float = 1.0, max_fraction: float = 0.2,
+                t: np.ndarray | None = None, order: int = 2) -> tuple[np.ndarray, np.ndarray]:
     """Per-joint cutoff [Hz] minimising the estimated q̈ error (module docstring, step 2) and the white noise σ of q
-    [rad] implied by the floor (``σ² = P_0 · rate / 2``)."""
-    f, signal, noise, floor = _spectra(q, rate_hz)
-    lost = np.cumsum(signal[::-1], axis=0)[::-1]               # power above each f (inclusive)
-    passed = np.cumsum(noise, axis=0)                          # power up to each f
-    err = np.vstack([lost[1:], np.zeros((1, q.shape[1]))]) + passed
-    ok = (f >= min_hz) & (f <= max_fraction * rate_hz)
-    if not ok.any():
-        return np.full(q.shape[1], min(min_hz, max_fraction * rate_hz)), np.sqrt(floor * rate_hz / 2.0)
-    err = np.where(ok[:, None], err, np.inf)
-    return f[np.argmin(err, axis=0)], np.sqrt(floor * rate_hz / 2.0)
+    [rad] implied by the floor (``σ² = P_0 · rate / 2``); ``q`` at its own stamps ``t`` [s] when given.
+
+    The error of a cutoff ``f_c`` uses the zero-phase Butterworth's magnitude ``G(f) = 1 / (1 + (f/f_c)^{2·order})``:
+    ``Σ_f S(f) (1 − G(f))² + N(f) G(f)²`` over 120 log-spaced candidates in ``[min_hz, max_fraction · rate]``."""
+    f, signal, noise, floor = _spectra(q, rate_hz, t)
+    sigma_q = np.sqrt(floor * rate_hz / 2.0)
+    hi = max_fraction * rate_hz
+    if hi <= min_hz:
+        return np.full(q.shape[1], hi), sigma_q
+    cands = np.geomspace(min_hz, hi, 120)
+    g = 1.0 / (1.0 + (f[None, :] / cands[:, None]) ** (2 * order))            # [C, F]
+    err = ((1.0 - g) ** 2) @ signal + (g ** 2) @ noise                         # [C, n]
+    return cands[np.argmin(err, axis=0)], sigma_q
 
 
 def _chain_gains(rate_hz: float, cutoff: float, order: int, edge_cycles: float) -> tuple[float, float, float]:
@@ -267,9 +287,10 @@ def _chain_gains(rate_hz: float, cutoff: float, order: int, edge_cycles: float) 
     return float((lp ** 2).sum()), float((d1 ** 2).sum()), float((d2 ** 2).sum())
 
 
-def _lost_power(q: np.ndarray, rate_hz: float, cutoff: np.ndarray, power: int) -> np.ndarray:
+def _lost_power(q: np.ndarray, rate_hz: float, cutoff: np.ndarray, power: int, t: np.ndarray | None = None
+                ) -> np.ndarray:
     """RMS of the ``power``-th derivative's signal content above each joint's cutoff (what the low-pass removes)."""
-    f, signal, _, _ = _spectra(q, rate_hz)
+    f, signal, _, _ = _spectra(q, rate_hz, t)
     s = signal * (2 * np.pi * np.maximum(f[:, None], 1e-9)) ** (2 * power - 4)
     return np.sqrt(np.sum(np.where(f[:, None] > cutoff[None, :], s, 0.0), axis=0) * (f[1] - f[0]))
 
@@ -293,10 +314,11 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
         if q.shape[0] < 64:
             raise RecordingError(f"recording: {q.shape[0]} samples are too few to estimate the noise floor "
                                  "(conditioning.cutoff_hz = auto needs ≥ 64); give cutoff_hz explicitly")
-        cutoff, sigma_q = auto_cutoff(q, rate, config.min_cutoff_hz, config.max_cutoff_fraction)
+        cutoff, sigma_q = auto_cutoff(rec.q, rate, config.min_cutoff_hz, config.max_cutoff_fraction, t_src,
+                                      config.order)
     else:
         cutoff = np.broadcast_to(np.asarray(config.cutoff_hz, dtype=float), (n,)).copy()
-        sigma_q = auto_cutoff(q, rate)[1] if q.shape[0] >= 64 else np.zeros(n)
+        sigma_q = auto_cutoff(rec.q, rate, t=t_src)[1] if q.shape[0] >= 64 else np.zeros(n)
     if np.any(cutoff >= 0.5 * rate):
         raise RecordingError(f"recording: cutoff {cutoff.max():g} Hz is not below the Nyquist frequency "
                              f"{0.5 * rate:.6g} Hz of its {rate:.6g} Hz time base")
@@ -315,8 +337,8 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
         velocity_source = "q"
     qdd = np.gradient(qd, h, axis=0)
     gains = np.array([_chain_gains(rate, c, config.order, config.edge_cycles) for c in cutoff])     # [n, 3]
-    lost_qd = _lost_power(q, rate, cutoff, 1) if q.shape[0] >= 64 else np.zeros(n)
-    lost_qdd = _lost_power(q, rate, cutoff, 2) if q.shape[0] >= 64 else np.zeros(n)
+    lost_qd = _lost_power(rec.q, rate, cutoff, 1, t_src) if q.shape[0] >= 64 else np.zeros(n)
+    lost_qdd = _lost_power(rec.q, rate, cutoff, 2, t_src) if q.shape[0] >= 64 else np.zeros(n)
     sigma_qd = np.sqrt(sigma_q ** 2 * gains[:, 1] + lost_qd ** 2)
     sigma_qdd = np.sqrt(sigma_q ** 2 * gains[:, 2] + lost_qdd ** 2)
     return ConditionedSignals(t=t_u, q=q_f, qd=qd, qdd=qdd, tau=lp(tau) if config.tau_filter else tau, valid=valid,

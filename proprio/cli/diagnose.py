@@ -84,7 +84,8 @@ def _diagnose(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from proprio.conditioning import ConditioningConfig
-    from proprio.diagnosis.report import DIAGNOSIS_CONDITIONING, diagnose
+    from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING
+    from proprio.diagnosis.report import diagnose
     from proprio.recording import load_recording
 
     cutoff = args.cutoff if args.cutoff == "auto" else _positive_float(args.cutoff, "--cutoff")

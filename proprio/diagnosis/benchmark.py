@@ -56,6 +56,9 @@ __all__ = ["BenchmarkCase", "CaseResult", "make_cases", "generate_case_data", "r
 
 RATE_HZ = 200.0
 NOISE_STD = 0.05                 # background torque-sensor noise [N·m] (present in data AND model unless withheld)
+ENCODER = {"std": np.radians(0.0005), "resolution": np.radians(0.0001)}   # background encoder noise + quantisation
+#                                  [rad], the shipped twin's: every case logs measured q, never exact q, q̇, q̈
+PROCESSING_TYPES = ("signal_lag", "encoder_noise")   # data-path cases: scored against the processing section
 EXTRA_TYPES = ("rigid_body", "payload", "signal_lag")
 EFFECT_TYPES = tuple(EFFECTS) + EXTRA_TYPES
 # twin mode: every effect of the shipped iiwa14_twin.yaml, plus the payload (TwinConfig.with_payload)
@@ -230,7 +233,6 @@ class CaseData:
     model_params: dict[str, dict[str, Any]]
     train: list[Recording]
     holdout: list[Recording]
-    noise_holdout: list[np.ndarray]
 
 
 def _perturbed(robot: RobotDescription, p: dict[str, Any]) -> RobotDescription:
@@ -242,16 +244,21 @@ def _perturbed(robot: RobotDescription, p: dict[str, Any]) -> RobotDescription:
     return robot.with_inertials(links)
 
 
-def generate_case_data(case: BenchmarkCase, robot: RobotDescription | None = None) -> CaseData:
+def generate_case_data(case: BenchmarkCase, robot: RobotDescription | None = None,
+                       omit_withheld: bool = False) -> CaseData:
     """Training (2 recordings) and held-out (1) data of a case, and the model's effect list (module docstring).
-    Twin cases (``case.twin``) go through :func:`generate_twin_case_data` (``robot`` is then ignored)."""
+    Twin cases (``case.twin``) go through :func:`generate_twin_case_data` (``robot`` is then ignored).
+    ``omit_withheld``: the same data (motion, noise, modelled effects, seeds) without the withheld effects — what a
+    model that had them would leave (the measured floor of the shrinkage)."""
     if case.twin:
-        return generate_twin_case_data(case)
+        return generate_twin_case_data(case, omit_withheld)
     robot = robot or load_robot("iiwa14_nominal")
     n = robot.n
     rng = np.random.default_rng(case.seed)
     params = {k: _draw(k, n, case.magnitude, rng) for k in case.withheld}
     modelled = {k: _draw(k, n, 1.0, rng) for k in case.modelled}
+    if omit_withheld:
+        params = {k: v for k, v in params.items() if k == "torque_noise"}
     data_robot = robot
     if "rigid_body" in params:
         data_robot = _perturbed(data_robot, params["rigid_body"])
@@ -263,7 +270,7 @@ def generate_case_data(case: BenchmarkCase, robot: RobotDescription | None = Non
     effects = {k: EFFECTS[k](n, **v) for k, v in present.items()}
     model_effects = tuple(k for k in modelled) + (() if "torque_noise" in params else ("torque_noise",))
     model_params = {**modelled, "torque_noise": {"std": np.full(n, NOISE_STD)}}
-    recs, noises = [], []
+    recs = []
     for k in range(3):
         t, q, qd, qdd, seg = rfma_like_motion(robot, case.seed + 7919 * k, case.duration_s)
         s = MotionSignals(t, q, qd, qdd)
@@ -285,16 +292,14 @@ def generate_case_data(case: BenchmarkCase, robot: RobotDescription | None = Non
         q_rec = q
         if "elasticity" in params:
             q_rec = q_rec + tau / np.asarray(params["elasticity"]["stiffness"])
-        if "encoder_noise" in params:
-            q_rec = EFFECTS["encoder_noise"](n, **params["encoder_noise"]).measure(
-                q_rec, np.random.default_rng(case.seed + 100 + k))
+        enc = {**{k: np.full(n, v) for k, v in ENCODER.items()}, **params.get("encoder_noise", {})}
+        q_rec = EFFECTS["encoder_noise"](n, **enc).measure(q_rec, np.random.default_rng(case.seed + 100 + k))
         recs.append(Recording(t=t, q=q_rec, tau=tau_meas, truth={"segment": seg},
                               meta={"robot": robot.name, "rate_hz": RATE_HZ, "source": "gap-benchmark (offline)"}))
-        noises.append(nz)
-    return CaseData(robot, model_effects, model_params, recs[:2], recs[2:], noises[2:])
+    return CaseData(robot, model_effects, model_params, recs[:2], recs[2:])
 
 
-def twin_case_config(case: BenchmarkCase) -> tuple[Any, dict[str, dict[str, Any]]]:
+def twin_case_config(case: BenchmarkCase, omit_withheld: bool = False) -> tuple[Any, dict[str, dict[str, Any]]]:
     """The twin of a case: the shipped ``iiwa14_twin`` (robot ``iiwa14_identified``, its controller and its hidden
     motor-side drive, whose reflected rotor inertia keeps the explicit friction stable at 1 ms) with its joint
     effects replaced by the case's withheld and modelled ones (parameters drawn as in the offline mode, ``_draw``),
@@ -311,18 +316,21 @@ def twin_case_config(case: BenchmarkCase) -> tuple[Any, dict[str, dict[str, Any]
     rng = np.random.default_rng(case.seed)
     params = {k: _draw(k, n, case.magnitude, rng) for k in case.withheld}
     modelled = {k: _draw(k, n, 1.0, rng) for k in case.modelled}
+    if omit_withheld:
+        params = {k: v for k, v in params.items() if k == "torque_noise"}
     for block in (params, modelled):
         if "viscous_coulomb" in block:
             block["viscous_coulomb"]["smooth_velocity"] = np.full(n, TWIN_SMOOTH_VELOCITY)
     present = {**modelled, **{k: v for k, v in params.items() if k in EFFECTS}}
     present.setdefault("torque_noise", {"std": np.full(n, NOISE_STD)})
+    present["encoder_noise"] = {**{k: np.full(n, v) for k, v in ENCODER.items()}, **present.get("encoder_noise", {})}
     config = config.with_effects([EFFECTS[k](n, **present[k]) for k in EFFECTS if k in present])
     if "payload" in params:
         config = config.with_payload(Payload(params["payload"]["mass"], tuple(params["payload"]["com"])))
     return config, modelled
 
 
-def generate_twin_case_data(case: BenchmarkCase) -> CaseData:
+def generate_twin_case_data(case: BenchmarkCase, omit_withheld: bool = False) -> CaseData:
     """Twin-mode data of a case (module docstring): 2 training + 1 held-out recordings of
     :func:`proprio.diagrams.twin.simulate_twin` (the :func:`twin_case_config` twin) along short RFMA trajectories
     (2 scaffolds, 600–800 waypoints per exploration, own seed per recording; a seed for which RFMA finds no
@@ -332,12 +340,12 @@ def generate_twin_case_data(case: BenchmarkCase) -> CaseData:
     from proprio.diagrams.twin import simulate_twin
     from proprio.systems.rfma import RfmaError, generate_rfma, load_rfma_config
 
-    config, modelled = twin_case_config(case)
+    config, modelled = twin_case_config(case, omit_withheld)
     robot = config.robot.without_friction()
     n = robot.n
     model_effects = tuple(modelled) + (() if "torque_noise" in case.withheld else ("torque_noise",))
     model_params = {**modelled, "torque_noise": {"std": np.full(n, NOISE_STD)}}
-    recs, noises = [], []
+    recs = []
     for k in range(3):
         seed = (case.seed + 7919 * k) % (1 << 31)
         for attempt in range(5):                # RFMA may find no collision-free reach: next seed
@@ -353,8 +361,7 @@ def generate_twin_case_data(case: BenchmarkCase) -> CaseData:
         rec = rec.downsample(TWIN_DOWNSAMPLE)
         meta = {**rec.meta, "source": "gap-benchmark (twin)"}
         recs.append(Recording(t=rec.t, q=rec.q, tau=rec.tau, truth=rec.truth, meta=meta))
-        noises.append(rec.truth.get("tau_torque_noise", np.zeros_like(rec.tau)))
-    return CaseData(robot, model_effects, model_params, recs[:2], recs[2:], noises[2:])
+    return CaseData(robot, model_effects, model_params, recs[:2], recs[2:])
 
 
 @dataclass
@@ -367,11 +374,12 @@ class CaseResult:
     seconds: float
     error: str = ""
     params: dict[str, Any] = field(default_factory=dict)
+    processing: list[str] = field(default_factory=list)
 
 
 def run_case(case: BenchmarkCase) -> CaseResult:
     """Generate, diagnose (not told what was withheld) and score one case."""
-    from proprio.diagnosis.data import SimModel
+    from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING, SimModel, condition_all, kept
     from proprio.diagnosis.selection import attribute
 
     t0 = time.perf_counter()
@@ -395,16 +403,24 @@ def run_case(case: BenchmarkCase) -> CaseResult:
         first = base(att.steps[0].name)
         k = max(i for i, st in enumerate(att.steps) if base(st.name) == first)
         pred = 1.0 - float((att.steps[k].rmse_after ** 2).sum()) / float((att.rmse_before ** 2).sum())
-    # measured: the model given the true effect leaves only the sensor noise (same held-out samples)
-    trim = [(r.t >= r.t[0] + 0.5) & (r.t <= r.t[-1] - 0.5) for r in data.holdout]
-    nz = np.concatenate([z[m] for z, m in zip(data.noise_holdout, trim)])
-    meas = 1.0 - float((nz ** 2).sum()) / sse0 if case.withheld != ("torque_noise",) else 0.0
+    # measured: what the model leaves on the same held-out data made without the withheld effects (noise, the
+    # modelled effects and the processing error of the same measured channels stay)
+    meas = 0.0
+    if case.withheld and case.withheld != ("torque_noise",):
+        floor = generate_case_data(case, omit_withheld=True).holdout
+        cond = condition_all(floor, DIAGNOSIS_CONDITIONING, "holdout")
+        e_floor = np.concatenate([(cs.tau - model.predict(cs.motion()))[kept(cs, 0.5)] for cs in cond])
+        meas = 1.0 - float((e_floor ** 2).sum()) / sse0
     top = []
-    for name in att.top(4):                          # sub-candidates count as their library effect
+    names = att.top(4)
+    if set(case.withheld) & set(PROCESSING_TYPES):   # a data-path case: its answer is in the processing section
+        names = [s.name for s in att.processing_steps] + names
+    for name in names:                               # sub-candidates count as their library effect
         if base(name) not in top:
             top.append(base(name))
     return CaseResult(case, top[:3], att.selected, pred, meas, time.perf_counter() - t0,
-                      params={s.name: float(s.gain) for s in att.steps})
+                      params={s.name: float(s.gain) for s in att.steps},
+                      processing=[s.name for s in att.processing_steps])
 
 
 def run_benchmark(cases: list[BenchmarkCase], workers: int | None = None, progress: bool = True
@@ -456,7 +472,10 @@ def summarise(results: list[CaseResult]) -> tuple[dict[str, Any], str]:
     for i, lab in enumerate(labels):
         lines.append(lab.ljust(w) + " ".join(str(v).rjust(6) if v else ".".rjust(6) for v in conf[i]))
     lines += ["", f"single-effect cases: {len(single)}  top-1 {100 * top1:.1f} %  top-2 {100 * top2:.1f} %",
-              f"null cases: {len(null)}  false-positive rate {100 * null_fp:.1f} %",
+              f"null cases: {len(null)}  false-positive rate {100 * null_fp:.1f} %  (data-path steps reported "
+              f"apart in {sum(bool(r.processing) for r in null)})",
+              f"physical cases with a data-path candidate as top-1: "
+              f"{sum(bool(r.top) and r.top[0] in PROCESSING_TYPES for r in single if r.case.withheld[0] not in PROCESSING_TYPES)}",
               f"two-effect cases: {len(pair)}  both effects among the top 3: {100 * pair_both:.1f} %",
               f"shrinkage (correct top-1, measured > 5 %): median rel. error "
               f"{100 * scores['shrinkage_rel_error_median']:.1f} %, max {100 * scores['shrinkage_rel_error_max']:.1f}"
@@ -478,7 +497,7 @@ def write_results(results: list[CaseResult], out_dir: str | Path) -> tuple[dict[
     out = Path(out_dir)
     atomic_write_text(out / "benchmark.txt", text + "\n")
     rows = [{"case": r.case.name, "source": "twin" if r.case.twin else "offline", "withheld": list(r.case.withheld), "magnitude": r.case.magnitude,
-             "seed": r.case.seed, "modelled": list(r.case.modelled), "top": r.top, "selected": r.steps,
+             "seed": r.case.seed, "modelled": list(r.case.modelled), "top": r.top, "selected": r.steps, "processing": r.processing,
              "predicted_shrinkage": r.predicted_shrinkage, "measured_shrinkage": r.measured_shrinkage,
              "seconds": r.seconds, "error": r.error} for r in results]
     atomic_write_text(out / "benchmark.json", json.dumps({"scores": scores, "cases": rows}, indent=1))

@@ -17,13 +17,19 @@ from proprio.conditioning import ConditionedSignals, ConditioningConfig, conditi
 from proprio.recording import Recording
 from proprio.signals import MotionSignals
 
-__all__ = ["DiagnosisError", "SimModel", "GapData", "signals_of", "condition_all", "NOISE_EFFECTS"]
+__all__ = ["DiagnosisError", "SimModel", "GapData", "signals_of", "condition_all", "kept", "NOISE_EFFECTS",
+           "DIAGNOSIS_CONDITIONING"]
 
 
 NOISE_EFFECTS = ("torque_noise", "encoder_noise")
 MIN_BLOCKS = 10
 MIN_BLOCK_S = 0.25
 MAX_FIT_SAMPLES = 4000
+
+
+DIAGNOSIS_CONDITIONING = ConditioningConfig(tau_filter=False)
+"""The diagnosis conditions the motion (q̇, q̈ for the rigid body) but compares the raw τ_J: its effect candidates
+(ripple, noise, hysteresis steps) model τ's whole band, and a zero-phase filter would only hide it."""
 
 
 class DiagnosisError(ValueError):
@@ -106,13 +112,19 @@ class SimModel:
         return var
 
 
-def signals_of(rec: Recording, config: ConditioningConfig = ConditioningConfig()) -> ConditionedSignals:
+def signals_of(rec: Recording, config: ConditioningConfig = DIAGNOSIS_CONDITIONING) -> ConditionedSignals:
     """The conditioned signals of a Recording (:func:`proprio.conditioning.condition`); a Recording too short for the
     filter raises :class:`DiagnosisError` naming the problem."""
     try:
         return condition(rec, config)
     except ValueError as exc:
         raise DiagnosisError(str(exc)) from exc
+
+
+def kept(cs: ConditionedSignals, trim_s: float) -> np.ndarray:
+    """``bool [N]``: the samples of a conditioned recording the diagnosis uses — ``trim_s`` [s] of filter start-up
+    dropped at both ends, and none inside a gap of the log."""
+    return (cs.t >= cs.t[0] + trim_s) & (cs.t <= cs.t[-1] - trim_s) & cs.valid
 
 
 def condition_all(recs: Sequence[Recording], config: ConditioningConfig, role: str) -> list[ConditionedSignals]:

@@ -15,7 +15,7 @@ import numpy as np
 
 from proprio.description import RobotDescription
 from proprio.conditioning import ConditioningConfig
-from proprio.diagnosis.data import DiagnosisError, SimModel, signals_of
+from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING, DiagnosisError, SimModel, signals_of
 from proprio.diagnosis.localisation import (
     GapMap,
     Spectra,
@@ -129,11 +129,6 @@ def _md_to_html_table(md: str) -> str:
         tag = "th" if k == 0 else "td"
         out.append("<tr>" + "".join(f"<{tag}>{html.escape(c.strip())}</{tag}>" for c in cells) + "</tr>")
     return "\n".join(out + ["</table>"])
-
-
-DIAGNOSIS_CONDITIONING = ConditioningConfig(tau_filter=False)
-"""The diagnosis conditions the motion (q̇, q̈ for the rigid body) but compares the raw τ_J: its effect candidates
-(ripple, noise, hysteresis steps) model τ's whole band, and a zero-phase filter would only hide it."""
 
 
 def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording],

@@ -56,7 +56,8 @@ from scipy import stats
 from proprio.description import RobotDescription
 from proprio.diagnosis.candidates import Candidate, candidate_set
 from proprio.conditioning import ConditionedSignals, ConditioningConfig, processing_torque_sigma
-from proprio.diagnosis.data import MIN_BLOCK_S, MIN_BLOCKS, DiagnosisError, GapData, SimModel, condition_all
+from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, MIN_BLOCK_S, MIN_BLOCKS, DiagnosisError, GapData,
+                                    SimModel, condition_all, kept)
 from proprio.diagnosis.fitting import Fit, fit_candidates, predict_candidates
 from proprio.effects import EFFECTS
 from proprio.recording import Recording, validate_recording
@@ -257,10 +258,6 @@ def _series(x: np.ndarray, data: GapData) -> list[np.ndarray]:
     return [np.concatenate(v) for v in groups.values()]
 
 
-def _keep(cs: ConditionedSignals, trim_s: float) -> np.ndarray:
-    return (cs.t >= cs.t[0] + trim_s) & (cs.t <= cs.t[-1] - trim_s) & cs.valid
-
-
 def _correlation_time(model: SimModel, conditioned: Sequence[ConditionedSignals], keep: Sequence[np.ndarray]) -> float:
     """Correlation time [s] of the model residual: the lag where its autocorrelation first falls below 1/e (FFT,
     median over joints and recordings)."""
@@ -294,7 +291,7 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
               holdout_recs: Sequence[Recording] = (), candidates: Sequence[str] | None = None, trim_s: float = 0.5,
               alpha: float = 0.01, min_gain: float = 0.02, max_steps: int = 6,
               progress: Callable[[str], None] | None = None,
-              conditioning: ConditioningConfig = ConditioningConfig()) -> Attribution:
+              conditioning: ConditioningConfig = DIAGNOSIS_CONDITIONING) -> Attribution:
     """Greedy forward attribution of the residual ``τ_meas − τ_sim`` to candidate effects (module docstring).
 
     ``model``: the simulation model (a RobotDescription = rigid body + its friction, or a :class:`SimModel`);
@@ -320,10 +317,10 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
     say = progress or (lambda msg: None)
     say("conditioning")
     cond_tr = condition_all(train_recs, conditioning, "training")
-    keep_tr = [_keep(cs, trim_s) for cs in cond_tr]
+    keep_tr = [kept(cs, trim_s) for cs in cond_tr]
     if holdout_recs:
         cond_h = condition_all(holdout_recs, conditioning, "holdout")
-        keep_h = [_keep(cs, trim_s) for cs in cond_h]
+        keep_h = [kept(cs, trim_s) for cs in cond_h]
         held_s = sum(float(k.sum()) / cs.rate_hz for cs, k in zip(cond_h, keep_h))
         if held_s < MIN_BLOCKS * MIN_BLOCK_S:
             raise DiagnosisError(f"holdout: {held_s:.2f} s of held-out data after trimming {trim_s} s per end is too "
