@@ -49,7 +49,7 @@ from proprio.recording import Recording, RecordingError, load_recording
 
 __all__ = ["Playback", "PlaybackSettings", "FrameGroups", "PlaybackInfo", "frame_groups", "torque_residual",
            "playback_from_estimate", "playback_from_recording", "load_playback", "record_playback", "playback_html",
-           "write_playback_html", "start_meshcat", "ARROW_RGBA", "ROOT"]
+           "write_playback_html", "start_meshcat", "ArmView", "ARROW_RGBA", "ROOT"]
 
 ROOT = "/proprio"                   # Meshcat path of the arrows
 VISUALIZER_PREFIX = "visualizer"    # MeshcatVisualizer's prefix (its paths are /drake/<prefix>/...)
@@ -309,25 +309,40 @@ def _link_geometry_paths(plant, scene_graph, desc: RobotDescription, meshcat: Me
     return out
 
 
+class ArmView:
+    """The arm of ``desc`` drawn in ``meshcat``: a Diagram of its plant + scene graph (with the visual geometry of
+    :func:`proprio.urdf.visual_shapes`) and a ``MeshcatVisualizer``, posed on demand by :meth:`show`."""
+
+    def __init__(self, desc: RobotDescription, meshcat: Meshcat):
+        builder = DiagramBuilder()
+        self.description, self.meshcat = desc, meshcat
+        self.robot = AddRobot(builder, desc, visual=True)
+        MeshcatVisualizer.AddToBuilder(builder, self.robot.scene_graph, meshcat,
+                                       MeshcatVisualizerParams(prefix=VISUALIZER_PREFIX))
+        self.diagram = builder.Build()
+        self.context = self.diagram.CreateDefaultContext()
+        self._plant_context = self.robot.plant.GetMyContextFromRoot(self.context)
+
+    def show(self, q: np.ndarray, time: float = 0.0) -> None:
+        """Draw the arm at ``q [n]`` rad (published at context time ``time`` [s], which a Meshcat recording uses)."""
+        self.context.SetTime(time)
+        self.robot.plant.SetPositions(self._plant_context, self.robot.instance, np.asarray(q, dtype=float))
+        self.diagram.ForcedPublish(self.context)
+
+
 def record_playback(pb: Playback, meshcat: Meshcat, settings: PlaybackSettings = PlaybackSettings()) -> PlaybackInfo:
     """Record ``pb`` into ``meshcat`` as an animation and publish it (its time slider is in the Meshcat controls,
     under Animations). The frames follow :func:`frame_groups`; the per-frame arrows and tints are computed vectorised
     and written into the recording."""
     desc = pb.description
     frames = frame_groups(pb.t, settings.fps, settings.max_frames)
-    builder = DiagramBuilder()
-    robot = AddRobot(builder, desc, visual=True)
-    MeshcatVisualizer.AddToBuilder(builder, robot.scene_graph, meshcat,
-                                   MeshcatVisualizerParams(prefix=VISUALIZER_PREFIX))
-    diagram = builder.Build()
-    context = diagram.CreateDefaultContext()
-    plant_context = robot.plant.GetMyContextFromRoot(context)
+    arm = ArmView(desc, meshcat)
     q_frames = pb.q[frames.nearest]
     meshcat.Delete(ROOT)
     meshcat.DeleteRecording()
     meshcat.StartRecording(settings.fps, set_visualizations_while_recording=False)
-    diagram.ForcedPublish(context)                 # creates the geometry (SetObject is never deferred)
-    link_paths = _link_geometry_paths(robot.plant, robot.scene_graph, desc, meshcat)
+    arm.show(q_frames[0])                          # creates the geometry (SetObject is never deferred)
+    link_paths = _link_geometry_paths(arm.robot.plant, arm.robot.scene_graph, desc, meshcat)
     arrows = {name: f for name, f in (("estimated", pb.f_est), ("true", pb.f_true)) if f is not None}
     arrow_paths = {name: f"{ROOT}/force_{name}" for name in arrows}
     for name, path in arrow_paths.items():
@@ -350,9 +365,7 @@ def record_playback(pb: Playback, meshcat: Meshcat, settings: PlaybackSettings =
         residual_scale = settings.residual_scale or max(float(np.percentile(np.abs(ek), 95)), MIN_RESIDUAL_SCALE)
         tints = _tints(ek, residual_scale)                                      # [K,n,3]
     for k in range(frames.count):
-        context.SetTime((k + 0.25) / settings.fps)   # Meshcat records it at frame ⌊time · fps⌋ (or the rounding) = k
-        robot.plant.SetPositions(plant_context, robot.instance, q_frames[k])
-        diagram.ForcedPublish(context)
+        arm.show(q_frames[k], (k + 0.25) / settings.fps)   # recorded at frame ⌊time · fps⌋ (or its rounding) = k
         for name, path in arrow_paths.items():
             quat, shaft, head = arrow_frames[name]
             anim.SetTransform(k, path, RigidTransform(Quaternion(quat[k]), origin[k]))
