@@ -1,10 +1,15 @@
 # The two set-up commands: `make demo` and `make test`. Both create/reuse .venv and install what they need.
+# `make lab` (extra): JupyterLab in the same environment with the notebooks open (LAB_ARGS, e.g. --no-browser).
 PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
-STAMP  := $(VENV)/.installed-$(shell cat pyproject.toml | cksum | cut -d' ' -f1)
+CKSUM  := $(shell cat pyproject.toml | cksum | cut -d' ' -f1)
+STAMP  := $(VENV)/.installed-$(CKSUM)
+LAB_STAMP := $(VENV)/.lab-installed-$(CKSUM)
+LAB_ARGS ?=
+LAB_ROOT  := $(if $(filter 0,$(shell id -u)),--allow-root,)   # containers often run as root
 
-.PHONY: demo test venv clean benchmarks
+.PHONY: demo test venv clean benchmarks lab
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -19,6 +24,14 @@ venv: $(STAMP)
 
 demo: $(STAMP)
 	$(VENV)/bin/proprio demo --out demo_output
+
+$(LAB_STAMP): $(STAMP)
+	$(PY) -m pip install -q -e ".[lab]"
+	rm -f $(VENV)/.lab-installed-*
+	touch $(LAB_STAMP)
+
+lab: $(LAB_STAMP)
+	$(VENV)/bin/jupyter lab --ServerApp.ip=localhost $(LAB_ROOT) $(LAB_ARGS) notebooks/*.ipynb
 
 test: $(STAMP)
 	$(VENV)/bin/lint-imports

@@ -32,7 +32,7 @@ class RobotPlant:
 
 
 def AddRobot(builder: DiagramBuilder, desc: RobotDescription, time_step: float = 0.0,
-             payload: Payload | None = None, finalize: bool = True) -> RobotPlant:
+             payload: Payload | None = None, finalize: bool = True, visual: bool = False) -> RobotPlant:
     """Add ``desc`` (and an optional flange ``payload``) to ``builder`` as a MultibodyPlant + SceneGraph.
 
     Args:
@@ -41,9 +41,10 @@ def AddRobot(builder: DiagramBuilder, desc: RobotDescription, time_step: float =
         time_step: 0 for a continuous plant, else the discrete update period [s] (e.g. 1e-3).
         payload: optional rigid payload welded to the flange.
         finalize: finalize the plant (set False to add more bodies first).
+        visual: also register simple visual geometry (:func:`proprio.urdf.visual_shapes`), for Meshcat.
     """
     plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step=time_step)
-    instances = Parser(plant).AddModelsFromString(to_urdf(desc, payload), "urdf")
+    instances = Parser(plant).AddModelsFromString(to_urdf(desc, payload, visual=visual), "urdf")
     plant.mutable_gravity_field().set_gravity_vector(np.asarray(desc.gravity, dtype=float))
     if finalize:
         plant.Finalize()

@@ -1,6 +1,9 @@
 """Gap diagnosis (issue 7) on small synthetic cases: localisation, attribution, report, bad input."""
 from __future__ import annotations
 
+import json
+import re
+
 import numpy as np
 import pytest
 
@@ -90,6 +93,14 @@ def test_coulomb_friction_is_found_and_recovered(robot, tmp_path):
     for key in ("report_md", "report_html", "gap_map_png", "before_after_png"):
         assert d.files[key].exists() and d.files[key].stat().st_size > 0
     assert "viscous + Coulomb friction" in d.verdict
+    # report.html embeds the held-out residual before/after as a zoomable plot; report.md keeps the PNG
+    page = d.files["report_html"].read_text()
+    data = json.loads(re.search(r"id='residual-data'>(.*?)</script>", page, re.S).group(1))
+    e, pred = att.holdout_e[0], att.holdout_pred[0]
+    assert data["samples"] == e.shape[0] and [p["name"] for p in data["panels"]] == att.joint_names
+    np.testing.assert_allclose(data["panels"][3]["y"][0], e[:, 3], rtol=1e-4, atol=1e-6)
+    np.testing.assert_allclose(data["panels"][3]["y"][1], e[:, 3] - pred[:, 3], rtol=1e-4, atol=1e-6)
+    assert "![before/after](before_after.png)" in d.files["report_md"].read_text()
 
 
 def test_null_case_attributes_nothing(robot):

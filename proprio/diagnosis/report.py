@@ -29,6 +29,7 @@ from proprio.diagnosis.selection import Attribution, attribute
 from proprio.diagnosis.verdict import data_and_processing_text, verdict_text
 from proprio.io import atomic_write_text, save_figure
 from proprio.recording import Recording
+from proprio.timeseries_html import timeseries_html
 
 __all__ = ["Diagnosis", "diagnose"]
 
@@ -89,6 +90,14 @@ def _plot_before_after(att: Attribution, path: Path) -> Path:
     axes[-1, 0].set_xlabel("t [s] (first held-out recording)")
     fig.tight_layout()
     return save_figure(fig, path, dpi=100)
+
+
+def _residual_html(att: Attribution) -> str:
+    """The held-out residual before / after the added effects (the data of before_after.png) as a zoomable plot."""
+    e = att.holdout_e[0]
+    return timeseries_html(att.holdout_t[0], {"before": e, "after all added effects": e - att.holdout_pred[0]},
+                           att.joint_names, title="Held-out residual τ_meas − τ_sim (first held-out recording)",
+                           y_label="e [N·m]", element_id="residual")
 
 
 def _fmt(x: float) -> str:
@@ -188,6 +197,8 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
         for para in b.split("\n\n"):
             if para.startswith("|"):
                 chunks.append(_md_to_html_table(para))
+            elif para.startswith("![before/after]"):     # interactive in the HTML report, the PNG beside it
+                chunks.append(_residual_html(att) + '<p><a href="before_after.png">static figure</a></p>')
             elif para.startswith("!["):
                 src = para[para.index("(") + 1:para.index(")")]
                 chunks.append(f'<img src="{html.escape(src)}" style="max-width:100%">')

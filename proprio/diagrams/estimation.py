@@ -243,8 +243,9 @@ class EstimationResult:
         return np.sqrt(np.mean(err ** 2, axis=0)), np.std(err, axis=0)
 
     def arrays(self) -> dict[str, np.ndarray]:
-        """Flat ``name → array`` view for npz export."""
-        out = {"t": self.t, "manipulability": self.manipulability, "unreliable": self.unreliable.astype(float)}
+        """Flat ``name → array`` view for npz export (read back by :meth:`load`)."""
+        out = {"t": self.t, "q": self.q, "manipulability": self.manipulability,
+               "unreliable": self.unreliable.astype(float), "skip_s": np.array([self.skip_start_s, self.skip_end_s])}
         for obs in OBSERVERS:
             out[f"wrench_{obs}"] = self.wrench[obs]
             out[f"tau_ext_{obs}"] = self.tau_ext[obs]
@@ -268,6 +269,28 @@ class EstimationResult:
         with atomic_path(csv) as tmp:
             np.savetxt(tmp, table, delimiter=",", header=",".join(n for n, _ in columns), comments="", fmt="%.9g")
         return [npz, csv]
+
+    @classmethod
+    def load(cls, path: str | Path) -> "EstimationResult":
+        """Read an ``estimates.npz`` written by :meth:`save` (``allow_pickle=False``); raises :class:`RecordingError`
+        naming a missing key."""
+        path = Path(path)
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                data = {k: z[k] for k in z.files}
+        except (OSError, ValueError) as exc:
+            raise RecordingError(f"{path}: not a readable estimates .npz ({exc})") from None
+        need = ["t", "q", "manipulability", "unreliable", "skip_s", "meta"] + [
+            f"{a}_{o}" for o in OBSERVERS for a in ("wrench", "tau_ext")]
+        missing = [k for k in need if k not in data]
+        if missing:
+            raise RecordingError(f"{path}: estimates file lacks {', '.join(repr(k) for k in missing)} (written by an "
+                                 "older `proprio estimate`? run it again)")
+        return cls(t=data["t"], q=data["q"], wrench={o: data[f"wrench_{o}"] for o in OBSERVERS},
+                   tau_ext={o: data[f"tau_ext_{o}"] for o in OBSERVERS}, manipulability=data["manipulability"],
+                   unreliable=data["unreliable"] > 0.5, f_true=data.get("f_true"),
+                   skip_start_s=float(data["skip_s"][0]), skip_end_s=float(data["skip_s"][1]),
+                   meta=json.loads(str(data["meta"])))
 
     def plot(self, path: str | Path, title: str = "") -> Path:
         """PNG of f̂ (both observers) against the true force per axis over time, flagged samples shaded."""

@@ -288,7 +288,8 @@ def _plot_errors(exp: PayloadExperiment, path: Path) -> Path:
     return save_figure(fig, path)
 
 
-def demo_payload_experiment(model: str | Path | TorqueModel, out_dir: str | Path, seconds: float = 5.0) -> str:
-    """The payload experiment for ``proprio demo`` on a short trajectory (≈``seconds`` s per mass); returns the
-    table text (also written to ``out_dir/table.txt``)."""
-    return payload_experiment(model, out_dir, seconds=seconds, progress=False).table_text
+def demo_payload_experiment(model: str | Path | TorqueModel, out_dir: str | Path,
+                            seconds: float = 5.0) -> PayloadExperiment:
+    """The payload experiment for ``proprio demo`` on a short trajectory (≈``seconds`` s per mass), without progress
+    bars; its table is also written to ``out_dir/table.txt``."""
+    return payload_experiment(model, out_dir, seconds=seconds, progress=False)
