@@ -81,7 +81,7 @@ def test_robot_velocity_is_used_when_given_and_never_its_acceleration():
     t = np.arange(0.0, 8.0, 5e-3)
     q, qd, qdd = _motion(t)
     rec = Recording(t=t, q=q, tau=q, qd=qd, qdd=np.zeros_like(q))    # a nonsense q̈ must be ignored
-    cs = condition(rec, ConditioningConfig(cutoff_hz=8.0))
+    cs = condition(rec, ConditioningConfig(cutoff_hz=8.0, velocity="auto"))
     assert "robot" in cs.velocity_source
     assert np.sqrt(np.mean((cs.qdd - qdd)[200:-200] ** 2)) < 0.01
     with pytest.raises(RecordingError, match="velocity"):

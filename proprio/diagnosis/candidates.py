@@ -8,6 +8,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from scipy import linalg, signal
 
+from proprio.conditioning import zero_phase_lowpass
 from proprio.description import RobotDescription
 from proprio.diagnosis.data import DiagnosisError, GapData, SimModel
 from proprio.diagnosis.localisation import peak_orders
@@ -151,7 +152,7 @@ class ElasticityCandidate(Candidate):
     """Joint elasticity seen by a motor-side position sensor: the measured q includes the spring deflection
     ``δ = c∘τ_J`` (compliance ``c_k = 1/K_k`` [rad/(N·m)]), so the model evaluates the rigid body at the wrong
     motion: ``e ≈ −Σ_k (∂τ/∂q_k τ_k + ∂τ/∂q̇_k τ̇_k + ∂τ/∂q̈_k τ̈_k) c_k`` (linear in ``c``; τ the modelled
-    link torque, its derivatives by finite differences of its 5 Hz zero-phase low-pass). With a link-side position sensor elasticity leaves
+    link torque, its derivatives by finite differences of its low-pass with the motion's conditioning cutoffs). With a link-side position sensor elasticity leaves
     τ_J = τ_rbd(q, q̇, q̈) exact and cannot show in this residual (``proprio.effects.Elasticity``)."""
     name = "elasticity"
     place = "motor"
@@ -164,10 +165,10 @@ class ElasticityCandidate(Candidate):
 
     def design(self, data: GapData) -> np.ndarray:
         out = []
-        for s in data.signals:
+        for s, cs in zip(data.signals, data.conditioned):
             n, tau = s.n, s.tau
-            rate = 1.0 / float(np.median(np.diff(s.t)))
-            smooth = signal.sosfiltfilt(signal.butter(2, min(5.0, 0.2 * rate), fs=rate, output="sos"), tau, axis=0)
+            # the deflection reaches q̇, q̈ through the same low-pass as the measured motion
+            smooth = zero_phase_lowpass(tau, cs.rate_hz, cs.cutoff_hz)
             tau_d = np.gradient(smooth, s.t, axis=0)
             tau_dd = np.gradient(tau_d, s.t, axis=0)
             cols = np.empty(s.q.shape + (n,))
