@@ -85,6 +85,8 @@ def test_coulomb_friction_is_found_and_recovered(robot, tmp_path):
     for key in ("report_md", "report_html", "gap_map_png", "before_after_png"):
         assert d.files[key].exists() and d.files[key].stat().st_size > 0
     assert "viscous + Coulomb friction" in d.verdict
+    md = d.files["report_md"].read_text()                     # data-quality findings come first
+    assert "| train 1 |" in md and md.index("## Data quality") < md.index("## Verdict")
 
 
 def test_null_case_attributes_nothing(robot):
