@@ -46,11 +46,14 @@ The checks and their thresholds (:class:`QualityThresholds`, units stated there)
 ``qd_lag`` / ``qd_gain`` / ``qd_consistent`` (q̇, when the Recording has one)
     The recorded q̇ against ``dq/dt`` from the conditioning path (:func:`proprio.conditioning.condition` with
     ``velocity = "q"``), both on its uniform grid, gaps and ``edge_fraction`` (5 %, at least ``1/min(cutoff)``) at
-    each end dropped (upstream filters start up there): the lag from
-    the peak of their cross-correlation within ``±max_lag_s`` (50 ms), refined by a parabola through the peak
-    (sub-sample); positive means the recorded q̇ lags. Per joint and pooled (the correlation functions summed over
-    joints). The gain is the least-squares factor of recorded over shifted reference. *warning* when the pooled
-    ``|lag| > lag_warn_s`` (1 ms) or a moving joint's ``|gain − 1| > gain_warn`` (5 %); else *info*.
+    each end dropped (upstream filters start up there). Per joint, the lag is the peak of their normalised
+    cross-correlation within ``±max_lag_s`` (50 ms; every lag sees the same samples), refined by a parabola through
+    the peak (sub-sample); positive means the recorded q̇ lags. Its standard error comes from the residual of
+    ``q̇_rec ≈ g · q̇_ref(t − lag)`` (``σ² = Σe² / (g² Σ q̈_ref² N_eff)``, ``N_eff`` from the residual's lag-1
+    autocorrelation); the pooled lag is the inverse-variance mean over joints (a slow joint, whose broad correlation
+    peak hardly fixes a lag, counts little). The gain ``g`` is the least-squares factor. *warning* when the pooled
+    ``|lag| > lag_warn_s`` (1 ms) and more than twice its standard error, or when a moving joint's
+    ``|g − 1| > gain_warn`` (5 %); else *info*.
 ``qdd_noise`` (q̈)
     The RMS of the raw second difference of q (``np.gradient`` twice over the stamps, what a naive derivative gives)
     against the RMS of the conditioned q̈, with the conditioning's cutoffs and its estimated error ``σ(q̈)``: *info*
