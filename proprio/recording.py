@@ -30,7 +30,7 @@ from proprio.description import RobotDescription
 from proprio.io import atomic_path
 
 __all__ = ["Recording", "RecordingError", "save_recording", "load_recording", "validate_recording",
-           "recording_from_csv", "load_lwr4", "is_lwr4_file", "LWR4_KEYS"]
+           "recording_from_csv", "merge_duplicate_stamps", "load_lwr4", "is_lwr4_file", "LWR4_KEYS"]
 
 TRUTH_PREFIX = "truth__"
 LWR4_KEYS = frozenset({"times", "positions", "torques"})   # FloBaRoID's measurement layout
@@ -260,7 +260,9 @@ def load_lwr4(data_dir: str | Path, index: int) -> Recording:
 def recording_from_csv(path: str | Path, n_joints: int, angle_unit: str = "rad", delimiter: str = ",",
                        meta: dict[str, Any] | None = None) -> Recording:
     """Import a CSV with a header row: ``t``, ``q1..qn``, ``tau1..taun`` and optionally ``qd1..``, ``qdd1..``,
-    ``fx fy fz mx my mz``. ``angle_unit="deg"`` converts q [°], q̇ [°/s], q̈ [°/s²] to radians at the boundary."""
+    ``fx fy fz mx my mz``. ``angle_unit="deg"`` converts q [°], q̇ [°/s], q̈ [°/s²] to radians at the boundary.
+    Rows with the same time stamp as their predecessor are averaged into one sample (:func:`merge_duplicate_stamps`;
+    ``meta["duplicate_stamps"]`` says how many), since a Recording's time is strictly increasing."""
     path = Path(path)
     if angle_unit not in ("rad", "deg"):
         raise RecordingError(f"angle_unit must be 'rad' or 'deg', got {angle_unit!r}")
@@ -290,4 +292,29 @@ def recording_from_csv(path: str | Path, n_joints: int, angle_unit: str = "rad",
     rec = Recording(t=table["t"], q=q * scale, tau=cols("tau", True), qd=None if qd is None else qd * scale,
                     qdd=None if qdd is None else qdd * scale, f_ext=f_ext,
                     meta={"source": f"csv:{path.name}", **(meta or {})})
-    return validate_recording(rec, source=str(path))
+    return validate_recording(merge_duplicate_stamps(rec), source=str(path))
+
+
+def merge_duplicate_stamps(rec: Recording) -> Recording:
+    """Average the samples of every run of equal consecutive time stamps into one sample (every channel, truth
+    included) and record what was merged in ``meta["duplicate_stamps"]``: ``stamps`` (merged stamps), ``samples``
+    (rows they had) and ``first_t`` [s]. Only *consecutive* duplicates are merged: time that runs backwards stays an
+    error for :func:`validate_recording`. Returns ``rec`` itself when there are none."""
+    t = np.asarray(rec.t, dtype=float)
+    new = np.concatenate([[True], np.diff(t) != 0])                  # first sample of each stamp
+    if new.all():
+        return rec
+    start = np.flatnonzero(new)
+    count = np.diff(np.append(start, t.size)).astype(float)
+
+    def mean(a: np.ndarray | None) -> np.ndarray | None:
+        if a is None:
+            return None
+        a = np.asarray(a, dtype=float)
+        return np.add.reduceat(a, start, axis=0) / count.reshape((-1,) + (1,) * (a.ndim - 1))
+
+    dup = count > 1
+    meta = dict(rec.meta, duplicate_stamps={"stamps": int(dup.sum()), "samples": int(count[dup].sum()),
+                                            "first_t": float(t[new][np.argmax(dup)])})
+    return Recording(t=t[new], q=mean(rec.q), tau=mean(rec.tau), qd=mean(rec.qd), qdd=mean(rec.qdd),
+                     f_ext=mean(rec.f_ext), truth={k: mean(v) for k, v in rec.truth.items()}, meta=meta)

@@ -123,6 +123,9 @@ def test_inspect_lwr_file_prints_correct_summary(lwr_dir, capsys, tmp_path):
     np.testing.assert_allclose(table[:, 6], reference_reversals(qd, 0.01) / duration, atol=5e-4)
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert f"plot: {png}" in out
+    quality = out[out.index("data quality"):out.index("plot: ")]   # findings under the table, before the plot
+    assert "WARNING  tau_filtered   τ all 7 joints" in quality and "WARNING  qd_lag" in quality
+    assert "  conditioning: 200 Hz uniform grid" in quality
 
 
 def test_inspect_without_robot_names_joints_generically(lwr_dir, capsys):
@@ -245,6 +248,17 @@ def test_demo_stages_are_pluggable(tmp_path, capsys):
     assert ctx["outputs"]["extra"] == [tmp_path / "extra.txt"] and set(ctx["timings_s"]) == {"first", "extra"}
     out = capsys.readouterr().out
     assert "== [2/2] extra: a later stage" in out and str(tmp_path / "extra.txt") in out
+
+
+def test_inspect_csv_with_duplicate_stamps(tmp_path, capsys):
+    rec = good_recording(n=2)
+    table = np.hstack([rec.t[:, None], rec.q, rec.tau])
+    table = np.insert(table, 40, table[39], axis=0)                  # one stamp logged twice
+    np.savetxt(tmp_path / "dup.csv", table, delimiter=",", header="t,q1,q2,tau1,tau2", comments="")
+    assert main(["inspect", str(tmp_path / "dup.csv")]) == 0
+    out = capsys.readouterr().out
+    assert "samples 200" in out
+    assert "WARNING  duplicates     t: 1 duplicated time stamp(s) (2 samples)" in out
 
 
 def test_inspect_csv_in_degrees(tmp_path, capsys):

@@ -201,7 +201,11 @@ def test_real_lwr_identification_beats_flobaroid(lwr_dir, tmp_path, capsys):
                str(lwr_dir / "measurements_3.npz"), "--validate", str(lwr_dir / "measurements_1.npz"),
                "--trim", "500", "--offsets", "--out", str(out)])
     assert rc == 0
-    assert "validation" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "validation" in printed
+    head = printed[:printed.index("OLS on")]             # data quality of each file first: warnings only
+    assert head.count("data quality of ") == 3 and head.count("tau_filtered") == 3 and "INFO" not in head
+    assert head.count("  conditioning: 200 Hz") == 3 and "measurements_1.npz (validate)" in head
     model = load_model(out)
     assert model.base.n_base == 57
     val = load_recording(lwr_dir / "measurements_1.npz").slice(500, -500)

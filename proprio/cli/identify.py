@@ -11,6 +11,7 @@ __all__ = ["register"]
 
 
 def _identify(args: argparse.Namespace) -> int:
+    from proprio.data_quality import assess, format_findings
     from proprio.description import load_robot
     from proprio.identification.model_io import save_model
     from proprio.identification.recordings import identify_recordings
@@ -19,6 +20,9 @@ def _identify(args: argparse.Namespace) -> int:
     robot = load_robot(args.robot)
     train = [load_recording(p, robot) for p in args.train]
     validate = [load_recording(p, robot) for p in args.validate]
+    for role, paths, recs in (("train", args.train, train), ("validate", args.validate, validate)):
+        for path, rec in zip(paths, recs):          # warnings and problems only, and the conditioning line
+            print(format_findings(assess(rec, robot), "warning", title=f"data quality of {path} ({role}):"))
     model, text = identify_recordings(train, validate, robot, args.method, args.trim, args.offsets,
                                       args.coulomb_velocity_scale)
     print(f"{args.method.upper()} on {model.n_train_samples} samples: {model.phi_b.size} parameters "

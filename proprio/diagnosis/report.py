@@ -13,6 +13,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from proprio.data_quality import assess, findings_markdown
 from proprio.description import RobotDescription
 from proprio.conditioning import ConditioningConfig
 from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING, DiagnosisError, SimModel, signals_of
@@ -172,7 +173,10 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
             "|---|---|---|---|"]
     for j, nm in enumerate(gm.joint_names):
         freq.append(f"| {nm} | {sp.dominant_hz[j]:.2f} | {sp.peak_order[j]:.2f} | {100 * sp.peak_order_share[j]:.1f} % |")
+    quality = [(f"{role} {i + 1}", assess(r, model.robot, conditioning=conditioning)) for role, recs in (("train", train_recs),
+               ("held-out", holdout_recs)) for i, r in enumerate(recs)]
     sections = [
+        ("Data quality of each recording (before any fitting)", findings_markdown(quality)),
         ("Verdict", verdict),
         ("Data and processing", data_and_processing_text(att)),
         ("Where the gap lies: gap map (share of the total squared residual, %)",
@@ -216,7 +220,8 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
                "steps": [{"name": s.name, "tied": s.tied, "gain": s.gain, "t": s.t_stat,
                           "rmse_after": s.rmse_after.tolist()} for s in att.steps],
                "ranking": att.ranking, "noise": [{"name": f.name, "rms": f.rms.tolist()} for f in att.noise],
-               "residual_white": rs.white, "verdict": verdict}
+               "residual_white": rs.white, "verdict": verdict,
+               "data_quality": [{"name": n, **q.to_dict()} for n, q in quality]}
     atomic_write_text(out / "diagnosis.json", json.dumps(summary, indent=1))
     files.update(report_md=out / "report.md", report_html=out / "report.html", json=out / "diagnosis.json")
     return Diagnosis(gm, sp, att, verdict, files)
