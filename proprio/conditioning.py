@@ -4,8 +4,14 @@ estimate, the payload experiment, the learning datasets, the gap benchmark, the 
 
 Steps, all vectorised over samples and joints:
 
-1. **Time base.** A log with jittered stamps is *resampled* onto the uniform grid of its median step by cubic-spline
-   interpolation (error ``≈ h⁴/384 · |q⁗|``, far below encoder noise even across an 8 ms step). A step longer
+1. **Time base.** A log with jittered stamps is *resampled* onto the uniform grid of its nominal step by cubic-spline
+   interpolation (error ``≈ h⁴/384 · |q⁗|``, far below encoder noise even across an 8 ms step). Jittered stamps mean
+   one of two things, and ``time_base`` says which: ``stamps`` — each sample was taken at its stamp (irregular
+   sampling, e.g. a 150 Hz log of 6/7 ms steps from a 1 kHz controller); ``clock`` — the samples were taken on the
+   controller's regular clock and the stamps carry the logging host's receive-time jitter, so each sample belongs to
+   the grid index nearest its stamp (a missing index is a lost sample, filled by the spline). ``auto`` (default)
+   takes the one under which ``q`` is smoother: the white floor of ``Δ²q/h²`` (step 2) must drop by at least 20 %
+   for ``clock`` (a wrong stamp adds ``q̇·δt`` of noise; a wrong snap does the same). A step longer
    than ``max_gap_s`` is a *gap* (a dropout): the grid samples inside it are interpolated but flagged invalid
    (``valid``), and every later stage drops them. Duplicate stamps cannot reach this point: a Recording's time is
    strictly increasing (:func:`proprio.recording.recording_from_csv` averages duplicated stamps at import).
@@ -39,7 +45,7 @@ from proprio.recording import Recording, RecordingError
 from proprio.signals import MotionSignals
 
 __all__ = ["ConditioningConfig", "ConditionedSignals", "condition", "zero_phase_lowpass", "auto_cutoff",
-           "uniform_time_base", "processing_torque_sigma"]
+           "uniform_time_base", "clock_stamps", "processing_torque_sigma"]
 
 
 @dataclass(frozen=True)
@@ -51,6 +57,7 @@ class ConditioningConfig:
     files' q̇ lags by ≈3 ms, ``proprio inspect`` says so); ``"auto"`` uses the robot's own ``q̇`` when the Recording has
     one (its ``q̈`` still comes from our filter), ``"measured"`` requires it. A Recording's ``qdd`` is
     never used: no robot measures it. ``tau_filter``: apply the same low-pass to τ (default) or leave it raw.
+    ``time_base``: ``auto``, ``stamps`` or ``clock`` (module docstring, step 1).
     """
     cutoff_hz: str | float | tuple[float, ...] = "auto"
     order: int = 2
@@ -60,6 +67,7 @@ class ConditioningConfig:
     velocity: str = "q"
     tau_filter: bool = True
     max_gap_s: float = 0.02
+    time_base: str = "auto"
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None, where: str = "conditioning") -> "ConditioningConfig":
@@ -87,6 +95,8 @@ class ConditioningConfig:
             raise ValueError(f"{where}.max_cutoff_fraction must be in (0, 0.5) of the sample rate")
         if self.velocity not in ("auto", "q", "measured"):
             raise ValueError(f"{where}.velocity: 'auto', 'q' or 'measured', got {self.velocity!r}")
+        if self.time_base not in ("auto", "stamps", "clock"):
+            raise ValueError(f"{where}.time_base: 'auto', 'stamps' or 'clock', got {self.time_base!r}")
 
 
 @dataclass
@@ -166,12 +176,33 @@ class ConditionedSignals:
 
 # ---- the time base ----------------------------------------------------------------------------------------------------
 
+def clock_stamps(t: np.ndarray, h: float) -> np.ndarray | None:
+    """The stamps ``t`` [s] moved to a regular clock of step ≈ ``h``: ``c + h' · round((t − c) / h')``; None when two
+    samples would share a tick (then the stamps cannot be receive-time jitter around that clock).
+
+    The clock's step ``h'`` and phase ``c`` are refined by least squares on the ticks over a window growing 4× at a
+    time from the first 256 samples, so that a step error of 1e-8 s cannot drift the ticks apart over a long log."""
+    t = np.asarray(t, dtype=float)
+    m = min(t.size, 256)
+    while True:
+        c = h * np.angle(np.mean(np.exp(2j * np.pi * t[:m] / h))) / (2 * np.pi)
+        h, c = np.polyfit(np.round((t[:m] - c) / h), t[:m], 1)
+        if m == t.size:
+            break
+        m = min(t.size, 4 * m)
+    ticks = np.round((t - c) / h)
+    return c + ticks * h if np.all(np.diff(ticks) >= 1) else None
+
+
 def uniform_time_base(t: np.ndarray, max_gap_s: float) -> tuple[np.ndarray, np.ndarray, float, list[str]]:
-    """The uniform grid ``t_u`` [s, from 0] at the median step of ``t``, the ``valid [len(t_u)]`` flags (False inside
-    steps longer than ``max_gap_s``), the step [s] and notes on what was found (jitter, gaps)."""
+    """The uniform grid ``t_u`` [s, from 0] at the nominal step of ``t``, the ``valid [len(t_u)]`` flags (False inside
+    steps longer than ``max_gap_s``), the step [s] and notes on what was found (jitter, gaps).
+
+    The nominal step is the mean of the steps up to 1.5× their median: robust to lost samples, and right for a log
+    whose steps alternate (the twin's "150 Hz" log of 6 and 7 ms steps has a 6.67 ms period, not a median one)."""
     t = np.asarray(t, dtype=float) - float(t[0])
     dt = np.diff(t)
-    h = float(np.median(dt))
+    h = float(np.mean(dt[dt <= 1.5 * np.median(dt)]))
     notes: list[str] = []
     jitter = float(np.max(np.abs(dt - h)))
     if jitter <= 1e-6 * h + 1e-12:
@@ -299,6 +330,28 @@ def _lost_power(q: np.ndarray, rate_hz: float, cutoff: np.ndarray, power: int, t
 
 # ---- the path ----------------------------------------------------------------------------------------------------
 
+def _time_base(rec: Recording, h: float, config: ConditioningConfig, notes: list[str]) -> np.ndarray:
+    """The instants [s, from 0] the samples were taken at (module docstring, step 1); notes which was used."""
+    t = rec.t - rec.t[0]
+    if config.time_base == "stamps" or not notes:              # no jitter: stamps and clock agree
+        return t
+    clock = clock_stamps(t, h)
+    if clock is None:
+        if config.time_base == "clock":
+            raise RecordingError("recording: conditioning.time_base = 'clock' but two stamps round to the same "
+                                 f"tick of the {1e3 * h:.4g} ms clock; use 'stamps'")
+        return t
+    if config.time_base == "auto" and rec.n_samples >= 64:
+        floor_stamps = _spectra(rec.q, 1.0 / h, t)[3]
+        floor_clock = _spectra(rec.q, 1.0 / h, clock)[3]
+        if not np.sum(floor_clock) < 0.8 * np.sum(floor_stamps):
+            return t
+    elif config.time_base == "auto":
+        return t
+    notes.append("samples placed on the regular clock (stamps: receive-time jitter)")
+    return clock
+
+
 def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig()) -> ConditionedSignals:
     """Condition one Recording (module docstring). Raises :class:`RecordingError` naming the problem when the
     Recording is too short for its filter or lacks a q̇ that ``velocity: measured`` requires."""
@@ -306,7 +359,7 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
     n = rec.n_joints
     t_u, valid, h, notes = uniform_time_base(rec.t, config.max_gap_s)
     rate = 1.0 / h
-    t_src = rec.t - rec.t[0]
+    t_src = _time_base(rec, h, config, notes)
     q = _resample(t_src, rec.q, t_u)
     tau = _resample(t_src, rec.tau, t_u)
     if config.velocity == "measured" and rec.qd is None:

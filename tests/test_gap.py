@@ -7,6 +7,7 @@ import re
 import numpy as np
 import pytest
 
+from proprio.conditioning import ConditioningConfig, condition
 from proprio.description import load_robot
 from proprio.dynamics import inverse_dynamics
 from proprio.diagnosis.data import DiagnosisError, SimModel
@@ -61,8 +62,8 @@ def test_localisation_puts_lost_motion_in_its_joint_and_reversal_window(robot):
     amp[3] = 0.8
     eff = EFFECTS["lost_motion"](n, amplitude=amp)
     (rec, _), _ = _recs(robot, [eff], seeds=(5, 6, 7))
-    s = MotionSignals.from_recording(rec)
-    e = rec.tau - inverse_dynamics(robot, s.q, s.qd, s.qdd)
+    s = condition(rec, ConditioningConfig(tau_filter=False)).motion()      # the diagnosis' own signals
+    e = s.tau - inverse_dynamics(robot, s.q, s.qd, s.qdd)
     fams = regime_families(s.q, s.qd, robot.lower, robot.upper, robot.velocity_limits, rec)
     gm = gap_map([e], [fams], [rec.tau], robot.joint_names)
     assert int(np.argmax(gm.rmse)) == 3
@@ -197,7 +198,10 @@ def test_twin_case_records_the_withheld_effects_through_the_twin():
     recs = data.train + data.holdout
     assert len(data.train) == 2 and len(data.holdout) == 1
     for rec in recs:
-        assert rec.meta["source"] == "gap-benchmark (twin)" and rec.rate_hz == pytest.approx(200.0)
+        assert rec.meta["source"] == "gap-benchmark (twin)" and rec.meta["logger"]["rate_hz"] == 200.0
+        steps = np.diff(rec.t) * 1e3                               # ms: the robot's jittered 200 Hz stamps
+        regular = steps[steps < 7.5]                               # a lost sample makes a 10 ms step
+        assert abs(np.median(steps) - 5.0) < 0.1 and 0.05 < regular.std() < 0.3
         assert set(rec.meta["effects"]) == {"ripple", "sensor_offset_gain", "torque_noise", "encoder_noise"}
         assert rec.meta["payload"]["mass"] > 0 and rec.qd is None and rec.qdd is None
     assert recs[0].q.shape != recs[1].q.shape or not np.allclose(recs[0].q, recs[1].q)   # own RFMA seeds

@@ -15,7 +15,7 @@ from proprio.payload import Payload, attach_payload
 from proprio.recording import Recording, RecordingError
 
 RATE = 150.0
-DATA = DataConfig(decimate=2, window=20, derivatives="filtered", derivative_cutoff_hz=10.0, tau_filter_hz=5.0)
+DATA = DataConfig(decimate=2, window=20, cutoff_hz=10.0, tau_filter_hz=5.0)
 
 
 @pytest.fixture(scope="module")
@@ -76,15 +76,20 @@ def test_a_recording_at_another_rate_is_decimated_or_rejected(tmp_path, desc):
     assert sig["time_step"] == pytest.approx(1 / 75.0) and at_rate.n_samples == 225
     with pytest.raises(RecordingError, match="model rate"):
         hybrid.signals(_recording(desc, seconds=3.0, rate=110.0))
+    # a jittered log is conditioned onto the uniform grid of its median step first, then decimated
     rec = _recording(desc, seconds=3.0)
-    with pytest.raises(RecordingError, match="uniformly"):
-        hybrid.signals(rec.replace(t=rec.t + np.random.default_rng(0).uniform(0, 2e-3, rec.n_samples)))
-    # a log alternating 6 and 7 ms steps (the twin's "150 Hz") decimated by 2 is uniform at 13 ms: accepted as it is
-    jittered = rec.replace(t=np.concatenate([[0.0], np.cumsum(np.tile([0.006, 0.007], rec.n_samples // 2))])[
+    jittered = rec.replace(t=rec.t + np.random.default_rng(0).uniform(0, 2e-3, rec.n_samples))
+    at_rate, sig = hybrid.signals(jittered)
+    steps = np.diff(at_rate.t)
+    np.testing.assert_allclose(steps, steps[0], rtol=1e-9)
+    assert sig["time_step"] == pytest.approx(steps[0]) and abs(1 / steps[0] - 75.0) < 0.02 * 75.0
+    # a log alternating 6 and 7 ms steps (the twin's "150 Hz"): grid at the median step, every 2nd sample
+    alternating = rec.replace(t=np.concatenate([[0.0], np.cumsum(np.tile([0.006, 0.007], rec.n_samples // 2))])[
         :rec.n_samples])
     hybrid.network.cfg.rate_hz = 1 / 0.013
-    at_rate, sig = hybrid.signals(jittered)
-    np.testing.assert_allclose(np.diff(at_rate.t), 0.013, atol=1e-12)
+    at_rate, sig = hybrid.signals(alternating)
+    np.testing.assert_allclose(np.diff(at_rate.t), np.diff(at_rate.t)[0], rtol=1e-9)
+    assert abs(sig["time_step"] - 0.013) < 0.02 * 0.013
 
 
 def test_a_transformer_cannot_run_online(tmp_path, desc):

@@ -175,21 +175,6 @@ def test_excitation_optimiser_improves_cond_and_respects_constraints(robot, base
     assert np.max(np.abs(np.diff(qp, axis=0))) < 0.1                     # continuous across the joins
 
 
-def test_preprocessing_recovers_derivatives():
-    from proprio.signals import PreprocessConfig, preprocess
-
-    t = np.arange(0, 40, 1 / 150)
-    q = np.sin(0.5 * t)[:, None] * np.ones((1, 2))
-    rng = np.random.default_rng(0)
-    runs = [q + rng.normal(scale=1e-3, size=q.shape) for _ in range(10)]
-    qf, qd, qdd, tau = preprocess(t, runs, [2 * r for r in runs], PreprocessConfig())
-    core = slice(300, -300)
-    np.testing.assert_allclose(qd[core], 0.5 * np.cos(0.5 * t)[core, None] * np.ones((1, 2)), atol=5e-3)
-    np.testing.assert_allclose(qdd[core], -0.25 * np.sin(0.5 * t)[core, None] * np.ones((1, 2)), atol=5e-3)
-    with pytest.raises(ValueError, match="unknown keys"):
-        PreprocessConfig.from_dict({"windw": 3})
-
-
 def test_real_lwr_identification_beats_flobaroid(lwr_dir, tmp_path, capsys):
     """Train on files 2+3, validate on 1, 500 samples trimmed at both ends (FloBaRoID's startOffset)."""
     from proprio.cli import main

@@ -13,7 +13,7 @@ from pydrake.trajectories import PiecewisePolynomial
 
 from proprio.learning.datasets import DataConfig, make_split, prepare_recording
 from proprio.learning.evaluation import predict_streaming, predict_windowed
-from proprio.learning.features import (ReversalEncoder, feature_columns, feature_matrix, filtered_derivatives,
+from proprio.learning.features import (ReversalEncoder, feature_columns, feature_matrix,
                                        rotational_displacement)
 from proprio.learning.models import ARCHS, HybridModel, ModelConfig, StreamingStepper, load_model, save_model
 from proprio.learning.training import TrainConfig, train_model
@@ -81,16 +81,6 @@ def test_streaming_encoder_equals_offline_bit_for_bit():
     enc = ReversalEncoder(N_J)
     streamed = np.array([enc.step(x) for x in q])
     np.testing.assert_array_equal(streamed, rotational_displacement(q))
-
-
-def test_filtered_derivatives_of_a_sine():
-    t = np.arange(0, 10, 1 / 150)
-    q = np.sin(2 * t)[:, None]
-    qd, qdd = filtered_derivatives(t, q, cutoff_hz=10.0)
-    inner = slice(150, -150)
-    gain = 1 / (1 + (2 / (2 * np.pi) / 10.0) ** 2)        # first-order Butterworth, forward–backward
-    np.testing.assert_allclose(qd[inner, 0], gain * 2 * np.cos(2 * t[inner]), atol=2e-4)
-    np.testing.assert_allclose(qdd[inner, 0], gain ** 2 * -4 * np.sin(2 * t[inner]), atol=5e-4)
 
 
 # -- dataset protocol -----------------------------------------------------------------------------------------------

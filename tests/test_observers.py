@@ -254,7 +254,7 @@ def test_static_1kg_payload_on_the_twin(rigid, nominal_twin):
         rec = twin.simulate_twin(cfg, hold, payload=Payload(1.0), progress=False)
         res = estimate_wrench(rigid, rec)
         settled = res.valid() & (res.t > 0.5)
-        assert settled.sum() > 200 and np.abs(rec.qd[settled]).max() < 1e-2
+        assert settled.sum() > 200 and np.abs(rec.truth["qd"][settled]).max() < 1e-2
         for obs in ("jacobian", "momentum"):
             assert np.abs(res.wrench[obs][settled, :3] - G).max() < 0.05, obs
         # during the sag the estimate follows the true wrench (weight + inertial force)

@@ -55,7 +55,9 @@ def test_effects_off_tau_equals_drake_inverse_dynamics(nominal):
     assert rec.meta["source"] == "twin" and rec.n_samples == 1501
     drake = DrakeRobot(nominal.robot)
     idx = np.arange(0, rec.n_samples, 30)
-    tau_drake = np.array([drake.inverse_dynamics(rec.q[i], rec.qd[i], rec.qdd[i]) for i in idx])
+    tr = rec.truth
+    assert rec.qd is None and rec.qdd is None                 # the iiwa logs q and τ_J only
+    tau_drake = np.array([drake.inverse_dynamics(rec.q[i], tr["qd"][i], tr["qdd"][i]) for i in idx])
     assert np.max(np.abs(rec.tau[idx] - tau_drake)) < 1e-6
     assert np.max(np.abs(rec.tau - rec.truth["tau_rbd"])) < 1e-6
     assert np.max(np.abs(rec.q - rec.truth["q_true"])) == 0.0
@@ -69,7 +71,7 @@ def test_payload_at_rest_adds_jacobian_transpose_weight(nominal):
     mass = 2.5
     bare = simulate_twin(cfg, hold(Q_A), progress=False)
     loaded = simulate_twin(cfg, hold(Q_A), payload=Payload(mass), progress=False)
-    assert np.max(np.abs(loaded.qd)) < 1e-9 and np.max(np.abs(loaded.q - Q_A)) < 1e-9   # at rest
+    assert np.max(np.abs(loaded.truth["qd"])) < 1e-9 and np.max(np.abs(loaded.q - Q_A)) < 1e-9   # at rest
     jac_v = DrakeRobot(nominal.robot).flange_jacobian(Q_A)[3:]                           # translational rows
     expected = jac_v.T @ np.array([0.0, 0.0, mass * 9.81])
     np.testing.assert_allclose(loaded.tau[-1] - bare.tau[-1], expected, atol=1e-6)
@@ -84,7 +86,7 @@ def test_calibrated_twin_channels_are_consistent(calibrated):
     # τ_J from the simulation equals rigid-body dynamics of the logged motion + link friction
     np.testing.assert_allclose(tr["tau_J_true"], tr["tau_rbd"] + tr["tau_viscous_coulomb"], atol=1e-6)
     # ... and the payload's part of it is −Jᵀ f_ext (f_ext: the payload wrench on the flange, world frame)
-    tau_robot = inverse_dynamics(calibrated.robot, tr["q_true"], rec.qd, rec.qdd)
+    tau_robot = inverse_dynamics(calibrated.robot, tr["q_true"], tr["qd"], tr["qdd"])
     jac = np.array([DrakeRobot(calibrated.robot).flange_jacobian(q) for q in tr["q_true"][::50]])
     wrench_mf = rec.f_ext[::50][:, [3, 4, 5, 0, 1, 2]]                               # [m; f] for [ω; v] rows
     np.testing.assert_allclose(tr["tau_rbd"][::50] - tau_robot[::50],
@@ -106,9 +108,9 @@ def test_payload_wrench_matches_drake_difference_when_moving(nominal):
     payload = Payload(3.0, (0.05, -0.02, 0.1), (0.01, 0.02, 0.015, 0.001, 0.0, 0.002))
     from proprio.payload import attach_payload
     desc = nominal.robot
-    diff = (inverse_dynamics(attach_payload(desc, payload), rec.q, rec.qd, rec.qdd)
-            - inverse_dynamics(desc, rec.q, rec.qd, rec.qdd))
-    wrench = payload_wrench(desc, payload, rec.q, rec.qd, rec.qdd)
+    q, qd, qdd = rec.q, rec.truth["qd"], rec.truth["qdd"]
+    diff = inverse_dynamics(attach_payload(desc, payload), q, qd, qdd) - inverse_dynamics(desc, q, qd, qdd)
+    wrench = payload_wrench(desc, payload, q, qd, qdd)
     jac = np.array([DrakeRobot(desc).flange_jacobian(q) for q in rec.q[::25]])
     np.testing.assert_allclose(diff[::25], -np.einsum("sji,sj->si", jac, wrench[::25][:, [3, 4, 5, 0, 1, 2]]),
                                atol=1e-8)
@@ -117,15 +119,16 @@ def test_payload_wrench_matches_drake_difference_when_moving(nominal):
 def test_same_seed_same_recording_and_150hz_logging(calibrated, tmp_path):
     a = simulate_twin(calibrated, waypoints(0.6), progress=False)
     b = simulate_twin(calibrated, waypoints(0.6), progress=False)
-    for name in ("t", "q", "tau", "qd", "qdd", "f_ext"):
+    for name in ("t", "q", "tau", "f_ext"):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
     for k in a.truth:
         np.testing.assert_array_equal(a.truth[k], b.truth[k])
     c = simulate_twin(TwinConfig.from_dict({**config_dict(), "seed": 8}), waypoints(0.6), progress=False)
-    assert np.any(c.tau != a.tau)
-    slow = simulate_twin(TwinConfig.from_dict({**config_dict(), "log_rate_hz": 150}), waypoints(0.6),
+    assert c.n_samples != a.n_samples or np.any(c.tau != a.tau)
+    slow = simulate_twin(calibrated.with_logger(rate_hz=150.0, stamp_jitter_ms=0.0, dropout_prob=0.0), waypoints(0.6),
                          progress=False)
     assert abs(slow.rate_hz - 150) < 20 and set(np.round(np.diff(slow.t) * 1000).astype(int)) <= {6, 7}
+    np.testing.assert_allclose(slow.t, slow.truth["t_true"], atol=1e-12)
     path = save_recording(slow, tmp_path / "slow.npz")
     assert load_recording(path).n_samples == slow.n_samples
 
@@ -143,7 +146,7 @@ def test_elastic_drive_is_hidden_from_tau_but_shows_in_motion(calibrated):
     assert np.max(err[:, 1]) > 0.5 * np.max(deflection[:, 1])          # joint 2 sags by ~τ/K
     # θ ≠ q: the sensed torque is the implicit spring of the step, K(θ − q⁺) + D(θ̇ − q̇⁺) with the end-of-step
     # link state q̇⁺ = q̇ + dt q̈, q⁺ = q + dt q̇⁺ (SAP's implicit PD)
-    v1 = elastic.qd + 1e-3 * elastic.qdd
+    v1 = tr["qd"] + 1e-3 * tr["qdd"]
     spring = (np.array([15000, 15000, 9000, 9000, 4000, 3000, 3000]) * (tr["q_motor"] - tr["q_true"] - 1e-3 * v1)
               + np.array([25, 25, 15, 15, 6, 4, 4]) * (tr["qd_motor"] - v1))
     np.testing.assert_allclose(spring, tr["tau_J_true"], atol=1e-6)
@@ -274,3 +277,28 @@ def test_cli_hysteresis_test_writes_the_fig_2_5_plot(calibrated, tmp_path):
     hyst = rec.truth["tau_hysteresis"]
     sat = calibrated.effect("hysteresis").saturation
     assert np.all(hyst.max(axis=0) > 0.9 * sat) and np.all(hyst.min(axis=0) < -0.9 * sat)   # loops saturate
+
+
+def test_logger_jitter_dropouts_and_a_robot_reported_velocity(calibrated):
+    """The logger block: a host log with jittered stamps and lost packets (steps 0.7–8.5 ms around 1 ms), and a robot
+    that reports its own filtered q̇ (causal first-order filter: it lags the true q̇)."""
+    twin = calibrated.with_logger(stamp_jitter_ms=0.1, dropout_prob=0.02, dropout_max_samples=7,
+                                  channels=("q", "tau", "qd"), qd_filter_hz=20.0)
+    rec = simulate_twin(twin, waypoints(3.0, seed=4), progress=False)
+    steps = np.diff(rec.t) * 1e3
+    assert rec.qdd is None and np.all(steps > 0.3) and steps.max() < 8.5
+    assert 0.01 < np.mean(steps > 1.5) < 0.04                             # ~2 % of the steps are lost packets
+    assert rec.meta["samples_lost"] == 3001 - rec.n_samples > 0
+    stamp_err = rec.t - rec.truth["t_true"]
+    assert 0.05e-3 < stamp_err.std() < 0.15e-3 and np.abs(stamp_err).max() <= 0.3e-3 + 1e-12
+    qd_true = rec.truth["qd"]
+    j = int(np.argmax(np.abs(qd_true).max(axis=0)))
+    lag = [np.mean((rec.qd[100:, j] - np.roll(qd_true[:, j], k)[100:]) ** 2) for k in range(20)]
+    assert 3 <= int(np.argmin(lag)) <= 12              # 20 Hz first order: ≈ 1/(2π·20) s = 8 ms group delay
+    assert np.sqrt(min(lag)) < 0.05 * np.abs(qd_true[:, j]).max()
+    with pytest.raises(TwinConfigError, match="qd_filter_hz"):
+        calibrated.with_logger(channels=("q", "tau", "qd"))
+    with pytest.raises(TwinConfigError, match="logger.*unknown key.*jitter_ms"):
+        TwinConfig.from_dict({**config_dict(), "logger": {"jitter_ms": 0.1}})
+    with pytest.raises(TwinConfigError, match="stamp_jitter_ms"):
+        calibrated.with_logger(stamp_jitter_ms=0.5)

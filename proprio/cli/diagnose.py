@@ -45,7 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "them with the Drake twin diagram instead.")
     b.add_argument("--twin", action="store_true",
                    help="record every case with the twin diagram (iiwa14_twin with the case's effects, or payload, "
-                   "on short RFMA trajectories, 1 kHz downsampled to 200 Hz); covers the twin's effects "
+                   "on short RFMA trajectories, logged at 200 Hz with jittered stamps); covers the twin's effects "
                    "(viscous_coulomb, hysteresis, lost_motion, ripple, sensor_offset_gain, torque_noise, "
                    "encoder_noise) and payload; slower (~30 s of CPU per case)")
     b.add_argument("--quick", action="store_true", help="one magnitude per effect type, 2 null, 1 two-effect case "

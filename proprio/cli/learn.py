@@ -37,13 +37,16 @@ def _train(args: argparse.Namespace) -> int:
     import torch
 
     from proprio.learning.evaluation import format_table
-    from proprio.experiments.hybrid import load_config, train_from_config
+    from proprio.experiments.hybrid import load_config, prepare_split, train_from_config
+    from proprio.learning.datasets import DataConfig
     torch.set_num_threads(args.threads)
     cfg = load_config(args.config)
     recs, names = _load(args.data)
     tests, tnames = _load(args.test_data or [])
-    model, result, rows = train_from_config(cfg, recs, _backbone(args.backbone, recs), args.out, tests,
-                                            names + tnames)
+    backbone = _backbone(args.backbone, recs)
+    split = prepare_split(recs, backbone, DataConfig.from_dict(cfg.get("data")), tests, names + tnames)
+    print("\n".join(split.conditioning))
+    model, result, rows = train_from_config(cfg, recs, backbone, args.out, tests, names + tnames, split=split)
     print(format_table(rows))
     print(f"saved {args.out} (best epoch {result.best_epoch + 1} of {len(result.history)}, "
           f"{result.seconds_per_epoch:.2f} s/epoch)")

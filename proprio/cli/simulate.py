@@ -35,7 +35,7 @@ def load_any_trajectory(path: str | Path):
 def _simulate(args: argparse.Namespace) -> int:
     import time
 
-    from proprio.diagrams.twin import load_twin_config, simulate_twin
+    from proprio.diagrams.twin import TwinConfigError, load_twin_config, simulate_twin
     from proprio.systems.trajectories import truncate_trajectory
     from proprio.payload import Payload
     from proprio.recording import save_recording
@@ -44,9 +44,10 @@ def _simulate(args: argparse.Namespace) -> int:
     if args.seed is not None:
         config.seed = args.seed
     if args.log_rate is not None:
-        if not 0 < args.log_rate <= 1.0 / config.time_step:
-            raise UserError(f"--log-rate must be in (0, {1.0 / config.time_step:g}] Hz, got {args.log_rate}")
-        config.log_rate_hz = args.log_rate
+        try:
+            config = config.with_logger(rate_hz=args.log_rate)
+        except TwinConfigError as exc:
+            raise UserError(f"--log-rate {args.log_rate:g}: {exc}") from exc
     traj = load_any_trajectory(args.trajectory)
     if args.seconds is not None:
         if args.seconds <= 0:
@@ -63,7 +64,8 @@ def _simulate(args: argparse.Namespace) -> int:
     wall = time.perf_counter() - wall0
     print(f"simulated {rec.duration:.1f} s of {config.name} in {wall:.1f} s wall "
           f"({rec.meta['real_time_factor']:.1f}x real time in the simulator), {rec.n_samples} samples at "
-          f"{config.log_rate_hz:g} Hz -> {args.out}")
+          f"{config.logger.rate_hz:g} Hz ({', '.join(config.logger.channels)}; {rec.meta['samples_lost']} lost) "
+          f"-> {args.out}")
     return 0
 
 

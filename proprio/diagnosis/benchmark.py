@@ -24,8 +24,9 @@ shipped ``iiwa14_twin`` (real robot ``iiwa14_identified``, inverse-dynamics cont
 with its joint effects replaced by the case's withheld + modelled effects (parameters drawn as above, at the case's
 magnitude) and the background noise; a withheld payload is attached with ``TwinConfig.with_payload``. It runs
 :func:`proprio.diagrams.twin.simulate_twin` along short RFMA trajectories (``proprio.systems.rfma``: 2 scaffolds,
-600–800 waypoints per exploration, ≈30 s each; separate seeds for the 2 training and the held-out recording), and
-the 1 kHz log is downsampled to 200 Hz; only q and τ are kept (q̇, q̈ differentiated by the diagnosis). The model
+600–800 waypoints per exploration, ≈30 s each; separate seeds for the 2 training and the held-out recording), with
+the shipped twin's logger at 200 Hz: encoder q and τ only, jittered stamps and lost samples, as a real robot logs
+(q̇, q̈ come from the diagnosis' conditioning). The model
 is ``iiwa14_identified`` without friction + the modelled effects. Effect types: those of ``iiwa14_twin.yaml``
 (:data:`TWIN_EFFECT_TYPES`) and payload; null and two-effect cases as above. Scores are computed by the same
 :func:`summarise`. The measured shrinkage still counts only the sensor noise as what remains, so in twin mode it is
@@ -64,7 +65,6 @@ EFFECT_TYPES = tuple(EFFECTS) + EXTRA_TYPES
 # twin mode: every effect of the shipped iiwa14_twin.yaml, plus the payload (TwinConfig.with_payload)
 TWIN_EFFECT_TYPES = ("viscous_coulomb", "hysteresis", "lost_motion", "ripple", "sensor_offset_gain", "torque_noise",
                      "encoder_noise", "payload")
-TWIN_DOWNSAMPLE = 5              # 1 kHz twin log → 200 Hz recordings (= RATE_HZ)
 TWIN_SMOOTH_VELOCITY = 0.05      # rad/s, tanh width of the twin's Coulomb friction (explicit-friction stability)
 
 
@@ -139,7 +139,9 @@ class BenchmarkCase:
     """``withheld``: effect types present in the data and absent from the model (empty = null case);
     ``modelled``: library effects present in the data and in the model (same parameters); ``magnitude`` scales
     the withheld effects' base level; ``seed`` draws their parameters and the motion; ``twin``: the recordings
-    come from the Drake twin diagram on RFMA trajectories (``duration_s`` unused) instead of the offline model."""
+    come from the Drake twin diagram on RFMA trajectories (``duration_s`` unused) instead of the offline model;
+    ``logger``: ``(field, value)`` pairs that change the twin's logger (default: 200 Hz, the shipped jitter and
+    losses), e.g. ``(("rate_hz", 1000.0), ("dropout_prob", 0.02))``."""
     name: str
     withheld: tuple[str, ...]
     magnitude: float
@@ -147,6 +149,7 @@ class BenchmarkCase:
     modelled: tuple[str, ...] = ()
     duration_s: float = 20.0
     twin: bool = False
+    logger: tuple[tuple[str, Any], ...] = ()
 
 
 def _draw(kind: str, n: int, mag: float, rng: np.random.Generator) -> dict[str, Any]:
@@ -311,7 +314,8 @@ def twin_case_config(case: BenchmarkCase, omit_withheld: bool = False) -> tuple[
     if bad:
         raise ValueError(f"twin case {case.name!r}: effect(s) {bad} cannot act in the twin; "
                          f"valid: {list(TWIN_EFFECT_TYPES)}")
-    config = load_twin_config("iiwa14_twin").with_payload(None)
+    config = load_twin_config("iiwa14_twin").with_payload(None).with_logger(**{"rate_hz": RATE_HZ,
+                                                                              **dict(case.logger)})
     n = config.robot.n
     rng = np.random.default_rng(case.seed)
     params = {k: _draw(k, n, case.magnitude, rng) for k in case.withheld}
@@ -334,8 +338,8 @@ def generate_twin_case_data(case: BenchmarkCase, omit_withheld: bool = False) ->
     """Twin-mode data of a case (module docstring): 2 training + 1 held-out recordings of
     :func:`proprio.diagrams.twin.simulate_twin` (the :func:`twin_case_config` twin) along short RFMA trajectories
     (2 scaffolds, 600–800 waypoints per exploration, own seed per recording; a seed for which RFMA finds no
-    collision-free reach is replaced by a derived one), downsampled 1 kHz → 200 Hz; q̇, q̈ and
-    f_ext are dropped (the diagnosis differentiates q as for a real recorder). Model: ``iiwa14_identified`` without
+    collision-free reach is replaced by a derived one), logged at 200 Hz like a robot (q, τ; f_ext is dropped). Model:
+    ``iiwa14_identified`` without
     friction + the modelled effects + the background noise."""
     from proprio.diagrams.twin import simulate_twin
     from proprio.systems.rfma import RfmaError, generate_rfma, load_rfma_config
@@ -358,7 +362,6 @@ def generate_twin_case_data(case: BenchmarkCase, omit_withheld: bool = False) ->
                     raise
                 seed = (seed + 104729) % (1 << 31)
         rec = simulate_twin(replace(config, seed=seed), timed.trajectory, progress=False)
-        rec = rec.downsample(TWIN_DOWNSAMPLE)
         meta = {**rec.meta, "source": "gap-benchmark (twin)"}
         recs.append(Recording(t=rec.t, q=rec.q, tau=rec.tau, truth=rec.truth, meta=meta))
     return CaseData(robot, model_effects, model_params, recs[:2], recs[2:])
@@ -375,6 +378,8 @@ class CaseResult:
     error: str = ""
     params: dict[str, Any] = field(default_factory=dict)
     processing: list[str] = field(default_factory=list)
+    final_rms: float = float("nan")           # N·m: held-out residual RMS after the diagnosis' last step
+    floor_rms: float = float("nan")           # N·m: the same model on held-out data made without the withheld effects
 
 
 def run_case(case: BenchmarkCase) -> CaseResult:
@@ -405,12 +410,14 @@ def run_case(case: BenchmarkCase) -> CaseResult:
         pred = 1.0 - float((att.steps[k].rmse_after ** 2).sum()) / float((att.rmse_before ** 2).sum())
     # measured: what the model leaves on the same held-out data made without the withheld effects (noise, the
     # modelled effects and the processing error of the same measured channels stay)
-    meas = 0.0
+    meas, floor_rms = 0.0, float("nan")
     if case.withheld and case.withheld != ("torque_noise",):
         floor = generate_case_data(case, omit_withheld=True).holdout
         cond = condition_all(floor, DIAGNOSIS_CONDITIONING, "holdout")
         e_floor = np.concatenate([(cs.tau - model.predict(cs.motion()))[kept(cs, 0.5)] for cs in cond])
         meas = 1.0 - float((e_floor ** 2).sum()) / sse0
+        floor_rms = float(np.sqrt(np.mean(e_floor ** 2)))
+    final = att.steps[-1].rmse_after if att.steps else att.rmse_before
     top = []
     names = att.top(4)
     if set(case.withheld) & set(PROCESSING_TYPES):   # a data-path case: its answer is in the processing section
@@ -420,7 +427,8 @@ def run_case(case: BenchmarkCase) -> CaseResult:
             top.append(base(name))
     return CaseResult(case, top[:3], att.selected, pred, meas, time.perf_counter() - t0,
                       params={s.name: float(s.gain) for s in att.steps},
-                      processing=[s.name for s in att.processing_steps])
+                      processing=[s.name for s in att.processing_steps],
+                      final_rms=float(np.sqrt(np.mean(final ** 2))), floor_rms=floor_rms)
 
 
 def run_benchmark(cases: list[BenchmarkCase], workers: int | None = None, progress: bool = True
@@ -487,10 +495,12 @@ def summarise(results: list[CaseResult]) -> tuple[dict[str, Any], str]:
               f" %, within 20 %: {100 * scores['shrinkage_within_20pct']:.0f} % of {rel.size}"]
     if failed:
         lines.append(f"failed cases: {len(failed)}: " + "; ".join(f"{r.case.name}: {r.error}" for r in failed))
-    lines += ["", "case".ljust(44) + "attribution (top 3)".ljust(52) + "pred.shr meas.shr  s"]
+    lines += ["", "case".ljust(44) + "attribution (top 3)".ljust(52)
+              + "pred.shr meas.shr final floor [N·m]  s"]
     for r in results:
         lines.append(r.case.name[:43].ljust(44) + (" > ".join(r.top) or "(nothing)")[:51].ljust(52)
-                     + f"{r.predicted_shrinkage:8.3f} {r.measured_shrinkage:8.3f} {r.seconds:4.0f}")
+                     + f"{r.predicted_shrinkage:8.3f} {r.measured_shrinkage:8.3f} {r.final_rms:5.3f} "
+                     + f"{r.floor_rms:5.3f}       {r.seconds:4.0f}")
     return scores, "\n".join(lines)
 
 
@@ -504,6 +514,7 @@ def write_results(results: list[CaseResult], out_dir: str | Path) -> tuple[dict[
     rows = [{"case": r.case.name, "source": "twin" if r.case.twin else "offline", "withheld": list(r.case.withheld), "magnitude": r.case.magnitude,
              "seed": r.case.seed, "modelled": list(r.case.modelled), "top": r.top, "selected": r.steps, "processing": r.processing,
              "predicted_shrinkage": r.predicted_shrinkage, "measured_shrinkage": r.measured_shrinkage,
-             "seconds": r.seconds, "error": r.error} for r in results]
+             "final_rms": r.final_rms, "floor_rms": r.floor_rms, "seconds": r.seconds, "error": r.error}
+            for r in results]
     atomic_write_text(out / "benchmark.json", json.dumps({"scores": scores, "cases": rows}, indent=1))
     return scores, text

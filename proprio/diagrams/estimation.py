@@ -59,7 +59,7 @@ class TorqueModel(Protocol):
     A model with memory (the hybrid model, :mod:`proprio.diagrams.hybrid_torque_model`) also provides
     ``make_system(time_step) -> System`` (the ports of :class:`TorqueModelSystem`, run online by the diagram instead of
     it) and ``signals(rec) -> (Recording, signals)`` (its own preprocessing at its own rate, instead of
-    :func:`preprocess`), plus ``filter_edge_s()`` (the filters' edge transient [s]) and a ``name``."""
+    :func:`conditioned_signals`; ``signals["edge_s"]`` is its filters' edge transient [s]) and a ``name``."""
     description: RobotDescription
 
     def tau_int(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray: ...
@@ -335,7 +335,7 @@ def _prepare(model: TorqueModel | RobotDescription, rec: Recording, conditioning
     rec = check_recording_matches(rec, model.description)
     if hasattr(model, "signals"):             # its own pipeline: decimation to its rate, as in training
         rec, sig = model.signals(rec)
-        return model, rec, sig, model.filter_edge_s(conditioning.edge_cycles)
+        return model, rec, sig, sig.pop("edge_s")
     return (model, *conditioned_signals(rec, conditioning))
 
 

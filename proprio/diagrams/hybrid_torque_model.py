@@ -19,7 +19,8 @@ The backbone is the τ_RBD the network was trained with (the ``backbone`` spec s
 RNEA + viscous/Coulomb friction with ``sign(q̇)`` (:func:`~proprio.learning.features.rbd_provider`), or an identified
 ``.npz`` (its inertials, friction law and offsets, as :func:`~proprio.diagrams.estimation.load_torque_model` reads it).
 :meth:`HybridTorqueModel.signals` prepares a Recording exactly as the training data were (the §4.4 pipeline of
-:mod:`proprio.learning.datasets`: filtered derivatives, optional τ low-pass, decimation to the model rate).
+:mod:`proprio.learning.datasets`: the one conditioning path with the training cutoff, optional τ low-pass, decimation
+of the uniform grid to the model rate).
 """
 from __future__ import annotations
 
@@ -35,7 +36,7 @@ from pydrake.systems.primitives import Adder
 from proprio.description import RobotDescription, load_robot
 from proprio.diagrams.estimation import RigidBodyTorqueModel, TorqueModelSystem, load_torque_model
 from proprio.dynamics import inverse_dynamics
-from proprio.learning.datasets import DataConfig, kept_samples, prepare_recording
+from proprio.learning.datasets import DataConfig, condition_for_training, kept_samples
 from proprio.learning.evaluation import predict_streaming
 from proprio.learning.features import feature_matrix, rotational_displacement
 from proprio.learning.models import HybridModel, load_model
@@ -45,7 +46,6 @@ from proprio.systems.residual_network import ResidualNetworkSystem
 __all__ = ["HybridTorqueModel", "load_hybrid_torque_model"]
 
 _RATE_TOLERANCE = 0.02      # a Recording's decimated rate may differ from the model rate by 2 %
-_UNIFORM_TOLERANCE = 0.01   # and its decimated time steps from their median by 1 %
 
 
 @dataclass
@@ -114,34 +114,21 @@ class HybridTorqueModel:
         return diagram
 
     def signals(self, rec: Recording) -> tuple[Recording, dict[str, np.ndarray]]:
-        """``rec`` at the model rate (the kept samples) and its signals ``t, q, qd, qdd, tau, time_step`` prepared
-        like the training data. The Recording's mean rate divided by a whole decimation factor must give the model
-        rate within 2 % (e.g. 1 kHz → every 13th sample for a 76.9 Hz model), and the kept samples must be uniformly
-        spaced within 1 % (a log alternating 6 and 7 ms steps, as the twin's 150 Hz log, decimated by 2 is); raises
-        :class:`RecordingError` otherwise."""
-        rate = (rec.n_samples - 1) / rec.duration
-        k = max(1, int(round(rate / self.rate_hz)))
-        if abs(rate / k - self.rate_hz) > _RATE_TOLERANCE * self.rate_hz:
-            raise RecordingError(f"recording: sampled at {rate:.4g} Hz, which no whole decimation brings to the model "
-                                 f"rate {self.rate_hz:.4g} Hz (nearest: 1 sample in {k}, {rate / k:.4g} Hz); "
-                                 "resample the recording")
-        data = dataclasses.replace(self.data, decimate=k)
-        at_rate = rec.take(kept_samples(rec, data))
-        steps = np.diff(at_rate.t)
-        step = float(np.median(steps))
-        if np.max(np.abs(steps - step)) > _UNIFORM_TOLERANCE * step:
-            raise RecordingError(f"recording: the samples kept at the model rate are not uniformly spaced (steps "
-                                 f"{steps.min() * 1e3:.4g}–{steps.max() * 1e3:.4g} ms); resample the recording")
-        prep = prepare_recording(rec, self.tau_backbone, data, name=self.name)
-        n = self.description.n
-        q, qd, qdd = (prep.features[:, i * n:(i + 1) * n] for i in (1, 2, 3))
-        return at_rate, {"t": at_rate.t - at_rate.t[0], "q": q, "qd": qd, "qdd": qdd, "tau": prep.tau,
-                         "time_step": step}
-
-    def filter_edge_s(self, edge_cycles: float = 3.0) -> float:
-        """Start-up/edge transient of its zero-phase filters [s]: ``edge_cycles`` periods of the lowest cutoff."""
-        cutoffs = [c for c in (self.data.derivative_cutoff_hz, self.data.tau_filter_hz) if c]
-        return edge_cycles / min(cutoffs) if cutoffs else 0.0
+        """``rec`` at the model rate and its signals ``t, q, qd, qdd, tau, time_step`` prepared like the training data
+        (module docstring), plus ``edge_s``, the filters' edge transient [s] (3 periods of the lowest cutoff). The
+        conditioned grid's rate divided by a whole decimation factor must give the model rate within 2 % (e.g.
+        1 kHz → every 13th sample for a 76.9 Hz model); raises :class:`RecordingError` otherwise."""
+        cs, tau = condition_for_training(rec, self.data)
+        k = max(1, int(round(cs.rate_hz / self.rate_hz)))
+        if abs(cs.rate_hz / k - self.rate_hz) > _RATE_TOLERANCE * self.rate_hz:
+            raise RecordingError(f"recording: sampled at {cs.rate_hz:.4g} Hz, which no whole decimation brings to the "
+                                 f"model rate {self.rate_hz:.4g} Hz (nearest: 1 sample in {k}, "
+                                 f"{cs.rate_hz / k:.4g} Hz); resample the recording")
+        keep = kept_samples(cs.n_samples, cs.rate_hz, dataclasses.replace(self.data, decimate=k))
+        at_rate = cs.as_recording().take(keep)
+        cutoffs = [float(cs.cutoff_hz.min())] + ([self.data.tau_filter_hz] if self.data.tau_filter_hz else [])
+        return at_rate, {"t": at_rate.t - at_rate.t[0], "q": cs.q[keep], "qd": cs.qd[keep], "qdd": cs.qdd[keep],
+                         "tau": tau[keep], "time_step": k / cs.rate_hz, "edge_s": 3.0 / min(cutoffs)}
 
 
 def load_hybrid_torque_model(path: str | Path) -> HybridTorqueModel:

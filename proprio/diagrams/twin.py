@@ -2,18 +2,22 @@
 
 ``JointTrajectorySource → InverseDynamicsController → JointDrive (motor side + link friction) → MultibodyPlant
 (discrete 1 ms, payload) → VectorLogSink``; the logged true motion then passes the sensor models
-(:mod:`proprio.systems.sensors`) in one vectorised pass. Output: a :class:`~proprio.recording.Recording` with the
-measured ``q``, ``tau`` (τ_J), the true ``qd``/``qdd``, the true flange wrench ``f_ext`` and truth channels:
+(:mod:`proprio.systems.sensors`) and the robot's logger (:mod:`proprio.systems.robot_logger`: lost samples, jittered
+stamps, the channels the robot reports) in one vectorised pass. Output: a :class:`~proprio.recording.Recording`
+whose measured channels are what that robot logs — stamps ``t``, encoder ``q``, ``tau`` (τ_J) and, only for a robot
+that reports one, its own filtered ``qd``; never ``qdd`` — plus the true flange wrench ``f_ext`` (for scoring) and
+truth channels:
 
 * ``tau_rbd``: rigid-body torque of the logged motion incl. payload (``proprio.dynamics.inverse_dynamics``);
 * ``tau_J_true``: the transmitted, sensed torque before the sensor effects, straight from the simulation
   (``JointDrive.sensed_torque``: actuation + link friction [− B q̈ for a rigid drive]); it equals
   ``tau_rbd + Σ link friction`` to solver precision (tests: 1e-6 N·m);
 * ``tau_<effect>``: each effect's contribution (``tau_viscous_coulomb``, ``tau_hysteresis``, ...);
-* ``q_true``: link positions before encoder noise; ``q_motor``, ``qd_motor``: θ, θ̇ of an elastic drive.
+* ``q_true``, ``qd``, ``qdd``: the plant's exact link position, velocity and acceleration at the true sampling
+  instants ``t_true`` (on the clock of ``t``); ``q_motor``, ``qd_motor``: θ, θ̇ of an elastic drive.
 
-``qd``/``qdd`` are the plant's true link velocity and acceleration at the logged instants (a real robot gives
-neither: differentiate ``q`` for realism). The motor side (``drive`` block, ``elasticity``) has no torque channel: it is
+Every stage gets q̇, q̈ from the one conditioning path (:mod:`proprio.conditioning`); truth serves scoring only. The
+motor side (``drive`` block, ``elasticity``) has no torque channel: it is
 hidden behind the sensor and acts only through the motion.
 
 A twin is described by one YAML file (``proprio/configs/iiwa14_twin.yaml``)::
@@ -21,8 +25,8 @@ A twin is described by one YAML file (``proprio/configs/iiwa14_twin.yaml``)::
     name: iiwa14_twin
     robot: iiwa14_identified          # built-in name or robot YAML path
     time_step: 0.001                  # s, discrete plant and drive period
-    log_rate_hz: 1000                 # 1000 (native) or e.g. 150 (thesis); decimated from the 1 kHz log
     seed: 7
+    logger: {rate_hz: 1000, channels: [q, tau], stamp_jitter_ms: 0.1, dropout_prob: 0.002}   # see robot_logger
     controller: {kp: [...], ki: [...], kd: [...], payload_model: false}   # IDC gains (1/s², 1/s³, 1/s)
     drive: {motor_inertia: [...], motor_viscous: [...], motor_coulomb: [...]}   # motor side (hidden), or null
     payload: {mass: 1.0, com_flange: [0, 0, 0.05]}                        # or null
@@ -63,13 +67,14 @@ from proprio.systems.joint_drive import (
 )
 from proprio.effects import Elasticity, EncoderNoise, JointEffect, Motor, make_effects
 from proprio.signals import MotionSignals
+from proprio.systems.robot_logger import LoggerConfig, RobotLogger
 from proprio.systems.sensors import PositionSensor, TorqueSensor
 from proprio.systems.trajectories import AddTrajectorySource, sample_trajectory
 
 __all__ = ["TwinConfig", "TwinConfigError", "load_twin_config", "TwinDiagram", "build_twin_diagram",
            "simulate_twin", "payload_wrench", "hysteresis_test_trajectory", "run_hysteresis_test"]
 
-_TOP_KEYS = {"name", "robot", "time_step", "log_rate_hz", "seed", "controller", "drive", "payload", "effects"}
+_TOP_KEYS = {"name", "robot", "time_step", "logger", "seed", "controller", "drive", "payload", "effects"}
 _CONTROLLER_KEYS = {"kp", "ki", "kd", "payload_model"}
 
 
@@ -92,7 +97,7 @@ class TwinConfig:
     motor: Motor | None = None
     payload: Payload | None = None
     time_step: float = 1e-3
-    log_rate_hz: float = 1000.0
+    logger: LoggerConfig = LoggerConfig()
     seed: int = 0
     name: str = "twin"
     raw: dict[str, Any] = field(default_factory=dict)
@@ -124,11 +129,12 @@ class TwinConfig:
                 raise TwinConfigError(f"{source}: controller.{key} must be >= 0, a number or {n} numbers")
             gains[key] = g
         time_step = float(data.get("time_step", 1e-3))
-        rate = float(data.get("log_rate_hz", 1.0 / time_step))
         if not time_step > 0:
             raise TwinConfigError(f"{source}: time_step must be > 0 s, got {time_step}")
-        if not 0 < rate <= 1.0 / time_step + 1e-9:
-            raise TwinConfigError(f"{source}: log_rate_hz must be in (0, 1/time_step = {1 / time_step:g}], got {rate}")
+        try:
+            logger = LoggerConfig.from_dict(data.get("logger"), time_step, f"{source}: logger")
+        except ValueError as exc:
+            raise TwinConfigError(str(exc)) from exc
         try:
             motor = Motor.from_config(data["drive"], n) if data.get("drive") is not None else None
         except ValueError as exc:
@@ -141,7 +147,7 @@ class TwinConfig:
         except (ValueError, KeyError, TypeError) as exc:
             raise TwinConfigError(f"{source}: payload: {exc}") from exc
         return cls(robot=desc, effects=effects, payload_model=bool(ctrl.get("payload_model", False)),
-                   motor=motor, payload=payload, time_step=time_step, log_rate_hz=rate, seed=int(data.get("seed", 0)),
+                   motor=motor, payload=payload, time_step=time_step, logger=logger, seed=int(data.get("seed", 0)),
                    name=str(data.get("name", Path(source).stem)), raw=data, **gains)
 
     def effect(self, name: str) -> JointEffect | None:
@@ -153,6 +159,15 @@ class TwinConfig:
     def with_effects(self, effects: list[JointEffect]) -> "TwinConfig":
         return dataclasses.replace(self, effects=list(effects))
 
+    def with_logger(self, **changes: Any) -> "TwinConfig":
+        """The same twin with ``logger`` fields changed (e.g. ``rate_hz=150``), checked like the YAML."""
+        try:
+            logger = dataclasses.replace(self.logger, **changes)
+            logger.check(self.time_step)
+        except (TypeError, ValueError) as exc:
+            raise TwinConfigError(f"logger: {exc}") from exc
+        return dataclasses.replace(self, logger=logger)
+
     def meta(self) -> dict[str, Any]:
         """JSON-able description for ``Recording.meta``."""
         return {"twin": self.name, "robot": self.robot.name, "time_step": self.time_step,
@@ -160,7 +175,8 @@ class TwinConfig:
                 "controller": {"kp": self.kp.tolist(), "ki": self.ki.tolist(), "kd": self.kd.tolist(),
                                "payload_model": self.payload_model},
                 "drive": None if self.motor is None else {k: v.tolist() for k, v in self.motor.params().items()},
-                "payload": None if self.payload is None else dataclasses.asdict(self.payload), "seed": self.seed}
+                "payload": None if self.payload is None else dataclasses.asdict(self.payload), "seed": self.seed,
+                "logger": self.logger.to_dict()}
 
 
 def load_twin_config(name_or_path: str | Path) -> TwinConfig:
@@ -349,7 +365,7 @@ def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload |
 
     ``payload`` overrides the config's payload. Raises :class:`TwinConfigError` before simulating when the
     trajectory leaves the joint limits or the friction is too stiff for the time step. The simulation advances in
-    ``chunk_s`` pieces (progress bar with the real-time factor); only the samples at ``log_rate_hz`` are kept.
+    ``chunk_s`` pieces (progress bar with the real-time factor); only the samples at ``logger.rate_hz`` are kept.
     """
     if payload is not None:
         config = config.with_payload(payload)
@@ -358,7 +374,7 @@ def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload |
     twin = build_twin_diagram(config, trajectory)
     t0, t1 = trajectory.start_time(), trajectory.end_time()
     n_steps = int(math.floor((t1 - t0) / dt + 1e-9)) + 1
-    keep = _log_indices(n_steps, dt, config.log_rate_hz)
+    keep = _log_indices(n_steps, dt, config.logger.rate_hz)
 
     sim = Simulator(twin.diagram)
     ctx = sim.get_mutable_context()
@@ -399,7 +415,8 @@ def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload |
 
 def _to_recording(config: TwinConfig, drive: JointDrive, t: np.ndarray, data: np.ndarray, wall_s: float,
                   cpu_s: float) -> Recording:
-    """Sensor models + truth channels from the logged true motion ``[q; q̇; q̈; net actuation (; θ; θ̇)]``."""
+    """Sensor models, the robot's logger and truth channels from the logged true motion ``[q; q̇; q̈; net actuation
+    (; θ; θ̇)]`` at the true instants ``t`` [s]."""
     desc, n = config.robot, config.robot.n
     q, qd, qdd, u = (data[:, k * n:(k + 1) * n] for k in range(4))
     rng = np.random.default_rng(config.seed)
@@ -416,14 +433,19 @@ def _to_recording(config: TwinConfig, drive: JointDrive, t: np.ndarray, data: np
     truth.update({f"tau_{k}": v for k, v in parts.items()})
     encoder = next((e for e in config.effects if isinstance(e, EncoderNoise)), None)
     q_meas = PositionSensor(encoder).measure(q, rng)
-    truth["q_true"] = q
+    truth.update(q_true=q, qd=qd, qdd=qdd, t_true=t)
     if data.shape[1] > 4 * n:                          # elastic drive: θ, θ̇ (what a motor-side sensor reads)
         truth["q_motor"], truth["qd_motor"] = data[:, 4 * n:5 * n], data[:, 5 * n:6 * n]
-    meta = {**config.meta(), "rate_hz": config.log_rate_hz, "source": "twin",
+    f_ext = _in_batches(lambda d, *x: payload_wrench(d, config.payload, *x), desc, q, qd, qdd)
+    logged = RobotLogger(config.logger).log(t, q_meas, rng)
+    k, t0 = logged.keep, float(logged.stamps[0])
+    truth = {name: v[k] for name, v in truth.items()}
+    truth["t_true"] = truth["t_true"] - t0
+    meta = {**config.meta(), "rate_hz": config.logger.rate_hz, "source": "twin",
+            "channels": list(config.logger.channels), "samples_lost": int(t.size - k.size),
             "sim_wall_s": round(wall_s, 3), "sim_cpu_s": round(cpu_s, 3),
             "real_time_factor": round(float(t[-1] - t[0]) / max(wall_s, 1e-9), 2)}
-    return Recording(t=t - t[0], q=q_meas, tau=tau_meas, qd=qd, qdd=qdd,
-                     f_ext=_in_batches(lambda d, *x: payload_wrench(d, config.payload, *x), desc, q, qd, qdd),
+    return Recording(t=logged.stamps - t0, q=q_meas[k], tau=tau_meas[k], qd=logged.qd, f_ext=f_ext[k],
                      truth=truth, meta=json.loads(json.dumps(meta)))
 
 

@@ -23,7 +23,7 @@ import yaml
 
 from proprio.description import RobotDescription, load_robot
 from proprio.io import atomic_write_text
-from proprio.learning.datasets import DataConfig, Split, kept_samples, make_split, prepare_recording
+from proprio.learning.datasets import DataConfig, Split, make_split, prepare_recording
 from proprio.learning.evaluation import (TableRow, evaluate_model, format_table, predict_streaming, predict_windowed,
                                          rbd_row, streaming_row)
 from proprio.learning.features import TauRbdProvider, rbd_provider
@@ -247,7 +247,8 @@ def payload_table(models: dict[str, HybridModel | None], backbone: Backbone, rec
         if rec.f_ext is None:
             raise ValueError(f"payload_table: recording '{label}' has no f_ext (true wrench)")
         prep = prepare_recording(rec, backbone.tau_rbd, data, label)
-        f_true = rec.f_ext[kept_samples(rec, data), :3]
+        t_rec = rec.t - rec.t[0]                             # the conditioned grid's clock (from the first stamp)
+        f_true = np.stack([np.interp(prep.t, t_rec, rec.f_ext[:, k]) for k in range(3)], axis=1)
         q = prep.features[:, prep.n_joints:2 * prep.n_joints]
         for name, model in models.items():
             if model is None:

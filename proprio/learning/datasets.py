@@ -1,12 +1,13 @@
 """The §4.4 data protocol: Recordings → features at the model rate → windows of length T → 80/20 split.
 
-1. Per Recording (at its own rate): q̇, q̈ from the Recording, or filtered central differences of q when it has
-   none or ``derivatives: filtered`` (:func:`proprio.learning.features.filtered_derivatives`; a twin logs the TRUE
-   q̇, q̈, a real robot does not); optionally a zero-phase low-pass on the measured τ
-   (the thesis trains on "post-processed" torques; ``tau_filter_hz``); ``trim_s`` cut from both ends (filter
-   start-up transients).
-2. Every ``decimate``-th sample kept (the thesis drops every second sample of its ≈150 Hz data → 75 Hz). The model
-   rate is therefore ``rate / decimate``; the residual System runs at that rate.
+1. Per Recording: the one conditioning path (:func:`proprio.conditioning.condition`) puts q and τ on the uniform
+   grid of the log's median step and gives q̇, q̈ from q (zero-phase low-pass at ``cutoff_hz``, a number or ``auto``
+   from the noise floor, then central differences; ``velocity: auto`` takes the robot's own q̇ where it logs one);
+   optionally a zero-phase low-pass on the measured τ (the thesis trains on "post-processed" torques;
+   ``tau_filter_hz``); ``trim_s`` cut from both ends (filter start-up transients).
+2. Every ``decimate``-th grid sample kept (the thesis drops every second sample of its ≈150 Hz data → 75 Hz). The
+   model rate is therefore ``grid rate / decimate``; the residual System runs at that rate. Samples inside a gap of
+   the log (conditioning's ``valid``) never reach a window.
 3. τ_RBD from any backbone ``(q, q̇, q̈) -> τ`` and the reversal encoding r on the decimated samples
    (35 features vec(τ_RBD, q, q̇, q̈, r), eq. 4.30).
 4. Each Recording is cut into whole non-overlapping subsequences of T samples (the remainder < T is dropped);
@@ -21,14 +22,15 @@ from dataclasses import asdict, dataclass
 from typing import Any, Sequence
 
 import numpy as np
-from scipy.signal import butter, filtfilt
 
+from proprio.conditioning import ConditionedSignals, ConditioningConfig, condition, zero_phase_lowpass
 from proprio.learning.features import (DEFAULT_DEADBAND_DEG, R_MAX_DEG, TauRbdProvider, feature_matrix,
-                                       filtered_derivatives, rotational_displacement)
+                                       rotational_displacement)
 from proprio.learning.sections import section_from_dict
 from proprio.recording import Recording
 
-__all__ = ["DataConfig", "PreparedRecording", "Windows", "Split", "kept_samples", "prepare_recording", "make_split"]
+__all__ = ["DataConfig", "PreparedRecording", "Windows", "Split", "condition_for_training", "kept_samples",
+           "prepare_recording", "make_split"]
 
 
 @dataclass
@@ -41,16 +43,20 @@ class DataConfig:
     seed: int = 0                           # shuffles the subsequence order
     reversal_deadband_deg: float = DEFAULT_DEADBAND_DEG
     r_max_deg: float = R_MAX_DEG
-    derivatives: str = "auto"               # auto: the Recording's qd/qdd if present | filtered: always from q
-    derivative_cutoff_hz: float = 5.0       # Butterworth cutoff of the filtered derivatives [Hz]
+    cutoff_hz: str | float = "auto"         # conditioning's low-pass of q before differentiation [Hz] or auto
+    velocity: str = "q"                     # q̇ from q | auto: the robot's own q̇ where it logs one (conditioning)
     tau_filter_hz: float | None = None      # zero-phase low-pass on measured τ (None: raw)
     trim_s: float = 0.0                     # cut from both ends of every Recording [s]
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> "DataConfig":
+        d = dict(d or {})
+        if "derivatives" in d or "derivative_cutoff_hz" in d:
+            raise ValueError("data: 'derivatives'/'derivative_cutoff_hz' are gone: q̇, q̈ always come from the "
+                             "conditioning path; give 'cutoff_hz' (Hz or auto) instead (a model file with them was "
+                             "trained on an older protocol: retrain it)")
         cfg = section_from_dict(cls, d, "data")
-        if cfg.derivatives not in ("auto", "filtered"):
-            raise ValueError(f"data: derivatives must be 'auto' or 'filtered', got {cfg.derivatives!r}")
+        cfg.conditioning().check("data")
         if cfg.decimate < 1 or cfg.window < 1:
             raise ValueError("data: decimate and window must be >= 1")
         if not 0 < cfg.test_fraction < 1 or not 0 <= cfg.val_fraction < 1:
@@ -60,14 +66,22 @@ class DataConfig:
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
+    def conditioning(self) -> ConditioningConfig:
+        """The conditioning settings of step 1 (τ is low-passed separately, at ``tau_filter_hz``)."""
+        cut = self.cutoff_hz if isinstance(self.cutoff_hz, str) else float(self.cutoff_hz)
+        return ConditioningConfig(cutoff_hz=cut, velocity=self.velocity, tau_filter=False)
+
 
 @dataclass
 class PreparedRecording:
-    """One Recording at the model rate: ``features [N, 5n]`` (vec(τ_RBD, q, q̇, q̈, r)), target ``tau [N, n]``."""
+    """One Recording at the model rate: ``features [N, 5n]`` (vec(τ_RBD, q, q̇, q̈, r)), target ``tau [N, n]``,
+    ``valid [N]`` (False inside a gap of the log; None: all valid) and the conditioning line it was made with."""
     name: str
     t: np.ndarray
     features: np.ndarray
     tau: np.ndarray
+    valid: np.ndarray | None = None
+    conditioning: str = ""
 
     @property
     def n_joints(self) -> int:
@@ -101,40 +115,44 @@ class Split:
     recordings: list[PreparedRecording]
     rate_hz: float
 
-
-def _lowpass(x: np.ndarray, cutoff_hz: float, rate_hz: float, name: str) -> np.ndarray:
-    if not 0 < cutoff_hz < rate_hz / 2:
-        raise ValueError(f"data: {name} = {cutoff_hz} must lie in (0, {rate_hz / 2:.1f}) Hz")
-    b, a = butter(2, cutoff_hz / (rate_hz / 2))
-    return filtfilt(b, a, x, axis=0)
+    @property
+    def conditioning(self) -> list[str]:
+        """The conditioning line of every recording (printed by ``proprio train``)."""
+        return [p.conditioning for p in self.recordings if p.conditioning]
 
 
-def kept_samples(rec: Recording, cfg: DataConfig) -> np.ndarray:
-    """Indices of the samples of ``rec`` at the model rate: ``trim_s`` cut from both ends, then every
-    ``decimate``-th sample (step 1 and 2 of the module docstring)."""
-    trim = int(round(cfg.trim_s * rec.rate_hz))
-    return np.arange(trim, rec.n_samples - trim, cfg.decimate)
+def condition_for_training(rec: Recording, cfg: DataConfig) -> tuple[ConditionedSignals, np.ndarray]:
+    """Step 1 for one Recording: its conditioned signals and the target τ [N·m] on the same uniform grid."""
+    cs = condition(rec, cfg.conditioning())
+    if cfg.tau_filter_hz is None:
+        return cs, cs.tau
+    if not 0 < cfg.tau_filter_hz < cs.rate_hz / 2:
+        raise ValueError(f"data: tau_filter_hz = {cfg.tau_filter_hz} must lie in (0, {cs.rate_hz / 2:.1f}) Hz")
+    return cs, zero_phase_lowpass(cs.tau, cs.rate_hz, cfg.tau_filter_hz)
+
+
+def kept_samples(n_samples: int, rate_hz: float, cfg: DataConfig) -> np.ndarray:
+    """Indices of the grid samples at the model rate: ``trim_s`` cut from both ends, then every ``decimate``-th
+    sample (step 2 of the module docstring)."""
+    trim = int(round(cfg.trim_s * rate_hz))
+    return np.arange(trim, n_samples - trim, cfg.decimate)
 
 
 def prepare_recording(rec: Recording, tau_rbd: TauRbdProvider, cfg: DataConfig, name: str = "recording"
                       ) -> PreparedRecording:
     """Steps 1–3 of the module docstring for one Recording."""
-    rate = rec.rate_hz
-    if cfg.derivatives == "auto" and rec.qd is not None and rec.qdd is not None:
-        qd, qdd = rec.qd, rec.qdd
-    else:
-        qd, qdd = filtered_derivatives(rec.t, rec.q, cfg.derivative_cutoff_hz)
-    tau = rec.tau if cfg.tau_filter_hz is None else _lowpass(rec.tau, cfg.tau_filter_hz, rate, "tau_filter_hz")
-    keep = kept_samples(rec, cfg)
+    cs, tau = condition_for_training(rec, cfg)
+    keep = kept_samples(cs.n_samples, cs.rate_hz, cfg)
     if keep.size < 2:
         raise ValueError(f"{name}: only {keep.size} sample(s) left after trim_s = {cfg.trim_s} and decimate = "
                          f"{cfg.decimate}")
-    q, qd, qdd, tau = rec.q[keep], qd[keep], qdd[keep], tau[keep]
+    q, qd, qdd, tau = cs.q[keep], cs.qd[keep], cs.qdd[keep], tau[keep]
     t_rbd = np.asarray(tau_rbd(q, qd, qdd), dtype=float)
     if t_rbd.shape != q.shape:
         raise ValueError(f"{name}: the tau_rbd provider returned shape {list(t_rbd.shape)}, expected {list(q.shape)}")
     r = rotational_displacement(q, cfg.reversal_deadband_deg, cfg.r_max_deg)
-    return PreparedRecording(name=name, t=rec.t[keep], features=feature_matrix(t_rbd, q, qd, qdd, r), tau=tau)
+    return PreparedRecording(name=name, t=cs.t[keep], features=feature_matrix(t_rbd, q, qd, qdd, r), tau=tau,
+                             valid=cs.valid[keep], conditioning=f"{name}: {cs.describe()}")
 
 
 def _windows(recs: Sequence[PreparedRecording], T: int, offset: int = 0) -> Windows:
@@ -143,9 +161,10 @@ def _windows(recs: Sequence[PreparedRecording], T: int, offset: int = 0) -> Wind
         w = p.tau.shape[0] // T
         if w == 0:
             continue
-        feats.append(p.features[:w * T].reshape(w, T, -1))
-        taus.append(p.tau[:w * T].reshape(w, T, -1))
-        origin.append(np.stack([np.full(w, k + offset), np.arange(w) * T], axis=1))
+        whole = np.ones(w, dtype=bool) if p.valid is None else p.valid[:w * T].reshape(w, T).all(axis=1)
+        feats.append(p.features[:w * T].reshape(w, T, -1)[whole])
+        taus.append(p.tau[:w * T].reshape(w, T, -1)[whole])
+        origin.append(np.stack([np.full(w, k + offset), np.arange(w) * T], axis=1)[whole])
     if not feats:
         raise ValueError(f"data: no recording is as long as one window (window = {T} samples at the model rate)")
     return Windows(np.concatenate(feats), np.concatenate(taus), np.concatenate(origin))

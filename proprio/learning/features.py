@@ -33,7 +33,7 @@ from typing import Callable
 import numpy as np
 
 __all__ = ["R_MAX_DEG", "DEFAULT_DEADBAND_DEG", "TauRbdProvider", "rotational_displacement", "ReversalEncoder",
-           "feature_matrix", "feature_names", "feature_columns", "filtered_derivatives", "rbd_provider"]
+           "feature_matrix", "feature_names", "feature_columns", "rbd_provider"]
 
 R_MAX_DEG = 10.0
 DEFAULT_DEADBAND_DEG = 0.05
@@ -153,21 +153,6 @@ def feature_columns(n: int, hybrid: bool, use_r: bool) -> np.ndarray:
 def feature_matrix(tau_rbd: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, r: np.ndarray) -> np.ndarray:
     """vec(τ_RBD, q, q̇, q̈, r) per sample: ``[N, 5n]`` (N·m, rad, rad/s, rad/s², rad) — 35 features for n = 7."""
     return np.concatenate([tau_rbd, q, qd, qdd, r], axis=-1)
-
-
-def filtered_derivatives(t: np.ndarray, q: np.ndarray, cutoff_hz: float, order: int = 1
-                         ) -> tuple[np.ndarray, np.ndarray]:
-    """q̇, q̈ ``[N, n]`` by central differences (``np.gradient`` on the time stamps) of q, each followed by a
-    zero-phase Butterworth low-pass (forward–backward, §4.1) of ``order`` at ``cutoff_hz``. Offline only."""
-    from proprio.signals import PreprocessConfig, differentiate
-
-    t = np.asarray(t, dtype=float)
-    rate = 1.0 / float(np.median(np.diff(t)))
-    if not 0 < cutoff_hz < rate / 2:
-        raise ValueError(f"derivative_cutoff_hz = {cutoff_hz} must lie in (0, {rate / 2:.1f}) Hz (Nyquist of the data)")
-    cfg = PreprocessConfig(cutoff_hz=cutoff_hz, order=order)
-    qd = differentiate(t, q, cfg)
-    return qd, differentiate(t, qd, cfg)
 
 
 def rbd_provider(desc) -> TauRbdProvider:
