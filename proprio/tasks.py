@@ -54,12 +54,12 @@ class Shared:
 class Task:
     """``fn(**kwargs)`` under a unique ``key``; ``config`` (JSON-able) states what it computes, with which seed —
     it is stored beside the result, printed when the task fails and compared on resume. ``num_gpus``: GPUs the task
-    needs on the Ray backend (0: CPU only)."""
+    needs on the Ray backend (0: CPU only; ``"auto"``: 1 when the cluster has a GPU, else 0)."""
     key: str
     fn: Callable[..., Any]
     kwargs: Mapping[str, Any] = field(default_factory=dict)
     config: Mapping[str, Any] = field(default_factory=dict)
-    num_gpus: float = 0.0
+    num_gpus: float | str = 0.0
 
 
 @dataclass
@@ -145,14 +145,16 @@ def _one_line(exc: BaseException) -> str:
 
 def run_tasks(tasks: Sequence[Task], state_dir: str | Path, store: Callable[[Task, Any], Any] | None = None,
               backend: str = "local", address: str | None = None, workers: int | None = None,
-              progress: bool = True, desc: str = "tasks", env: Mapping[str, Any] | None = None) -> TaskRun:
+              progress: bool = True, desc: str = "tasks", env: Mapping[str, Any] | None = None,
+              kept: Callable[[Task, Any], bool] | None = None) -> TaskRun:
     """Run the tasks not yet done in ``state_dir`` on ``backend`` (module docstring) and return what happened.
 
     ``store(task, result) -> record`` runs on this process for every finished task and returns the JSON-able record
     kept in ``state_dir`` (default: the result itself, which must then be JSON-able). ``workers``: processes
     (``local``; default 1) or the CPUs of the local Ray instance started here (default ``os.cpu_count()``; ignored
     with ``address`` or an already initialised Ray: see :func:`init_ray`). ``env``: extra runtime-environment entries
-    (:func:`runtime_env`) of a Ray instance started here.
+    (:func:`runtime_env`) of a Ray instance started here. ``kept(task, record)``: whether a recorded task's outputs are
+    still there (e.g. its file was not deleted); a task whose outputs are gone runs again.
     """
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {list(BACKENDS)}, got {backend!r}")
@@ -174,7 +176,7 @@ def run_tasks(tasks: Sequence[Task], state_dir: str | Path, store: Callable[[Tas
     skipped: list[str] = []
     for t in tasks:
         done, record = _done_record(state / f"{_filename(t.key)}.json", configs[t.key])
-        if done:
+        if done and (kept is None or kept(t, record)):
             records[t.key] = record
             skipped.append(t.key)
         else:
@@ -270,6 +272,7 @@ def _run_ray(todo: list[Task], finish: Callable[..., None], address: str | None,
         n = int(ray.cluster_resources().get("CPU", 1))
         if not todo:
             return n
+        has_gpu = ray.cluster_resources().get("GPU", 0) >= 1
         remote = ray.remote(_call)
         shared: dict[int, Any] = {}
         pending: dict[Any, Task] = {}
@@ -281,7 +284,8 @@ def _run_ray(todo: list[Task], finish: Callable[..., None], address: str | None,
                         shared[id(v)] = ray.put(v.value)
                     v = shared[id(v)]
                 kw[k] = v
-            ref = remote.options(num_cpus=1, num_gpus=t.num_gpus, max_retries=0, retry_exceptions=False,
+            gpus = (1.0 if has_gpu else 0.0) if t.num_gpus == "auto" else float(t.num_gpus)
+            ref = remote.options(num_cpus=1, num_gpus=gpus, max_retries=0, retry_exceptions=False,
                                  name=t.key[:100]).remote(t.fn, **kw)
             pending[ref] = t
         while pending:

@@ -468,8 +468,8 @@ def run_benchmark(cases: list[BenchmarkCase], workers: int | None = None, progre
         run = run_tasks(tasks, state_dir if state_dir is not None else tmp,
                         store=lambda task, result: case_result_to_dict(result), backend=backend, address=address,
                         workers=workers, progress=progress, desc="gap-benchmark")
-    for f in run.failures:
-        print(f.line(), file=sys.stderr)
+    if progress or run.failures:
+        print(run.summary(), file=sys.stderr)
     failed = {f.key: f for f in run.failures}
     results = []
     for c in cases:

@@ -134,7 +134,7 @@ def build_dataset(spec: DatasetSpec, out_dir: str | Path, backend: str = "local"
                 "sim_wall_s": rec.meta.get("sim_wall_s")}
 
     run = run_tasks(tasks, out / ".tasks", store, backend=backend, address=address, workers=workers,
-                    progress=progress, desc="dataset")
+                    progress=progress, desc="dataset", kept=lambda task, rec: (out / task.key).exists())
     manifest = {"format": MANIFEST_FORMAT, "twin": twin,
                 "rfma": {"scaffolds": spec.scaffolds, "seconds": spec.seconds, "config": "proprio/configs/rfma.yaml"},
                 "recordings": [run.records[t.key] for t in tasks if t.key in run.records],
