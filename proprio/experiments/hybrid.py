@@ -186,10 +186,6 @@ def train_grid(cfg: dict[str, Any], train_recs: Sequence[Recording], backbone: B
     and left out of the table. ``search`` > 0: first a Ray Tune search of that many trials per model
     (:func:`search_hyperparameters`, ASHA early stopping), whose best ``train:`` settings the model is then trained
     with (``search_<tag>.json``)."""
-    import sys
-
-    from proprio.tasks import Shared, Task, run_tasks
-
     out_dir = Path(out_dir)
     grid = cfg.get("grid", {})
     archs = grid.get("archs", list(ARCHS))
@@ -198,11 +194,33 @@ def train_grid(cfg: dict[str, Any], train_recs: Sequence[Recording], backbone: B
     if bad:
         raise ValueError(f"grid.archs: unknown architecture(s) {bad}; choose from {list(ARCHS)}")
     data = DataConfig.from_dict(cfg.get("data"))
-    tcfg = TrainConfig.from_dict(cfg.get("train"))
     split = prepare_split(train_recs, backbone, data, test_recs, names)
+    tasks, reused = [], []
+    ray_started = False
+    if search > 0 and backend == "ray":           # one Ray instance for the searches and the grid
+        from proprio.tasks import import_ray, init_ray
+        if not import_ray().is_initialized():
+            init_ray(address, workers)
+            ray_started = True
+    try:
+        return _train_grid_tasks(cfg, archs, variants, data, split, backbone, out_dir, tasks, reused, backend,
+                                 address, workers, threads, search, progress)
+    finally:
+        if ray_started:
+            import_ray().shutdown()
+
+
+def _train_grid_tasks(cfg: dict[str, Any], archs: list[str], variants: list[tuple], data: DataConfig, split: Split,
+                      backbone: Backbone, out_dir: Path, tasks: list, reused: list[str], backend: str,
+                      address: str | None, workers: int | None, threads: int, search: int, progress: bool
+                      ) -> tuple[list[TableRow], str]:
+    import sys
+
+    from proprio.tasks import Shared, Task, run_tasks
+
+    tcfg = TrainConfig.from_dict(cfg.get("train"))
     shared_split = Shared(split)
     gpus: float | str = 1.0 if tcfg.device == "cuda" else ("auto" if tcfg.device == "auto" else 0.0)
-    tasks, reused = [], []
     for arch in archs:
         for hybrid, use_r in variants:
             tag = grid_tag(arch, hybrid, use_r)
