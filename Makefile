@@ -9,7 +9,7 @@ LAB_STAMP := $(VENV)/.lab-installed-$(CKSUM)
 LAB_ARGS ?=
 LAB_ROOT  := $(if $(filter 0,$(shell id -u)),--allow-root,)   # containers often run as root
 
-.PHONY: demo test venv clean benchmarks lab
+.PHONY: demo test venv clean benchmarks lab cuda-torch
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -39,6 +39,15 @@ test: $(STAMP)
 
 benchmarks: $(STAMP)
 	for f in benchmarks/bench_*.py; do echo "== $$f"; OPENBLAS_NUM_THREADS=1 $(PY) $$f || exit 1; done
+
+# A GPU machine: swap the CPU wheel for a CUDA build of the same torch (PyPI's Linux x86_64 wheel brings CUDA 12 as
+# nvidia-* packages, a few GB); TORCH_INDEX="--index-url URL" picks another build (PyTorch's per-CUDA wheel indexes).
+# `make test` / CI keep the CPU wheel: they never run this target.
+TORCH_INDEX ?=
+cuda-torch: $(STAMP)
+	$(PY) -m pip uninstall -y torch
+	PIP_FIND_LINKS= $(PY) -m pip install $(TORCH_INDEX) torch==2.13.0
+	$(PY) -c "import torch; print('torch', torch.__version__, 'CUDA', torch.version.cuda, 'GPU available:', torch.cuda.is_available()); assert torch.version.cuda, 'got a CPU build: set TORCH_INDEX'"
 
 clean:
 	rm -rf $(VENV) demo_output .pytest_cache

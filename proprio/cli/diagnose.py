@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from proprio.cli import UserError
+from proprio.cli._backend import add_backend_args, check_backend_args, clear_state
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -50,9 +51,14 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "encoder_noise) and payload; slower (~30 s of CPU per case)")
     b.add_argument("--quick", action="store_true", help="one magnitude per effect type, 2 null, 1 two-effect case "
                    "(with --twin: 4 effect types, 1 null, 1 two-effect case)")
-    b.add_argument("--out", required=True, type=Path, help="directory for benchmark.txt / benchmark.json")
-    b.add_argument("--workers", type=int, default=None, help="parallel processes (default: os.cpu_count())")
+    b.add_argument("--cases", nargs="+", metavar="NAME", default=None,
+                   help="run only these cases of the list (names as in benchmark.txt, e.g. viscous_coulomb@1 null#0; "
+                   "the scores then cover only them)")
+    b.add_argument("--out", required=True, type=Path,
+                   help="directory for benchmark.txt / benchmark.json; OUT/cases/ keeps one result file per finished "
+                   "case, so a rerun (after a kill) runs only the missing cases")
     b.add_argument("--seed", type=int, default=0, help="seed of the case list (default 0)")
+    add_backend_args(b, "os.cpu_count() for local, the Ray cluster's CPUs for ray")
     b.set_defaults(func=_benchmark)
 
 
@@ -117,12 +123,12 @@ def _positive_float(text: str, flag: str) -> float:
 
 
 def _benchmark(args: argparse.Namespace) -> int:
-    from proprio.diagnosis.benchmark import make_cases, run_benchmark, write_results
+    from proprio.diagnosis.benchmark import make_cases, run_benchmark, select_cases, write_results
 
-    if args.workers is not None and args.workers < 1:
-        raise UserError(f"--workers must be >= 1, got {args.workers}")
-    cases = make_cases(quick=args.quick, seed=args.seed, twin=args.twin)
-    results = run_benchmark(cases, workers=args.workers)
+    check_backend_args(args)
+    cases = select_cases(make_cases(quick=args.quick, seed=args.seed, twin=args.twin), args.cases)
+    results = run_benchmark(cases, workers=args.workers, backend=args.backend, address=args.address,
+                            state_dir=clear_state(args.out / "cases", args.restart))
     _, text = write_results(results, args.out)
     print(text)
     return 0

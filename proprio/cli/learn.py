@@ -8,6 +8,7 @@ import argparse
 from pathlib import Path
 
 from proprio.cli import UserError
+from proprio.cli._backend import add_backend_args, check_backend_args, clear_state
 from proprio.recording import Recording, load_recording
 
 __all__ = ["register"]
@@ -33,6 +34,19 @@ def _backbone(spec: str | None, recs: list[Recording]):
         raise UserError(f"--backbone {spec}: {exc}") from exc
 
 
+def _with_device(cfg: dict, device: str | None) -> dict:
+    """``--device`` over the config's ``train.device``; ``cuda`` without a CUDA device is a one-line error."""
+    if device is None:
+        return cfg
+    if device == "cuda":
+        import torch
+        if not torch.cuda.is_available():
+            raise UserError("--device cuda: torch sees no CUDA device (torch.version.cuda = "
+                            f"{torch.version.cuda}); install a CUDA build of torch (make cuda-torch) on a GPU machine, "
+                            "or use --device auto|cpu")
+    return {**cfg, "train": {**cfg.get("train", {}), "device": device}}
+
+
 def _train(args: argparse.Namespace) -> int:
     import torch
 
@@ -40,7 +54,7 @@ def _train(args: argparse.Namespace) -> int:
     from proprio.experiments.hybrid import load_config, prepare_split, train_from_config
     from proprio.learning.datasets import DataConfig
     torch.set_num_threads(args.threads)
-    cfg = load_config(args.config)
+    cfg = _with_device(load_config(args.config), args.device)
     recs, names = _load(args.data)
     tests, tnames = _load(args.test_data or [])
     backbone = _backbone(args.backbone, recs)
@@ -61,7 +75,8 @@ def _evaluate(args: argparse.Namespace) -> int:
     recs, names = _load(args.data)
     tests, tnames = _load(args.test_data or [])
     backbone = _backbone(args.backbone, recs) if args.backbone else None
-    print(evaluate_saved(args.model, recs, tests, backbone, names + tnames))
+    _with_device({}, args.device)                       # cuda without a GPU: a one-line error
+    print(evaluate_saved(args.model, recs, tests, backbone, names + tnames, device=args.device or "auto"))
     return 0
 
 
@@ -69,13 +84,25 @@ def _train_grid(args: argparse.Namespace) -> int:
     import torch
 
     from proprio.experiments.hybrid import load_config, train_grid
+    check_backend_args(args)
+    if args.search < 0:
+        raise UserError(f"--search must be >= 0, got {args.search}")
+    if args.search and args.backend != "ray":
+        raise UserError("--search runs Ray Tune: add --backend ray")
     torch.set_num_threads(args.threads)
-    cfg = load_config(args.config)
+    cfg = _with_device(load_config(args.config), args.device)
     if args.epochs is not None:
         cfg["train"] = {**cfg.get("train", {}), "max_epochs": args.epochs}
     recs, names = _load(args.data)
     tests, tnames = _load(args.test_data or [])
-    _, text = train_grid(cfg, recs, _backbone(args.backbone, recs), args.out, tests, names + tnames)
+    out = Path(args.out)
+    if args.restart:
+        for f in out.glob("*.pt"):
+            f.unlink()
+        clear_state(out / ".tasks", True)
+    _, text = train_grid(cfg, recs, _backbone(args.backbone, recs), out, tests, names + tnames,
+                         backend=args.backend, address=args.address, workers=args.workers, threads=args.threads,
+                         search=args.search)
     print(text)
     print(f"wrote {Path(args.out) / 'table.txt'}, grid.json, grid.png and one .pt per model")
     return 0
@@ -87,7 +114,10 @@ def _common(p: argparse.ArgumentParser) -> None:
                         "--test-data is given")
     p.add_argument("--test-data", nargs="+", metavar="REC", help="held-out Recordings used as the whole test split")
     p.add_argument("--backbone", metavar="SPEC", help=_BACKBONE_HELP)
-    p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
+    p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1; per task in train-grid)")
+    p.add_argument("--device", choices=("auto", "cpu", "cuda"), default=None,
+                   help="where torch trains and evaluates: auto (CUDA when torch sees a GPU, else CPU), cpu, cuda "
+                        "(an error without one); default: the config's train.device (auto)")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -116,10 +146,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "train-grid", help="reproduce the §5.1 ablation grid (Table 5.3) in one call",
         description="Train every architecture × (hybrid, with r) variant of the grid config on one split and write "
                     "OUT/table.txt (Table 5.3 layout + windowed vs streaming), grid.json, grid.png and the models. "
-                    "Finished models are reused and interrupted ones resume, so a rerun continues the grid.")
+                    "One task per model, here (--workers processes) or on Ray (--backend ray [--address]); the weights "
+                    "are the same either way on CPU. Finished models are reused and interrupted ones resume, so a "
+                    "rerun continues the grid.")
     p.add_argument("--config", default="train_grid",
                    help="grid config path or built-in name (train_grid, train_grid_lwr4; default train_grid)")
     _common(p)
     p.add_argument("--epochs", type=int, help="override train.max_epochs")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--search", type=int, default=0, metavar="N",
+                   help="before training each model, a Ray Tune search of N trials over lr, weight_decay and "
+                        "batch_size (the config's search: section changes the space) with ASHA early stopping; the "
+                        "model is then trained with the best settings (OUT/search_<model>.json). Needs --backend ray")
+    add_backend_args(p, "1 for local, os.cpu_count() for a local Ray instance")
     p.set_defaults(func=_train_grid)

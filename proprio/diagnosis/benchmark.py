@@ -36,8 +36,7 @@ from __future__ import annotations
 
 import os
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -53,7 +52,8 @@ from proprio.recording import Recording
 from proprio.signals import MotionSignals
 
 __all__ = ["BenchmarkCase", "CaseResult", "make_cases", "generate_case_data", "run_case", "run_benchmark",
-           "summarise", "rfma_like_motion", "twin_case_config", "EFFECT_TYPES", "TWIN_EFFECT_TYPES"]
+           "summarise", "rfma_like_motion", "twin_case_config", "select_cases", "case_result_to_dict",
+           "case_result_from_dict", "EFFECT_TYPES", "TWIN_EFFECT_TYPES"]
 
 RATE_HZ = 200.0
 NOISE_STD = 0.05                 # background torque-sensor noise [N·m] (present in data AND model unless withheld)
@@ -431,19 +431,63 @@ def run_case(case: BenchmarkCase) -> CaseResult:
                       final_rms=float(np.sqrt(np.mean(final ** 2))), floor_rms=floor_rms)
 
 
-def run_benchmark(cases: list[BenchmarkCase], workers: int | None = None, progress: bool = True
-                  ) -> list[CaseResult]:
-    """Run the cases in parallel (``ProcessPoolExecutor``, ``workers`` default ``os.cpu_count()``)."""
-    from tqdm import tqdm
+def select_cases(cases: list[BenchmarkCase], names: list[str] | None) -> list[BenchmarkCase]:
+    """The cases named in ``names`` (all when ``None``), in the list's order; an unknown name is an error."""
+    if names is None:
+        return cases
+    known = {c.name for c in cases}
+    bad = [n for n in names if n not in known]
+    if bad:
+        raise ValueError(f"unknown benchmark case(s) {bad}; this case list has: {', '.join(c.name for c in cases)}")
+    return [c for c in cases if c.name in set(names)]
 
-    workers = workers or os.cpu_count() or 1
-    results: list[CaseResult] = []
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        futs = {pool.submit(run_case, c): c for c in cases}
-        for fut in tqdm(as_completed(futs), total=len(futs), disable=not progress, desc="gap-benchmark"):
-            results.append(fut.result())
-    order = {c.name: i for i, c in enumerate(cases)}
-    return sorted(results, key=lambda r: order[r.case.name])
+
+def case_result_to_dict(r: CaseResult) -> dict[str, Any]:
+    """JSON-able form of a result (floats exact; NaN as JSON's NaN)."""
+    d = asdict(r)
+    d["case"] = {**asdict(r.case), "withheld": list(r.case.withheld), "modelled": list(r.case.modelled)}
+    return d
+
+
+def case_result_from_dict(d: dict[str, Any]) -> CaseResult:
+    c = d["case"]
+    case = BenchmarkCase(**{**c, "withheld": tuple(c["withheld"]), "modelled": tuple(c["modelled"])})
+    return CaseResult(**{**d, "case": case})
+
+
+def run_benchmark(cases: list[BenchmarkCase], workers: int | None = None, progress: bool = True,
+                  backend: str = "local", address: str | None = None, state_dir: str | Path | None = None
+                  ) -> list[CaseResult]:
+    """Run the cases through :func:`proprio.tasks.run_tasks`: ``backend="local"`` on ``workers`` processes of this
+    machine (default ``os.cpu_count()``), ``"ray"`` on a local Ray instance or the cluster at ``address``. Every
+    case carries its own seed, so the results do not depend on the backend or the worker count. ``state_dir``: one
+    result file per finished case; a rerun with the same directory runs only the missing cases (default: a
+    temporary directory, no resume). A case whose task fails is returned with ``error`` set (and the failure
+    printed with its config) while the others' results are kept."""
+    import sys
+    import tempfile
+
+    from proprio.tasks import Task, run_tasks
+
+    if backend == "local":
+        workers = workers or os.cpu_count() or 1
+    tasks = [Task(c.name, run_case, {"case": c}, {"case": c.name, **asdict(c)}) for c in cases]
+    with tempfile.TemporaryDirectory(prefix="gap-benchmark-") as tmp:
+        run = run_tasks(tasks, state_dir if state_dir is not None else tmp,
+                        store=lambda task, result: case_result_to_dict(result), backend=backend, address=address,
+                        workers=workers, progress=progress, desc="gap-benchmark")
+    if progress or run.failures:
+        print(run.summary(), file=sys.stderr)
+    failed = {f.key: f for f in run.failures}
+    results = []
+    for c in cases:
+        if c.name in run.records:
+            results.append(case_result_from_dict(run.records[c.name]))
+        else:
+            results.append(CaseResult(c, [], [], float("nan"), float("nan"), 0.0,
+                                      error=f"task failed: {failed[c.name].error}" if c.name in failed
+                                      else "task failed"))
+    return results
 
 
 def summarise(results: list[CaseResult]) -> tuple[dict[str, Any], str]:

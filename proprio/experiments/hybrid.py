@@ -32,7 +32,8 @@ from proprio.learning.training import TrainConfig, TrainResult, train_model
 from proprio.recording import Recording
 
 __all__ = ["load_config", "Backbone", "resolve_backbone", "prepare_split", "train_from_config", "evaluate_saved",
-           "train_grid", "demo_hybrid", "payload_table", "GRID_VARIANTS"]
+           "train_grid", "train_grid_model", "grid_tag", "search_hyperparameters", "SEARCH_SPACE", "demo_hybrid",
+           "payload_table", "GRID_VARIANTS"]
 
 GRID_VARIANTS = ((True, True), (True, False), (False, False), (False, True))   # (hybrid, use_r), Table 5.3 order
 
@@ -56,9 +57,9 @@ def load_config(spec: str | Path) -> dict[str, Any]:
         raise ValueError(f"config {spec}: invalid YAML ({exc})") from exc
     if not isinstance(cfg, dict):
         raise ValueError(f"config {spec}: top level must be a mapping with model/data/train sections")
-    unknown = sorted(set(cfg) - {"model", "data", "train", "grid"})
+    unknown = sorted(set(cfg) - {"model", "data", "train", "grid", "search"})
     if unknown:
-        raise ValueError(f"config {spec}: unknown section(s) {unknown}; allowed: model, data, train, grid")
+        raise ValueError(f"config {spec}: unknown section(s) {unknown}; allowed: model, data, train, grid, search")
     return cfg
 
 
@@ -128,9 +129,13 @@ def train_from_config(cfg: dict[str, Any], train_recs: Sequence[Recording], back
 
 
 def evaluate_saved(model_path: str | Path, train_recs: Sequence[Recording], test_recs: Sequence[Recording] = (),
-                   backbone: Backbone | None = None, names: Sequence[str] | None = None) -> str:
-    """Table 5.3 text for a saved model on Recordings, split with the data config stored in the model."""
+                   backbone: Backbone | None = None, names: Sequence[str] | None = None, device: str = "auto") -> str:
+    """Table 5.3 text for a saved model on Recordings, split with the data config stored in the model; the network
+    runs on ``device`` (auto | cpu | cuda, :func:`~proprio.learning.training.pick_device`)."""
+    from proprio.learning.training import pick_device
+
     model, extra = load_model(model_path)
+    model.to(pick_device(device))
     backbone = backbone or resolve_backbone(extra["backbone"])
     data = DataConfig.from_dict(extra["data"])
     split = prepare_split(train_recs, backbone, data, test_recs, names)
@@ -140,12 +145,47 @@ def evaluate_saved(model_path: str | Path, train_recs: Sequence[Recording], test
     return format_table(rows)
 
 
+def grid_tag(arch: str, hybrid: bool, use_r: bool) -> str:
+    """File stem of one grid model, e.g. ``lstm2_fcl_hybrid_r``."""
+    return f"{arch}_{'hybrid' if hybrid else 'standalone'}_{'r' if use_r else 'nor'}"
+
+
+def train_grid_model(cfg: dict[str, Any], split: Split, backbone_spec: str, description: RobotDescription,
+                     arch: str, hybrid: bool, use_r: bool, threads: int = 1, out: str | None = None
+                     ) -> dict[str, Any]:
+    """One grid task: train ``arch`` × (hybrid, use_r) on the prepared ``split`` with ``threads`` torch threads and
+    return ``{"model": the saved .pt as bytes, "seconds", "epochs", "seconds_per_epoch"}``. ``out``: train straight
+    into that file (its checkpoint resumes an interrupted model; a local backend) — else into a temporary folder of
+    the worker (a Ray worker need not see the driver's disk)."""
+    import tempfile
+
+    torch.set_num_threads(int(threads))
+    backbone = Backbone(backbone_spec, description, None)   # type: ignore[arg-type]  # τ_RBD is in the split
+    with tempfile.TemporaryDirectory(prefix="proprio-grid-") as tmp:
+        path = Path(out) if out else Path(tmp) / f"{grid_tag(arch, hybrid, use_r)}.pt"
+        t0 = time.perf_counter()
+        _, result, _ = train_from_config(cfg, [], backbone, path, progress=False, split=split, arch=arch,
+                                         hybrid=hybrid, use_r=use_r)
+        return {"model": path.read_bytes(), "seconds": time.perf_counter() - t0, "epochs": len(result.history),
+                "seconds_per_epoch": result.seconds_per_epoch}
+
+
 def train_grid(cfg: dict[str, Any], train_recs: Sequence[Recording], backbone: Backbone, out_dir: str | Path,
-               test_recs: Sequence[Recording] = (), names: Sequence[str] | None = None, progress: bool = True
-               ) -> tuple[list[TableRow], str]:
+               test_recs: Sequence[Recording] = (), names: Sequence[str] | None = None, progress: bool = True,
+               backend: str = "local", address: str | None = None, workers: int | None = None, threads: int = 1,
+               search: int = 0) -> tuple[list[TableRow], str]:
     """The §5.1 ablation grid on one split: every ``grid.archs`` × ``grid.variants`` (hybrid, use_r) model, saved to
     ``out_dir/<arch>_<variant>.pt``; writes ``table.txt`` (Table 5.3 layout + windowed vs streaming),
-    ``grid.json`` and ``grid.png``. A finished model file is reused, an interrupted one resumes from its checkpoint."""
+    ``grid.json`` and ``grid.png``.
+
+    One task per model through :func:`proprio.tasks.run_tasks` (``backend`` local: ``workers`` processes, default 1;
+    ray: a local Ray instance or the cluster at ``address``), each with ``threads`` torch threads and the config's
+    seed, so the weights do not depend on the backend or the worker count (on CPU). The split is prepared once here
+    and shipped to the tasks by value. A finished model file is reused (a rerun trains only what is missing), an
+    interrupted one resumes from its checkpoint on the local backend; a failed model is reported with its config
+    and left out of the table. ``search`` > 0: first a Ray Tune search of that many trials per model
+    (:func:`search_hyperparameters`, ASHA early stopping), whose best ``train:`` settings the model is then trained
+    with (``search_<tag>.json``)."""
     out_dir = Path(out_dir)
     grid = cfg.get("grid", {})
     archs = grid.get("archs", list(ARCHS))
@@ -155,19 +195,70 @@ def train_grid(cfg: dict[str, Any], train_recs: Sequence[Recording], backbone: B
         raise ValueError(f"grid.archs: unknown architecture(s) {bad}; choose from {list(ARCHS)}")
     data = DataConfig.from_dict(cfg.get("data"))
     split = prepare_split(train_recs, backbone, data, test_recs, names)
-    rows, stream_rows, timing = [rbd_row(split)], [], {}
+    tasks, reused = [], []
+    ray_started = False
+    if search > 0 and backend == "ray":           # one Ray instance for the searches and the grid
+        from proprio.tasks import import_ray, init_ray
+        if not import_ray().is_initialized():
+            init_ray(address, workers)
+            ray_started = True
+    try:
+        return _train_grid_tasks(cfg, archs, variants, data, split, backbone, out_dir, tasks, reused, backend,
+                                 address, workers, threads, search, progress)
+    finally:
+        if ray_started:
+            import_ray().shutdown()
+
+
+def _train_grid_tasks(cfg: dict[str, Any], archs: list[str], variants: list[tuple], data: DataConfig, split: Split,
+                      backbone: Backbone, out_dir: Path, tasks: list, reused: list[str], backend: str,
+                      address: str | None, workers: int | None, threads: int, search: int, progress: bool
+                      ) -> tuple[list[TableRow], str]:
+    import sys
+
+    from proprio.tasks import Shared, Task, run_tasks
+
+    tcfg = TrainConfig.from_dict(cfg.get("train"))
+    shared_split = Shared(split)
+    gpus: float | str = 1.0 if tcfg.device == "cuda" else ("auto" if tcfg.device == "auto" else 0.0)
     for arch in archs:
         for hybrid, use_r in variants:
-            tag = f"{arch}_{'hybrid' if hybrid else 'standalone'}_{'r' if use_r else 'nor'}"
+            tag = grid_tag(arch, hybrid, use_r)
             path = out_dir / f"{tag}.pt"
             if path.exists():
-                model, _ = load_model(path)
-            else:
-                t0 = time.perf_counter()
-                model, result, _ = train_from_config(cfg, train_recs, backbone, path, progress=progress, split=split,
-                                                     arch=arch, hybrid=hybrid, use_r=use_r)
-                timing[tag] = {"seconds": time.perf_counter() - t0, "epochs": len(result.history),
-                               "seconds_per_epoch": result.seconds_per_epoch}
+                reused.append(tag)
+                continue
+            model_cfg = cfg
+            if search > 0:
+                best = search_hyperparameters(cfg, split, backbone, arch, hybrid, use_r, search, out_dir,
+                                              address=address, workers=workers, threads=threads)
+                model_cfg = {**cfg, "train": {**cfg.get("train", {}), **best}}
+            tasks.append(Task(tag, train_grid_model,
+                              {"cfg": model_cfg, "split": shared_split, "backbone_spec": backbone.spec,
+                               "description": backbone.description, "arch": arch, "hybrid": hybrid, "use_r": use_r,
+                               "threads": threads, "out": str(path) if backend == "local" else None},
+                              {"model": tag, "arch": arch, "hybrid": hybrid, "use_r": use_r,
+                               "train": model_cfg.get("train", {}), "model_config": model_cfg.get("model", {}),
+                               "data": data.to_dict(), "backbone": backbone.spec, "threads": threads},
+                              num_gpus=gpus))
+
+    def store(task: Task, result: dict[str, Any]) -> dict[str, Any]:
+        from proprio.io import atomic_write_bytes
+        atomic_write_bytes(out_dir / f"{task.key}.pt", result["model"])
+        return {k: v for k, v in result.items() if k != "model"}
+
+    run = run_tasks(tasks, out_dir / ".tasks", store, backend=backend, address=address, workers=workers,
+                    progress=progress, desc="train-grid", kept=lambda task, rec: (out_dir / f"{task.key}.pt").exists())
+    for f in run.failures:
+        print(f.line(), file=sys.stderr)
+    rows, stream_rows = [rbd_row(split)], []
+    timing = dict(run.records)
+    for arch in archs:
+        for hybrid, use_r in variants:
+            path = out_dir / f"{grid_tag(arch, hybrid, use_r)}.pt"
+            if not path.exists():
+                continue                                  # failed: reported above
+            model, _ = load_model(path)
             rows.append(evaluate_model(model, split))
             if model.cfg.streamable and model.cfg.arch != "mlp7":
                 stream_rows.append((rows[-1], streaming_row(model, split)))
@@ -178,15 +269,98 @@ def train_grid(cfg: dict[str, Any], train_recs: Sequence[Recording], backbone: B
         "Windowed (fresh state per window of T) vs streaming (state carried over the recording), average MSE [N·m²]:",
         f"{'model':<34} {'train win':>10} {'train str':>10} {'test win':>10} {'test str':>10}",
         *[f"{w.name:<34} {w.train.mean():>10.4f} {s.train.mean():>10.4f} {w.test.mean():>10.4f} {s.test.mean():>10.4f}"
-          for w, s in stream_rows]])
+          for w, s in stream_rows],
+        *(["", run.summary()] if run.failures else [])])
     atomic_write_text(out_dir / "table.txt", text + "\n")
     atomic_write_text(out_dir / "grid.json", json.dumps({
         "rows": {r.name: {"train": r.train.tolist(), "test": r.test.tolist()} for r in rows},
         "streaming": {s.name: {"train": s.train.tolist(), "test": s.test.tolist()} for _, s in stream_rows},
         "timing": timing, "windows": [len(split.train), len(split.val), len(split.test)],
-        "rate_hz": split.rate_hz, "backbone": backbone.spec}, indent=1))
+        "rate_hz": split.rate_hz, "backbone": backbone.spec,
+        "tasks": {"trained": run.executed, "reused": reused + run.skipped, "backend": run.backend,
+                  "failed": [{"model": f.key, "config": f.config, "error": f.error} for f in run.failures]}},
+        indent=1))
     _plot_grid(rows, out_dir / "grid.png")
     return rows, text
+
+
+SEARCH_SPACE = {"lr": ("loguniform", 1e-4, 3e-3), "weight_decay": ("loguniform", 1e-4, 1e-1),
+                "batch_size": ("choice", [8, 16, 32])}
+"""Default hyper-parameter space of ``train-grid --search`` (``train:`` keys); a config's ``search:`` section
+replaces entries, e.g. ``search: {lr: [loguniform, 1.0e-4, 1.0e-2]}``."""
+
+
+def _tune_trial(config: dict[str, Any], cfg: dict[str, Any], split: Split, description: RobotDescription,
+                arch: str, hybrid: bool, use_r: bool, threads: int) -> None:
+    from ray import tune
+
+    torch.set_num_threads(int(threads))
+    c = {**cfg, "train": {**cfg.get("train", {}), **config}}
+    data = DataConfig.from_dict(c.get("data"))
+    tcfg = TrainConfig.from_dict(c.get("train"))
+    torch.manual_seed(tcfg.seed)
+    model = HybridModel(_model_config(c, data, split, description.n, arch=arch, hybrid=hybrid, use_r=use_r))
+    train_model(model, split, tcfg, progress=False,
+                on_epoch_end=lambda epoch, rec: tune.report({"val": rec["val"], "train": rec["train"]}))
+
+
+def search_hyperparameters(cfg: dict[str, Any], split: Split, backbone: Backbone, arch: str, hybrid: bool,
+                           use_r: bool, num_samples: int, out_dir: str | Path, address: str | None = None,
+                           workers: int | None = None, threads: int = 1) -> dict[str, Any]:
+    """Ray Tune search of ``num_samples`` trials over :data:`SEARCH_SPACE` (drawn with the config's ``train.seed``)
+    for one grid model, each trial one CPU, the validation loss reported every epoch and bad trials stopped early by
+    ASHA (grace period 2 epochs, halving). Writes ``out_dir/search_<tag>.json`` (every trial, the best) and returns
+    the best ``train:`` settings. Uses the running Ray, else starts one (``address`` / ``workers`` CPUs)."""
+    from proprio.tasks import import_ray, init_ray
+
+    ray = import_ray()
+    from ray import tune
+    from ray.tune.schedulers import ASHAScheduler
+    from ray.tune.search import BasicVariantGenerator
+
+    tag = grid_tag(arch, hybrid, use_r)
+    tcfg = TrainConfig.from_dict(cfg.get("train"))
+    space_def = {**SEARCH_SPACE, **(cfg.get("search") or {})}
+    space: dict[str, Any] = {}
+    for key, spec in space_def.items():
+        kind, *args = spec
+        if kind == "loguniform":
+            space[key] = tune.loguniform(float(args[0]), float(args[1]))
+        elif kind == "uniform":
+            space[key] = tune.uniform(float(args[0]), float(args[1]))
+        elif kind == "choice":
+            space[key] = tune.choice(list(args[0]))
+        else:
+            raise ValueError(f"search.{key}: unknown kind {kind!r} (loguniform, uniform, choice)")
+    started = not ray.is_initialized()
+    if started:
+        init_ray(address, workers)
+    try:
+        trainable = tune.with_resources(
+            tune.with_parameters(_tune_trial, cfg=cfg, split=split, description=backbone.description, arch=arch,
+                                 hybrid=hybrid, use_r=use_r, threads=threads), {"cpu": 1})
+        asha = ASHAScheduler(time_attr="training_iteration", max_t=tcfg.max_epochs,
+                             grace_period=min(2, tcfg.max_epochs), reduction_factor=2)
+        tuner = tune.Tuner(trainable, param_space=space,
+                           tune_config=tune.TuneConfig(metric="val", mode="min", num_samples=int(num_samples),
+                                                       scheduler=asha,
+                                                       search_alg=BasicVariantGenerator(random_state=tcfg.seed)),
+                           run_config=tune.RunConfig(name=f"search_{tag}",
+                                                     storage_path=str((Path(out_dir) / "tune").resolve()),
+                                                     verbose=0))
+        results = tuner.fit()
+        best = results.get_best_result(metric="val", mode="min", scope="all")
+        trials = [{"config": r.config, "val": (r.metrics or {}).get("val"),
+                   "epochs": (r.metrics or {}).get("training_iteration"),
+                   "error": str(r.error) if r.error else None} for r in results]
+    finally:
+        if started:
+            ray.shutdown()
+    best_cfg = {k: (int(v) if isinstance(v, (int, np.integer)) else float(v)) for k, v in best.config.items()}
+    atomic_write_text(Path(out_dir) / f"search_{tag}.json", json.dumps(
+        {"model": tag, "space": {k: list(v) for k, v in space_def.items()}, "best": best_cfg,
+         "best_val": best.metrics.get("val"), "trials": trials}, indent=1, default=str))
+    return best_cfg
 
 
 def _plot_grid(rows: list[TableRow], path: Path) -> None:

@@ -47,8 +47,9 @@ def predict_windowed(model: HybridModel, features: np.ndarray, batch: int = 256)
             if chunk.shape[0] > w * T:
                 out[i + w * T:i + chunk.shape[0]] = predict_windowed(model, chunk[None, w * T:], batch)[0]
         return out
+    device = next(model.parameters()).device               # evaluates where the model is (CPU or CUDA)
     x = torch.as_tensor(features, dtype=dtype)
-    return torch.cat([model(x[i:i + batch]) for i in range(0, len(x), batch)]).double().numpy()
+    return torch.cat([model(x[i:i + batch].to(device)).cpu() for i in range(0, len(x), batch)]).double().numpy()
 
 
 @torch.no_grad()
@@ -56,8 +57,9 @@ def predict_streaming(model: HybridModel, features: np.ndarray) -> np.ndarray:
     """τ ``[N, n]`` for one sequence ``features [N, 5n]`` with the state carried over all N samples."""
     model.eval()
     dtype = next(model.parameters()).dtype
-    tau, _ = model.run(torch.as_tensor(features[None], dtype=dtype))
-    return tau[0].double().numpy()
+    device = next(model.parameters()).device
+    tau, _ = model.run(torch.as_tensor(features[None], dtype=dtype, device=device))
+    return tau[0].double().cpu().numpy()
 
 
 def _mse(pred: np.ndarray, tau: np.ndarray) -> np.ndarray:
