@@ -17,7 +17,8 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from proprio.diagnosis.benchmark import BenchmarkCase, run_case
+from proprio.diagnosis.benchmark import run_case
+from proprio.diagnosis.benchmark_cases import BenchmarkCase
 
 LOGGER = (("rate_hz", 1000.0), ("stamp_jitter_ms", 0.1), ("dropout_prob", 0.02), ("dropout_max_samples", 7))
 

@@ -12,7 +12,7 @@ from proprio.description import load_robot
 from proprio.dynamics import inverse_dynamics
 from proprio.diagnosis.data import DiagnosisError, SimModel
 from proprio.diagnosis.selection import attribute
-from proprio.diagnosis.benchmark import BenchmarkCase, generate_case_data, make_cases, rfma_like_motion
+from proprio.diagnosis.benchmark_cases import BenchmarkCase, generate_case_data, make_cases, rfma_like_motion
 from proprio.diagnosis.localisation import REVERSAL_DEADBAND, gap_map, regime_families
 from proprio.reversals import reversal_travel
 from proprio.diagnosis.report import diagnose

@@ -18,8 +18,8 @@ ray = pytest.importorskip("ray", reason="the Ray path needs ray (pip install 'pr
 GRID_YAML = """
 grid: {archs: [mlp7, lstm2_fcl], variants: [[true, true]]}
 model: {lstm_hidden: 8, mlp_hidden: 16}
-data: {decimate: 2, window: 20, test_fraction: 0.2, val_fraction: 0.1, seed: 0, derivatives: filtered,
-       derivative_cutoff_hz: 10.0, tau_filter_hz: 5.0}
+data: {decimate: 2, window: 20, test_fraction: 0.2, val_fraction: 0.1, seed: 0, cutoff_hz: 10.0,
+       tau_filter_hz: 5.0}
 train: {max_epochs: 3, batch_size: 8, seed: 0, device: cpu}
 """
 

@@ -123,7 +123,8 @@ def _positive_float(text: str, flag: str) -> float:
 
 
 def _benchmark(args: argparse.Namespace) -> int:
-    from proprio.diagnosis.benchmark import make_cases, run_benchmark, select_cases, write_results
+    from proprio.diagnosis.benchmark import run_benchmark, write_results
+    from proprio.diagnosis.benchmark_cases import make_cases, select_cases
 
     check_backend_args(args)
     cases = select_cases(make_cases(quick=args.quick, seed=args.seed, twin=args.twin), args.cases)

@@ -10,7 +10,8 @@ Modules, in the order the diagnosis runs:
 - :mod:`~proprio.diagnosis.selection` — greedy forward selection, scored on held-out blocks, and its statistics;
 - :mod:`~proprio.diagnosis.verdict` — the plain-language verdict;
 - :mod:`~proprio.diagnosis.report` — :func:`diagnose`: all of the above as one call and one report;
-- :mod:`~proprio.diagnosis.benchmark` — the withheld-effect benchmark.
+- :mod:`~proprio.diagnosis.benchmark_cases` — the withheld-effect benchmark's cases and their data;
+- :mod:`~proprio.diagnosis.benchmark` — running and scoring them.
 """
 from proprio.diagnosis.data import DiagnosisError, SimModel
 from proprio.diagnosis.report import Diagnosis, diagnose
