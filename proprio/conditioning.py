@@ -26,8 +26,8 @@ Steps, all vectorised over samples and joints:
    ``q̈``. **τ gets the same low-pass per joint**, so a prediction computed from the conditioned motion and the
    measurement it is compared with have the same (zero-phase) transfer function.
 4. **Its own error.** ``sigma_qd``, ``sigma_qdd`` [rad/s, rad/s²]: the white floor propagated through the filter and
-   difference chain (the sum of the squared impulse response) combined with the signal power the low-pass removes
-   above the cutoff. Later stages turn them into torque (:func:`processing_torque_sigma`), so a gap the processing
+   difference chain (the sum of the squared impulse response) combined with the signal the low-pass distorts
+   (``Σ S (1 − G)²``: attenuated near and removed above the cutoff). Later stages turn them into torque (:func:`processing_torque_sigma`), so a gap the processing
    itself could explain is never reported as physics.
 
 :func:`condition` returns a :class:`ConditionedSignals`; ``.describe()`` is the one line every output prints.
@@ -320,12 +320,15 @@ def _chain_gains(rate_hz: float, cutoff: float, order: int, edge_cycles: float) 
     return float((lp ** 2).sum()), float((d1 ** 2).sum()), float((d2 ** 2).sum())
 
 
-def _lost_power(q: np.ndarray, rate_hz: float, cutoff: np.ndarray, power: int, t: np.ndarray | None = None
-                ) -> np.ndarray:
-    """RMS of the ``power``-th derivative's signal content above each joint's cutoff (what the low-pass removes)."""
+def _lost_power(q: np.ndarray, rate_hz: float, cutoff: np.ndarray, power: int, t: np.ndarray | None = None,
+                order: int = 2) -> np.ndarray:
+    """RMS of the ``power``-th derivative's signal that the low-pass distorts: ``Σ S(f) (1 − G(f))²`` with the
+    zero-phase Butterworth's magnitude ``G`` (the signal term of the cutoff's error model, step 2: it counts the
+    attenuation below the cutoff as well as the signal removed above it)."""
     f, signal, _, _ = _spectra(q, rate_hz, t)
     s = signal * (2 * np.pi * np.maximum(f[:, None], 1e-9)) ** (2 * power - 4)
-    return np.sqrt(np.sum(np.where(f[:, None] > cutoff[None, :], s, 0.0), axis=0) * (f[1] - f[0]))
+    g = 1.0 / (1.0 + (f[:, None] / cutoff[None, :]) ** (2 * order))
+    return np.sqrt(np.sum(s * (1.0 - g) ** 2, axis=0) * (f[1] - f[0]))
 
 
 # ---- the path ----------------------------------------------------------------------------------------------------
@@ -392,8 +395,8 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
         velocity_source = "q"
     qdd = np.gradient(qd, h, axis=0)
     gains = np.array([_chain_gains(rate, c, config.order, config.edge_cycles) for c in cutoff])     # [n, 3]
-    lost_qd = _lost_power(rec.q, rate, cutoff, 1, t_src) if q.shape[0] >= 64 else np.zeros(n)
-    lost_qdd = _lost_power(rec.q, rate, cutoff, 2, t_src) if q.shape[0] >= 64 else np.zeros(n)
+    lost_qd = _lost_power(rec.q, rate, cutoff, 1, t_src, config.order) if q.shape[0] >= 64 else np.zeros(n)
+    lost_qdd = _lost_power(rec.q, rate, cutoff, 2, t_src, config.order) if q.shape[0] >= 64 else np.zeros(n)
     sigma_qd = np.sqrt(sigma_q ** 2 * gains[:, 1] + lost_qd ** 2)
     sigma_qdd = np.sqrt(sigma_q ** 2 * gains[:, 2] + lost_qdd ** 2)
     return ConditionedSignals(t=t_u, q=q_f, qd=qd, qdd=qdd, tau=lp(tau) if config.tau_filter else tau, valid=valid,
