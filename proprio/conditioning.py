@@ -27,7 +27,8 @@ Steps, all vectorised over samples and joints:
    measurement it is compared with have the same (zero-phase) transfer function.
 4. **Its own error.** ``sigma_qd``, ``sigma_qdd`` [rad/s, rad/s²]: the white floor propagated through the filter and
    difference chain (the sum of the squared impulse response) combined with the signal the low-pass distorts
-   (``Σ S (1 − G)²``: attenuated near and removed above the cutoff). Later stages turn them into torque (:func:`processing_torque_sigma`), so a gap the processing
+   (``Σ S (1 − G)²``: attenuated near and removed above the cutoff). Later stages turn them into torque
+   (:func:`processing_torque_sigma`), so a gap the processing
    itself could explain is never reported as physics.
 
 :func:`condition` returns a :class:`ConditionedSignals`; ``.describe()`` is the one line every output prints.
@@ -333,10 +334,11 @@ def _lost_power(q: np.ndarray, rate_hz: float, cutoff: np.ndarray, power: int, t
 
 # ---- the path ----------------------------------------------------------------------------------------------------
 
-def _time_base(rec: Recording, h: float, config: ConditioningConfig, notes: list[str]) -> np.ndarray:
+def _time_base(rec: Recording, t_u: np.ndarray, h: float, config: ConditioningConfig, notes: list[str]
+               ) -> np.ndarray:
     """The instants [s, from 0] the samples were taken at (module docstring, step 1); notes which was used."""
     t = rec.t - rec.t[0]
-    if config.time_base == "stamps" or not notes:              # no jitter: stamps and clock agree
+    if config.time_base == "stamps" or t_u is t or np.array_equal(t_u, t):   # no jitter: stamps and clock agree
         return t
     clock = clock_stamps(t, h)
     if clock is None:
@@ -362,7 +364,7 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
     n = rec.n_joints
     t_u, valid, h, notes = uniform_time_base(rec.t, config.max_gap_s)
     rate = 1.0 / h
-    t_src = _time_base(rec, h, config, notes)
+    t_src = _time_base(rec, t_u, h, config, notes)
     q = _resample(t_src, rec.q, t_u)
     tau = _resample(t_src, rec.tau, t_u)
     if config.velocity == "measured" and rec.qd is None:

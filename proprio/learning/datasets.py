@@ -1,7 +1,7 @@
 """The §4.4 data protocol: Recordings → features at the model rate → windows of length T → 80/20 split.
 
 1. Per Recording: the one conditioning path (:func:`proprio.conditioning.condition`) puts q and τ on the uniform
-   grid of the log's median step and gives q̇, q̈ from q (zero-phase low-pass at ``cutoff_hz``, a number or ``auto``
+   grid of the log's nominal step and gives q̇, q̈ from q (zero-phase low-pass at ``cutoff_hz``, a number or ``auto``
    from the noise floor, then central differences; ``velocity: auto`` takes the robot's own q̇ where it logs one);
    optionally a zero-phase low-pass on the measured τ (the thesis trains on "post-processed" torques;
    ``tau_filter_hz``); ``trim_s`` cut from both ends (filter start-up transients).
@@ -43,7 +43,7 @@ class DataConfig:
     seed: int = 0                           # shuffles the subsequence order
     reversal_deadband_deg: float = DEFAULT_DEADBAND_DEG
     r_max_deg: float = R_MAX_DEG
-    cutoff_hz: str | float = "auto"         # conditioning's low-pass of q before differentiation [Hz] or auto
+    cutoff_hz: Any = "auto"                 # conditioning's low-pass of q [Hz]: a number, one per joint, or auto
     velocity: str = "q"                     # q̇ from q | auto: the robot's own q̇ where it logs one (conditioning)
     tau_filter_hz: float | None = None      # zero-phase low-pass on measured τ (None: raw)
     trim_s: float = 0.0                     # cut from both ends of every Recording [s]
@@ -68,7 +68,8 @@ class DataConfig:
 
     def conditioning(self) -> ConditioningConfig:
         """The conditioning settings of step 1 (τ is low-passed separately, at ``tau_filter_hz``)."""
-        cut = self.cutoff_hz if isinstance(self.cutoff_hz, str) else float(self.cutoff_hz)
+        c = self.cutoff_hz
+        cut = c if isinstance(c, str) else tuple(float(x) for x in c) if isinstance(c, (list, tuple)) else float(c)
         return ConditioningConfig(cutoff_hz=cut, velocity=self.velocity, tau_filter=False)
 
 
