@@ -93,25 +93,10 @@ class HybridTorqueModel:
         backbone = rigid + self.backbone.tau_int(q, qd, qdd)                # = tau_backbone(q, qd, qdd)
         return predict_streaming(self.network, feature_matrix(backbone, q, qd, qdd, r)) - rigid
 
-    def make_system(self, time_step: float) -> Diagram:
+    def make_system(self, time_step: float) -> "HybridTorqueModelSystem":
         """The online model (module docstring), stepping every ``time_step`` [s] (the replayed data's step).
         Inputs ``q``, ``qd``, ``qdd``; outputs ``tau_dyn`` = τ_HYB and ``tau_int`` = τ_HYB − τ_rigid [N·m]."""
-        n = self.description.n
-        builder = DiagramBuilder()
-        backbone = builder.AddNamedSystem("backbone", TorqueModelSystem(self.backbone))
-        network = builder.AddNamedSystem("residual_network", ResidualNetworkSystem(self.network, time_step))
-        tau_int = builder.AddNamedSystem("tau_int", Adder(2, n))
-        for name in ("q", "qd", "qdd"):
-            builder.ExportInput(backbone.GetInputPort(name), name)
-            builder.ConnectInput(name, network.GetInputPort(name))
-        builder.Connect(backbone.GetOutputPort("tau_dyn"), network.GetInputPort("tau_rbd"))
-        builder.Connect(backbone.GetOutputPort("tau_int"), tau_int.get_input_port(0))
-        builder.Connect(network.GetOutputPort("tau_residual"), tau_int.get_input_port(1))
-        builder.ExportOutput(network.GetOutputPort("tau_hybrid"), "tau_dyn")
-        builder.ExportOutput(tau_int.get_output_port(), "tau_int")
-        diagram = builder.Build()
-        diagram.set_name("hybrid_torque_model")
-        return diagram
+        return HybridTorqueModelSystem(self, time_step)
 
     def signals(self, rec: Recording) -> tuple[Recording, dict[str, np.ndarray]]:
         """``rec`` at the model rate (the kept samples) and its signals ``t, q, qd, qdd, tau, time_step`` prepared
@@ -142,6 +127,41 @@ class HybridTorqueModel:
         """Start-up/edge transient of its zero-phase filters [s]: ``edge_cycles`` periods of the lowest cutoff."""
         cutoffs = [c for c in (self.data.derivative_cutoff_hz, self.data.tau_filter_hz) if c]
         return edge_cycles / min(cutoffs) if cutoffs else 0.0
+
+
+class HybridTorqueModelSystem(Diagram):
+    """:meth:`HybridTorqueModel.make_system`: the backbone (:class:`TorqueModelSystem`, C++ inverse dynamics + the
+    backbone's friction) into the :class:`ResidualNetworkSystem` (module docstring). Inputs ``q``, ``qd``, ``qdd``;
+    outputs ``tau_dyn`` = τ_HYB and ``tau_int`` = τ_HYB − τ_rigid [N·m]. :meth:`step` is the same computation for
+    one sample with the network's memory passed in and out (the streaming estimator's interface)."""
+
+    def __init__(self, model: HybridTorqueModel, time_step: float):
+        Diagram.__init__(self)
+        n = model.description.n
+        builder = DiagramBuilder()
+        self.backbone = builder.AddNamedSystem("backbone", TorqueModelSystem(model.backbone))
+        self.network = builder.AddNamedSystem("residual_network", ResidualNetworkSystem(model.network, time_step))
+        tau_int = builder.AddNamedSystem("tau_int", Adder(2, n))
+        for name in ("q", "qd", "qdd"):
+            builder.ExportInput(self.backbone.GetInputPort(name), name)
+            builder.ConnectInput(name, self.network.GetInputPort(name))
+        builder.Connect(self.backbone.GetOutputPort("tau_dyn"), self.network.GetInputPort("tau_rbd"))
+        builder.Connect(self.backbone.GetOutputPort("tau_int"), tau_int.get_input_port(0))
+        builder.Connect(self.network.GetOutputPort("tau_residual"), tau_int.get_input_port(1))
+        builder.ExportOutput(self.network.GetOutputPort("tau_hybrid"), "tau_dyn")
+        builder.ExportOutput(tau_int.get_output_port(), "tau_int")
+        builder.BuildInto(self)
+        self.set_name("hybrid_torque_model")
+
+    def initial_memory(self) -> np.ndarray:
+        return self.network.initial_memory()
+
+    def step(self, memory: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(tau_dyn, tau_int, next memory)`` for one sample — the step function."""
+        tau_rbd, friction, _ = self.backbone.step(None, q, qd, qdd)
+        tau_hybrid, memory = self.network.step(memory, q, qd, qdd, tau_rbd)
+        return tau_hybrid, friction + (tau_hybrid - tau_rbd), memory
 
 
 def load_hybrid_torque_model(path: str | Path) -> HybridTorqueModel:
