@@ -1,18 +1,24 @@
 """The estimation diagram (DESIGN.md diagram 2): a Recording replayed through a dynamics model into both wrench
-observers, logged at the data rate.
+observers, logged at the data rate — the same :class:`WrenchEstimator` a live robot runs.
 
-    TrajectorySource [q; q̇; q̈; τ_J] (conditioned, zero phase) → Demultiplexer
-        ├─ q, q̇, q̈ → TorqueModelSystem ──tau_dyn──→ JacobianWrenchObserver ──→ VectorLogSink (f̂, τ̂_ext, flags)
-        │                               └─tau_int──→ MomentumObserver ───────→ VectorLogSink (f̂, τ̂_ext)
-        └─ τ_J ───────────────────────────────────→ both observers' tau_meas
+    TrajectorySource [q; q̇; q̈; τ_J] (conditioned, zero phase) → Demultiplexer → WrenchEstimator:
+        ├─ q, q̇, q̈ → torque_model (C++ InverseDynamics + τ_int, or the hybrid model) ─tau_dyn─→ jacobian_observer
+        │                                                                  └─tau_int─→ momentum_observer
+        ├─ τ_J ──────────────────────────────────────────────→ both observers' tau_meas
+        └─ q ─→ wrench (WrenchMap: one J(q), one solve for both τ̂_ext) ─estimate─→ ONE VectorLogSink
 
-The signals come from the one conditioning path (:mod:`proprio.conditioning`: uniform time base, zero-phase
-Butterworth per joint with its cutoff from the data's noise floor or from the config, central differences), offline,
-so they are computed before the replay; the observers themselves are causal Systems that would run unchanged on live sensor ports. ``tau_dyn`` comes from any
-:class:`TorqueModel`: the rigid-body model (:class:`TorqueModelSystem`), or the hybrid RBD + learned residual
-(:mod:`proprio.diagrams.hybrid_torque_model`), whose network then runs online in the diagram, one step per sample with
-its LSTM and r-encoder state carried from sample to sample. :func:`estimate_wrench` runs it and returns an
-:class:`EstimationResult`.
+Every stage is a System with named ports; C++ primitives (InverseDynamics, Multiplexer/Demultiplexer, Adder,
+MatrixGain, discrete LinearSystem, ZeroOrderHold) carry everything but the three (RBD) or four (hybrid) Python
+Systems that hold real Python work (τ_int, the network step, the momentum terms, the wrench solve), each reading
+one stacked input port and writing one output. The signals come from the one conditioning path
+(:mod:`proprio.conditioning`: uniform time base, zero-phase Butterworth per joint with its cutoff from the data's
+noise floor or from the config, central differences), offline, so they are computed before the replay; online, a
+causal conditioning stage (:class:`~proprio.systems.causal_conditioning.CausalConditioner`) takes the raw q, τ_J
+instead (``WrenchEstimator(..., conditioning=causal_conditioning(...))``, and :mod:`proprio.online` for a loop
+without a Simulator). ``tau_dyn`` comes from any :class:`TorqueModel`: the rigid-body model
+(:class:`TorqueModelSystem`), or the hybrid RBD + learned residual (:mod:`proprio.diagrams.hybrid_torque_model`),
+whose network then runs online in the diagram, one step per sample with its LSTM and r-encoder state carried from
+sample to sample. :func:`estimate_wrench` runs it and returns an :class:`EstimationResult`.
 """
 from __future__ import annotations
 

@@ -316,9 +316,11 @@ class StreamingStepper:
         np.tanh(c, out=h_out)
         h_out *= a[3 * k:]
 
-    def step(self, x: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """τ [n] N·m for the features ``x [5n]`` of one sample, and the next recurrent state (``state`` is not
-        modified)."""
+    def step(self, x: np.ndarray, state: np.ndarray, r: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """τ [n] N·m for the features ``x [5n]`` of one sample — or ``x [4n]`` = vec(τ_RBD, q, q̇, q̈) and ``r [n]``
+        apart, which saves a concatenation — and the next recurrent state (``state`` is not modified)."""
+        if r is not None and (self.columns is not None or self.arch == "mlp7"):
+            x, r = np.concatenate((x, r)), None
         z = x if self.columns is None else x[self.columns]
         if self.arch == "mlp7":
             h = np.maximum(np.einsum("f,jfh->jh", z, self.w1) + self.b1, 0.0)
@@ -327,7 +329,11 @@ class StreamingStepper:
             k1, k2 = self.sizes[0], self.sizes[2]
             z1, z2 = self._z1, self._z2
             f_in = z1.shape[0] - k1 - 1
-            z1[:f_in] = z
+            if r is None:
+                z1[:f_in] = z
+            else:
+                z1[:f_in - r.shape[0]] = z
+                z1[f_in - r.shape[0]:f_in] = r
             z1[f_in:f_in + k1] = state[:k1]
             nxt = state.copy()                                           # [h₁, c₁, h₂, c₂]
             self._cell(z1, nxt[k1:2 * k1], self.cells[0], self._a1, self._gate_scale[0], self._gate_shift[0],

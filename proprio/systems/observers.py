@@ -21,6 +21,12 @@ Two ways to get τ_ext:
   (``CalcGravityGeneralizedForces``, the *applied* gravity torque, = −g(q) of eq. 3.2) and Cᵀq̇ = ∂T/∂q is computed
   as Ṁq̇ − Cq̇ (a central difference of M along q̇ plus Drake's ``CalcBiasTerm``).
 
+As Systems (one per stage, C++ where the work is linear): :class:`JacobianWrenchObserver` (τ_dyn − τ_J, a
+``MatrixGain``), :class:`MomentumObserver` (:class:`MomentumTermsSystem` for p and τ_g + Cᵀq̇ from Drake's plant,
+then the recursion as a discrete ``LinearSystem``, :func:`momentum_filter`) and :class:`WrenchMap`, which maps both
+τ̂_ext to wrenches with ONE Jacobian and ONE eigen-decomposition per step. Each Python System exposes its step
+function (``calc``) so that :mod:`proprio.online` drives the same code without a Simulator.
+
 The Jacobian pseudo-inverse (eq. 3.12, the arm is redundant: 7 equations, 6 or 3 unknowns) is a weighted,
 adaptively damped least-squares solve of ``Jᵀ w = τ_ext``:
 
@@ -39,7 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from pydrake.systems.framework import Context, Diagram, DiagramBuilder, LeafSystem
-from pydrake.systems.primitives import LinearSystem, MatrixGain, Multiplexer
+from pydrake.systems.primitives import Demultiplexer, LinearSystem, MatrixGain, Multiplexer
 from scipy.linalg.lapack import dsyevd
 from scipy.signal import lfilter
 
@@ -48,7 +54,7 @@ from proprio.dynamics import inverse_dynamics
 from proprio.kinematics import ChainGeometry, chain_geometry, point_jacobian
 from proprio.plant import DrakeRobot
 
-__all__ = ["WrenchMapping", "wrench_from_joint_torque", "WrenchSolver", "jacobian_wrench", "WrenchMap",
+__all__ = ["WrenchMapping", "wrench_from_joint_torque", "WrenchSolver", "jacobian_wrench", "WrenchMapStep", "WrenchMap",
            "JacobianWrenchObserver", "momentum_terms", "DrakeArm", "momentum_observer", "momentum_filter",
            "MomentumTermsSystem", "MomentumObserver"]
 
@@ -152,14 +158,15 @@ class WrenchSolver:
         lam, v, info = dsyevd(a @ a.T)                               # J Jᵀ = V diag(σ²) Vᵀ, ascending
         if info != 0:
             raise np.linalg.LinAlgError(f"WrenchSolver: LAPACK dsyevd did not converge (info = {info})")
-        sv = np.sqrt(np.maximum(lam, 0.0)).tolist()
-        s_min = sv[0]
-        # (the common undamped case skips np.where's overhead)
-        lam2 = float(_damping(s_min, self.mapping)) if s_min < self.mapping.sigma_threshold else 0.0
-        sol = ((tau_ext @ a.T) @ v / (lam + lam2)) @ v.T             # rows (J Jᵀ + λ²)⁻¹ J τ = [f; m] or f
+        sq = lam.tolist()                                            # σ², ascending (≥ 0 up to rounding)
+        s_min = math.sqrt(max(sq[0], 0.0))
+        unreliable = s_min < self.mapping.sigma_threshold
+        if unreliable:                                               # (the common undamped case skips the add)
+            lam = lam + float(_damping(s_min, self.mapping))
+        sol = ((tau_ext @ a.T) @ v / lam) @ v.T                      # rows (J Jᵀ + λ²)⁻¹ J τ = [f; m] or f
         if self._force_only:
             sol = np.hstack((sol, np.zeros_like(sol)))
-        return sol, math.prod(sv), float(s_min < self.mapping.sigma_threshold)
+        return sol, math.sqrt(math.prod(max(x, 0.0) for x in sq)), float(unreliable)
 
     def __call__(self, jac: np.ndarray, tau_ext: np.ndarray) -> np.ndarray:
         wrench, manip, flag = self.solve(jac, np.asarray(tau_ext, dtype=float)[None, :])
@@ -238,45 +245,64 @@ class DrakeArm(DrakeRobot):
         return m @ qd, tau_g + mdot_qd - c_qd
 
 
-class WrenchMap(LeafSystem):
+class WrenchMapStep(LeafSystem):
+    """:class:`WrenchMap`'s Python System: input ``inputs`` = ``[q; τ̂_ext,1; …; τ̂_ext,m]`` (one stacked port: each
+    input evaluation from Python costs about a microsecond), output ``estimate`` (:meth:`WrenchMap.calc`)."""
+
+    def __init__(self, owner: "WrenchMap"):
+        LeafSystem.__init__(self)
+        n, m = owner.n, len(owner.sources)
+        self._owner, self._n, self._m = owner, n, m
+        self._inputs = self.DeclareVectorInputPort("inputs", (1 + m) * n)
+        self.DeclareVectorOutputPort("estimate", 6 * m + 2 + m * n, self._calc)
+
+    def _calc(self, context, output) -> None:
+        x = self._inputs.Eval(context)
+        output.SetFromVector(self._owner.calc(x[:self._n], x[self._n:].reshape(self._m, self._n)))
+
+
+class WrenchMap(Diagram):
     """The Cartesian mapping of eq. 3.12 shared by the observers: ``f̂ = J⁻ᵀ(q) τ̂_ext`` for each observer's τ̂_ext,
     with ONE Jacobian (Drake's ``CalcJacobianSpatialVelocity`` on a cached plant context) and ONE eigen-decomposition
     (:class:`WrenchSolver`) per step for all of them.
 
     Input ports: ``q`` (n) [rad]; ``tau_ext_<source>`` (n) [N·m] for each name in ``sources`` (default
-    ``("jacobian", "momentum")``). Output ports: ``wrench_<source>`` (6) [fx, fy, fz, mx, my, mz] on the robot at
-    the contact point, world frame (N, N·m; moment 0 in force-only mode); ``manipulability`` (1) = √det(J W Jᵀ);
-    ``unreliable`` (1) 1.0 when σ_min < ``mapping.sigma_threshold`` else 0.0; and ``estimate`` (6m + 2 + mn), all
-    of it stacked ``[wrench_<s>…, manipulability, unreliable, tau_ext_<s>…]`` — the one port a logger needs.
-    Everything comes from the ``estimate`` port (an output port's value is cached per context, so it is computed
-    once per step however many ports are read).
+    ``("jacobian", "momentum")``). Output ports: ``estimate`` (6m + 2 + mn), all of it stacked
+    ``[wrench_<s>…, manipulability, unreliable, tau_ext_<s>…]`` — the one port a logger needs — and, split from it in
+    C++, ``wrench_<source>`` (6) [fx, fy, fz, mx, my, mz] on the robot at the contact point, world frame (N, N·m;
+    moment 0 in force-only mode); ``manipulability`` (1) = √det(J W Jᵀ); ``unreliable`` (1) 1.0 when σ_min <
+    ``mapping.sigma_threshold`` else 0.0. Inside: ``Multiplexer`` → :class:`WrenchMapStep` → ``Demultiplexer``.
     """
 
     def __init__(self, desc: RobotDescription, mapping: WrenchMapping = WrenchMapping(),
                  sources: tuple[str, ...] = ("jacobian", "momentum")):
-        LeafSystem.__init__(self)
+        Diagram.__init__(self)
         n, m = desc.n, len(sources)
         self.n, self.sources = n, tuple(sources)
         self._arm = DrakeArm(desc)
         self._solver = WrenchSolver(mapping, n)
         self._contact = np.asarray(mapping.contact_point, dtype=float)
-        self._q = self.DeclareVectorInputPort("q", n)
-        self._taus = [self.DeclareVectorInputPort(f"tau_ext_{s}", n) for s in sources]
-        self._estimate = self.DeclareVectorOutputPort("estimate", 6 * m + 2 + m * n, self._calc_estimate)
-        for i, s in enumerate(sources):
-            self.DeclareVectorOutputPort(f"wrench_{s}", 6, lambda c, o, i=i: o.SetFromVector(
-                self._estimate.Eval(c)[6 * i:6 * i + 6]))
-        self.DeclareVectorOutputPort("manipulability", 1, lambda c, o: o.SetAtIndex(0, self._estimate.Eval(c)[6 * m]))
-        self.DeclareVectorOutputPort("unreliable", 1, lambda c, o: o.SetAtIndex(0, self._estimate.Eval(c)[6 * m + 1]))
+        builder = DiagramBuilder()
+        stack = builder.AddNamedSystem("stack", Multiplexer([n] * (1 + m)))
+        step = builder.AddNamedSystem("solve", WrenchMapStep(self))
+        split = builder.AddNamedSystem("split", Demultiplexer([6] * m + [1, 1, m * n]))
+        builder.ExportInput(stack.get_input_port(0), "q")
+        for i, s in enumerate(self.sources):
+            builder.ExportInput(stack.get_input_port(1 + i), f"tau_ext_{s}")
+        builder.Connect(stack.get_output_port(), step.get_input_port())
+        builder.Connect(step.get_output_port(), split.get_input_port())
+        builder.ExportOutput(step.get_output_port(), "estimate")
+        for i, s in enumerate(self.sources):
+            builder.ExportOutput(split.get_output_port(i), f"wrench_{s}")
+        builder.ExportOutput(split.get_output_port(m), "manipulability")
+        builder.ExportOutput(split.get_output_port(m + 1), "unreliable")
+        builder.BuildInto(self)
+        self.set_name("wrench")
 
     def calc(self, q: np.ndarray, tau_ext: np.ndarray) -> np.ndarray:
         """The ``estimate`` vector for ``q [n]`` and ``tau_ext [m,n]`` (one row per source) — the step function."""
         wrench, manip, flag = self._solver.solve(self._arm.flange_jacobian(q, self._contact), tau_ext)
         return np.concatenate((wrench.ravel(), (manip, flag), tau_ext.ravel()))
-
-    def _calc_estimate(self, context, output) -> None:
-        tau_ext = np.array([port.Eval(context) for port in self._taus])
-        output.SetFromVector(self.calc(self._q.Eval(context), tau_ext))
 
 
 class JacobianWrenchObserver(Diagram):

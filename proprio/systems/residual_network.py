@@ -128,7 +128,7 @@ class ResidualNetworkSystem(Diagram):
         else:
             enc, net_state = self.encoder.initial_state(q), np.zeros(self._n_net)
         r, enc = self.encoder.step_state(enc, q)
-        tau, net_state = self.stepper.step(np.concatenate((inputs, r)), net_state)
+        tau, net_state = self.stepper.step(inputs, net_state, r)
         return np.concatenate((tau, _STARTED, enc, net_state))
 
     def step(self, memory: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, tau_rbd: np.ndarray
