@@ -21,7 +21,6 @@ rate); buffers are preallocated; one estimator serves one robot from one thread.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
@@ -40,23 +39,49 @@ class OnlineInputError(ValueError):
     """A sample handed to :meth:`OnlineEstimator.step` is malformed; the message names the field."""
 
 
-@dataclass(frozen=True, slots=True)
 class WrenchEstimate:
-    """One estimate at time ``t`` [s] (the sample's own stamp).
+    """One estimate at time ``t`` [s] (the sample's own stamp), a read-only view of one vector (``vector``, the
+    :class:`~proprio.diagrams.estimation.WrenchEstimator`'s ``estimate`` port; fields are sliced on access).
 
     ``jacobian``, ``momentum``: ``[fx, fy, fz, mx, my, mz]`` — the wrench the environment exerts ON the robot at the
     contact point (the flange origin by default), world frame, N and N·m (moment 0 in force-only mode), from the
     direct (Jacobian) and the momentum observer. ``tau_ext_jacobian``, ``tau_ext_momentum`` [n] N·m: the observers'
     external joint torques. ``manipulability`` √det(J W Jᵀ) and ``unreliable`` (σ_min below the threshold: the
-    mapping is damped, trust the wrench less). All arrays are read-only views of one vector (``vector``)."""
-    t: float
-    jacobian: np.ndarray
-    momentum: np.ndarray
-    manipulability: float
-    unreliable: bool
-    tau_ext_jacobian: np.ndarray
-    tau_ext_momentum: np.ndarray
-    vector: np.ndarray
+    mapping is damped, trust the wrench less)."""
+    __slots__ = ("t", "vector")
+
+    def __init__(self, t: float, vector: np.ndarray):
+        self.t, self.vector = t, vector
+
+    @property
+    def jacobian(self) -> np.ndarray:
+        return self.vector[0:6]
+
+    @property
+    def momentum(self) -> np.ndarray:
+        return self.vector[6:12]
+
+    @property
+    def manipulability(self) -> float:
+        return float(self.vector[12])
+
+    @property
+    def unreliable(self) -> bool:
+        return bool(self.vector[13] > 0.5)
+
+    @property
+    def tau_ext_jacobian(self) -> np.ndarray:
+        n = (self.vector.shape[0] - 14) // 2
+        return self.vector[14:14 + n]
+
+    @property
+    def tau_ext_momentum(self) -> np.ndarray:
+        n = (self.vector.shape[0] - 14) // 2
+        return self.vector[14 + n:]
+
+    def __repr__(self) -> str:
+        return (f"WrenchEstimate(t={self.t:.6g} s, jacobian={np.array2string(self.jacobian, precision=3)}, "
+                f"momentum={np.array2string(self.momentum, precision=3)}, unreliable={self.unreliable})")
 
 
 class OnlineEstimator:
@@ -186,7 +211,7 @@ class OnlineEstimator:
         tau_ext = self._tau_ext
         np.subtract(tau_dyn, tau_f, out=tau_ext[0])
         xmu, um = self._xmu, self._um
-        um[:2 * n] = self._terms(q_f, qd_f)
+        self._terms(q_f, qd_f, um[:2 * n])
         um[2 * n:3 * n] = tau_f
         um[3 * n:] = tau_int
         if not self._started:
@@ -197,4 +222,4 @@ class OnlineEstimator:
         self._t_prev = t
         v = self._wrench(q_f, tau_ext)
         v.flags.writeable = False
-        return WrenchEstimate(t, v[0:6], v[6:12], float(v[12]), bool(v[13] > 0.5), v[14:14 + n], v[14 + n:], v)
+        return WrenchEstimate(t, v)

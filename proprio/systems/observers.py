@@ -398,10 +398,13 @@ class MomentumTermsSystem(LeafSystem):
         self._state = self.DeclareVectorInputPort("state", 2 * n)
         self.DeclareVectorOutputPort("momentum_terms", 2 * n, self._calc)
 
-    def calc(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
-        """The output for one sample — the step function."""
+    def calc(self, q: np.ndarray, qd: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """The output for one sample — the step function (written into ``out [2n]`` when given)."""
         p, beta = self._arm.momentum_terms(q, qd)
-        return np.concatenate((p, beta))
+        if out is None:
+            return np.concatenate((p, beta))
+        out[:self.n], out[self.n:] = p, beta
+        return out
 
     def _calc(self, context, output) -> None:
         x = self._state.Eval(context)
