@@ -34,18 +34,54 @@ from pydrake.systems.primitives import Demultiplexer, MatrixGain, Multiplexer, Z
 from proprio.learning.features import ReversalEncoder
 from proprio.learning.models import HybridModel, StreamingStepper
 
-__all__ = ["ResidualNetworkStep", "ResidualNetworkSystem", "AddResidualNetwork"]
+__all__ = ["ResidualNetworkCore", "ResidualNetworkStep", "ResidualNetworkSystem", "AddResidualNetwork"]
 
 _STARTED = np.ones(1)
+
+
+class ResidualNetworkCore:
+    """The per-sample computation of the residual network, shared by the Systems (:class:`ResidualNetworkSystem`,
+    the hybrid torque model's) and the streaming estimator: ``step_stacked(memory, [τ_rbd; q; q̇; q̈]) ->
+    [τ_hybrid; next memory]``, a pure function of its arguments. The memory is ``[started, encoder state (3n),
+    network state]``; zeros (``started`` = 0) start the encoder at the first q and the LSTM at zero state.
+    (The stepper's scratch buffers make one core unsafe to share between threads.)"""
+
+    def __init__(self, model: HybridModel):
+        if not model.cfg.streamable:
+            raise ValueError(f"ResidualNetworkSystem: {model.cfg.label()} has no streaming form (Transformer); "
+                             "use an MLP-7 or LSTM model")
+        cfg = model.cfg
+        self.stepper = StreamingStepper(model)
+        self.n = cfg.n_joints
+        self.encoder = ReversalEncoder(self.n, cfg.reversal_deadband_deg, cfg.r_max_deg)
+        self._n_net = self.stepper.state_size
+        self.memory_size = 1 + 3 * self.n + self._n_net
+
+    def initial_memory(self) -> np.ndarray:
+        """The memory before the first sample (``started`` = 0: the encoder starts at the first q)."""
+        return np.zeros(self.memory_size)
+
+    def step_stacked(self, memory: np.ndarray, inputs: np.ndarray) -> np.ndarray:
+        """One sample: ``[τ_hybrid (n) N·m; next memory]`` from the memory and the stacked inputs
+        ``[τ_rbd; q; q̇; q̈]`` at t_k (neither argument is modified)."""
+        n = self.n
+        q = inputs[n:2 * n]
+        if memory[0] > 0:
+            enc, net_state = memory[1:1 + 3 * n], memory[1 + 3 * n:]
+        else:
+            enc, net_state = self.encoder.initial_state(q), np.zeros(self._n_net)
+        r, enc = self.encoder.step_state(enc, q)
+        tau, net_state = self.stepper.step(inputs, net_state, r)
+        return np.concatenate((tau, _STARTED, enc, net_state))
 
 
 class ResidualNetworkStep(LeafSystem):
     """One step of the network as a stateless System (the state comes back through ``memory``): inputs ``inputs``
     = ``[τ_rbd; q; q̇; q̈]`` (4n: N·m, rad, rad/s, rad/s²) and ``memory`` (the previous step's, ``1 + 3n +
-    state_size``); output ``step`` = ``[τ_hybrid (n) N·m; next memory]`` (:meth:`ResidualNetworkSystem.step_stacked`).
+    state_size``); output ``step`` = ``[τ_hybrid (n) N·m; next memory]`` (:meth:`ResidualNetworkCore.step_stacked`).
     Two stacked inputs, not five: each input evaluation from Python costs about a microsecond."""
 
-    def __init__(self, owner: "ResidualNetworkSystem"):
+    def __init__(self, owner: ResidualNetworkCore):
         super().__init__()
         n, size = owner.n, owner.memory_size
         self._owner = owner
@@ -81,20 +117,14 @@ class ResidualNetworkSystem(Diagram):
 
     def __init__(self, model: HybridModel, period_s: float | None = None):
         Diagram.__init__(self)
-        if not model.cfg.streamable:
-            raise ValueError(f"ResidualNetworkSystem: {model.cfg.label()} has no streaming form (Transformer); "
-                             "use an MLP-7 or LSTM model")
-        self.stepper = StreamingStepper(model)
-        cfg = model.cfg
-        n = self.n = cfg.n_joints
-        self.period_s = float(period_s) if period_s is not None else 1.0 / cfg.rate_hz
+        self.core = core = ResidualNetworkCore(model)
+        self.stepper, self.encoder, self.n, self.memory_size = core.stepper, core.encoder, core.n, core.memory_size
+        n = self.n
+        self.period_s = float(period_s) if period_s is not None else 1.0 / model.cfg.rate_hz
         if not self.period_s > 0:
             raise ValueError(f"ResidualNetworkSystem: period_s must be > 0 s, got {self.period_s}")
-        self.encoder = ReversalEncoder(n, cfg.reversal_deadband_deg, cfg.r_max_deg)
-        self._n_net = self.stepper.state_size
-        self.memory_size = 1 + 3 * n + self._n_net
         builder = DiagramBuilder()
-        step = builder.AddNamedSystem("step", ResidualNetworkStep(self))
+        step = builder.AddNamedSystem("step", ResidualNetworkStep(core))
         inputs = builder.AddNamedSystem("inputs", Multiplexer([n] * 4))
         split = builder.AddNamedSystem("split", Demultiplexer([n, self.memory_size]))
         hold = builder.AddNamedSystem("memory", ZeroOrderHold(self.period_s, self.memory_size))
@@ -115,21 +145,11 @@ class ResidualNetworkSystem(Diagram):
         self.set_name("residual_network")
 
     def initial_memory(self) -> np.ndarray:
-        """The memory before the first sample (``started`` = 0: the encoder starts at the first q)."""
-        return np.zeros(self.memory_size)
+        return self.core.initial_memory()
 
     def step_stacked(self, memory: np.ndarray, inputs: np.ndarray) -> np.ndarray:
-        """One sample — the step function of the System: ``[τ_hybrid (n) N·m; next memory]`` from the memory and the
-        stacked inputs ``[τ_rbd; q; q̇; q̈]`` at t_k (``memory`` is not modified)."""
-        n = self.n
-        q = inputs[n:2 * n]
-        if memory[0] > 0:
-            enc, net_state = memory[1:1 + 3 * n], memory[1 + 3 * n:]
-        else:
-            enc, net_state = self.encoder.initial_state(q), np.zeros(self._n_net)
-        r, enc = self.encoder.step_state(enc, q)
-        tau, net_state = self.stepper.step(inputs, net_state, r)
-        return np.concatenate((tau, _STARTED, enc, net_state))
+        """:meth:`ResidualNetworkCore.step_stacked` — the step function of the System."""
+        return self.core.step_stacked(memory, inputs)
 
     def step(self, memory: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, tau_rbd: np.ndarray
              ) -> tuple[np.ndarray, np.ndarray]:
