@@ -12,10 +12,10 @@ For users who drive the estimator from their own loop (KUKA FRI at 1 kHz, a ROS 
         f = w.jacobian[:3]                           # N, on the robot at the flange origin, world frame
 
 It runs the stages of :class:`proprio.diagrams.estimation.WrenchEstimator` with a causal conditioning stage
-(:func:`proprio.conditioning.causal_conditioning`): it builds that Diagram and drives its Systems' own step functions
-(the conditioner's and the momentum filter's LTI matrices, the torque model's ``step``, the momentum terms'
-``calc``, the wrench map's ``calc``), so the numbers equal the Diagram's (tests: to 1e-9) without the framework's
-per-step overhead. Inputs are validated at the boundary (shape, finiteness, time strictly increasing at the design
+(:func:`proprio.conditioning.causal_conditioning`): it builds that Diagram and drives its Systems' own step
+functions (the conditioner's and the momentum filter's LTI matrices, the torque model's ``step``, the rigid-body
+terms' ``calc``, the wrench map's ``calc_jacobian``), so the numbers equal the Diagram's (tests: to 1e-9) without
+the framework's per-step overhead. Inputs are validated at the boundary (shape, finiteness, time strictly increasing at the design
 rate); buffers are preallocated; one estimator serves one robot from one thread.
 """
 from __future__ import annotations
@@ -112,7 +112,9 @@ class OnlineEstimator:
         self._torque_step = estimator.torque_model.step
         self._initial_memory = estimator.torque_model.initial_memory
         self._terms = estimator.momentum.terms.calc
-        self._wrench = estimator.wrench.calc
+        self._wrench = estimator.wrench.calc_jacobian
+        self._rb = np.empty(8 * n)                             # rigid-body terms [p; τ_g + Cᵀq̇; vec(J)]
+        self._jac = self._rb[2 * n:].reshape(6, n)
         self._tau_ext = np.empty((2, n))
         self.reset()
 
@@ -211,7 +213,8 @@ class OnlineEstimator:
         tau_ext = self._tau_ext
         np.subtract(tau_dyn, tau_f, out=tau_ext[0])
         xmu, um = self._xmu, self._um
-        self._terms(q_f, qd_f, um[:2 * n])
+        rb = self._terms(q_f, qd_f, self._rb)
+        um[:2 * n] = rb[:2 * n]
         um[2 * n:3 * n] = tau_f
         um[3 * n:] = tau_int
         if not self._started:
@@ -220,6 +223,6 @@ class OnlineEstimator:
         tau_ext[1] = xmu[:n]                                        # r_{k−1}: the filter's output before its update
         xmu[:3 * n] = self._mom @ xmu
         self._t_prev = t
-        v = self._wrench(q_f, tau_ext)
+        v = self._wrench(self._jac, tau_ext)
         v.flags.writeable = False
         return WrenchEstimate(t, v)

@@ -5,12 +5,13 @@ observers, logged at the data rate — the same :class:`WrenchEstimator` a live 
         ├─ q, q̇, q̈ → torque_model (C++ InverseDynamics + τ_int, or the hybrid model) ─tau_dyn─→ jacobian_observer
         │                                                                  └─tau_int─→ momentum_observer
         ├─ τ_J ──────────────────────────────────────────────→ both observers' tau_meas
-        └─ q ─→ wrench (WrenchMap: one J(q), one solve for both τ̂_ext) ─estimate─→ ONE VectorLogSink
+        └─ (J(q) from the momentum observer's plant context) ─→ wrench (WrenchMap: one solve for both τ̂_ext)
+                                                               ─estimate─→ ONE VectorLogSink
 
 Every stage is a System with named ports; C++ primitives (InverseDynamics, Multiplexer/Demultiplexer, Adder,
-MatrixGain, discrete LinearSystem, ZeroOrderHold) carry everything but the three (RBD) or four (hybrid) Python
-Systems that hold real Python work (τ_int, the network step, the momentum terms, the wrench solve), each reading
-one stacked input port and writing one output. The signals come from the one conditioning path
+MatrixGain, discrete LinearSystem, ZeroOrderHold) carry everything but the three Python Systems that hold real
+Python work (τ_int — with the network step for a hybrid model —, the rigid-body terms p, τ_g + Cᵀq̇ and J, the
+wrench solve), each reading one stacked input port and writing one output. The signals come from the one conditioning path
 (:mod:`proprio.conditioning`: uniform time base, zero-phase Butterworth per joint with its cutoff from the data's
 noise floor or from the config, central differences), offline, so they are computed before the replay; online, a
 causal conditioning stage (:class:`~proprio.systems.causal_conditioning.CausalConditioner`) takes the raw q, τ_J
@@ -228,8 +229,9 @@ class WrenchEstimator(Diagram):
         torque_model   q, qd, qdd ─▶ TorqueModelSystem (C++ InverseDynamics + τ_int) or the hybrid model's System
                                     ─▶ tau_dyn, tau_int
         jacobian_observer  tau_dyn, tau_meas ─▶ (C++ MatrixGain [I −I]) ─▶ tau_ext = τ_dyn − τ_J
-        momentum_observer  q, qd, tau_meas, tau_int ─▶ momentum terms ─▶ (C++ discrete LinearSystem) ─▶ tau_ext = r
-        wrench             q, tau_ext_jacobian, tau_ext_momentum ─▶ WrenchMap (one J(q), one solve) ─▶ estimate
+        momentum_observer  q, qd, tau_meas, tau_int ─▶ rigid-body terms (p, τ_g + Cᵀq̇, J(q) on one plant context)
+                           ─▶ (C++ discrete LinearSystem) ─▶ tau_ext = r;  jacobian
+        wrench             jacobian, tau_ext_jacobian, tau_ext_momentum ─▶ WrenchMap (one solve for both) ─▶ estimate
 
     Input ports: without ``conditioning`` the conditioned ``q`` [rad], ``qd`` [rad/s], ``qdd`` [rad/s²],
     ``tau_meas`` [N·m] (e.g. a replay of :func:`proprio.conditioning.condition`); with a
@@ -242,7 +244,7 @@ class WrenchEstimator(Diagram):
     Call :meth:`set_initial_state` once the first sample is on the inputs: it starts the conditioner in that
     sample's steady state and the momentum observer at r = 0 (:class:`MomentumObserver`). The step functions of the
     stages (``conditioner.design``, ``torque_model.step``, ``momentum.terms.calc`` with ``momentum.filter``'s
-    matrices, ``wrench.calc``) are what :class:`proprio.online.OnlineEstimator` drives directly.
+    matrices, ``wrench.calc_jacobian``) are what :class:`proprio.online.OnlineEstimator` drives directly.
     """
 
     def __init__(self, model: TorqueModel, time_step: float, gain: float | np.ndarray = DEFAULT_GAIN,
@@ -258,8 +260,9 @@ class WrenchEstimator(Diagram):
         system = model.make_system(time_step) if hasattr(model, "make_system") else TorqueModelSystem(model)
         self.torque_model = builder.AddNamedSystem("torque_model", system)
         self.jacobian = builder.AddNamedSystem("jacobian_observer", JacobianWrenchObserver(n))
-        self.momentum = builder.AddNamedSystem("momentum_observer", MomentumObserver(desc, time_step, gain))
-        self.wrench = builder.AddNamedSystem("wrench", WrenchMap(desc, mapping, OBSERVERS))
+        self.momentum = builder.AddNamedSystem("momentum_observer", MomentumObserver(desc, time_step, gain,
+                                                                                     mapping.contact_point))
+        self.wrench = builder.AddNamedSystem("wrench", WrenchMap(desc, mapping, OBSERVERS, jacobian_input=True))
         self.conditioner = None
         if conditioning is None:
             for name in ("q", "qd", "qdd", "tau_meas"):
@@ -288,7 +291,7 @@ class WrenchEstimator(Diagram):
         for name in ("q", "qd", "tau_meas"):
             connect(name, self.momentum.GetInputPort(name))
         builder.Connect(self.torque_model.GetOutputPort("tau_int"), self.momentum.GetInputPort("tau_int"))
-        connect("q", self.wrench.GetInputPort("q"))
+        builder.Connect(self.momentum.GetOutputPort("jacobian"), self.wrench.GetInputPort("jacobian"))
         builder.Connect(self.jacobian.GetOutputPort("tau_ext"), self.wrench.GetInputPort("tau_ext_jacobian"))
         builder.Connect(self.momentum.GetOutputPort("tau_ext"), self.wrench.GetInputPort("tau_ext_momentum"))
         for name in ("estimate", "wrench_jacobian", "wrench_momentum", "manipulability", "unreliable"):

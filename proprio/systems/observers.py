@@ -22,7 +22,7 @@ Two ways to get τ_ext:
   as Ṁq̇ − Cq̇ (a central difference of M along q̇ plus Drake's ``CalcBiasTerm``).
 
 As Systems (one per stage, C++ where the work is linear): :class:`JacobianWrenchObserver` (τ_dyn − τ_J, a
-``MatrixGain``), :class:`MomentumObserver` (:class:`MomentumTermsSystem` for p and τ_g + Cᵀq̇ from Drake's plant,
+``MatrixGain``), :class:`MomentumObserver` (:class:`RigidBodyTermsSystem` for p, τ_g + Cᵀq̇ and J from Drake's plant,
 then the recursion as a discrete ``LinearSystem``, :func:`momentum_filter`) and :class:`WrenchMap`, which maps both
 τ̂_ext to wrenches with ONE Jacobian and ONE eigen-decomposition per step. Each Python System exposes its step
 function (``calc``) so that :mod:`proprio.online` drives the same code without a Simulator.
@@ -44,6 +44,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from pydrake.multibody.tree import JacobianWrtVariable
 from pydrake.systems.framework import Context, Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Demultiplexer, LinearSystem, MatrixGain, Multiplexer
 from scipy.linalg.lapack import dsyevd
@@ -56,7 +57,7 @@ from proprio.plant import DrakeRobot
 
 __all__ = ["WrenchMapping", "wrench_from_joint_torque", "WrenchSolver", "jacobian_wrench", "WrenchMapStep", "WrenchMap",
            "JacobianWrenchObserver", "momentum_terms", "DrakeArm", "momentum_observer", "momentum_filter",
-           "MomentumTermsSystem", "MomentumObserver"]
+           "RigidBodyTermsSystem", "MomentumObserver"]
 
 _VW = [3, 4, 5, 0, 1, 2]   # rows of our [ω; v] Jacobian in [v; ω] order, so that Jᵀ[f; m] = τ
 
@@ -230,6 +231,15 @@ class DrakeArm(DrakeRobot):
         # τ_g − C q̇ = −ID(q, q̇, 0) with gravity applied: one call instead of CalcGravity… + CalcBiasTerm
         return p, mdot_qd - plant.CalcInverseDynamics(ctx, self._zero, self._forces)
 
+    def rigid_body_terms(self, q: np.ndarray, qd: np.ndarray, p_flange: np.ndarray) -> tuple[np.ndarray, ...]:
+        """:meth:`momentum_terms` and the Jacobian ``[6,n]`` of the point ``p_flange`` [m, flange frame] (rows
+        [ω; v], world frame) from the same context, which then holds q already."""
+        p, beta = self.momentum_terms(q, qd)
+        if not self._in_order:
+            return p, beta, self.flange_jacobian(q, p_flange)
+        return p, beta, self.plant.CalcJacobianSpatialVelocity(self.context, JacobianWrtVariable.kV, self.flange,
+                                                               p_flange, self._world, self._world)
+
     def _momentum_terms_reindexed(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         speed = float(np.linalg.norm(qd))
         if speed > 0:
@@ -246,19 +256,24 @@ class DrakeArm(DrakeRobot):
 
 
 class WrenchMapStep(LeafSystem):
-    """:class:`WrenchMap`'s Python System: input ``inputs`` = ``[q; τ̂_ext,1; …; τ̂_ext,m]`` (one stacked port: each
+    """:class:`WrenchMap`'s Python System: input ``inputs`` = ``[q or vec(J); τ̂_ext,1; …; τ̂_ext,m]`` (one stacked port: each
     input evaluation from Python costs about a microsecond), output ``estimate`` (:meth:`WrenchMap.calc`)."""
 
     def __init__(self, owner: "WrenchMap"):
         LeafSystem.__init__(self)
         n, m = owner.n, len(owner.sources)
         self._owner, self._n, self._m = owner, n, m
-        self._inputs = self.DeclareVectorInputPort("inputs", (1 + m) * n)
+        self._k = 6 * n if owner.jacobian_input else n
+        self._inputs = self.DeclareVectorInputPort("inputs", self._k + m * n)
         self.DeclareVectorOutputPort("estimate", 6 * m + 2 + m * n, self._calc)
 
     def _calc(self, context, output) -> None:
-        x = self._inputs.Eval(context)
-        output.SetFromVector(self._owner.calc(x[:self._n], x[self._n:].reshape(self._m, self._n)))
+        x, k = self._inputs.Eval(context), self._k
+        tau_ext = x[k:].reshape(self._m, self._n)
+        if self._owner.jacobian_input:
+            output.SetFromVector(self._owner.calc_jacobian(x[:k].reshape(6, self._n), tau_ext))
+        else:
+            output.SetFromVector(self._owner.calc(x[:k], tau_ext))
 
 
 class WrenchMap(Diagram):
@@ -266,8 +281,9 @@ class WrenchMap(Diagram):
     with ONE Jacobian (Drake's ``CalcJacobianSpatialVelocity`` on a cached plant context) and ONE eigen-decomposition
     (:class:`WrenchSolver`) per step for all of them.
 
-    Input ports: ``q`` (n) [rad]; ``tau_ext_<source>`` (n) [N·m] for each name in ``sources`` (default
-    ``("jacobian", "momentum")``). Output ports: ``estimate`` (6m + 2 + mn), all of it stacked
+    Input ports: ``q`` (n) [rad] — or, with ``jacobian_input``, ``jacobian`` (6n) the contact point's Jacobian (rows
+    [ω; v], world frame, row-major, e.g. :class:`MomentumObserver`'s) —; ``tau_ext_<source>`` (n) [N·m] for each name
+    in ``sources`` (default ``("jacobian", "momentum")``). Output ports: ``estimate`` (6m + 2 + mn), all of it stacked
     ``[wrench_<s>…, manipulability, unreliable, tau_ext_<s>…]`` — the one port a logger needs — and, split from it in
     C++, ``wrench_<source>`` (6) [fx, fy, fz, mx, my, mz] on the robot at the contact point, world frame (N, N·m;
     moment 0 in force-only mode); ``manipulability`` (1) = √det(J W Jᵀ); ``unreliable`` (1) 1.0 when σ_min <
@@ -275,18 +291,19 @@ class WrenchMap(Diagram):
     """
 
     def __init__(self, desc: RobotDescription, mapping: WrenchMapping = WrenchMapping(),
-                 sources: tuple[str, ...] = ("jacobian", "momentum")):
+                 sources: tuple[str, ...] = ("jacobian", "momentum"), jacobian_input: bool = False):
         Diagram.__init__(self)
         n, m = desc.n, len(sources)
-        self.n, self.sources = n, tuple(sources)
+        self.n, self.sources, self.jacobian_input = n, tuple(sources), jacobian_input
         self._arm = DrakeArm(desc)
         self._solver = WrenchSolver(mapping, n)
         self._contact = np.asarray(mapping.contact_point, dtype=float)
+        k = 6 * n if jacobian_input else n
         builder = DiagramBuilder()
-        stack = builder.AddNamedSystem("stack", Multiplexer([n] * (1 + m)))
+        stack = builder.AddNamedSystem("stack", Multiplexer([k] + [n] * m))
         step = builder.AddNamedSystem("solve", WrenchMapStep(self))
         split = builder.AddNamedSystem("split", Demultiplexer([6] * m + [1, 1, m * n]))
-        builder.ExportInput(stack.get_input_port(0), "q")
+        builder.ExportInput(stack.get_input_port(0), "jacobian" if jacobian_input else "q")
         for i, s in enumerate(self.sources):
             builder.ExportInput(stack.get_input_port(1 + i), f"tau_ext_{s}")
         builder.Connect(stack.get_output_port(), step.get_input_port())
@@ -301,7 +318,12 @@ class WrenchMap(Diagram):
 
     def calc(self, q: np.ndarray, tau_ext: np.ndarray) -> np.ndarray:
         """The ``estimate`` vector for ``q [n]`` and ``tau_ext [m,n]`` (one row per source) — the step function."""
-        wrench, manip, flag = self._solver.solve(self._arm.flange_jacobian(q, self._contact), tau_ext)
+        return self.calc_jacobian(self._arm.flange_jacobian(q, self._contact), tau_ext)
+
+    def calc_jacobian(self, jac: np.ndarray, tau_ext: np.ndarray) -> np.ndarray:
+        """The same from the contact point's Jacobian ``jac [6,n]`` (rows [ω; v], world) — the step function with
+        ``jacobian_input``."""
+        wrench, manip, flag = self._solver.solve(jac, tau_ext)
         return np.concatenate((wrench.ravel(), (manip, flag), tau_ext.ravel()))
 
 
@@ -386,24 +408,28 @@ def momentum_observer(desc: RobotDescription, time_step: float, q: np.ndarray, q
     return np.stack([lfilter([1.0 - gamma[j]], [1.0, -gamma[j]], u[:, j]) for j in range(q.shape[1])], axis=1)
 
 
-class MomentumTermsSystem(LeafSystem):
-    """``momentum_terms = [p; τ_g + Cᵀq̇]`` (2n: N·m·s, N·m) from the input ``state = [q; q̇]`` (2n: rad, rad/s):
-    Drake's mass matrix, bias and gravity on a cached plant context (:meth:`DrakeArm.momentum_terms`), direct
-    feedthrough."""
+class RigidBodyTermsSystem(LeafSystem):
+    """The model robot's rigid-body terms at one sample, from Drake's plant on a cached context: input ``state`` =
+    ``[q; q̇]`` (2n: rad, rad/s); output ``terms`` = ``[p = M(q)q̇ (n, N·m·s); τ_g + Cᵀq̇ (n, N·m); J (6n)]`` with J
+    the Jacobian of the contact point (``contact_point`` [m] in the flange frame; rows [ω; v], world frame, row-major)
+    — what the momentum observer and the wrench map need, from one plant context per step
+    (:meth:`DrakeArm.rigid_body_terms`). Direct feedthrough."""
 
-    def __init__(self, desc: RobotDescription):
+    def __init__(self, desc: RobotDescription, contact_point: tuple[float, float, float] = (0.0, 0.0, 0.0)):
         LeafSystem.__init__(self)
         n = self.n = desc.n
         self._arm = DrakeArm(desc)
+        self._contact = np.asarray(contact_point, dtype=float)
         self._state = self.DeclareVectorInputPort("state", 2 * n)
-        self.DeclareVectorOutputPort("momentum_terms", 2 * n, self._calc)
+        self.DeclareVectorOutputPort("terms", 8 * n, self._calc)
 
     def calc(self, q: np.ndarray, qd: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """The output for one sample — the step function (written into ``out [2n]`` when given)."""
-        p, beta = self._arm.momentum_terms(q, qd)
+        """The output for one sample — the step function (written into ``out [8n]`` when given)."""
+        p, beta, jac = self._arm.rigid_body_terms(q, qd, self._contact)
         if out is None:
-            return np.concatenate((p, beta))
-        out[:self.n], out[self.n:] = p, beta
+            return np.concatenate((p, beta, jac.ravel()))
+        n = self.n
+        out[:n], out[n:2 * n], out[2 * n:] = p, beta, jac.ravel()
         return out
 
     def _calc(self, context, output) -> None:
@@ -436,31 +462,37 @@ def momentum_filter(n: int, time_step: float, gain: float | np.ndarray = 100.0
 class MomentumObserver(Diagram):
     """De Luca's generalised-momentum observer as a sub-Diagram, updated every ``time_step`` (the data rate)::
 
-        q, qd ──▶ Multiplexer ──▶ MomentumTermsSystem ──[p; τ_g + Cᵀq̇]──┐
+        q, qd ──▶ Multiplexer ──▶ RigidBodyTermsSystem ─▶ Demux ─[p; τ_g + Cᵀq̇]─┐     (J ─▶ jacobian)
         tau_meas ──────────────────────────────────────┼──▶ Multiplexer ──▶ LinearSystem (C++, discrete) ──▶ tau_ext
         tau_int ───────────────────────────────────────┘                    (:func:`momentum_filter`)
 
     Input ports (size n): ``q`` [rad], ``qd`` [rad/s], ``tau_meas`` [N·m] (measured τ_J), ``tau_int`` [N·m] (the
-    model's non-rigid-body torque; connect zeros for a pure rigid-body model). Output port: ``tau_ext`` (n) [N·m],
-    the residual r (the filter's state). Its wrench is :class:`WrenchMap`'s ``wrench_momentum``. Same recursion as
+    model's non-rigid-body torque; connect zeros for a pure rigid-body model). Output ports: ``tau_ext`` (n) [N·m],
+    the residual r (the filter's state); ``jacobian`` (6n) the Jacobian of ``contact_point`` [m, flange frame] at q
+    (rows [ω; v], world frame, row-major), computed with the momentum terms on the same plant context, for
+    :class:`WrenchMap`. Its wrench is :class:`WrenchMap`'s ``wrench_momentum``. Same recursion as
     :func:`momentum_observer`; call :meth:`set_initial_state` once the first sample is on the inputs (r then
     starts at 0 exactly as offline; without it the first step sees p_{−1} = β_{−1} = 0, a large kick). As for any
     Drake discrete state, the update at t_k is visible from the next step on, so the output at t_k is r_{k−1}.
     """
 
-    def __init__(self, desc: RobotDescription, time_step: float, gain: float | np.ndarray = 100.0):
+    def __init__(self, desc: RobotDescription, time_step: float, gain: float | np.ndarray = 100.0,
+                 contact_point: tuple[float, float, float] = (0.0, 0.0, 0.0)):
         Diagram.__init__(self)
         n = self.n = desc.n
         builder = DiagramBuilder()
         state = builder.AddNamedSystem("state", Multiplexer([n, n]))
-        self.terms = builder.AddNamedSystem("terms", MomentumTermsSystem(desc))
+        self.terms = builder.AddNamedSystem("terms", RigidBodyTermsSystem(desc, contact_point))
+        split = builder.AddNamedSystem("split", Demultiplexer([2 * n, 6 * n]))
         mux = self._mux = builder.AddNamedSystem("stack", Multiplexer([2 * n, n, n]))
         self.filter = builder.AddNamedSystem("filter", LinearSystem(*momentum_filter(n, time_step, gain),
                                                                     float(time_step)))
         builder.ExportInput(state.get_input_port(0), "q")
         builder.ExportInput(state.get_input_port(1), "qd")
         builder.Connect(state.get_output_port(), self.terms.get_input_port())
-        builder.Connect(self.terms.get_output_port(), mux.get_input_port(0))
+        builder.Connect(self.terms.get_output_port(), split.get_input_port())
+        builder.Connect(split.get_output_port(0), mux.get_input_port(0))
+        builder.ExportOutput(split.get_output_port(1), "jacobian")
         builder.ExportInput(mux.get_input_port(1), "tau_meas")
         builder.ExportInput(mux.get_input_port(2), "tau_int")
         builder.Connect(mux.get_output_port(), self.filter.get_input_port())
