@@ -295,7 +295,7 @@ class WrenchMap(Diagram):
         Diagram.__init__(self)
         n, m = desc.n, len(sources)
         self.n, self.sources, self.jacobian_input = n, tuple(sources), jacobian_input
-        self._arm = DrakeArm(desc)
+        self._arm = None if jacobian_input else DrakeArm(desc)     # (with a Jacobian input, no plant of its own)
         self._solver = WrenchSolver(mapping, n)
         self._contact = np.asarray(mapping.contact_point, dtype=float)
         k = 6 * n if jacobian_input else n
@@ -318,6 +318,8 @@ class WrenchMap(Diagram):
 
     def calc(self, q: np.ndarray, tau_ext: np.ndarray) -> np.ndarray:
         """The ``estimate`` vector for ``q [n]`` and ``tau_ext [m,n]`` (one row per source) — the step function."""
+        if self._arm is None:
+            raise ValueError("WrenchMap: built with jacobian_input=True; call calc_jacobian(J, tau_ext)")
         return self.calc_jacobian(self._arm.flange_jacobian(q, self._contact), tau_ext)
 
     def calc_jacobian(self, jac: np.ndarray, tau_ext: np.ndarray) -> np.ndarray:
