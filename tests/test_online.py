@@ -153,3 +153,13 @@ def test_reset_restarts_from_the_next_sample(desc):
     est.reset()
     again = [est.step(t[k], q[k], tau[k]).vector for k in range(50)]     # t restarts: allowed after reset()
     np.testing.assert_array_equal(np.array(first), np.array(again))
+
+
+@pytest.mark.parametrize("coulomb_velocity", [0.0, 0.02])
+def test_per_sample_interaction_torque_equals_the_vectorised_one(desc, coulomb_velocity):
+    """The folded per-sample τ_int of the per-step Systems (friction, Coulomb law, offsets of an identified model)
+    equals the model's vectorised τ_int."""
+    model = RigidBodyTorqueModel(desc, coulomb_velocity, offset=tuple(np.linspace(-0.5, 0.9, desc.n)))
+    qd = np.random.default_rng(3).normal(0, 0.05, (20, desc.n))
+    step = model.tau_int_step()
+    np.testing.assert_allclose(np.array([step(row) for row in qd]), model.tau_int(qd, qd, qd), rtol=0, atol=1e-13)

@@ -11,8 +11,8 @@ observers, logged at the data rate — the same :class:`WrenchEstimator` a live 
 Every stage is a System with named ports; C++ primitives (InverseDynamics, Multiplexer/Demultiplexer, Adder,
 MatrixGain, discrete LinearSystem, ZeroOrderHold) carry everything but the three Python Systems that hold real
 Python work (τ_int — with the network step for a hybrid model —, the rigid-body terms p, τ_g + Cᵀq̇ and J, the
-wrench solve), each reading one stacked input port and writing one output. The signals come from the one conditioning path
-(:mod:`proprio.conditioning`: uniform time base, zero-phase Butterworth per joint with its cutoff from the data's
+wrench solve), each reading one stacked input port and writing one output. The signals come from the one
+conditioning path (:mod:`proprio.conditioning`: uniform time base, zero-phase Butterworth per joint with its cutoff from the data's
 noise floor or from the config, central differences), offline, so they are computed before the replay; online, a
 causal conditioning stage (:class:`~proprio.systems.causal_conditioning.CausalConditioner`) takes the raw q, τ_J
 instead (``WrenchEstimator(..., conditioning=causal_conditioning(...))``, and :mod:`proprio.online` for a loop
@@ -49,8 +49,8 @@ from proprio.systems.observers import (JacobianWrenchObserver, MomentumObserver,
 
 __all__ = ["TorqueModel", "RigidBodyTorqueModel", "load_torque_model", "InteractionTorqueSystem", "TorqueModelSystem",
            "conditioned_signals", "check_recording_matches", "WrenchEstimator", "split_estimate",
-           "build_estimation_diagram", "run_estimation_diagram", "EstimationResult", "estimate_wrench", "estimate_wrench_offline", "OBSERVERS",
-           "DEFAULT_GAIN"]
+           "build_estimation_diagram", "run_estimation_diagram", "EstimationResult", "estimate_wrench",
+           "estimate_wrench_offline", "OBSERVERS", "DEFAULT_GAIN"]
 
 OBSERVERS = ("jacobian", "momentum")
 DEFAULT_GAIN = 100.0
