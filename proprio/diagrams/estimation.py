@@ -100,9 +100,13 @@ class RigidBodyTorqueModel:
         if not d.has_friction:
             return lambda qd: offset.copy()
         fv, fc = np.asarray(d.friction_viscous, dtype=float), np.asarray(d.friction_coulomb, dtype=float)
-        if self.coulomb_velocity == 0:
+        inv_v = 1.0 / self.coulomb_velocity if self.coulomb_velocity != 0 else 0.0
+        if self.offset is None:                   # (one operation fewer per step)
+            if inv_v == 0.0:
+                return lambda qd: fv * qd + fc * np.sign(qd)
+            return lambda qd: fv * qd + fc * np.tanh(qd * inv_v)
+        if inv_v == 0.0:
             return lambda qd: offset + fv * qd + fc * np.sign(qd)
-        inv_v = 1.0 / self.coulomb_velocity
         return lambda qd: offset + fv * qd + fc * np.tanh(qd * inv_v)
 
 

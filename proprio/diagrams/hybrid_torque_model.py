@@ -40,7 +40,7 @@ from proprio.learning.features import feature_matrix, rotational_displacement
 from proprio.learning.models import HybridModel, load_model
 from proprio.recording import Recording, RecordingError
 from proprio.plant import DrakeRobot
-from proprio.systems.residual_network import ResidualNetworkCore
+from proprio.systems.residual_network import STARTED, ResidualNetworkCore
 
 __all__ = ["HybridTorqueModel", "load_hybrid_torque_model"]
 
@@ -199,9 +199,8 @@ class HybridTorqueModelSystem(Diagram):
         n = self.n
         friction = self._friction(inputs[2 * n:3 * n])
         inputs[:n] += friction                                        # τ_RBD, the network's input
-        out = self.core.step_stacked(memory, inputs)
-        tau_hybrid = out[:n]
-        return np.concatenate((tau_hybrid, friction + (tau_hybrid - inputs[:n]), out[n:]))
+        tau_hybrid, enc, net_state = self.core.step_parts(memory, inputs)
+        return np.concatenate((tau_hybrid, friction + (tau_hybrid - inputs[:n]), STARTED, enc, net_state))
 
     def step(self, memory: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

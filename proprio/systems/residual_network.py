@@ -34,9 +34,10 @@ from pydrake.systems.primitives import Demultiplexer, MatrixGain, Multiplexer, Z
 from proprio.learning.features import ReversalEncoder
 from proprio.learning.models import HybridModel, StreamingStepper
 
-__all__ = ["ResidualNetworkCore", "ResidualNetworkStep", "ResidualNetworkSystem", "AddResidualNetwork"]
+__all__ = ["STARTED", "ResidualNetworkCore", "ResidualNetworkStep", "ResidualNetworkSystem", "AddResidualNetwork"]
 
-_STARTED = np.ones(1)
+STARTED = np.ones(1)
+"""The memory's first entry once the network has run (0 before its first sample)."""
 
 
 class ResidualNetworkCore:
@@ -61,9 +62,10 @@ class ResidualNetworkCore:
         """The memory before the first sample (``started`` = 0: the encoder starts at the first q)."""
         return np.zeros(self.memory_size)
 
-    def step_stacked(self, memory: np.ndarray, inputs: np.ndarray) -> np.ndarray:
-        """One sample: ``[τ_hybrid (n) N·m; next memory]`` from the memory and the stacked inputs
-        ``[τ_rbd; q; q̇; q̈]`` at t_k (neither argument is modified)."""
+    def step_parts(self, memory: np.ndarray, inputs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """One sample: ``(τ_hybrid (n) N·m, encoder state, network state)`` — the next memory is
+        ``[1, encoder state, network state]`` — from the memory and the stacked inputs ``[τ_rbd; q; q̇; q̈]`` at t_k
+        (neither argument is modified)."""
         n = self.n
         q = inputs[n:2 * n]
         if memory[0] > 0:
@@ -72,7 +74,12 @@ class ResidualNetworkCore:
             enc, net_state = self.encoder.initial_state(q), np.zeros(self._n_net)
         r, enc = self.encoder.step_state(enc, q)
         tau, net_state = self.stepper.step(inputs, net_state, r)
-        return np.concatenate((tau, _STARTED, enc, net_state))
+        return tau, enc, net_state
+
+    def step_stacked(self, memory: np.ndarray, inputs: np.ndarray) -> np.ndarray:
+        """:meth:`step_parts` stacked: ``[τ_hybrid (n) N·m; next memory]``."""
+        tau, enc, net_state = self.step_parts(memory, inputs)
+        return np.concatenate((tau, STARTED, enc, net_state))
 
 
 class ResidualNetworkStep(LeafSystem):
