@@ -167,7 +167,7 @@ class WrenchSolver:
         sol = ((tau_ext @ a.T) @ v / lam) @ v.T                      # rows (J Jᵀ + λ²)⁻¹ J τ = [f; m] or f
         if self._force_only:
             sol = np.hstack((sol, np.zeros_like(sol)))
-        return sol, math.sqrt(math.prod(max(x, 0.0) for x in sq)), float(unreliable)
+        return sol, (math.sqrt(math.prod(sq)) if sq[0] > 0 else 0.0), float(unreliable)    # ∏σ (0 if σ_min = 0)
 
     def __call__(self, jac: np.ndarray, tau_ext: np.ndarray) -> np.ndarray:
         wrench, manip, flag = self.solve(jac, np.asarray(tau_ext, dtype=float)[None, :])
