@@ -8,10 +8,11 @@ hybrid estimator in a Drake Diagram.
    MLP-7 35-100-1 ×7, LSTM-2 35→35→7, LSTM-2-FCL, Transformer d=32, 4 heads, 2 layers).
 2. Streaming estimator (the online path, one sample per step at the model rate):
    replay [q, q̇, q̈, τ_J] → Drake ``InverseDynamics`` (C++, τ_RBD incl. gravity) → :class:`ResidualNetworkSystem`
-   (hybrid LSTM-2-FCL, float64) → :class:`JacobianWrenchObserver` (f̂ = J⁻ᵀ(τ_HYB − τ_J)) → logger. Prints µs per
+   (hybrid LSTM-2-FCL, float64) → :class:`JacobianWrenchObserver` + :class:`WrenchMap` (f̂ = J⁻ᵀ(τ_HYB − τ_J)) →
+   logger. Prints µs per
    sample for the full Diagram and for the replay + residual System alone. Target: ≤ 100 µs per sample on one core.
-   Also: the estimation diagram ``proprio estimate`` builds for a hybrid ``.pt`` (Python backbone System, residual,
-   Jacobian AND momentum observer, six loggers), for reference.
+   Also: the estimation diagram ``proprio estimate`` builds for a hybrid ``.pt`` (C++ backbone, residual, Jacobian
+   AND momentum observer, one logger), for reference; ``bench_online.py`` times it per configuration.
 """
 from __future__ import annotations
 
@@ -34,7 +35,7 @@ from proprio.learning.features import feature_matrix, rotational_displacement
 from proprio.learning.models import ARCHS, HybridModel, ModelConfig
 from proprio.learning.training import TrainConfig, train_model
 from proprio.plant import build_plant
-from proprio.systems.observers import JacobianWrenchObserver
+from proprio.systems.observers import JacobianWrenchObserver, WrenchMap
 from proprio.systems.residual_network import AddResidualNetwork
 
 N = 7
@@ -121,11 +122,13 @@ def bench_streaming(steps: int) -> None:
         if not with_observer:
             LogVectorOutput(residual.GetOutputPort("tau_hybrid"), builder, 1 / RATE)
             return _timed(builder.Build(), steps)
-        observer = builder.AddSystem(JacobianWrenchObserver(desc))
-        builder.Connect(demux.get_output_port(0), observer.GetInputPort("q"))
+        observer = builder.AddSystem(JacobianWrenchObserver(N))
+        wrench = builder.AddSystem(WrenchMap(desc, sources=("jacobian",)))
         builder.Connect(demux.get_output_port(3), observer.GetInputPort("tau_meas"))
         builder.Connect(residual.GetOutputPort("tau_hybrid"), observer.GetInputPort("tau_dyn"))
-        LogVectorOutput(observer.GetOutputPort("wrench"), builder, 1 / RATE)
+        builder.Connect(demux.get_output_port(0), wrench.GetInputPort("q"))
+        builder.Connect(observer.GetOutputPort("tau_ext"), wrench.GetInputPort("tau_ext_jacobian"))
+        LogVectorOutput(wrench.GetOutputPort("wrench_jacobian"), builder, 1 / RATE)
         return _timed(builder.Build(), steps)
 
     plant = build_plant(desc).plant          # kinematics/dynamics only: not simulated in these Diagrams
@@ -140,11 +143,11 @@ def bench_streaming(steps: int) -> None:
     LogVectorOutput(residual.GetOutputPort("tau_hybrid"), builder, 1 / RATE)
     alone = _timed(builder.Build(), steps)
 
-    # (c) the estimation diagram of `proprio estimate --model hybrid.pt`: Python backbone System (Drake inverse
-    # dynamics + friction), the residual, both observers (the momentum one evaluates M(q) three times) and 6 loggers
+    # (c) the estimation diagram of `proprio estimate --model hybrid.pt`: C++ inverse dynamics + friction System, the
+    # residual, both observers (the momentum one evaluates M(q) three times) and one logger
     hybrid = HybridTorqueModel(RigidBodyTorqueModel(desc, coulomb_velocity=0.0), model, DataConfig())
     signals = {"t": t, "q": q, "qd": qd, "qdd": qdd, "tau": values[:, 21:], "time_step": 1 / RATE}
-    estimation = _timed(build_estimation_diagram(hybrid, signals)[0], steps)
+    estimation = _timed(build_estimation_diagram(hybrid, signals)[0], steps)   # (stages not started: timing only)
 
     # (d) replay + logger only: the Diagram overhead the rows above include
     builder = DiagramBuilder()
@@ -159,7 +162,7 @@ def bench_streaming(steps: int) -> None:
     print(f"  replay + InverseDynamics (C++) + residual LSTM-2-FCL + logger (no observer):      {no_observer:7.1f} µs/sample")
     print(f"  replay + residual LSTM-2-FCL System + logger:                                    {alone:7.1f} µs/sample")
     print(f"  replay + logger only (Diagram overhead included above):                          {overhead:7.1f} µs/sample")
-    print(f"  estimation diagram with a hybrid .pt (Python backbone + residual + BOTH observers): {estimation:7.1f} "
+    print(f"  estimation diagram with a hybrid .pt (backbone + residual + BOTH observers):      {estimation:7.1f} "
           "µs/sample")
 
 

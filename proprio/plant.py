@@ -75,6 +75,7 @@ class DrakeRobot:
         self._in_order = (self.plant.num_positions() == self.plant.num_velocities() == desc.n
                           and np.array_equal(self._q_index, np.arange(desc.n))
                           and np.array_equal(self._v_index, np.arange(desc.n)))
+        self._forces = MultibodyForces(self.plant)                # reused by inverse_dynamics
 
     def _set(self, q: np.ndarray, qd: np.ndarray | None = None) -> None:
         """Set the joint positions and, when given, velocities (position-only queries leave velocities alone)."""
@@ -94,12 +95,13 @@ class DrakeRobot:
     def inverse_dynamics(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """``CalcInverseDynamics`` with gravity as the only applied force [N·m] (eq. 3.5 without friction)."""
         self._set(q, qd)
+        forces = self._forces
+        self.plant.CalcForceElementsContribution(self.context, forces)  # gravity (overwrites the previous call's)
+        if self._in_order:
+            return self.plant.CalcInverseDynamics(self.context, qdd, forces)
         a = np.zeros(self.plant.num_velocities())
         a[self._v_index] = qdd
-        forces = MultibodyForces(self.plant)
-        self.plant.CalcForceElementsContribution(self.context, forces)  # gravity
-        tau = self.plant.CalcInverseDynamics(self.context, a, forces)
-        return tau[self._v_index]
+        return self.plant.CalcInverseDynamics(self.context, a, forces)[self._v_index]
 
     def flange_pose(self, q: np.ndarray) -> np.ndarray:
         """4×4 world pose of the flange frame."""

@@ -15,14 +15,14 @@ from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput, Tr
 from pydrake.trajectories import PiecewisePolynomial
 
 from proprio.dynamics import gravity_torque, inverse_dynamics
-from proprio.kinematics import flange_jacobian, point_jacobian
+from proprio.kinematics import chain_geometry, flange_jacobian, point_jacobian
 from proprio.payload import Payload, attach_payload
 from proprio.recording import Recording, RecordingError
 from proprio.urdf import to_urdf
 from proprio.conditioning import ConditioningConfig
 from proprio.diagrams.estimation import RigidBodyTorqueModel, estimate_wrench, estimate_wrench_offline
-from proprio.systems.observers import (DrakeArm, JacobianWrenchObserver, MomentumObserver, WrenchMapping, WrenchSolver,
-                                       jacobian_wrench, momentum_observer, momentum_terms, wrench_from_joint_torque)
+from proprio.systems.observers import (DrakeArm, JacobianWrenchObserver, MomentumObserver, WrenchMap, WrenchMapping,
+                                       WrenchSolver, jacobian_wrench, momentum_observer, momentum_terms, wrench_from_joint_torque)
 
 G = np.array([0.0, 0.0, -9.81])
 HOME = np.array([0.0, 0.5, 0.0, -1.2, 0.0, 0.8, 0.0])
@@ -119,28 +119,34 @@ def test_singular_pose_is_flagged_and_finite(rigid, force_only):
     assert flag[0] and np.all(np.isfinite(wrench)) and manip[0] < 1e-12
     # damped: no component larger than |τ| / (2 λ_max) (the peak of σ/(σ²+λ²))
     assert np.abs(wrench).max() <= np.linalg.norm(tau_ext) / (2 * mapping.damping_max) + 1e-9
-    # the observer System raises its flag and stays finite too
-    system = JacobianWrenchObserver(rigid, mapping)
+    # the wrench System raises its flag and stays finite too
+    system = WrenchMap(rigid, mapping, ("jacobian",))
     ctx = system.CreateDefaultContext()
     system.GetInputPort("q").FixValue(ctx, q[0])
-    system.GetInputPort("tau_meas").FixValue(ctx, np.zeros(rigid.n))
-    system.GetInputPort("tau_dyn").FixValue(ctx, tau_ext[0])
+    system.GetInputPort("tau_ext_jacobian").FixValue(ctx, tau_ext[0])
     assert system.GetOutputPort("unreliable").Eval(ctx)[0] == 1.0
-    np.testing.assert_allclose(system.GetOutputPort("wrench").Eval(ctx), wrench[0], atol=1e-9)
+    np.testing.assert_allclose(system.GetOutputPort("wrench_jacobian").Eval(ctx), wrench[0], atol=1e-9)
 
 
 def test_jacobian_system_matches_offline_function(rigid):
     q = _nonsingular_poses(rigid, 5, seed=6)
     rng = np.random.default_rng(7)
     tau_meas, tau_dyn = rng.normal(size=q.shape), rng.normal(size=q.shape)
-    system = JacobianWrenchObserver(rigid)
-    ctx = system.CreateDefaultContext()
+    observer, system = JacobianWrenchObserver(rigid.n), WrenchMap(rigid)
+    obs_ctx, ctx = observer.CreateDefaultContext(), system.CreateDefaultContext()
     wrench, manip, flag = jacobian_wrench(rigid, q, tau_meas, tau_dyn)
+    other = rng.normal(size=q.shape)                      # a second source through the same decomposition
+    wrench_other, _, _ = wrench_from_joint_torque(point_jacobian(chain_geometry(rigid), q, np.zeros(3)), other)
     for i in range(q.shape[0]):
-        for name, value in (("q", q[i]), ("tau_meas", tau_meas[i]), ("tau_dyn", tau_dyn[i])):
-            system.GetInputPort(name).FixValue(ctx, value)
-        np.testing.assert_allclose(system.GetOutputPort("wrench").Eval(ctx), wrench[i], atol=1e-10)
-        np.testing.assert_allclose(system.GetOutputPort("tau_ext").Eval(ctx), tau_dyn[i] - tau_meas[i])
+        observer.GetInputPort("tau_dyn").FixValue(obs_ctx, tau_dyn[i])
+        observer.GetInputPort("tau_meas").FixValue(obs_ctx, tau_meas[i])
+        tau_ext = observer.GetOutputPort("tau_ext").Eval(obs_ctx)
+        np.testing.assert_allclose(tau_ext, tau_dyn[i] - tau_meas[i], atol=1e-14)
+        system.GetInputPort("q").FixValue(ctx, q[i])
+        system.GetInputPort("tau_ext_jacobian").FixValue(ctx, tau_ext)
+        system.GetInputPort("tau_ext_momentum").FixValue(ctx, other[i])
+        np.testing.assert_allclose(system.GetOutputPort("wrench_jacobian").Eval(ctx), wrench[i], atol=1e-10)
+        np.testing.assert_allclose(system.GetOutputPort("wrench_momentum").Eval(ctx), wrench_other[i], atol=1e-10)
         assert system.GetOutputPort("manipulability").Eval(ctx)[0] == pytest.approx(manip[i], rel=1e-10)
 
 
@@ -201,6 +207,7 @@ def test_momentum_observer_first_order_response(rigid):
     # the System, stepped by the simulator at the data rate, gives the same residual one sample later
     builder = DiagramBuilder()
     obs = builder.AddSystem(MomentumObserver(rigid, h, gains))
+    obs.set_name("momentum_observer")
     src = builder.AddSystem(TrajectorySource(PiecewisePolynomial.FirstOrderHold(t, tau_meas.T)))
     builder.Connect(src.get_output_port(), obs.GetInputPort("tau_meas"))
     for name, value in (("q", HOME), ("qd", np.zeros(rigid.n)), ("tau_int", np.zeros(rigid.n))):
@@ -208,6 +215,7 @@ def test_momentum_observer_first_order_response(rigid):
     log = LogVectorOutput(obs.GetOutputPort("tau_ext"), builder, publish_period=h)
     diagram = builder.Build()
     sim = Simulator(diagram)
+    obs.set_initial_state(obs.GetMyMutableContextFromRoot(sim.get_mutable_context()))
     sim.AdvanceTo(t[-1] - 0.5 * h)
     logged = log.FindLog(sim.get_context()).data().T
     np.testing.assert_allclose(logged[1:], r[:logged.shape[0] - 1], atol=1e-9)

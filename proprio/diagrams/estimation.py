@@ -1,47 +1,56 @@
 """The estimation diagram (DESIGN.md diagram 2): a Recording replayed through a dynamics model into both wrench
-observers, logged at the data rate.
+observers, logged at the data rate — the same :class:`WrenchEstimator` a live robot runs.
 
-    TrajectorySource [q; q̇; q̈; τ_J] (conditioned, zero phase) → Demultiplexer
-        ├─ q, q̇, q̈ → TorqueModelSystem ──tau_dyn──→ JacobianWrenchObserver ──→ VectorLogSink (f̂, τ̂_ext, flags)
-        │                               └─tau_int──→ MomentumObserver ───────→ VectorLogSink (f̂, τ̂_ext)
-        └─ τ_J ───────────────────────────────────→ both observers' tau_meas
+    TrajectorySource [q; q̇; q̈; τ_J] (conditioned, zero phase) → Demultiplexer → WrenchEstimator:
+        ├─ q, q̇, q̈ → torque_model (C++ InverseDynamics + τ_int, or the hybrid model) ─tau_dyn─→ jacobian_observer
+        │                                                                  └─tau_int─→ momentum_observer
+        ├─ τ_J ──────────────────────────────────────────────→ both observers' tau_meas
+        └─ (J(q) from the momentum observer's plant context) ─→ wrench (WrenchMap: one solve for both τ̂_ext)
+                                                               ─estimate─→ ONE VectorLogSink
 
-The signals come from the one conditioning path (:mod:`proprio.conditioning`: uniform time base, zero-phase
-Butterworth per joint with its cutoff from the data's noise floor or from the config, central differences), offline,
-so they are computed before the replay; the observers themselves are causal Systems that would run unchanged on live sensor ports. ``tau_dyn`` comes from any
-:class:`TorqueModel`: the rigid-body model (:class:`TorqueModelSystem`), or the hybrid RBD + learned residual
-(:mod:`proprio.diagrams.hybrid_torque_model`), whose network then runs online in the diagram, one step per sample with
-its LSTM and r-encoder state carried from sample to sample. :func:`estimate_wrench` runs it and returns an
-:class:`EstimationResult`.
+Every stage is a System with named ports; C++ primitives (InverseDynamics, Multiplexer/Demultiplexer, Adder,
+MatrixGain, discrete LinearSystem, ZeroOrderHold) carry everything but the three Python Systems that hold real
+Python work (τ_int — with the network step for a hybrid model —, the rigid-body terms p, τ_g + Cᵀq̇ and J, the
+wrench solve), each reading one stacked input port and writing one output. The signals come from the one
+conditioning path (:mod:`proprio.conditioning`: uniform time base, zero-phase Butterworth per joint with its cutoff from the data's
+noise floor or from the config, central differences), offline, so they are computed before the replay; online, a
+causal conditioning stage (:class:`~proprio.systems.causal_conditioning.CausalConditioner`) takes the raw q, τ_J
+instead (``WrenchEstimator(..., conditioning=causal_conditioning(...))``, and :mod:`proprio.online` for a loop
+without a Simulator). ``tau_dyn`` comes from any :class:`TorqueModel`: the rigid-body model
+(:class:`TorqueModelSystem`), or the hybrid RBD + learned residual (:mod:`proprio.diagrams.hybrid_torque_model`),
+whose network then runs online in the diagram, one step per sample with its LSTM and r-encoder state carried from
+sample to sample. :func:`estimate_wrench` runs it and returns an :class:`EstimationResult`.
 """
 from __future__ import annotations
 
 import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Callable, Protocol
 
 import numpy as np
-from pydrake.common.value import AbstractValue
 from pydrake.systems.analysis import Simulator
-from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem, System, ValueProducer
-from pydrake.systems.primitives import Demultiplexer, LogVectorOutput, TrajectorySource, VectorLogSink
+from pydrake.systems.controllers import InverseDynamics
+from pydrake.systems.framework import Context, Diagram, DiagramBuilder, LeafSystem
+from pydrake.systems.primitives import (Adder, Demultiplexer, LogVectorOutput, Multiplexer, TrajectorySource,
+                                        VectorLogSink)
 from pydrake.trajectories import PiecewisePolynomial
 
-from proprio.conditioning import ConditioningConfig, condition
+from proprio.conditioning import CausalConditioning, ConditioningConfig, condition
 from proprio.description import RobotDescription, load_robot
 from proprio.dynamics import inverse_dynamics
 from proprio.io import atomic_path, save_figure
 from proprio.kinematics import chain_geometry, flange_jacobian, flange_pose, point_jacobian
 from proprio.plant import DrakeRobot
 from proprio.recording import Recording, RecordingError, validate_recording
-from proprio.systems.observers import (JacobianWrenchObserver, MomentumObserver, WrenchMapping, jacobian_wrench,
-                                       momentum_observer, wrench_from_joint_torque)
+from proprio.systems.causal_conditioning import CausalConditioner
+from proprio.systems.observers import (JacobianWrenchObserver, MomentumObserver, WrenchMap, WrenchMapping,
+                                       jacobian_wrench, momentum_observer, wrench_from_joint_torque)
 
-__all__ = ["TorqueModel", "RigidBodyTorqueModel", "load_torque_model", "TorqueModelSystem", "conditioned_signals",
-           "check_recording_matches", "AddWrenchObservers",
-           "build_estimation_diagram", "EstimationResult", "estimate_wrench", "estimate_wrench_offline", "OBSERVERS",
-           "DEFAULT_GAIN"]
+__all__ = ["TorqueModel", "RigidBodyTorqueModel", "load_torque_model", "InteractionTorqueSystem", "TorqueModelSystem",
+           "conditioned_signals", "check_recording_matches", "WrenchEstimator", "split_estimate",
+           "build_estimation_diagram", "run_estimation_diagram", "EstimationResult", "estimate_wrench",
+           "estimate_wrench_offline", "OBSERVERS", "DEFAULT_GAIN"]
 
 OBSERVERS = ("jacobian", "momentum")
 DEFAULT_GAIN = 100.0
@@ -84,6 +93,22 @@ class RigidBodyTorqueModel:
             tau += np.asarray(d.friction_viscous) * qd + np.asarray(d.friction_coulomb) * sgn
         return tau
 
+    def tau_int_step(self) -> Callable[[np.ndarray], np.ndarray]:
+        """The same ``τ_int(q̇)`` [N·m] for ONE sample ``q̇ [n]``, constants folded (for the per-step Systems)."""
+        d = self.description
+        offset = np.zeros(d.n) if self.offset is None else np.asarray(self.offset, dtype=float)
+        if not d.has_friction:
+            return lambda qd: offset.copy()
+        fv, fc = np.asarray(d.friction_viscous, dtype=float), np.asarray(d.friction_coulomb, dtype=float)
+        inv_v = 1.0 / self.coulomb_velocity if self.coulomb_velocity != 0 else 0.0
+        if self.offset is None:                   # (one operation fewer per step)
+            if inv_v == 0.0:
+                return lambda qd: fv * qd + fc * np.sign(qd)
+            return lambda qd: fv * qd + fc * np.tanh(qd * inv_v)
+        if inv_v == 0.0:
+            return lambda qd: offset + fv * qd + fc * np.sign(qd)
+        return lambda qd: offset + fv * qd + fc * np.tanh(qd * inv_v)
+
 
 def load_torque_model(spec: str | Path) -> TorqueModel:
     """A model from a shipped robot name or robot YAML/URDF (its RBD + friction, e.g. ``iiwa14_identified``), an
@@ -109,28 +134,72 @@ def load_torque_model(spec: str | Path) -> TorqueModel:
     return RigidBodyTorqueModel(load_robot(spec))
 
 
-class TorqueModelSystem(LeafSystem):
-    """A :class:`TorqueModel` as a System (τ_rbd from Drake's ``CalcInverseDynamics``). Inputs ``q``, ``qd``,
-    ``qdd`` (n each, rad, rad/s, rad/s²); outputs ``tau_dyn`` = τ_rbd + τ_int and ``tau_int`` (n each, N·m), both
-    computed once per context."""
+class InteractionTorqueSystem(LeafSystem):
+    """``tau_int`` (n) [N·m] = the model's τ_int for one sample of the inputs ``q`` [rad], ``qd`` [rad/s], ``qdd``
+    [rad/s²]: folded per-sample constants for a :class:`RigidBodyTorqueModel` (``tau_int_step``), the model's
+    vectorised ``tau_int`` on one row otherwise. :meth:`calc` is the step function."""
 
     def __init__(self, model: TorqueModel):
         LeafSystem.__init__(self)
-        self._model = model
-        self._arm = DrakeRobot(model.description)
         n = model.description.n
-        for name in ("q", "qd", "qdd"):
-            self.DeclareVectorInputPort(name, n)
-        cache = self.DeclareCacheEntry(
-            "torques", ValueProducer(allocate=AbstractValue.Make(np.zeros(2 * n)).Clone, calc=self._calc),
-            {self.all_input_ports_ticket()})
-        self.DeclareVectorOutputPort("tau_dyn", n, lambda c, o: o.SetFromVector(cache.Eval(c)[:n]))
-        self.DeclareVectorOutputPort("tau_int", n, lambda c, o: o.SetFromVector(cache.Eval(c)[n:]))
+        self._ports = [self.DeclareVectorInputPort(name, n) for name in ("q", "qd", "qdd")]
+        step = model.tau_int_step() if hasattr(model, "tau_int_step") else None
+        self.calc = (lambda q, qd, qdd: step(qd)) if step is not None else \
+            (lambda q, qd, qdd: model.tau_int(q[None, :], qd[None, :], qdd[None, :])[0])
+        self._depends_on_q = step is None
+        self.DeclareVectorOutputPort("tau_int", n, self._calc)
 
-    def _calc(self, context, value) -> None:
-        q, qd, qdd = (self.get_input_port(i).Eval(context) for i in range(3))
-        tau_int = self._model.tau_int(q[None, :], qd[None, :], qdd[None, :])[0]
-        value.set_value(np.concatenate([self._arm.inverse_dynamics(q, qd, qdd) + tau_int, tau_int]))
+    def _calc(self, context, output) -> None:
+        if self._depends_on_q:
+            output.SetFromVector(self.calc(*(p.Eval(context) for p in self._ports)))
+        else:
+            output.SetFromVector(self.calc(None, self._ports[1].Eval(context), None))
+
+
+class TorqueModelSystem(Diagram):
+    """A :class:`TorqueModel` as a sub-Diagram: τ_rbd from Drake's C++ ``InverseDynamics`` (gravity as the applied
+    force) and τ_int from :class:`InteractionTorqueSystem`::
+
+        q, qd ──▶ Multiplexer ──▶ InverseDynamics ──τ_rbd──▶ Adder ──▶ tau_dyn
+        qdd ───────────────────────────┘                ┌──▶ ┘
+        q, qd, qdd ──▶ InteractionTorqueSystem ──tau_int┴────────────▶ tau_int
+
+    Inputs ``q``, ``qd``, ``qdd`` (n each, rad, rad/s, rad/s²); outputs ``tau_dyn`` = τ_rbd + τ_int, ``tau_int`` and
+    ``tau_rbd`` (n each, N·m). ``arm`` is the plant the C++ system evaluates (kept alive with it)."""
+
+    def __init__(self, model: TorqueModel):
+        Diagram.__init__(self)
+        n = model.description.n
+        self.arm = DrakeRobot(model.description)
+        builder = DiagramBuilder()
+        state = builder.AddNamedSystem("state", Multiplexer([n, n]))
+        self.rbd = builder.AddNamedSystem("rigid_body", InverseDynamics(self.arm.plant))
+        self.interaction = builder.AddNamedSystem("interaction", InteractionTorqueSystem(model))
+        total = builder.AddNamedSystem("total", Adder(2, n))
+        builder.ExportInput(state.get_input_port(0), "q")
+        builder.ExportInput(state.get_input_port(1), "qd")
+        builder.ExportInput(self.rbd.get_input_port_desired_acceleration(), "qdd")
+        for name in ("q", "qd", "qdd"):
+            builder.ConnectInput(name, self.interaction.GetInputPort(name))
+        builder.Connect(state.get_output_port(), self.rbd.get_input_port_estimated_state())
+        builder.Connect(self.rbd.get_output_port_generalized_force(), total.get_input_port(0))
+        builder.Connect(self.interaction.get_output_port(), total.get_input_port(1))
+        builder.ExportOutput(total.get_output_port(), "tau_dyn")
+        builder.ExportOutput(self.interaction.get_output_port(), "tau_int")
+        builder.ExportOutput(self.rbd.get_output_port_generalized_force(), "tau_rbd")
+        builder.BuildInto(self)
+        self.set_name("torque_model")
+
+    def initial_memory(self) -> None:
+        """No state (the streaming interface shared with the hybrid model's System)."""
+        return None
+
+    def step(self, memory: None, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, None]:
+        """``(tau_dyn, tau_int, memory)`` for one sample — the step function: the same plant
+        (``CalcInverseDynamics``, as the C++ ``InverseDynamics`` evaluates it) and the same τ_int function."""
+        tau_int = self.interaction.calc(q, qd, qdd)
+        return self.arm.inverse_dynamics(q, qd, qdd) + tau_int, tau_int, None
 
 
 def check_recording_matches(rec: Recording, desc: RobotDescription) -> Recording:
@@ -157,53 +226,139 @@ def check_recording_matches(rec: Recording, desc: RobotDescription) -> Recording
 
 # ---- the diagram -----------------------------------------------------------------------------------------------------
 
-def AddWrenchObservers(builder: DiagramBuilder, model: TorqueModel, time_step: float,
-                       gain: float | np.ndarray = DEFAULT_GAIN,
-                       mapping: WrenchMapping = WrenchMapping()
-                       ) -> tuple[System, JacobianWrenchObserver, MomentumObserver]:
-    """Add the torque model (a :class:`TorqueModelSystem`, or the model's own ``make_system(time_step)``) and both
-    observers to ``builder`` and wire the model into them. The caller connects the ``q``, ``qd``, ``qdd`` inputs of
-    the model and ``q``/``qd``/``tau_meas`` of the observers."""
-    desc = model.description
-    system = model.make_system(time_step) if hasattr(model, "make_system") else TorqueModelSystem(model)
-    torque_model = builder.AddNamedSystem("torque_model", system)
-    jac = builder.AddNamedSystem("jacobian_observer", JacobianWrenchObserver(desc, mapping))
-    mom = builder.AddNamedSystem("momentum_observer", MomentumObserver(desc, time_step, gain, mapping))
-    builder.Connect(torque_model.GetOutputPort("tau_dyn"), jac.GetInputPort("tau_dyn"))
-    builder.Connect(torque_model.GetOutputPort("tau_int"), mom.GetInputPort("tau_int"))
-    return torque_model, jac, mom
+class WrenchEstimator(Diagram):
+    """The online estimator, one Drake System per stage with named ports, all stepping at ``time_step``::
+
+        [conditioner]  q, [qd], tau_meas (raw) ─▶ CausalConditioner (C++ LinearSystem) ─▶ q, qd, qdd, tau_meas
+        torque_model   q, qd, qdd ─▶ TorqueModelSystem (C++ InverseDynamics + τ_int) or the hybrid model's System
+                                    ─▶ tau_dyn, tau_int
+        jacobian_observer  tau_dyn, tau_meas ─▶ (C++ MatrixGain [I −I]) ─▶ tau_ext = τ_dyn − τ_J
+        momentum_observer  q, qd, tau_meas, tau_int ─▶ rigid-body terms (p, τ_g + Cᵀq̇, J(q) on one plant context)
+                           ─▶ (C++ discrete LinearSystem) ─▶ tau_ext = r;  jacobian
+        wrench             jacobian, tau_ext_jacobian, tau_ext_momentum ─▶ WrenchMap (one solve for both) ─▶ estimate
+
+    Input ports: without ``conditioning`` the conditioned ``q`` [rad], ``qd`` [rad/s], ``qdd`` [rad/s²],
+    ``tau_meas`` [N·m] (e.g. a replay of :func:`proprio.conditioning.condition`); with a
+    :class:`~proprio.conditioning.CausalConditioning` the raw ``q``, (``qd`` for ``velocity="measured"``) and
+    ``tau_meas`` of the robot. Output ports: ``estimate`` = ``[f̂_jacobian (6), f̂_momentum (6), manipulability,
+    unreliable, τ̂_ext,jacobian (n), τ̂_ext,momentum (n)]`` (:func:`split_estimate`); ``wrench_jacobian``,
+    ``wrench_momentum`` (6 each) [fx, fy, fz, mx, my, mz] on the robot at the contact point (flange origin by
+    default), world frame, N and N·m; ``manipulability``, ``unreliable`` (1 each).
+
+    Call :meth:`set_initial_state` once the first sample is on the inputs: it starts the conditioner in that
+    sample's steady state and the momentum observer at r = 0 (:class:`MomentumObserver`). The step functions of the
+    stages (``conditioner.design``, ``torque_model.step``, ``momentum.terms.calc`` with ``momentum.filter``'s
+    matrices, ``wrench.calc_jacobian``) are what :class:`proprio.online.OnlineEstimator` drives directly.
+    """
+
+    def __init__(self, model: TorqueModel, time_step: float, gain: float | np.ndarray = DEFAULT_GAIN,
+                 mapping: WrenchMapping = WrenchMapping(), conditioning: CausalConditioning | None = None):
+        Diagram.__init__(self)
+        desc = model.description
+        n = desc.n
+        if conditioning is not None and abs(conditioning.time_step - time_step) > 1e-9 * time_step:
+            raise ValueError(f"WrenchEstimator: the conditioning is designed for {conditioning.rate_hz:g} Hz, the "
+                             f"estimator steps every {time_step:g} s")
+        self.model, self.time_step = model, float(time_step)
+        builder = DiagramBuilder()
+        system = model.make_system(time_step) if hasattr(model, "make_system") else TorqueModelSystem(model)
+        self.torque_model = builder.AddNamedSystem("torque_model", system)
+        self.jacobian = builder.AddNamedSystem("jacobian_observer", JacobianWrenchObserver(n))
+        self.momentum = builder.AddNamedSystem("momentum_observer", MomentumObserver(desc, time_step, gain,
+                                                                                     mapping.contact_point))
+        self.wrench = builder.AddNamedSystem("wrench", WrenchMap(desc, mapping, OBSERVERS, jacobian_input=True))
+        self.conditioner = None
+        if conditioning is None:
+            for name in ("q", "qd", "qdd", "tau_meas"):
+                builder.ExportInput(self.torque_model.GetInputPort(name) if name != "tau_meas" else
+                                    self.jacobian.GetInputPort(name), name)
+            signal = {name: None for name in ("q", "qd", "qdd", "tau_meas")}
+        else:
+            self.conditioner = builder.AddNamedSystem("conditioner", CausalConditioner(conditioning))
+            for i in range(self.conditioner.num_input_ports()):
+                port = self.conditioner.get_input_port(i)
+                builder.ExportInput(port, port.get_name())
+            signal = {name: self.conditioner.GetOutputPort(name) for name in ("q", "qd", "qdd", "tau_meas")}
+
+        def connect(name: str, dest) -> None:
+            if signal[name] is None:
+                builder.ConnectInput(name, dest)
+            else:
+                builder.Connect(signal[name], dest)
+
+        for name in ("q", "qd", "qdd"):
+            if signal[name] is not None:
+                connect(name, self.torque_model.GetInputPort(name))
+        if signal["tau_meas"] is not None:
+            connect("tau_meas", self.jacobian.GetInputPort("tau_meas"))
+        builder.Connect(self.torque_model.GetOutputPort("tau_dyn"), self.jacobian.GetInputPort("tau_dyn"))
+        for name in ("q", "qd", "tau_meas"):
+            connect(name, self.momentum.GetInputPort(name))
+        builder.Connect(self.torque_model.GetOutputPort("tau_int"), self.momentum.GetInputPort("tau_int"))
+        builder.Connect(self.momentum.GetOutputPort("jacobian"), self.wrench.GetInputPort("jacobian"))
+        builder.Connect(self.jacobian.GetOutputPort("tau_ext"), self.wrench.GetInputPort("tau_ext_jacobian"))
+        builder.Connect(self.momentum.GetOutputPort("tau_ext"), self.wrench.GetInputPort("tau_ext_momentum"))
+        for name in ("estimate", "wrench_jacobian", "wrench_momentum", "manipulability", "unreliable"):
+            builder.ExportOutput(self.wrench.GetOutputPort(name), name)
+        builder.BuildInto(self)
+        self.set_name("wrench_estimator")
+
+    def set_initial_state(self, context: Context) -> None:
+        """Start the stages' states from the sample the inputs show now (this System's context, e.g.
+        ``GetMyMutableContextFromRoot``): the conditioner in its steady state, the momentum observer at r = 0."""
+        if self.conditioner is not None:
+            self.conditioner.set_initial_state(self.GetMutableSubsystemContext(self.conditioner, context))
+        self.momentum.set_initial_state(self.GetMutableSubsystemContext(self.momentum, context))
 
 
-_LOGGED = {"jacobian": ("wrench", "tau_ext", "manipulability", "unreliable"), "momentum": ("wrench", "tau_ext")}
+def split_estimate(estimate: np.ndarray, n: int) -> dict[str, np.ndarray]:
+    """``estimate [..., 14 + 2n]`` (the :class:`WrenchEstimator` port) → ``jacobian.wrench``, ``momentum.wrench``
+    ``[..., 6]``, ``manipulability``, ``unreliable`` ``[...]``, ``jacobian.tau_ext``, ``momentum.tau_ext`` ``[..., n]``."""
+    return {"jacobian.wrench": estimate[..., 0:6], "momentum.wrench": estimate[..., 6:12],
+            "manipulability": estimate[..., 12], "unreliable": estimate[..., 13],
+            "jacobian.tau_ext": estimate[..., 14:14 + n], "momentum.tau_ext": estimate[..., 14 + n:14 + 2 * n]}
 
 
 def build_estimation_diagram(model: TorqueModel, signals: dict[str, np.ndarray],
                              gain: float | np.ndarray = DEFAULT_GAIN,
-                             mapping: WrenchMapping = WrenchMapping()
-                             ) -> tuple[Diagram, dict[str, VectorLogSink]]:
-    """The replay diagram over preprocessed ``signals`` (see :func:`preprocess`). Returns the diagram and its
-    loggers keyed ``"<observer>.<port>"``, each sampling every ``signals['time_step']`` from t = 0."""
+                             mapping: WrenchMapping = WrenchMapping(),
+                             conditioning: CausalConditioning | None = None
+                             ) -> tuple[Diagram, WrenchEstimator, VectorLogSink]:
+    """The replay diagram: ``signals`` (``t``, ``q``, ``tau``, and ``qd``, ``qdd`` when no causal ``conditioning``
+    is given — see :func:`conditioned_signals`; with one, the raw ``q``, ``tau`` (and ``qd`` for a measured-velocity
+    design) of the robot) replayed by a ``TrajectorySource`` (first-order hold) into a :class:`WrenchEstimator`, whose
+    ``estimate`` port ONE logger samples every ``signals['time_step']`` from t = 0. Returns the diagram, the
+    estimator and the logger; :func:`run_estimation_diagram` runs it."""
     n = model.description.n
     h = signals["time_step"]
+    if conditioning is None:
+        channels = ("q", "qd", "qdd", "tau")
+    else:
+        channels = ("q", "qd", "tau") if conditioning.velocity == "measured" else ("q", "tau")
     builder = DiagramBuilder()
-    stacked = np.hstack([signals[k] for k in ("q", "qd", "qdd", "tau")]).T
+    stacked = np.hstack([signals[k] for k in channels]).T
     source = builder.AddNamedSystem("recording", TrajectorySource(
         PiecewisePolynomial.FirstOrderHold(signals["t"], stacked)))
-    demux = builder.AddNamedSystem("signals", Demultiplexer([n, n, n, n]))
+    demux = builder.AddNamedSystem("signals", Demultiplexer([n] * len(channels)))
     builder.Connect(source.get_output_port(), demux.get_input_port())
-    q, qd, qdd, tau = (demux.get_output_port(i) for i in range(4))
-    torque_model, jac, mom = AddWrenchObservers(builder, model, h, gain, mapping)
-    for port, name in ((q, "q"), (qd, "qd"), (qdd, "qdd")):
-        builder.Connect(port, torque_model.GetInputPort(name))
-    for obs in (jac, mom):
-        builder.Connect(q, obs.GetInputPort("q"))
-        builder.Connect(tau, obs.GetInputPort("tau_meas"))
-    builder.Connect(qd, mom.GetInputPort("qd"))
-    loggers = {}
-    for name, obs in (("jacobian", jac), ("momentum", mom)):
-        for port in _LOGGED[name]:
-            loggers[f"{name}.{port}"] = LogVectorOutput(obs.GetOutputPort(port), builder, publish_period=h)
-    return builder.Build(), loggers
+    estimator = builder.AddNamedSystem("estimator", WrenchEstimator(model, h, gain, mapping, conditioning))
+    for i, name in enumerate(channels):
+        builder.Connect(demux.get_output_port(i), estimator.GetInputPort("tau_meas" if name == "tau" else name))
+    logger = LogVectorOutput(estimator.GetOutputPort("estimate"), builder, publish_period=h)
+    logger.set_name("estimate_log")
+    return builder.Build(), estimator, logger
+
+
+def run_estimation_diagram(diagram: Diagram, estimator: WrenchEstimator, logger: VectorLogSink, t_end: float,
+                           time_step: float) -> np.ndarray:
+    """Simulate the replay diagram to ``t_end`` [s] (stages started from the first sample) and return the logged
+    ``estimate`` rows ``[N, 14 + 2n]``, one per sample."""
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    estimator.set_initial_state(estimator.GetMyMutableContextFromRoot(context))
+    simulator.Initialize()
+    simulator.AdvanceTo(float(t_end) + 0.5 * time_step)
+    return logger.FindLog(simulator.get_context()).data().T
 
 
 @dataclass
@@ -363,17 +518,13 @@ def estimate_wrench(model: TorqueModel | RobotDescription, rec: Recording, gain:
     Recording's samples kept at that rate. Raises
     :class:`RecordingError` when the Recording does not match the model robot or is too short for the filters."""
     model, rec, sig, edge_s = _prepare(model, rec, conditioning)
-    diagram, loggers = build_estimation_diagram(model, sig, gain, mapping)
-    simulator = Simulator(diagram)
-    simulator.Initialize()
-    simulator.AdvanceTo(float(sig["t"][-1]) + 0.5 * sig["time_step"])
-    context = simulator.get_context()
-    n_s = rec.n_samples
-    logs = {k: lg.FindLog(context).data().T[:n_s] for k, lg in loggers.items()}
+    diagram, estimator, logger = build_estimation_diagram(model, sig, gain, mapping)
+    logs = split_estimate(run_estimation_diagram(diagram, estimator, logger, sig["t"][-1], sig["time_step"])
+                          [:rec.n_samples], model.description.n)
     return EstimationResult(
         t=rec.t.copy(), q=sig["q"], wrench={o: logs[f"{o}.wrench"] for o in OBSERVERS},
         tau_ext={o: logs[f"{o}.tau_ext"] for o in OBSERVERS},
-        manipulability=logs["jacobian.manipulability"][:, 0], unreliable=logs["jacobian.unreliable"][:, 0] > 0.5,
+        manipulability=logs["manipulability"], unreliable=logs["unreliable"] > 0.5,
         f_true=None if rec.f_ext is None else rec.f_ext.copy(), **_skips(gain, edge_s),
         meta=_meta(model, rec, gain, mapping, conditioning, "diagram"))
 

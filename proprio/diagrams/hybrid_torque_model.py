@@ -2,11 +2,9 @@
 the estimation diagram (:mod:`proprio.diagrams.estimation`), so both wrench observers run on it online.
 
 Online (``make_system``), a sub-Diagram with the same ports as :class:`~proprio.diagrams.estimation.TorqueModelSystem`
-(inputs ``q``, ``qd``, ``qdd``; outputs ``tau_dyn``, ``tau_int``)::
-
-    q, qd, qdd ──▶ backbone (TorqueModelSystem) ──tau_dyn (τ_RBD)──▶ residual_network ──tau_hybrid──▶ tau_dyn
-        └──────────────────────────────────────────────────────────▶ (q, qd, qdd)    └─tau_residual─┐
-                   backbone ──tau_int──────────────────────────────────────────────────────▶ Adder ──▶ tau_int
+(inputs ``q``, ``qd``, ``qdd``; outputs ``tau_dyn``, ``tau_int``), :class:`HybridTorqueModelSystem`: C++
+``InverseDynamics`` for the rigid body, then ONE Python step that adds the backbone's friction (τ_RBD) and runs the
+network on vec(τ_RBD, q, q̇, q̈, r), its memory held by a C++ ``ZeroOrderHold``.
 
 ``tau_dyn`` = τ_HYB feeds the Jacobian observer; ``tau_int`` = τ_HYB − τ_rigid (the backbone's friction and offsets
 plus the network's residual) feeds the momentum observer, which takes M(q) from the backbone's rigid body. The
@@ -30,18 +28,20 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from pydrake.systems.framework import Diagram, DiagramBuilder
-from pydrake.systems.primitives import Adder
+from pydrake.systems.controllers import InverseDynamics
+from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
+from pydrake.systems.primitives import Demultiplexer, Multiplexer, ZeroOrderHold
 
 from proprio.description import RobotDescription, load_robot
-from proprio.diagrams.estimation import RigidBodyTorqueModel, TorqueModelSystem, load_torque_model
+from proprio.diagrams.estimation import RigidBodyTorqueModel, load_torque_model
 from proprio.dynamics import inverse_dynamics
 from proprio.learning.datasets import DataConfig, condition_for_training, kept_samples
 from proprio.learning.evaluation import predict_streaming
 from proprio.learning.features import feature_matrix, rotational_displacement
 from proprio.learning.models import HybridModel, load_model
 from proprio.recording import Recording, RecordingError
-from proprio.systems.residual_network import ResidualNetworkSystem
+from proprio.plant import DrakeRobot
+from proprio.systems.residual_network import STARTED, ResidualNetworkCore
 
 __all__ = ["HybridTorqueModel", "load_hybrid_torque_model"]
 
@@ -93,25 +93,10 @@ class HybridTorqueModel:
         backbone = rigid + self.backbone.tau_int(q, qd, qdd)                # = tau_backbone(q, qd, qdd)
         return predict_streaming(self.network, feature_matrix(backbone, q, qd, qdd, r)) - rigid
 
-    def make_system(self, time_step: float) -> Diagram:
+    def make_system(self, time_step: float) -> "HybridTorqueModelSystem":
         """The online model (module docstring), stepping every ``time_step`` [s] (the replayed data's step).
         Inputs ``q``, ``qd``, ``qdd``; outputs ``tau_dyn`` = τ_HYB and ``tau_int`` = τ_HYB − τ_rigid [N·m]."""
-        n = self.description.n
-        builder = DiagramBuilder()
-        backbone = builder.AddNamedSystem("backbone", TorqueModelSystem(self.backbone))
-        network = builder.AddNamedSystem("residual_network", ResidualNetworkSystem(self.network, time_step))
-        tau_int = builder.AddNamedSystem("tau_int", Adder(2, n))
-        for name in ("q", "qd", "qdd"):
-            builder.ExportInput(backbone.GetInputPort(name), name)
-            builder.ConnectInput(name, network.GetInputPort(name))
-        builder.Connect(backbone.GetOutputPort("tau_dyn"), network.GetInputPort("tau_rbd"))
-        builder.Connect(backbone.GetOutputPort("tau_int"), tau_int.get_input_port(0))
-        builder.Connect(network.GetOutputPort("tau_residual"), tau_int.get_input_port(1))
-        builder.ExportOutput(network.GetOutputPort("tau_hybrid"), "tau_dyn")
-        builder.ExportOutput(tau_int.get_output_port(), "tau_int")
-        diagram = builder.Build()
-        diagram.set_name("hybrid_torque_model")
-        return diagram
+        return HybridTorqueModelSystem(self, time_step)
 
     def signals(self, rec: Recording) -> tuple[Recording, dict[str, np.ndarray]]:
         """``rec`` at the model rate and its signals ``t, q, qd, qdd, tau, time_step`` prepared like the training data
@@ -129,6 +114,88 @@ class HybridTorqueModel:
         cutoffs = [float(cs.cutoff_hz.min())] + ([self.data.tau_filter_hz] if self.data.tau_filter_hz else [])
         return at_rate, {"t": at_rate.t - at_rate.t[0], "q": cs.q[keep], "qd": cs.qd[keep], "qdd": cs.qdd[keep],
                          "tau": tau[keep], "time_step": k / cs.rate_hz, "edge_s": 3.0 / min(cutoffs)}
+
+
+class HybridTorqueStep(LeafSystem):
+    """The Python part of :class:`HybridTorqueModelSystem`: input ``inputs`` = ``[τ_rigid; q; q̇; q̈]`` (4n) and
+    ``memory`` (the network's); output ``step`` = ``[τ_HYB; τ_int; next memory]`` (:meth:`HybridTorqueModelSystem.
+    step_stacked`)."""
+
+    def __init__(self, owner: "HybridTorqueModelSystem"):
+        LeafSystem.__init__(self)
+        n, size = owner.n, owner.core.memory_size
+        self._owner = owner
+        self._inputs = self.DeclareVectorInputPort("inputs", 4 * n)
+        self._memory = self.DeclareVectorInputPort("memory", size)
+        self.DeclareVectorOutputPort("step", 2 * n + size, self._calc)
+
+    def _calc(self, context, output) -> None:
+        output.SetFromVector(self._owner.step_stacked(self._memory.Eval(context), self._inputs.Eval(context)))
+
+
+class HybridTorqueModelSystem(Diagram):
+    """:meth:`HybridTorqueModel.make_system`::
+
+        q, qd ─▶ Multiplexer ─▶ InverseDynamics (C++) ─τ_rigid─┐
+        qdd ──────────────────────────┘                        ├─▶ Multiplexer ─▶ HybridTorqueStep ─▶ Demultiplexer
+        q, qd, qdd ────────────────────────────────────────────┘              ▲ memory                ├─▶ tau_dyn
+                                                                  ZeroOrderHold ◀──── next memory ───┤   tau_int
+    Inputs ``q``, ``qd``, ``qdd`` (rad, rad/s, rad/s²); outputs ``tau_dyn`` = τ_HYB and ``tau_int`` = τ_HYB − τ_rigid
+    [N·m]. The one Python step (:meth:`step_stacked`) adds the backbone's friction and offsets to the C++ rigid-body
+    torque (τ_RBD, the network's input) and runs the network (:class:`~proprio.systems.residual_network.
+    ResidualNetworkCore`, the same step as :class:`~proprio.systems.residual_network.ResidualNetworkSystem`); its
+    memory (r-encoder + LSTM state) is held by a C++ ``ZeroOrderHold``. :meth:`step` is the same computation for
+    one sample with the memory passed in and out (the streaming estimator's interface)."""
+
+    def __init__(self, model: HybridTorqueModel, time_step: float):
+        Diagram.__init__(self)
+        n = self.n = model.description.n
+        self.arm = DrakeRobot(model.description)
+        self.core = ResidualNetworkCore(model.network)
+        self._friction = model.backbone.tau_int_step()
+        size = self.core.memory_size
+        builder = DiagramBuilder()
+        state = builder.AddNamedSystem("state", Multiplexer([n, n]))
+        rigid = builder.AddNamedSystem("rigid_body", InverseDynamics(self.arm.plant))
+        inputs = builder.AddNamedSystem("inputs", Multiplexer([n] * 4))
+        step = builder.AddNamedSystem("step", HybridTorqueStep(self))
+        split = builder.AddNamedSystem("split", Demultiplexer([n, n, size]))
+        hold = builder.AddNamedSystem("memory", ZeroOrderHold(float(time_step), size))
+        builder.ExportInput(state.get_input_port(0), "q")
+        builder.ExportInput(state.get_input_port(1), "qd")
+        builder.ExportInput(rigid.get_input_port_desired_acceleration(), "qdd")
+        builder.Connect(state.get_output_port(), rigid.get_input_port_estimated_state())
+        builder.Connect(rigid.get_output_port_generalized_force(), inputs.get_input_port(0))
+        for i, name in enumerate(("q", "qd", "qdd")):
+            builder.ConnectInput(name, inputs.get_input_port(1 + i))
+        builder.Connect(inputs.get_output_port(), step.GetInputPort("inputs"))
+        builder.Connect(hold.get_output_port(), step.GetInputPort("memory"))
+        builder.Connect(step.get_output_port(), split.get_input_port())
+        builder.Connect(split.get_output_port(2), hold.get_input_port())
+        builder.ExportOutput(split.get_output_port(0), "tau_dyn")
+        builder.ExportOutput(split.get_output_port(1), "tau_int")
+        builder.BuildInto(self)
+        self.set_name("hybrid_torque_model")
+
+    def initial_memory(self) -> np.ndarray:
+        return self.core.initial_memory()
+
+    def step_stacked(self, memory: np.ndarray, inputs: np.ndarray) -> np.ndarray:
+        """``[τ_HYB; τ_int; next memory]`` from the memory and ``inputs = [τ_rigid; q; q̇; q̈]`` (modified in place:
+        its first block becomes τ_RBD = τ_rigid + the backbone's τ_int)."""
+        n = self.n
+        friction = self._friction(inputs[2 * n:3 * n])
+        inputs[:n] += friction                                        # τ_RBD, the network's input
+        tau_hybrid, enc, net_state = self.core.step_parts(memory, inputs)
+        return np.concatenate((tau_hybrid, friction + (tau_hybrid - inputs[:n]), STARTED, enc, net_state))
+
+    def step(self, memory: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(tau_dyn, tau_int, next memory)`` for one sample — the step function, with the same plant
+        (``CalcInverseDynamics``) as the C++ ``InverseDynamics``."""
+        n = self.n
+        out = self.step_stacked(memory, np.concatenate((self.arm.inverse_dynamics(q, qd, qdd), q, qd, qdd)))
+        return out[:n], out[n:2 * n], out[2 * n:]
 
 
 def load_hybrid_torque_model(path: str | Path) -> HybridTorqueModel:

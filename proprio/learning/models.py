@@ -270,45 +270,79 @@ class StreamingStepper:
             w_ih, b1 = fold_input(sd["net.cell1.weight_ih_l0"], sd["net.cell1.bias_ih_l0"] + sd["net.cell1.bias_hh_l0"])
             self.sizes = model.net.sizes
 
-            def cell(w_ih: np.ndarray, w_hh: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            def cell(w_ih: np.ndarray, w_hh: np.ndarray, b: np.ndarray) -> np.ndarray:
                 k = w_hh.shape[1]
                 scale = np.full(4 * k, 0.5)          # σ(a) = ½ + ½ tanh(a/2) on i, f, o; tanh(a) on g
                 scale[2 * k:3 * k] = 1.0
-                return scale[:, None] * np.hstack([w_ih, w_hh]), scale * b
+                return np.ascontiguousarray(scale[:, None] * np.hstack([w_ih, w_hh, b[:, None]]))
 
             self.cells = [cell(w_ih, sd["net.cell1.weight_hh_l0"], b1),
                           cell(sd["net.cell2.weight_ih_l0"], sd["net.cell2.weight_hh_l0"],
                                sd["net.cell2.bias_ih_l0"] + sd["net.cell2.bias_hh_l0"])]
             if "net.fcl.weight" in sd:
-                self.w_out, self.b_out = sd["net.fcl.weight"] * y_std[:, None], sd["net.fcl.bias"] * y_std + y_mean
+                w_out, b_out = sd["net.fcl.weight"] * y_std[:, None], sd["net.fcl.bias"] * y_std + y_mean
             else:
-                self.w_out, self.b_out = np.diag(y_std), y_mean
+                w_out, b_out = np.diag(y_std), y_mean
+            self.w_out = np.ascontiguousarray(np.hstack([w_out, b_out[:, None]]))       # [W | b] on [h₂; 1]
+            k1, k2 = self.sizes[0], self.sizes[2]
+            f_in = self.cells[0].shape[1] - k1 - 1
+            # preallocated buffers: z₁ = [x; h₁; 1], z₂ = [h₁; h₂; 1] (the bias rides on the constant 1)
+            self._z1, self._z2 = np.ones(f_in + k1 + 1), np.ones(k1 + k2 + 1)
+            self._a1, self._a2 = np.empty(4 * k1), np.empty(4 * k2)
+            self._gate_scale = [self._affine(k)[0] for k in (k1, k2)]
+            self._gate_shift = [self._affine(k)[1] for k in (k1, k2)]
 
     @staticmethod
-    def _cell(x: np.ndarray, h: np.ndarray, c: np.ndarray, w: np.ndarray, b: np.ndarray
-              ) -> tuple[np.ndarray, np.ndarray]:
-        """One LSTM cell step (eq. 3.66–3.71), PyTorch gate order i, f, g, o. The gates come from ONE tanh,
-        σ(a) = ½ + ½ tanh(a/2), so ``w = S [W_ih  W_hh]`` and ``b = S b`` are pre-scaled by S = ½ on the i, f, o rows
-        and 1 on the g rows."""
-        a = w @ np.concatenate((x, h))
-        a += b
-        t = np.tanh(a)
-        s = t * 0.5
-        s += 0.5
-        k = h.shape[0]
-        c = s[k:2 * k] * c + s[:k] * t[2 * k:3 * k]
-        return s[3 * k:] * np.tanh(c), c
+    def _affine(k: int) -> tuple[np.ndarray, np.ndarray]:
+        """tanh outputs t → gates: ½ + ½t on i, f, o; t on g."""
+        scale, shift = np.full(4 * k, 0.5), np.full(4 * k, 0.5)
+        scale[2 * k:3 * k], shift[2 * k:3 * k] = 1.0, 0.0
+        return scale, shift
 
-    def step(self, x: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """τ [n] N·m for the features ``x [5n]`` of one sample, and the next recurrent state."""
+    @staticmethod
+    def _cell(z: np.ndarray, c: np.ndarray, w: np.ndarray, a: np.ndarray, scale: np.ndarray, shift: np.ndarray,
+              h_out: np.ndarray) -> None:
+        """One LSTM cell step (eq. 3.66–3.71), PyTorch gate order i, f, g, o, in place: ``c`` (the cell state, a
+        fresh array) is updated and h written to ``h_out``. The gates come from ONE tanh, σ(a) = ½ + ½ tanh(a/2), so
+        ``w = S [W_ih  W_hh  b]`` is pre-scaled by S = ½ on the i, f, o rows and 1 on the g rows, and ``z = [x; h; 1]``.
+        """
+        k = c.shape[0]
+        np.dot(w, z, out=a)
+        np.tanh(a, out=a)
+        a *= scale
+        a += shift                                                   # [i, f, g, o]
+        c *= a[k:2 * k]
+        c += a[:k] * a[2 * k:3 * k]
+        np.tanh(c, out=h_out)
+        h_out *= a[3 * k:]
+
+    def step(self, x: np.ndarray, state: np.ndarray, r: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """τ [n] N·m for the features ``x [5n]`` of one sample — or ``x [4n]`` = vec(τ_RBD, q, q̇, q̈) and ``r [n]``
+        apart, which saves a concatenation — and the next recurrent state (``state`` is not modified)."""
+        if r is not None and (self.columns is not None or self.arch == "mlp7"):
+            x, r = np.concatenate((x, r)), None
         z = x if self.columns is None else x[self.columns]
         if self.arch == "mlp7":
             h = np.maximum(np.einsum("f,jfh->jh", z, self.w1) + self.b1, 0.0)
             tau = np.einsum("jh,jh->j", h, self.w2) + self.b2
         else:
             k1, k2 = self.sizes[0], self.sizes[2]
-            h1, c1 = self._cell(z, state[:k1], state[k1:2 * k1], *self.cells[0])
-            h2, c2 = self._cell(h1, state[2 * k1:2 * k1 + k2], state[2 * k1 + k2:], *self.cells[1])
-            tau = self.w_out @ h2 + self.b_out
-            state = np.concatenate([h1, c1, h2, c2])
+            z1, z2 = self._z1, self._z2
+            f_in = z1.shape[0] - k1 - 1
+            if r is None:
+                z1[:f_in] = z
+            else:
+                z1[:f_in - r.shape[0]] = z
+                z1[f_in - r.shape[0]:f_in] = r
+            z1[f_in:f_in + k1] = state[:k1]
+            nxt = state.copy()                                           # [h₁, c₁, h₂, c₂]
+            self._cell(z1, nxt[k1:2 * k1], self.cells[0], self._a1, self._gate_scale[0], self._gate_shift[0],
+                       nxt[:k1])
+            z2[:k1] = nxt[:k1]
+            z2[k1:k1 + k2] = state[2 * k1:2 * k1 + k2]
+            self._cell(z2, nxt[2 * k1 + k2:], self.cells[1], self._a2, self._gate_scale[1], self._gate_shift[1],
+                       nxt[2 * k1:2 * k1 + k2])
+            z2[k1:k1 + k2] = nxt[2 * k1:2 * k1 + k2]
+            tau = self.w_out @ z2[k1:]
+            state = nxt
         return (tau + x[:self.n] if self.hybrid else tau), state

@@ -21,6 +21,12 @@ Two ways to get τ_ext:
   (``CalcGravityGeneralizedForces``, the *applied* gravity torque, = −g(q) of eq. 3.2) and Cᵀq̇ = ∂T/∂q is computed
   as Ṁq̇ − Cq̇ (a central difference of M along q̇ plus Drake's ``CalcBiasTerm``).
 
+As Systems (one per stage, C++ where the work is linear): :class:`JacobianWrenchObserver` (τ_dyn − τ_J, a
+``MatrixGain``), :class:`MomentumObserver` (:class:`RigidBodyTermsSystem` for p, τ_g + Cᵀq̇ and J from Drake's plant,
+then the recursion as a discrete ``LinearSystem``, :func:`momentum_filter`) and :class:`WrenchMap`, which maps both
+τ̂_ext to wrenches with ONE Jacobian and ONE eigen-decomposition per step. Each Python System exposes its step
+function (``calc``) so that :mod:`proprio.online` drives the same code without a Simulator.
+
 The Jacobian pseudo-inverse (eq. 3.12, the arm is redundant: 7 equations, 6 or 3 unknowns) is a weighted,
 adaptively damped least-squares solve of ``Jᵀ w = τ_ext``:
 
@@ -38,8 +44,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from pydrake.common.value import AbstractValue
-from pydrake.systems.framework import LeafSystem, ValueProducer
+from pydrake.multibody.tree import JacobianWrtVariable
+from pydrake.systems.framework import Context, Diagram, DiagramBuilder, LeafSystem
+from pydrake.systems.primitives import Demultiplexer, LinearSystem, MatrixGain, Multiplexer
 from scipy.linalg.lapack import dsyevd
 from scipy.signal import lfilter
 
@@ -48,11 +55,11 @@ from proprio.dynamics import inverse_dynamics
 from proprio.kinematics import ChainGeometry, chain_geometry, point_jacobian
 from proprio.plant import DrakeRobot
 
-__all__ = ["WrenchMapping", "wrench_from_joint_torque", "WrenchSolver", "jacobian_wrench", "JacobianWrenchObserver",
-           "momentum_terms", "DrakeArm", "momentum_observer", "MomentumObserver"]
+__all__ = ["WrenchMapping", "wrench_from_joint_torque", "WrenchSolver", "jacobian_wrench", "WrenchMapStep", "WrenchMap",
+           "JacobianWrenchObserver", "momentum_terms", "DrakeArm", "momentum_observer", "momentum_filter",
+           "RigidBodyTermsSystem", "MomentumObserver"]
 
 _VW = [3, 4, 5, 0, 1, 2]   # rows of our [ω; v] Jacobian in [v; ω] order, so that Jᵀ[f; m] = τ
-_NO_MOMENT = np.zeros(3)
 
 
 @dataclass(frozen=True)
@@ -128,32 +135,43 @@ def wrench_from_joint_torque(jac: np.ndarray, tau_ext: np.ndarray, mapping: Wren
 
 
 class WrenchSolver:
-    """:func:`wrench_from_joint_torque` for ONE sample, for the observer Systems' per-step work, where numpy's per-call
+    """:func:`wrench_from_joint_torque` for ONE configuration, for the Systems' per-step work, where numpy's per-call
     overhead dominates the batched path (≈33 µs at N = 1). The same damped least-squares solution from the
-    eigen-decomposition of the k×k matrix ``J W Jᵀ = V diag(σ²) Vᵀ`` (one LAPACK ``dsyevd`` call, ≈11 µs in all):
+    eigen-decomposition of the k×k matrix ``J W Jᵀ = V diag(σ²) Vᵀ`` (one LAPACK ``dsyevd`` call):
     ``w = (J W Jᵀ + λ²I)⁻¹ J W τ = V diag(1/(σ² + λ²)) Vᵀ J W τ``, σ_min and ∏σ from the eigenvalues. Our [ω; v] rows
-    give the unknown in [m; f] order, swapped on return. Forming J W Jᵀ squares the condition number, harmless here
-    (σ_max/ε ≈ 10² → 10⁴). ``solver(jac [6,n], tau_ext [n])`` returns ``[f; m (6), manipulability, unreliable]``."""
+    would give the unknown in [m; f] order; the rows are permuted instead (below). Forming J W Jᵀ squares the condition number, harmless here
+    (σ_max/ε ≈ 10² → 10⁴). :meth:`solve` maps several torque vectors through the same decomposition (both observers
+    share J(q)); ``solver(jac [6,n], tau_ext [n])`` returns ``[f; m (6), manipulability, unreliable]``. The rows of
+    J are taken in [v; ω] order, so the unknown is [f; m] as returned."""
 
     def __init__(self, mapping: WrenchMapping, n: int):
         self.mapping = mapping
-        self._rows = slice(3, 6) if mapping.force_only else slice(0, 6)                    # [v] or [ω; v]
+        self._rows = slice(3, 6) if mapping.force_only else np.array(_VW)       # J rows [v] or [v; ω]: w = [f; m]
         self._sqrt_w = _sqrt_weights(mapping, n)
+        self._force_only = mapping.force_only
 
-    def __call__(self, jac: np.ndarray, tau_ext: np.ndarray) -> np.ndarray:
-        a = jac[self._rows]                                          # J [k,n], rows [ω; v] or [v]
+    def solve(self, jac: np.ndarray, tau_ext: np.ndarray) -> tuple[np.ndarray, float, float]:
+        """``jac [6,n]`` (rows [ω; v], world frame, of the contact point) and ``tau_ext [m,n]`` [N·m] →
+        ``(wrench [m,6] [f; m] N, N·m, manipulability ∏σ, unreliable 1.0/0.0)``."""
+        a = jac[self._rows]                                          # J [k,n], rows [v; ω] or [v]
         if self._sqrt_w is not None:
-            a, tau_ext = a * self._sqrt_w, self._sqrt_w * tau_ext
+            a, tau_ext = a * self._sqrt_w, tau_ext * self._sqrt_w
         lam, v, info = dsyevd(a @ a.T)                               # J Jᵀ = V diag(σ²) Vᵀ, ascending
         if info != 0:
             raise np.linalg.LinAlgError(f"WrenchSolver: LAPACK dsyevd did not converge (info = {info})")
-        sv = np.sqrt(np.maximum(lam, 0.0)).tolist()
-        s_min = sv[0]
-        # (the common undamped case skips np.where's overhead)
-        lam2 = float(_damping(s_min, self.mapping)) if s_min < self.mapping.sigma_threshold else 0.0
-        sol = v @ ((a @ tau_ext) @ v / (lam + lam2))                 # (J Jᵀ + λ²)⁻¹ J τ: [m; f] or f
-        quality = (math.prod(sv), float(s_min < self.mapping.sigma_threshold))
-        return np.concatenate((sol[3:], sol[:3], quality) if len(sv) == 6 else (sol, _NO_MOMENT, quality))
+        sq = lam.tolist()                                            # σ², ascending (≥ 0 up to rounding)
+        s_min = math.sqrt(max(sq[0], 0.0))
+        unreliable = s_min < self.mapping.sigma_threshold
+        if unreliable:                                               # (the common undamped case skips the add)
+            lam = lam + float(_damping(s_min, self.mapping))
+        sol = ((tau_ext @ a.T) @ v / lam) @ v.T                      # rows (J Jᵀ + λ²)⁻¹ J τ = [f; m] or f
+        if self._force_only:
+            sol = np.hstack((sol, np.zeros_like(sol)))
+        return sol, (math.sqrt(math.prod(sq)) if sq[0] > 0 else 0.0), float(unreliable)    # ∏σ (0 if σ_min = 0)
+
+    def __call__(self, jac: np.ndarray, tau_ext: np.ndarray) -> np.ndarray:
+        wrench, manip, flag = self.solve(jac, np.asarray(tau_ext, dtype=float)[None, :])
+        return np.concatenate((wrench[0], (manip, flag)))
 
 
 def jacobian_wrench(desc: RobotDescription | ChainGeometry, q: np.ndarray, tau_meas: np.ndarray,
@@ -186,10 +204,43 @@ _FD_STEP = 1e-5   # [rad] central-difference step of M(q) along q̇ for Ṁq̇
 class DrakeArm(DrakeRobot):
     """A Drake plant context of the model robot for the Systems' per-step work: the flange Jacobian
     (``CalcJacobianSpatialVelocity``), inverse dynamics (``CalcInverseDynamics``) and the same p and τ_g + Cᵀq̇ as
-    :func:`momentum_terms` from ``CalcMassMatrix``, ``CalcBiasTerm`` and ``CalcGravityGeneralizedForces``."""
+    :func:`momentum_terms` from ``CalcMassMatrix`` and ``CalcInverseDynamics`` (τ_g − Cq̇ = −ID(q, q̇, 0))."""
+
+    def __init__(self, desc: RobotDescription):
+        super().__init__(desc)
+        self._zero = np.zeros(self.plant.num_velocities())
 
     def momentum_terms(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``p = M(q)q̇`` [N·m·s] and ``τ_g(q) + C(q,q̇)ᵀq̇`` [N·m] for one sample (Cᵀq̇ = Ṁq̇ − Cq̇)."""
+        if not self._in_order:
+            return self._momentum_terms_reindexed(q, qd)
+        plant, ctx = self.plant, self.context
+        speed = math.sqrt(float(qd @ qd))
+        if speed > 0:
+            u = qd * (_FD_STEP / speed)
+            plant.SetPositions(ctx, q + u)
+            m_plus = plant.CalcMassMatrix(ctx)
+            plant.SetPositions(ctx, q - u)
+            mdot_qd = (m_plus - plant.CalcMassMatrix(ctx)) @ qd * (speed / (2 * _FD_STEP))
+        else:
+            mdot_qd = 0.0
+        plant.SetPositions(ctx, q)
+        plant.SetVelocities(ctx, qd)
+        p = plant.CalcMassMatrix(ctx) @ qd
+        plant.CalcForceElementsContribution(ctx, self._forces)       # gravity
+        # τ_g − C q̇ = −ID(q, q̇, 0) with gravity applied: one call instead of CalcGravity… + CalcBiasTerm
+        return p, mdot_qd - plant.CalcInverseDynamics(ctx, self._zero, self._forces)
+
+    def rigid_body_terms(self, q: np.ndarray, qd: np.ndarray, p_flange: np.ndarray) -> tuple[np.ndarray, ...]:
+        """:meth:`momentum_terms` and the Jacobian ``[6,n]`` of the point ``p_flange`` [m, flange frame] (rows
+        [ω; v], world frame) from the same context, which then holds q already."""
+        p, beta = self.momentum_terms(q, qd)
+        if not self._in_order:
+            return p, beta, self.flange_jacobian(q, p_flange)
+        return p, beta, self.plant.CalcJacobianSpatialVelocity(self.context, JacobianWrtVariable.kV, self.flange,
+                                                               p_flange, self._world, self._world)
+
+    def _momentum_terms_reindexed(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         speed = float(np.linalg.norm(qd))
         if speed > 0:
             u = _FD_STEP * qd / speed
@@ -204,49 +255,100 @@ class DrakeArm(DrakeRobot):
         return m @ qd, tau_g + mdot_qd - c_qd
 
 
-class _WrenchOutputs:
-    """Mixin: the ``wrench``, ``manipulability`` and ``unreliable`` outputs, computed once per context (a cache
-    entry) from the ``q`` input port and a ``tau_ext(context)`` function, with :class:`WrenchSolver`."""
+class WrenchMapStep(LeafSystem):
+    """:class:`WrenchMap`'s Python System: input ``inputs`` = ``[q or vec(J); τ̂_ext,1; …; τ̂_ext,m]`` (one stacked port: each
+    input evaluation from Python costs about a microsecond), output ``estimate`` (:meth:`WrenchMap.calc`)."""
 
-    def _declare_wrench_outputs(self, arm: DrakeArm, mapping: WrenchMapping, tau_ext, prerequisites: set) -> None:
-        self._arm, self._tau_ext = arm, tau_ext
-        self._q_port = self.GetInputPort("q")
-        self._solver = WrenchSolver(mapping, arm.description.n)
-        self._contact = np.asarray(mapping.contact_point, dtype=float)
-        self._cache = self.DeclareCacheEntry(
-            "wrench_solution", ValueProducer(allocate=AbstractValue.Make(np.zeros(8)).Clone, calc=self._solve),
-            prerequisites)
-        self.DeclareVectorOutputPort("wrench", 6, lambda c, o: o.SetFromVector(self._cache.Eval(c)[:6]))
-        self.DeclareVectorOutputPort("manipulability", 1, lambda c, o: o.SetAtIndex(0, self._cache.Eval(c)[6]))
-        self.DeclareVectorOutputPort("unreliable", 1, lambda c, o: o.SetAtIndex(0, self._cache.Eval(c)[7]))
+    def __init__(self, owner: "WrenchMap"):
+        LeafSystem.__init__(self)
+        n, m = owner.n, len(owner.sources)
+        self._owner, self._n, self._m = owner, n, m
+        self._k = 6 * n if owner.jacobian_input else n
+        self._inputs = self.DeclareVectorInputPort("inputs", self._k + m * n)
+        self.DeclareVectorOutputPort("estimate", 6 * m + 2 + m * n, self._calc)
 
-    def _solve(self, context, value) -> None:
-        jac = self._arm.flange_jacobian(self._q_port.Eval(context), self._contact)
-        value.set_value(self._solver(jac, self._tau_ext(context)))
+    def _calc(self, context, output) -> None:
+        x, k = self._inputs.Eval(context), self._k
+        tau_ext = x[k:].reshape(self._m, self._n)
+        if self._owner.jacobian_input:
+            output.SetFromVector(self._owner.calc_jacobian(x[:k].reshape(6, self._n), tau_ext))
+        else:
+            output.SetFromVector(self._owner.calc(x[:k], tau_ext))
 
 
-class JacobianWrenchObserver(_WrenchOutputs, LeafSystem):
-    """f̂_ext = J⁻ᵀ(q)(τ_dyn − τ_meas) (eq. 3.12), direct feedthrough, no state.
+class WrenchMap(Diagram):
+    """The Cartesian mapping of eq. 3.12 shared by the observers: ``f̂ = J⁻ᵀ(q) τ̂_ext`` for each observer's τ̂_ext,
+    with ONE Jacobian (Drake's ``CalcJacobianSpatialVelocity`` on a cached plant context) and ONE eigen-decomposition
+    (:class:`WrenchSolver`) per step for all of them.
 
-    Input ports (size n): ``q`` [rad], ``tau_meas`` [N·m] (measured τ_J), ``tau_dyn`` [N·m] (model torque).
-    Output ports: ``wrench`` (6) [fx, fy, fz, mx, my, mz] on the robot at the contact point, world frame;
-    ``tau_ext`` (n) = τ_dyn − τ_meas; ``manipulability`` (1) = √det(J W Jᵀ); ``unreliable`` (1) 1.0 when the
-    smallest singular value is below ``mapping.sigma_threshold`` else 0.0. Same solver as :func:`jacobian_wrench`
-    (:func:`wrench_from_joint_torque`) on the Jacobian from Drake's ``CalcJacobianSpatialVelocity``.
+    Input ports: ``q`` (n) [rad] — or, with ``jacobian_input``, ``jacobian`` (6n) the contact point's Jacobian (rows
+    [ω; v], world frame, row-major, e.g. :class:`MomentumObserver`'s) —; ``tau_ext_<source>`` (n) [N·m] for each name
+    in ``sources`` (default ``("jacobian", "momentum")``). Output ports: ``estimate`` (6m + 2 + mn), all of it stacked
+    ``[wrench_<s>…, manipulability, unreliable, tau_ext_<s>…]`` — the one port a logger needs — and, split from it in
+    C++, ``wrench_<source>`` (6) [fx, fy, fz, mx, my, mz] on the robot at the contact point, world frame (N, N·m;
+    moment 0 in force-only mode); ``manipulability`` (1) = √det(J W Jᵀ); ``unreliable`` (1) 1.0 when σ_min <
+    ``mapping.sigma_threshold`` else 0.0. Inside: ``Multiplexer`` → :class:`WrenchMapStep` → ``Demultiplexer``.
     """
 
-    def __init__(self, desc: RobotDescription, mapping: WrenchMapping = WrenchMapping()):
-        LeafSystem.__init__(self)
-        n = desc.n
-        self.DeclareVectorInputPort("q", n)
-        self.DeclareVectorInputPort("tau_meas", n)
-        self.DeclareVectorInputPort("tau_dyn", n)
-        self._tau_meas, self._tau_dyn = self.GetInputPort("tau_meas"), self.GetInputPort("tau_dyn")
-        self.DeclareVectorOutputPort("tau_ext", n, lambda c, o: o.SetFromVector(self._residual(c)))
-        self._declare_wrench_outputs(DrakeArm(desc), mapping, self._residual, {self.all_input_ports_ticket()})
+    def __init__(self, desc: RobotDescription, mapping: WrenchMapping = WrenchMapping(),
+                 sources: tuple[str, ...] = ("jacobian", "momentum"), jacobian_input: bool = False):
+        Diagram.__init__(self)
+        n, m = desc.n, len(sources)
+        self.n, self.sources, self.jacobian_input = n, tuple(sources), jacobian_input
+        self._arm = None if jacobian_input else DrakeArm(desc)     # (with a Jacobian input, no plant of its own)
+        self._solver = WrenchSolver(mapping, n)
+        self._contact = np.asarray(mapping.contact_point, dtype=float)
+        k = 6 * n if jacobian_input else n
+        builder = DiagramBuilder()
+        stack = builder.AddNamedSystem("stack", Multiplexer([k] + [n] * m))
+        step = builder.AddNamedSystem("solve", WrenchMapStep(self))
+        split = builder.AddNamedSystem("split", Demultiplexer([6] * m + [1, 1, m * n]))
+        builder.ExportInput(stack.get_input_port(0), "jacobian" if jacobian_input else "q")
+        for i, s in enumerate(self.sources):
+            builder.ExportInput(stack.get_input_port(1 + i), f"tau_ext_{s}")
+        builder.Connect(stack.get_output_port(), step.get_input_port())
+        builder.Connect(step.get_output_port(), split.get_input_port())
+        builder.ExportOutput(step.get_output_port(), "estimate")
+        for i, s in enumerate(self.sources):
+            builder.ExportOutput(split.get_output_port(i), f"wrench_{s}")
+        builder.ExportOutput(split.get_output_port(m), "manipulability")
+        builder.ExportOutput(split.get_output_port(m + 1), "unreliable")
+        builder.BuildInto(self)
+        self.set_name("wrench")
 
-    def _residual(self, context) -> np.ndarray:
-        return self._tau_dyn.Eval(context) - self._tau_meas.Eval(context)
+    def calc(self, q: np.ndarray, tau_ext: np.ndarray) -> np.ndarray:
+        """The ``estimate`` vector for ``q [n]`` and ``tau_ext [m,n]`` (one row per source) — the step function."""
+        if self._arm is None:
+            raise ValueError("WrenchMap: built with jacobian_input=True; call calc_jacobian(J, tau_ext)")
+        return self.calc_jacobian(self._arm.flange_jacobian(q, self._contact), tau_ext)
+
+    def calc_jacobian(self, jac: np.ndarray, tau_ext: np.ndarray) -> np.ndarray:
+        """The same from the contact point's Jacobian ``jac [6,n]`` (rows [ω; v], world) — the step function with
+        ``jacobian_input``."""
+        wrench, manip, flag = self._solver.solve(jac, tau_ext)
+        return np.concatenate((wrench.ravel(), (manip, flag), tau_ext.ravel()))
+
+
+class JacobianWrenchObserver(Diagram):
+    """The direct observer's joint-space part, τ̂_ext = τ_dyn − τ_meas (eq. 3.10), in C++ (``Multiplexer`` →
+    ``MatrixGain [I −I]``): direct feedthrough, no state, no lag. Its wrench is :class:`WrenchMap`'s
+    ``wrench_jacobian`` (the same solver as :func:`jacobian_wrench`).
+
+    Input ports (size n): ``tau_dyn`` [N·m] (model torque), ``tau_meas`` [N·m] (measured τ_J).
+    Output port: ``tau_ext`` (n) [N·m].
+    """
+
+    def __init__(self, n: int):
+        Diagram.__init__(self)
+        builder = DiagramBuilder()
+        mux = builder.AddNamedSystem("stack", Multiplexer([n, n]))
+        diff = builder.AddNamedSystem("difference", MatrixGain(np.hstack([np.eye(n), -np.eye(n)])))
+        builder.Connect(mux.get_output_port(), diff.get_input_port())
+        builder.ExportInput(mux.get_input_port(0), "tau_dyn")
+        builder.ExportInput(mux.get_input_port(1), "tau_meas")
+        builder.ExportOutput(diff.get_output_port(), "tau_ext")
+        builder.BuildInto(self)
+        self.set_name("jacobian_observer")
 
 
 # ---- generalised momentum ------------------------------------------------------------------------------------------
@@ -308,45 +410,105 @@ def momentum_observer(desc: RobotDescription, time_step: float, q: np.ndarray, q
     return np.stack([lfilter([1.0 - gamma[j]], [1.0, -gamma[j]], u[:, j]) for j in range(q.shape[1])], axis=1)
 
 
-class MomentumObserver(_WrenchOutputs, LeafSystem):
-    """De Luca's generalised-momentum observer as a discrete System updated every ``time_step`` (the data rate).
+class RigidBodyTermsSystem(LeafSystem):
+    """The model robot's rigid-body terms at one sample, from Drake's plant on a cached context: input ``state`` =
+    ``[q; q̇]`` (2n: rad, rad/s); output ``terms`` = ``[p = M(q)q̇ (n, N·m·s); τ_g + Cᵀq̇ (n, N·m); J (6n)]`` with J
+    the Jacobian of the contact point (``contact_point`` [m] in the flange frame; rows [ω; v], world frame, row-major)
+    — what the momentum observer and the wrench map need, from one plant context per step
+    (:meth:`DrakeArm.rigid_body_terms`). Direct feedthrough."""
+
+    def __init__(self, desc: RobotDescription, contact_point: tuple[float, float, float] = (0.0, 0.0, 0.0)):
+        LeafSystem.__init__(self)
+        n = self.n = desc.n
+        self._arm = DrakeArm(desc)
+        self._contact = np.asarray(contact_point, dtype=float)
+        self._state = self.DeclareVectorInputPort("state", 2 * n)
+        self.DeclareVectorOutputPort("terms", 8 * n, self._calc)
+
+    def calc(self, q: np.ndarray, qd: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """The output for one sample — the step function (written into ``out [8n]`` when given)."""
+        p, beta, jac = self._arm.rigid_body_terms(q, qd, self._contact)
+        if out is None:
+            return np.concatenate((p, beta, jac.ravel()))
+        n = self.n
+        out[:n], out[n:2 * n], out[2 * n:] = p, beta, jac.ravel()
+        return out
+
+    def _calc(self, context, output) -> None:
+        x = self._state.Eval(context)
+        output.SetFromVector(self.calc(x[:self.n], x[self.n:]))
+
+
+def momentum_filter(n: int, time_step: float, gain: float | np.ndarray = 100.0
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(A, B, C, D)`` of the observer's recursion (:func:`momentum_observer`) as a discrete LTI system with input
+    ``u = [p; τ_g + Cᵀq̇; τ_J; τ_int]`` (4n) and state ``x = [r; p_{k−1}; β_{k−1}]`` (3n), output ``y = r``:
+
+        β_k = (τ_g + Cᵀq̇)_k + τ_J,k − τ_int,k,   u_k = (p_k − p_{k−1})/Δt − ½(β_k + β_{k−1}),
+        r⁺ = γ r + (1 − γ) u_k,   p_{k−1}⁺ = p_k,   β_{k−1}⁺ = β_k,   γ = exp(−K_O Δt).
+
+    Starting from ``x = [0; p_0; −β_0]`` makes u_0 = 0, i.e. r_0 = r_1... = the offline recursion's (r_0 = 0)."""
+    if not time_step > 0:
+        raise ValueError(f"MomentumObserver.time_step must be > 0 s, got {time_step}")
+    gamma = np.exp(-_gains(gain, n) * time_step)
+    g1 = np.diag(1.0 - gamma)
+    eye, zero = np.eye(n), np.zeros((n, n))
+    sel_beta = np.hstack([zero, eye, eye, -eye])                    # β from u
+    sel_p = np.hstack([eye, zero, zero, zero])
+    a = np.block([[np.diag(gamma), -g1 / time_step, -0.5 * g1], [zero, zero, zero], [zero, zero, zero]])
+    b = np.vstack([g1 @ (sel_p / time_step - 0.5 * sel_beta), sel_p, sel_beta])
+    c = np.hstack([eye, zero, zero])
+    return a, b, c, np.zeros((n, 4 * n))
+
+
+class MomentumObserver(Diagram):
+    """De Luca's generalised-momentum observer as a sub-Diagram, updated every ``time_step`` (the data rate)::
+
+        q, qd ──▶ Multiplexer ──▶ RigidBodyTermsSystem ─▶ Demux ─[p; τ_g + Cᵀq̇]─┐     (J ─▶ jacobian)
+        tau_meas ──────────────────────────────────────┼──▶ Multiplexer ──▶ LinearSystem (C++, discrete) ──▶ tau_ext
+        tau_int ───────────────────────────────────────┘                    (:func:`momentum_filter`)
 
     Input ports (size n): ``q`` [rad], ``qd`` [rad/s], ``tau_meas`` [N·m] (measured τ_J), ``tau_int`` [N·m] (the
-    model's non-rigid-body torque, e.g. link friction; connect zeros for a pure rigid-body model).
-    Output ports: ``tau_ext`` (n) the residual r (state, ``DeclareStateOutputPort``); ``wrench`` (6),
-    ``manipulability`` (1), ``unreliable`` (1) as in :class:`JacobianWrenchObserver`, mapped with J(q) of the ``q``
-    input. Same recursion as :func:`momentum_observer`; r starts at 0 on the first update. As for any Drake
-    discrete state, the update at t_k is visible from the next step on, so the output logged at t_k is r_{k−1}.
+    model's non-rigid-body torque; connect zeros for a pure rigid-body model). Output ports: ``tau_ext`` (n) [N·m],
+    the residual r (the filter's state); ``jacobian`` (6n) the Jacobian of ``contact_point`` [m, flange frame] at q
+    (rows [ω; v], world frame, row-major), computed with the momentum terms on the same plant context, for
+    :class:`WrenchMap`. Its wrench is :class:`WrenchMap`'s ``wrench_momentum``. Same recursion as
+    :func:`momentum_observer`; call :meth:`set_initial_state` once the first sample is on the inputs (r then
+    starts at 0 exactly as offline; without it the first step sees p_{−1} = β_{−1} = 0, a large kick). As for any
+    Drake discrete state, the update at t_k is visible from the next step on, so the output at t_k is r_{k−1}.
     """
 
     def __init__(self, desc: RobotDescription, time_step: float, gain: float | np.ndarray = 100.0,
-                 mapping: WrenchMapping = WrenchMapping()):
-        LeafSystem.__init__(self)
-        if not time_step > 0:
-            raise ValueError(f"MomentumObserver.time_step must be > 0 s, got {time_step}")
-        n = desc.n
-        self._n, self._dt = n, float(time_step)
-        self._gamma = np.exp(-_gains(gain, n) * time_step)
-        self._ports = [self.DeclareVectorInputPort(name, n) for name in ("q", "qd", "tau_meas", "tau_int")]
-        self._r = self.DeclareDiscreteState(n)
-        self._memory = self.DeclareDiscreteState(2 * n + 1)      # [p_{k−1}, β_{k−1}, started]
-        self.DeclarePeriodicDiscreteUpdateEvent(period_sec=time_step, offset_sec=0.0, update=self._update)
-        self.DeclareStateOutputPort("tau_ext", self._r)
-        self._declare_wrench_outputs(DrakeArm(desc), mapping, self._residual,
-                                     {self.input_port_ticket(self.GetInputPort("q").get_index()),
-                                      self.discrete_state_ticket(self._r)})
+                 contact_point: tuple[float, float, float] = (0.0, 0.0, 0.0)):
+        Diagram.__init__(self)
+        n = self.n = desc.n
+        builder = DiagramBuilder()
+        state = builder.AddNamedSystem("state", Multiplexer([n, n]))
+        self.terms = builder.AddNamedSystem("terms", RigidBodyTermsSystem(desc, contact_point))
+        split = builder.AddNamedSystem("split", Demultiplexer([2 * n, 6 * n]))
+        mux = self._mux = builder.AddNamedSystem("stack", Multiplexer([2 * n, n, n]))
+        self.filter = builder.AddNamedSystem("filter", LinearSystem(*momentum_filter(n, time_step, gain),
+                                                                    float(time_step)))
+        builder.ExportInput(state.get_input_port(0), "q")
+        builder.ExportInput(state.get_input_port(1), "qd")
+        builder.Connect(state.get_output_port(), self.terms.get_input_port())
+        builder.Connect(self.terms.get_output_port(), split.get_input_port())
+        builder.Connect(split.get_output_port(0), mux.get_input_port(0))
+        builder.ExportOutput(split.get_output_port(1), "jacobian")
+        builder.ExportInput(mux.get_input_port(1), "tau_meas")
+        builder.ExportInput(mux.get_input_port(2), "tau_int")
+        builder.Connect(mux.get_output_port(), self.filter.get_input_port())
+        builder.ExportOutput(self.filter.get_output_port(), "tau_ext")
+        builder.BuildInto(self)
+        self.set_name("momentum_observer")
 
-    def _residual(self, context) -> np.ndarray:
-        return context.get_discrete_state(self._r).get_value()
+    def initial_state(self, u0: np.ndarray) -> np.ndarray:
+        """The filter state ``[0; p_0; −β_0]`` for the first input ``u0 = [p; τ_g + Cᵀq̇; τ_J; τ_int]``."""
+        n = self.n
+        return np.concatenate((np.zeros(n), u0[:n], -(u0[n:2 * n] + u0[2 * n:3 * n] - u0[3 * n:])))
 
-    def _update(self, context, discrete_state) -> None:
-        n = self._n
-        q, qd, tau_meas, tau_int = (port.Eval(context) for port in self._ports)
-        p, beta = self._arm.momentum_terms(q, qd)
-        beta = beta + tau_meas - tau_int
-        mem = context.get_discrete_state(self._memory).get_value()
-        r = context.get_discrete_state(self._r).get_value()
-        if mem[-1] > 0:
-            u = (p - mem[:n]) / self._dt - 0.5 * (beta + mem[n:2 * n])
-            discrete_state.get_mutable_vector(self._r).SetFromVector(self._gamma * r + (1.0 - self._gamma) * u)
-        discrete_state.get_mutable_vector(self._memory).SetFromVector(np.concatenate([p, beta, [1.0]]))
+    def set_initial_state(self, context: Context) -> None:
+        """Set the filter state from the inputs ``context`` (this System's context) sees now: the first sample."""
+        u0 = np.asarray(self._mux.get_output_port().Eval(self.GetSubsystemContext(self._mux, context)))
+        self.GetMutableSubsystemContext(self.filter, context).get_mutable_discrete_state_vector().SetFromVector(
+            self.initial_state(u0))

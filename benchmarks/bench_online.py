@@ -1,0 +1,179 @@
+"""µs per 1 ms step of the online wrench estimator (Diagram and streaming) and the real-time factor at 1 kHz.
+
+The estimation Diagram (one Drake System per stage) and the streaming entry point
+:class:`proprio.online.OnlineEstimator`, against the replay-only reference of the same machine.
+
+    .venv/bin/python benchmarks/bench_online.py [--steps 3000] [--repeats 3]
+
+Configurations, each over the same synthetic 1 kHz motion of the iiwa 14 (7 joints) with a 1 kg payload's torques
+plus noise, one step per sample:
+
+* reference — replay (``TrajectorySource``) + one logger only: the Diagram overhead every row includes;
+* RBD — replay of conditioned q, q̇, q̈, τ_J → ``TorqueModelSystem`` (C++ InverseDynamics + friction) → Jacobian AND
+  momentum observers → ``WrenchMap`` → one logger;
+* hybrid — the same with a hybrid LSTM-2-FCL (thesis sizes: 35→35→7 + linear) on that backbone;
+* … + causal conditioning — raw q, τ_J replayed into the ``CausalConditioner`` (C++ LinearSystem) first: the
+  Diagram the real robot would run;
+* streaming — :meth:`OnlineEstimator.step` called from a Python loop (raw q, τ_J in, conditioning included);
+* the hybrid rows again with ``gc.freeze()`` after set-up (what a real-time loop should do: the interpreter's full
+  collections otherwise scan every object torch and Drake created, a pause of milliseconds every ~10³ steps), and
+  the streaming step's latency tail (median, p99, max) with and without it.
+
+Prints µs/step (wall clock, median of ``--repeats`` runs, each a fresh Simulator / estimator), the real-time factor
+at 1 kHz (1000 µs / cost), the ratio to the reference (comparable across machines) and the CPU time per step
+(process time: on a shared machine, the part of the wall time that is this process's own). Torch and BLAS: one
+thread.
+"""
+from __future__ import annotations
+
+import argparse
+import gc
+import os
+import time
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+from pydrake.systems.analysis import Simulator  # noqa: E402
+from pydrake.systems.framework import DiagramBuilder  # noqa: E402
+from pydrake.systems.primitives import LogVectorOutput, TrajectorySource  # noqa: E402
+from pydrake.trajectories import PiecewisePolynomial  # noqa: E402
+
+from proprio.conditioning import causal_conditioning  # noqa: E402
+from proprio.description import load_robot  # noqa: E402
+from proprio.diagrams.estimation import RigidBodyTorqueModel, build_estimation_diagram  # noqa: E402
+from proprio.diagrams.hybrid_torque_model import HybridTorqueModel  # noqa: E402
+from proprio.dynamics import inverse_dynamics  # noqa: E402
+from proprio.learning.datasets import DataConfig  # noqa: E402
+from proprio.learning.features import feature_matrix, rotational_displacement  # noqa: E402
+from proprio.learning.models import HybridModel, ModelConfig  # noqa: E402
+from proprio.online import OnlineEstimator  # noqa: E402
+from proprio.payload import Payload, attach_payload  # noqa: E402
+
+RATE = 1000.0
+CUTOFF_HZ = 10.0
+
+
+def _signals(steps: int) -> dict[str, np.ndarray]:
+    desc = load_robot("iiwa14_identified")
+    rng = np.random.default_rng(0)
+    t = np.arange(steps) / RATE
+    w = rng.uniform(0.3, 1.5, desc.n)
+    home = np.array([0.0, 0.5, 0.0, -1.2, 0.0, 0.8, 0.0])
+    q = home + 0.3 * np.sin(np.outer(t, w))
+    qd, qdd = 0.3 * w * np.cos(np.outer(t, w)), -0.3 * w ** 2 * np.sin(np.outer(t, w))
+    tau = inverse_dynamics(attach_payload(desc, Payload(1.0)), q, qd, qdd) + rng.normal(0, 0.05, q.shape)
+    return {"t": t, "q": q, "qd": qd, "qdd": qdd, "tau": tau, "time_step": 1.0 / RATE}
+
+
+def _median_us(run, steps: int, repeats: int) -> tuple[float, float]:
+    """Median over ``repeats`` of ``run() -> (wall s, CPU s)``, in µs per step."""
+    runs = np.array([run() for _ in range(repeats)]) / steps * 1e6
+    return float(np.median(runs[:, 0])), float(np.median(runs[:, 1]))
+
+
+def _clock() -> tuple[float, float]:
+    return time.perf_counter(), time.process_time()
+
+
+def _since(start: tuple[float, float]) -> tuple[float, float]:
+    return time.perf_counter() - start[0], time.process_time() - start[1]
+
+
+def _time_diagram(build, steps: int, repeats: int) -> tuple[float, float]:
+    def run() -> float:
+        diagram, estimator, _ = build()
+        sim = Simulator(diagram)
+        if estimator is not None:
+            estimator.set_initial_state(estimator.GetMyMutableContextFromRoot(sim.get_mutable_context()))
+        sim.Initialize()
+        start = _clock()
+        sim.AdvanceTo((steps - 1) / RATE)
+        return _since(start)
+    return _median_us(run, steps, repeats)
+
+
+def _reference(sig: dict[str, np.ndarray]):
+    builder = DiagramBuilder()
+    src = builder.AddSystem(TrajectorySource(PiecewisePolynomial.FirstOrderHold(
+        sig["t"], np.hstack([sig["q"], sig["tau"]]).T)))
+    LogVectorOutput(src.get_output_port(), builder, publish_period=sig["time_step"])
+    return builder.Build(), None, None
+
+
+def _time_streaming(model, design, sig: dict[str, np.ndarray], steps: int, repeats: int) -> tuple[float, float]:
+    t, q, tau = sig["t"], sig["q"], sig["tau"]
+
+    def run() -> float:
+        est = OnlineEstimator.from_model(model, conditioning=design)
+        start = _clock()
+        for k in range(steps):
+            est.step(t[k], q[k], tau[k])
+        return _since(start)
+    return _median_us(run, steps, repeats)
+
+
+def _latency_us(model, design, sig: dict[str, np.ndarray], steps: int) -> np.ndarray:
+    """Per-step wall time [µs] of the streaming estimator over one run (for the tail: p99, max)."""
+    t, q, tau = sig["t"], sig["q"], sig["tau"]
+    est = OnlineEstimator.from_model(model, conditioning=design)
+    out = np.empty(steps)
+    clock = time.perf_counter
+    for k in range(steps):
+        t0 = clock()
+        est.step(t[k], q[k], tau[k])
+        out[k] = clock() - t0
+    return out * 1e6
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=3000, help="1 ms steps timed per run (default 3000)")
+    parser.add_argument("--repeats", type=int, default=3, help="runs per configuration; the median is printed")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    steps, repeats = args.steps, args.repeats
+    sig = _signals(steps)
+    desc = load_robot("iiwa14_identified")
+    rbd = RigidBodyTorqueModel(desc)
+    net = HybridModel(ModelConfig(arch="lstm2_fcl", rate_hz=RATE))
+    net.set_normalisation(feature_matrix(sig["tau"], sig["q"], sig["qd"], sig["qdd"], rotational_displacement(sig["q"])),
+                          0.1 * sig["tau"])
+    hybrid = HybridTorqueModel(RigidBodyTorqueModel(desc, coulomb_velocity=0.0), net, DataConfig(), "lstm2_fcl")
+    design = causal_conditioning(RATE, CUTOFF_HZ, desc.n)
+
+    ref = _time_diagram(lambda: _reference(sig), steps, repeats)
+    rows = [("replay + logger only (reference)", ref)]
+    for name, model in (("RBD", rbd), ("hybrid LSTM-2-FCL", hybrid)):
+        rows.append((f"{name} + both observers (Diagram)",
+                     _time_diagram(lambda m=model: build_estimation_diagram(m, sig), steps, repeats)))
+        rows.append((f"{name} + both observers + causal conditioning (Diagram)",
+                     _time_diagram(lambda m=model: build_estimation_diagram(m, sig, conditioning=design), steps,
+                                   repeats)))
+        rows.append((f"{name}: proprio.online streaming step", _time_streaming(model, design, sig, steps, repeats)))
+    # the same two hybrid rows with the interpreter's garbage collector frozen after set-up (gc.freeze(): its full
+    # collections then no longer scan the ~10⁵ objects torch and Drake create at import, a pause every ~10³ steps)
+    gc.collect()
+    gc.freeze()
+    rows.append(("hybrid + both observers (Diagram), gc.freeze()",
+                 _time_diagram(lambda: build_estimation_diagram(hybrid, sig), steps, repeats)))
+    rows.append(("hybrid: proprio.online streaming step, gc.freeze()",
+                 _time_streaming(hybrid, design, sig, steps, repeats)))
+    tails = {"default gc": None, "gc.freeze()": _latency_us(hybrid, design, sig, steps)}
+    gc.unfreeze()
+    tails["default gc"] = _latency_us(hybrid, design, sig, steps)
+    load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
+    print(f"Online estimator, iiwa 14, {steps} steps at {RATE:.0f} Hz, median of {repeats} runs, 1 torch thread; "
+          f"load average (1/5/15 min) at the end: {load[0]:.2f} / {load[1]:.2f} / {load[2]:.2f}")
+    print(f"{'configuration':<64}{'µs/step':>9}{'RT @1 kHz':>11}{'× ref':>8}{'CPU µs':>8}")
+    for name, (wall, cpu) in rows:
+        print(f"{name:<64}{wall:>9.1f}{1e3 / wall:>10.1f}×{wall / ref[0]:>8.1f}{cpu:>8.1f}")
+    for label, lat in tails.items():
+        print(f"hybrid streaming step latency, {label:<12}: median {np.median(lat):6.1f}  p99 {np.percentile(lat, 99):6.1f}"
+              f"  max {lat.max():8.1f} µs")
+    print("µs/step: wall clock (the figure for the 1 ms budget); CPU µs: process time, less sensitive to other load.\n"
+          "targets: hybrid + both observers (Diagram) ≤ 100 µs/step; streaming ≤ 60 µs/step")
+
+if __name__ == "__main__":
+    main()
