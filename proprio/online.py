@@ -131,7 +131,8 @@ class OnlineEstimator:
         Args:
             rate_hz: the sample rate [Hz] of the loop (a hybrid model's own rate by default; required otherwise).
             cutoff_hz: cutoff [Hz] of the causal filters, one or one per joint (a hybrid model's
-                ``derivative_cutoff_hz`` by default; e.g. ``condition(previous_log).cutoff_hz``; required otherwise).
+                training ``data.cutoff_hz`` by default when it is a number; e.g. ``condition(previous_log).cutoff_hz``;
+                required otherwise).
             gain: momentum observer K_O [1/s]. mapping: the wrench mapping (contact point, force-only, weights).
             velocity: ``"q"`` differentiates q; ``"measured"`` filters the robot's own q̇ (then :meth:`step` needs it).
             tau_filter: give τ_J the same low-pass (default; keeps prediction and measurement aligned).
@@ -145,10 +146,12 @@ class OnlineEstimator:
         if conditioning is None:
             rate = rate_hz if rate_hz is not None else getattr(model, "rate_hz", None)
             data = getattr(model, "data", None)
-            cut = cutoff_hz if cutoff_hz is not None else getattr(data, "derivative_cutoff_hz", None)
+            trained = getattr(data, "cutoff_hz", None)
+            cut = cutoff_hz if cutoff_hz is not None else None if isinstance(trained, str) else trained
             if rate is None or cut is None:
                 raise ValueError("OnlineEstimator.from_model: give rate_hz [Hz] and cutoff_hz [Hz] (e.g. "
-                                 "proprio.conditioning.condition(previous_log).cutoff_hz) for a rigid-body model")
+                                 "proprio.conditioning.condition(previous_log).cutoff_hz) for a rigid-body model or "
+                                 "a hybrid model trained with cutoff_hz: auto")
             conditioning = causal_conditioning(float(rate), cut, model.description.n, velocity, tau_filter)
         return cls(WrenchEstimator(model, conditioning.time_step, gain, mapping, conditioning), max_step_jitter)
 

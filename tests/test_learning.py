@@ -341,5 +341,7 @@ def test_cli_train_and_evaluate_on_lwr4(tmp_path, capsys):
     assert not (tmp_path / "m.pt.ckpt").exists()
     assert main(["evaluate", "--model", str(tmp_path / "m.pt"), *args]) == 0
     evaluated = capsys.readouterr().out
-    assert evaluated.splitlines()[3] == trained.splitlines()[3]      # the same RBD row
+    rbd = lambda out: next(line for line in out.splitlines() if line.startswith("RBD"))  # noqa: E731
+    assert rbd(evaluated) == rbd(trained)                            # the same RBD row
+    assert sum("conditioning:" in line for line in trained.splitlines()) == 3     # one line per recording
     assert main(["train", "--config", "no_such_config", *args, "--out", str(tmp_path / "x.pt")]) == 2
