@@ -100,8 +100,8 @@ class HybridTorqueModel:
 
     def signals(self, rec: Recording) -> tuple[Recording, dict[str, np.ndarray]]:
         """``rec`` at the model rate and its signals ``t, q, qd, qdd, tau, time_step`` prepared like the training data
-        (module docstring), plus ``edge_s``, the filters' edge transient [s] (3 periods of the lowest cutoff). The
-        conditioned grid's rate divided by a whole decimation factor must give the model rate within 2 % (e.g.
+        (module docstring), plus ``edge_s``, the filters' edge transient [s] (``edge_cycles`` periods of the lowest
+        cutoff). The conditioned grid's rate divided by a whole decimation factor must give the model rate within 2 % (e.g.
         1 kHz → every 13th sample for a 76.9 Hz model); raises :class:`RecordingError` otherwise."""
         cs, tau = condition_for_training(rec, self.data)
         k = max(1, int(round(cs.rate_hz / self.rate_hz)))
@@ -113,7 +113,8 @@ class HybridTorqueModel:
         at_rate = cs.as_recording().take(keep)
         cutoffs = [float(cs.cutoff_hz.min())] + ([self.data.tau_filter_hz] if self.data.tau_filter_hz else [])
         return at_rate, {"t": at_rate.t - at_rate.t[0], "q": cs.q[keep], "qd": cs.qd[keep], "qdd": cs.qdd[keep],
-                         "tau": tau[keep], "time_step": k / cs.rate_hz, "edge_s": 3.0 / min(cutoffs)}
+                         "tau": tau[keep], "time_step": k / cs.rate_hz,
+                         "edge_s": self.data.conditioning().edge_cycles / min(cutoffs)}
 
 
 class HybridTorqueStep(LeafSystem):

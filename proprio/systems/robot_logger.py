@@ -22,7 +22,7 @@ not change when the logger's settings do.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
@@ -86,9 +86,7 @@ class LoggerConfig:
                              f"{self.dropout_prob}, {self.dropout_max_samples}")
 
     def to_dict(self) -> dict[str, Any]:
-        return {"rate_hz": self.rate_hz, "channels": list(self.channels), "qd_filter_hz": self.qd_filter_hz,
-                "stamp_jitter_ms": self.stamp_jitter_ms, "dropout_prob": self.dropout_prob,
-                "dropout_max_samples": self.dropout_max_samples}
+        return {**asdict(self), "channels": list(self.channels)}
 
 
 @dataclass
