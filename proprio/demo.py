@@ -134,6 +134,9 @@ def _stage_diagnosis(ctx: dict[str, Any], out: Path) -> list[Path]:
     result = diagnose(load_robot(NOMINAL_ROBOT), [ctx["twin_excitation"].downsample(step)],
                       [ctx["twin_rfma"].downsample(step)], out / "diagnosis")
     print(_indent(result.verdict))
+    if result.truth is not None:
+        print(_indent("Against the twin's truth: " + result.truth.markdown(result.attribution.joint_names)
+                      .splitlines()[0] + " Fitted vs true parameters: diagnosis/report.md."))
     return list(result.files.values())
 
 

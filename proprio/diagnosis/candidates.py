@@ -101,18 +101,20 @@ class EffectCandidate(Candidate):
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         lo, hi = self.proto.bounds()
-        return np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
+        return np.asarray(lo, dtype=float)[self._cols], np.asarray(hi, dtype=float)[self._cols]
 
     def joint_of_param(self, n: int) -> np.ndarray:
         return np.tile(np.arange(n), len(self._keys))
 
 
-def ripple_candidate(n: int, train: "GapData", max_order: float = 400.0) -> EffectCandidate:
+def ripple_candidate(n: int, train: "GapData", max_order: float = 400.0, min_order: float = 60.0) -> EffectCandidate:
     """The library's ripple ``A sin(h·N·q + φ)`` with its order ``h·N`` per joint set to the peak of the training
-    residual's order spectrum (the ripple is linear once its order is known; the order is found, not assumed)."""
+    residual's order spectrum between ``min_order`` and ``max_order`` cycles per revolution (the ripple is linear once its
+    order is known; the order is found, not assumed). Harmonic drives have ratios N ≥ 30 and h = 2, so orders below
+    60 are not ripple: there a rigid-body error of the joint's own link (a few cycles per revolution) would win."""
     q = train.stack([s.q for s in train.signals])
     qd = train.stack([s.qd for s in train.signals])
-    orders = peak_orders(train.residual, q, qd, max_order=max_order, min_order=10.0)
+    orders = peak_orders(train.residual, q, qd, max_order=max_order, min_order=min_order)
     harmonic = 2.0
     return EffectCandidate("ripple", n, gear_ratio=orders / harmonic, harmonic=harmonic)
 
@@ -235,6 +237,11 @@ class PayloadCandidate(Candidate):
 
     def param_names(self) -> list[str]:
         return ["mass", "m·cx", "m·cy", "m·cz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz"]
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        lo = np.full(10, -np.inf)
+        lo[0] = 0.0                                        # a payload has no negative mass
+        return lo, np.full(10, np.inf)
 
     def design(self, data: GapData) -> np.ndarray:
         n = self.robot.n

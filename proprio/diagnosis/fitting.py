@@ -20,10 +20,13 @@ class Fit:
     cov: dict[str, np.ndarray]
 
 
-def weighted_lstsq(a: np.ndarray, y: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def weighted_lstsq(a: np.ndarray, y: np.ndarray, w: np.ndarray,
+                   bounds: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Weighted LS of ``y [M,n] ≈ a [M,n,p] θ`` with joint weights ``w [n]`` by the normal equations of the
     column-scaled problem (eigen-decomposition, directions below 1e-10 of the largest dropped); returns θ and
-    (AᵀWA)⁺."""
+    (AᵀWA)⁺. ``bounds`` (lower, upper ``[p]``): when the unconstrained θ leaves them (a negative Coulomb level, a
+    negative mass), θ is the bounded LS solution instead (``scipy.optimize.lsq_linear``); the covariance stays the
+    unconstrained one."""
     sw = np.sqrt(w)
     aw = (a * sw[None, :, None]).reshape(-1, a.shape[-1])
     yw = (y * sw[None, :]).reshape(-1)
@@ -33,8 +36,12 @@ def weighted_lstsq(a: np.ndarray, y: np.ndarray, w: np.ndarray) -> tuple[np.ndar
     lam, vec = np.linalg.eigh(g)
     keep = lam > 1e-10 * max(lam.max(), 1e-300)
     g_inv = (vec[:, keep] / lam[keep]) @ vec[:, keep].T
-    theta = g_inv @ ((aw.T @ yw) / scale)
-    return theta / scale, g_inv / np.outer(scale, scale)
+    theta = g_inv @ ((aw.T @ yw) / scale) / scale
+    if bounds is not None:
+        lo, hi = (np.asarray(b, dtype=float) for b in bounds)
+        if np.any(theta < lo) or np.any(theta > hi):
+            theta = optimize.lsq_linear(aw / scale, yw, bounds=(lo * scale, hi * scale), method="bvls").x / scale
+    return theta, g_inv / np.outer(scale, scale)
 
 
 def _fit_nonlinear(cand: Candidate, target: np.ndarray, data: GapData, w: np.ndarray,
@@ -168,13 +175,14 @@ def fit_candidates(cands: list[Candidate], data: GapData, w: np.ndarray, init: d
     lin = [c for c in cands if c.linear]
     nl = [c for c in cands if not c.linear]
     a = np.concatenate([c.cached_design(data) for c in lin], axis=-1) if lin else None
+    bounds = tuple(np.concatenate(b) for b in zip(*(c.bounds() for c in lin))) if lin else None
     thetas = {c.name: init.get(c.name, c.starts(data)[0]) for c in nl}
     torques = {c.name: c.torque(thetas[c.name], data) if c.name in init else np.zeros_like(e) for c in nl}
     cov: dict[str, np.ndarray] = {}
     for _ in range(sweeps if nl else 1):
         lin_pred = np.zeros_like(e)
         if lin:
-            beta, inv = weighted_lstsq(a, e - sum(torques.values(), np.zeros_like(e)), w)
+            beta, inv = weighted_lstsq(a, e - sum(torques.values(), np.zeros_like(e)), w, bounds)
             lin_pred = a @ beta
             k = 0
             for c in lin:

@@ -27,6 +27,7 @@ from proprio.diagnosis.localisation import (
     spectra,
 )
 from proprio.diagnosis.selection import Attribution, attribute
+from proprio.diagnosis.truth import TruthComparison, compare_to_truth, truth_summary
 from proprio.diagnosis.verdict import data_and_processing_text, verdict_text
 from proprio.io import atomic_write_text, save_figure
 from proprio.recording import Recording
@@ -42,6 +43,7 @@ class Diagnosis:
     attribution: Attribution
     verdict: str
     files: dict[str, Path] = field(default_factory=dict)
+    truth: TruthComparison | None = None      # twin data only: the twin's effects against what was named
 
 
 def _localise(model: SimModel, recs: Sequence[Recording], trim_s: float,
@@ -188,6 +190,10 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
         ("Fitted parameters (final joint fit, 95 % CI from the fit Jacobian, autocorrelation-corrected)", par),
         ("What remains unexplained", "\n".join(resid)),
     ]
+    truth = compare_to_truth(att, model, holdout_recs)
+    if truth is not None:
+        sections.append(("Against the twin's truth (scoring only: the diagnosis never reads it)",
+                         truth.markdown(att.joint_names)))
     title = f"Sim-to-real gap diagnosis — {model.robot.name}"
     sim_desc = (f"Model: `{model.robot.name}`"
                 + (f" + {', '.join(sorted(model.effect_names))}" if model.effect_names else " (rigid body only)")
@@ -218,13 +224,16 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
     summary = {"robot": model.robot.name, "model_effects": sorted(model.effect_names),
                "rmse_before": att.rmse_before.tolist(), "signal_rms": att.signal_rms.tolist(),
                "steps": [{"name": s.name, "tied": s.tied, "gain": s.gain, "t": s.t_stat,
-                          "rmse_after": s.rmse_after.tolist()} for s in att.steps],
+                          "rmse_after": s.rmse_after.tolist(), "processing": s.processing,
+                          "params": {k: {"names": nm, "value": th.tolist(), "ci95": ci.tolist()}
+                                     for k, (th, ci, nm) in s.params.items()}} for s in att.steps],
                "ranking": att.ranking, "noise": [{"name": f.name, "rms": f.rms.tolist()} for f in att.noise],
                "residual_white": rs.white, "verdict": verdict,
-               "data_quality": [{"name": n, **q.to_dict()} for n, q in quality]}
+               "data_quality": [{"name": n, **q.to_dict()} for n, q in quality],
+               "truth": truth_summary(truth) if truth is not None else None}
     atomic_write_text(out / "diagnosis.json", json.dumps(summary, indent=1))
     files.update(report_md=out / "report.md", report_html=out / "report.html", json=out / "diagnosis.json")
-    return Diagnosis(gm, sp, att, verdict, files)
+    return Diagnosis(gm, sp, att, verdict, files, truth)
 
 
 __all__ += ["DiagnosisError"]
