@@ -41,7 +41,7 @@ from proprio.learning.features import feature_matrix, rotational_displacement
 from proprio.learning.models import HybridModel, load_model
 from proprio.recording import Recording, RecordingError
 from proprio.plant import DrakeRobot
-from proprio.systems.residual_network import STARTED, ResidualNetworkCore
+from proprio.systems.residual_network import ResidualNetworkCore
 
 __all__ = ["HybridTorqueModel", "load_hybrid_torque_model"]
 
@@ -120,7 +120,7 @@ class HybridTorqueModel:
 class HybridTorqueStep(LeafSystem):
     """The Python part of :class:`HybridTorqueModelSystem`: input ``inputs`` = ``[τ_rigid; q; q̇; q̈]`` (4n) and
     ``memory`` (the network's); output ``step`` = ``[τ_HYB; τ_int; next memory]`` (:meth:`HybridTorqueModelSystem.
-    step_stacked`)."""
+    step_into`)."""
 
     def __init__(self, owner: "HybridTorqueModelSystem"):
         LeafSystem.__init__(self)
@@ -129,9 +129,10 @@ class HybridTorqueStep(LeafSystem):
         self._inputs = self.DeclareVectorInputPort("inputs", 4 * n)
         self._memory = self.DeclareVectorInputPort("memory", size)
         self.DeclareVectorOutputPort("step", 2 * n + size, self._calc)
+        self._out = np.empty(2 * n + size)
 
     def _calc(self, context, output) -> None:
-        output.SetFromVector(self._owner.step_stacked(self._memory.Eval(context), self._inputs.Eval(context)))
+        output.SetFromVector(self._owner.step_into(self._memory.Eval(context), self._inputs.Eval(context), self._out))
 
 
 class HybridTorqueModelSystem(Diagram):
@@ -142,11 +143,11 @@ class HybridTorqueModelSystem(Diagram):
         q, qd, qdd ────────────────────────────────────────────┘              ▲ memory                ├─▶ tau_dyn
                                                                   ZeroOrderHold ◀──── next memory ───┤   tau_int
     Inputs ``q``, ``qd``, ``qdd`` (rad, rad/s, rad/s²); outputs ``tau_dyn`` = τ_HYB and ``tau_int`` = τ_HYB − τ_rigid
-    [N·m]. The one Python step (:meth:`step_stacked`) adds the backbone's friction and offsets to the C++ rigid-body
+    [N·m]. The one Python step (:meth:`step_into`) adds the backbone's friction and offsets to the C++ rigid-body
     torque (τ_RBD, the network's input) and runs the network (:class:`~proprio.systems.residual_network.
     ResidualNetworkCore`, the same step as :class:`~proprio.systems.residual_network.ResidualNetworkSystem`); its
-    memory (r-encoder + LSTM state) is held by a C++ ``ZeroOrderHold``. :meth:`step` is the same computation for
-    one sample with the memory passed in and out (the streaming estimator's interface)."""
+    memory (r-encoder + LSTM state) is held by a C++ ``ZeroOrderHold``, and passed in and out of :meth:`step_into` by
+    the streaming estimator (the interface shared with :class:`~proprio.diagrams.estimation.TorqueModelSystem`)."""
 
     def __init__(self, model: HybridTorqueModel, time_step: float):
         Diagram.__init__(self)
@@ -181,22 +182,23 @@ class HybridTorqueModelSystem(Diagram):
     def initial_memory(self) -> np.ndarray:
         return self.core.initial_memory()
 
-    def step_stacked(self, memory: np.ndarray, inputs: np.ndarray) -> np.ndarray:
-        """``[τ_HYB; τ_int; next memory]`` from the memory and ``inputs = [τ_rigid; q; q̇; q̈]`` (modified in place:
-        its first block becomes τ_RBD = τ_rigid + the backbone's τ_int)."""
+    @property
+    def output_size(self) -> int:
+        """Size of :meth:`step_into`'s output ``[τ_HYB; τ_int; next memory]``."""
+        return 2 * self.n + self.core.memory_size
+
+    def step_into(self, memory: np.ndarray, inputs: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """``out`` = ``[τ_HYB; τ_int; next memory]`` (:attr:`output_size`, must not alias ``memory``) from the memory
+        and ``inputs = [τ_rigid; q; q̇; q̈]`` (modified in place: its first block becomes τ_RBD = τ_rigid + the
+        backbone's τ_int) — the step function, without allocating the output."""
         n = self.n
         friction = self._friction(inputs[2 * n:3 * n])
         inputs[:n] += friction                                        # τ_RBD, the network's input
-        tau_hybrid, enc, net_state = self.core.step_parts(memory, inputs)
-        return np.concatenate((tau_hybrid, friction + (tau_hybrid - inputs[:n]), STARTED, enc, net_state))
-
-    def step(self, memory: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(tau_dyn, tau_int, next memory)`` for one sample — the step function, with the same plant
-        (``CalcInverseDynamics``) as the C++ ``InverseDynamics``."""
-        n = self.n
-        out = self.step_stacked(memory, np.concatenate((self.arm.inverse_dynamics(q, qd, qdd), q, qd, qdd)))
-        return out[:n], out[n:2 * n], out[2 * n:]
+        tau_hybrid, tau_int = out[:n], out[n:2 * n]
+        self.core.step_into(memory, inputs, tau_hybrid, out[2 * n:])
+        np.subtract(tau_hybrid, inputs[:n], out=tau_int)
+        tau_int += friction                                           # τ_int = τ_HYB − τ_rigid
+        return out
 
 
 def load_hybrid_torque_model(path: str | Path) -> HybridTorqueModel:

@@ -153,6 +153,12 @@ class WrenchSolver:
     def solve(self, jac: np.ndarray, tau_ext: np.ndarray) -> tuple[np.ndarray, float, float]:
         """``jac [6,n]`` (rows [ω; v], world frame, of the contact point) and ``tau_ext [m,n]`` [N·m] →
         ``(wrench [m,6] [f; m] N, N·m, manipulability ∏σ, unreliable 1.0/0.0)``."""
+        wrench = np.empty((tau_ext.shape[0], 6))
+        return (wrench, *self.solve_into(jac, tau_ext, wrench))
+
+    def solve_into(self, jac: np.ndarray, tau_ext: np.ndarray, wrench_out: np.ndarray) -> tuple[float, float]:
+        """:meth:`solve` with the wrenches written into ``wrench_out [m,6]`` (C-contiguous) →
+        ``(manipulability ∏σ, unreliable 1.0/0.0)``."""
         a = jac[self._rows]                                          # J [k,n], rows [v; ω] or [v]
         if self._sqrt_w is not None:
             a, tau_ext = a * self._sqrt_w, tau_ext * self._sqrt_w
@@ -164,10 +170,14 @@ class WrenchSolver:
         unreliable = s_min < self.mapping.sigma_threshold
         if unreliable:                                               # (the common undamped case skips the add)
             lam = lam + float(_damping(s_min, self.mapping))
-        sol = ((tau_ext @ a.T) @ v / lam) @ v.T                      # rows (J Jᵀ + λ²)⁻¹ J τ = [f; m] or f
-        if self._force_only:
-            sol = np.hstack((sol, np.zeros_like(sol)))
-        return sol, (math.sqrt(math.prod(sq)) if sq[0] > 0 else 0.0), float(unreliable)    # ∏σ (0 if σ_min = 0)
+        b = (tau_ext @ a.T) @ v
+        b /= lam
+        if self._force_only:                                         # rows (J Jᵀ + λ²)⁻¹ J τ = [f; m] or f
+            wrench_out[:, :3] = b @ v.T
+            wrench_out[:, 3:] = 0.0
+        else:
+            np.matmul(b, v.T, out=wrench_out)
+        return (math.sqrt(math.prod(sq)) if sq[0] > 0 else 0.0), float(unreliable)    # ∏σ (0 if σ_min = 0)
 
     def __call__(self, jac: np.ndarray, tau_ext: np.ndarray) -> np.ndarray:
         wrench, manip, flag = self.solve(jac, np.asarray(tau_ext, dtype=float)[None, :])
@@ -231,6 +241,17 @@ class DrakeArm(DrakeRobot):
         # τ_g − C q̇ = −ID(q, q̇, 0) with gravity applied: one call instead of CalcGravity… + CalcBiasTerm
         return p, mdot_qd - plant.CalcInverseDynamics(ctx, self._zero, self._forces)
 
+    def inverse_dynamics_here(self, qdd: np.ndarray) -> np.ndarray:
+        """τ_rigid = ``CalcInverseDynamics`` with gravity [N·m] at the q, q̇ the last :meth:`momentum_terms` /
+        :meth:`rigid_body_terms` call left in the context, for the accelerations ``qdd [n]`` [rad/s²]: the kinematics
+        and the gravity forces of that call are reused (the same numbers as :meth:`inverse_dynamics` at that q, q̇)."""
+        if not self._in_order:
+            self.plant.CalcForceElementsContribution(self.context, self._forces)
+            a = np.zeros(self.plant.num_velocities())
+            a[self._v_index] = qdd
+            return self.plant.CalcInverseDynamics(self.context, a, self._forces)[self._v_index]
+        return self.plant.CalcInverseDynamics(self.context, qdd, self._forces)
+
     def rigid_body_terms(self, q: np.ndarray, qd: np.ndarray, p_flange: np.ndarray) -> tuple[np.ndarray, ...]:
         """:meth:`momentum_terms` and the Jacobian ``[6,n]`` of the point ``p_flange`` [m, flange frame] (rows
         [ω; v], world frame) from the same context, which then holds q already."""
@@ -267,13 +288,15 @@ class WrenchMapStep(LeafSystem):
         self._inputs = self.DeclareVectorInputPort("inputs", self._k + m * n)
         self.DeclareVectorOutputPort("estimate", 6 * m + 2 + m * n, self._calc)
 
+        self._out = np.empty(6 * m + 2 + m * n)
+
     def _calc(self, context, output) -> None:
         x, k = self._inputs.Eval(context), self._k
         tau_ext = x[k:].reshape(self._m, self._n)
         if self._owner.jacobian_input:
-            output.SetFromVector(self._owner.calc_jacobian(x[:k].reshape(6, self._n), tau_ext))
+            output.SetFromVector(self._owner.calc_jacobian(x[:k].reshape(6, self._n), tau_ext, self._out))
         else:
-            output.SetFromVector(self._owner.calc(x[:k], tau_ext))
+            output.SetFromVector(self._owner.calc(x[:k], tau_ext, self._out))
 
 
 class WrenchMap(Diagram):
@@ -316,17 +339,22 @@ class WrenchMap(Diagram):
         builder.BuildInto(self)
         self.set_name("wrench")
 
-    def calc(self, q: np.ndarray, tau_ext: np.ndarray) -> np.ndarray:
-        """The ``estimate`` vector for ``q [n]`` and ``tau_ext [m,n]`` (one row per source) — the step function."""
+    def calc(self, q: np.ndarray, tau_ext: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """The ``estimate`` vector for ``q [n]`` and ``tau_ext [m,n]`` (one row per source) — the step function
+        (written into ``out [6m + 2 + mn]`` when given)."""
         if self._arm is None:
             raise ValueError("WrenchMap: built with jacobian_input=True; call calc_jacobian(J, tau_ext)")
-        return self.calc_jacobian(self._arm.flange_jacobian(q, self._contact), tau_ext)
+        return self.calc_jacobian(self._arm.flange_jacobian(q, self._contact), tau_ext, out)
 
-    def calc_jacobian(self, jac: np.ndarray, tau_ext: np.ndarray) -> np.ndarray:
+    def calc_jacobian(self, jac: np.ndarray, tau_ext: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """The same from the contact point's Jacobian ``jac [6,n]`` (rows [ω; v], world) — the step function with
-        ``jacobian_input``."""
-        wrench, manip, flag = self._solver.solve(jac, tau_ext)
-        return np.concatenate((wrench.ravel(), (manip, flag), tau_ext.ravel()))
+        ``jacobian_input`` (written into ``out`` when given, a new array otherwise)."""
+        m = tau_ext.shape[0]
+        if out is None:
+            out = np.empty(6 * m + 2 + tau_ext.size)
+        out[6 * m:6 * m + 2] = self._solver.solve_into(jac, tau_ext, out[:6 * m].reshape(m, 6))
+        out[6 * m + 2:] = tau_ext.ravel()
+        return out
 
 
 class JacobianWrenchObserver(Diagram):
@@ -424,6 +452,7 @@ class RigidBodyTermsSystem(LeafSystem):
         self._contact = np.asarray(contact_point, dtype=float)
         self._state = self.DeclareVectorInputPort("state", 2 * n)
         self.DeclareVectorOutputPort("terms", 8 * n, self._calc)
+        self._out = np.empty(8 * n)
 
     def calc(self, q: np.ndarray, qd: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """The output for one sample — the step function (written into ``out [8n]`` when given)."""
@@ -434,9 +463,16 @@ class RigidBodyTermsSystem(LeafSystem):
         out[:n], out[n:2 * n], out[2 * n:] = p, beta, jac.ravel()
         return out
 
+    def inverse_dynamics(self, qdd: np.ndarray) -> np.ndarray:
+        """τ_rigid [N·m] = ID(q, q̇, q̈) with gravity at the q, q̇ of the last :meth:`calc`, for ``qdd [n]`` [rad/s²],
+        from its plant context (:meth:`DrakeArm.inverse_dynamics_here`): what the streaming estimator takes as the
+        torque model's rigid-body torque of the same sample (the C++ ``InverseDynamics`` of the Diagram gives the
+        same numbers)."""
+        return self._arm.inverse_dynamics_here(qdd)
+
     def _calc(self, context, output) -> None:
         x = self._state.Eval(context)
-        output.SetFromVector(self.calc(x[:self.n], x[self.n:]))
+        output.SetFromVector(self.calc(x[:self.n], x[self.n:], self._out))
 
 
 def momentum_filter(n: int, time_step: float, gain: float | np.ndarray = 100.0

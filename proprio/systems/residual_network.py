@@ -34,10 +34,7 @@ from pydrake.systems.primitives import Demultiplexer, MatrixGain, Multiplexer, Z
 from proprio.learning.features import ReversalEncoder
 from proprio.learning.models import HybridModel, StreamingStepper
 
-__all__ = ["STARTED", "ResidualNetworkCore", "ResidualNetworkStep", "ResidualNetworkSystem", "AddResidualNetwork"]
-
-STARTED = np.ones(1)
-"""The memory's first entry once the network has run (0 before its first sample)."""
+__all__ = ["ResidualNetworkCore", "ResidualNetworkStep", "ResidualNetworkSystem", "AddResidualNetwork"]
 
 
 class ResidualNetworkCore:
@@ -57,6 +54,8 @@ class ResidualNetworkCore:
         self.encoder = ReversalEncoder(self.n, cfg.reversal_deadband_deg, cfg.r_max_deg)
         self._n_net = self.stepper.state_size
         self.memory_size = 1 + 3 * self.n + self._n_net
+        x = self.stepper.features                                    # the LSTM's own input buffer, if it has one
+        self._x4, self._r = (None, None) if x is None else (x[:4 * self.n], x[4 * self.n:])
 
     def initial_memory(self) -> np.ndarray:
         """The memory before the first sample (``started`` = 0: the encoder starts at the first q)."""
@@ -76,10 +75,32 @@ class ResidualNetworkCore:
         tau, net_state = self.stepper.step(inputs, net_state, r)
         return tau, enc, net_state
 
+    def step_into(self, memory: np.ndarray, inputs: np.ndarray, tau_out: np.ndarray, memory_out: np.ndarray
+                  ) -> None:
+        """:meth:`step_parts` into preallocated arrays: τ_hybrid [n] N·m into ``tau_out`` and the next memory into
+        ``memory_out`` (which must not alias ``memory``). An LSTM reading all five feature blocks runs without
+        allocation (the encoder writes r straight into the network's input buffer); other models through
+        :meth:`step_parts`."""
+        if self._x4 is None:
+            tau_out[:], memory_out[1:1 + 3 * self.n], memory_out[1 + 3 * self.n:] = self.step_parts(memory, inputs)
+            memory_out[0] = 1.0
+            return
+        n = self.n
+        q = inputs[n:2 * n]
+        self._x4[:] = inputs
+        if memory[0] > 0:
+            enc, net_state = memory[1:1 + 3 * n], memory[1 + 3 * n:]
+        else:
+            enc, net_state = self.encoder.initial_state(q), np.zeros(self._n_net)
+        self.encoder.step_into(enc, q, memory_out[1:1 + 3 * n], self._r)
+        memory_out[0] = 1.0
+        self.stepper.step_into(net_state, memory_out[1 + 3 * n:], tau_out)
+
     def step_stacked(self, memory: np.ndarray, inputs: np.ndarray) -> np.ndarray:
         """:meth:`step_parts` stacked: ``[τ_hybrid (n) N·m; next memory]``."""
-        tau, enc, net_state = self.step_parts(memory, inputs)
-        return np.concatenate((tau, STARTED, enc, net_state))
+        out = np.empty(self.n + self.memory_size)
+        self.step_into(memory, inputs, out[:self.n], out[self.n:])
+        return out
 
 
 class ResidualNetworkStep(LeafSystem):
@@ -95,9 +116,12 @@ class ResidualNetworkStep(LeafSystem):
         self._inputs = self.DeclareVectorInputPort("inputs", 4 * n)
         self._memory = self.DeclareVectorInputPort("memory", size)
         self.DeclareVectorOutputPort("step", n + size, self._calc)
+        self._out = np.empty(n + size)
+        self._tau, self._next = self._out[:n], self._out[n:]
 
     def _calc(self, context, output) -> None:
-        output.SetFromVector(self._owner.step_stacked(self._memory.Eval(context), self._inputs.Eval(context)))
+        self._owner.step_into(self._memory.Eval(context), self._inputs.Eval(context), self._tau, self._next)
+        output.SetFromVector(self._out)
 
 
 class ResidualNetworkSystem(Diagram):
