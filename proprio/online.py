@@ -121,14 +121,15 @@ class OnlineEstimator:
         self._initial_memory = torque.initial_memory
         self._tm_in = np.empty(4 * n)
         self._tau_rigid, self._qqdqdd = self._tm_in[:n], self._tm_in[n:]
-        self._q_f, self._qd_f, self._qdd_f = self._tm_in[n:2 * n], self._tm_in[2 * n:3 * n], self._tm_in[3 * n:]
+        self._qdd_f = self._tm_in[3 * n:]
         outs = [np.empty(torque.output_size) for _ in range(2)]
         self._outs = [(o, o[:n], o[n:2 * n], o[2 * n:] if o.size > 2 * n else None) for o in outs]
+        self._state = self._tm_in[n:3 * n]                    # [q̂; q̂̇]
         terms = estimator.momentum.terms
         self._terms, self._rigid = terms.calc, terms.inverse_dynamics
         self._wrench = estimator.wrench.calc_jacobian
-        self._rb = np.empty(8 * n)                             # rigid-body terms [p; τ_g + Cᵀq̇; vec(J)]
-        self._rb_terms, self._jac = self._rb[:2 * n], self._rb[2 * n:].reshape(6, n)
+        rb = terms.terms                                       # its output buffer [p; τ_g + Cᵀq̇; vec(J)]
+        self._rb_terms, self._jac = rb[:2 * n], rb[2 * n:].reshape(6, n)
         self._tau_ext = np.empty((2, n))
         self._tau_ext_jac, self._tau_ext_mom = self._tau_ext[0], self._tau_ext[1]
         self.reset()
@@ -228,7 +229,7 @@ class OnlineEstimator:
         self._x[:] = self._x_next
         self._qqdqdd[:] = self._y
         tau_f = self._tau_f
-        self._terms(self._q_f, self._qd_f, self._rb)
+        self._terms(self._state)
         self._tau_rigid[:] = self._rigid(self._qdd_f)
         out, tau_dyn, tau_int, memory = self._outs[self._turn]
         self._turn ^= 1

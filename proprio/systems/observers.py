@@ -146,7 +146,7 @@ class WrenchSolver:
 
     def __init__(self, mapping: WrenchMapping, n: int):
         self.mapping = mapping
-        self._rows = slice(3, 6) if mapping.force_only else np.array(_VW)       # J rows [v] or [v; ω]: w = [f; m]
+        self._rows = np.array(_VW[:3] if mapping.force_only else _VW)          # J rows [v] or [v; ω]: w = [f; m]
         self._sqrt_w = _sqrt_weights(mapping, n)
         self._force_only = mapping.force_only
 
@@ -159,7 +159,7 @@ class WrenchSolver:
     def solve_into(self, jac: np.ndarray, tau_ext: np.ndarray, wrench_out: np.ndarray) -> tuple[float, float]:
         """:meth:`solve` with the wrenches written into ``wrench_out [m,6]`` (C-contiguous) →
         ``(manipulability ∏σ, unreliable 1.0/0.0)``."""
-        a = jac[self._rows]                                          # J [k,n], rows [v; ω] or [v]
+        a = jac.take(self._rows, axis=0)                             # J [k,n], rows [v; ω] or [v]
         if self._sqrt_w is not None:
             a, tau_ext = a * self._sqrt_w, tau_ext * self._sqrt_w
         lam, v, info = dsyevd(a @ a.T)                               # J Jᵀ = V diag(σ²) Vᵀ, ascending
@@ -176,7 +176,7 @@ class WrenchSolver:
             wrench_out[:, :3] = b @ v.T
             wrench_out[:, 3:] = 0.0
         else:
-            np.matmul(b, v.T, out=wrench_out)
+            wrench_out[:] = b @ v.T                                  # (faster than matmul's out= here)
         return (math.sqrt(math.prod(sq)) if sq[0] > 0 else 0.0), float(unreliable)    # ∏σ (0 if σ_min = 0)
 
     def __call__(self, jac: np.ndarray, tau_ext: np.ndarray) -> np.ndarray:
@@ -224,26 +224,34 @@ class DrakeArm(DrakeRobot):
         """``p = M(q)q̇`` [N·m·s] and ``τ_g(q) + C(q,q̇)ᵀq̇`` [N·m] for one sample (Cᵀq̇ = Ṁq̇ − Cq̇)."""
         if not self._in_order:
             return self._momentum_terms_reindexed(q, qd)
-        plant, ctx = self.plant, self.context
+        p, beta = np.empty_like(qd, dtype=float), np.empty_like(qd, dtype=float)
+        self._momentum_terms_into(np.concatenate((q, qd)), p, beta)
+        return p, beta
+
+    def _momentum_terms_into(self, state: np.ndarray, p_out: np.ndarray, beta_out: np.ndarray) -> None:
+        """:meth:`momentum_terms` from ``state = [q; q̇]`` into ``p_out``, ``beta_out`` (joints in the plant's order);
+        the context is left at (q, q̇) with the gravity forces in ``_forces``."""
+        plant, ctx, n = self.plant, self.context, self._zero.shape[0]
+        q, qd = state[:n], state[n:]
         speed = math.sqrt(float(qd @ qd))
         if speed > 0:
             u = qd * (_FD_STEP / speed)
             plant.SetPositions(ctx, q + u)
             m_plus = plant.CalcMassMatrix(ctx)
             plant.SetPositions(ctx, q - u)
-            mdot_qd = (m_plus - plant.CalcMassMatrix(ctx)) @ qd * (speed / (2 * _FD_STEP))
+            np.dot(m_plus - plant.CalcMassMatrix(ctx), qd, out=beta_out)
+            beta_out *= speed / (2 * _FD_STEP)                         # Ṁq̇
         else:
-            mdot_qd = 0.0
-        plant.SetPositions(ctx, q)
-        plant.SetVelocities(ctx, qd)
-        p = plant.CalcMassMatrix(ctx) @ qd
+            beta_out[:] = 0.0
+        plant.SetPositionsAndVelocities(ctx, state)
+        np.dot(plant.CalcMassMatrix(ctx), qd, out=p_out)
         plant.CalcForceElementsContribution(ctx, self._forces)       # gravity
         # τ_g − C q̇ = −ID(q, q̇, 0) with gravity applied: one call instead of CalcGravity… + CalcBiasTerm
-        return p, mdot_qd - plant.CalcInverseDynamics(ctx, self._zero, self._forces)
+        beta_out -= plant.CalcInverseDynamics(ctx, self._zero, self._forces)
 
     def inverse_dynamics_here(self, qdd: np.ndarray) -> np.ndarray:
         """τ_rigid = ``CalcInverseDynamics`` with gravity [N·m] at the q, q̇ the last :meth:`momentum_terms` /
-        :meth:`rigid_body_terms` call left in the context, for the accelerations ``qdd [n]`` [rad/s²]: the kinematics
+        :meth:`rigid_body_terms_into` call left in the context, for the accelerations ``qdd [n]`` [rad/s²]: the kinematics
         and the gravity forces of that call are reused (the same numbers as :meth:`inverse_dynamics` at that q, q̇)."""
         if not self._in_order:
             self.plant.CalcForceElementsContribution(self.context, self._forces)
@@ -252,14 +260,19 @@ class DrakeArm(DrakeRobot):
             return self.plant.CalcInverseDynamics(self.context, a, self._forces)[self._v_index]
         return self.plant.CalcInverseDynamics(self.context, qdd, self._forces)
 
-    def rigid_body_terms(self, q: np.ndarray, qd: np.ndarray, p_flange: np.ndarray) -> tuple[np.ndarray, ...]:
+    def rigid_body_terms_into(self, state: np.ndarray, p_flange: np.ndarray, p_out: np.ndarray,
+                              beta_out: np.ndarray, jac_out: np.ndarray) -> None:
         """:meth:`momentum_terms` and the Jacobian ``[6,n]`` of the point ``p_flange`` [m, flange frame] (rows
-        [ω; v], world frame) from the same context, which then holds q already."""
-        p, beta = self.momentum_terms(q, qd)
+        [ω; v], world frame) for ``state = [q; q̇]``, from the same context (which then holds q already), into
+        ``p_out``, ``beta_out`` [n] and ``jac_out`` [6,n]."""
+        n = self._zero.shape[0] if self._in_order else self.description.n
         if not self._in_order:
-            return p, beta, self.flange_jacobian(q, p_flange)
-        return p, beta, self.plant.CalcJacobianSpatialVelocity(self.context, JacobianWrtVariable.kV, self.flange,
-                                                               p_flange, self._world, self._world)
+            p_out[:], beta_out[:] = self._momentum_terms_reindexed(state[:n], state[n:])
+            jac_out[:] = self.flange_jacobian(state[:n], p_flange)
+            return
+        self._momentum_terms_into(state, p_out, beta_out)
+        jac_out[:] = self.plant.CalcJacobianSpatialVelocity(self.context, JacobianWrtVariable.kV, self.flange,
+                                                            p_flange, self._world, self._world)
 
     def _momentum_terms_reindexed(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         speed = float(np.linalg.norm(qd))
@@ -443,7 +456,7 @@ class RigidBodyTermsSystem(LeafSystem):
     ``[q; q̇]`` (2n: rad, rad/s); output ``terms`` = ``[p = M(q)q̇ (n, N·m·s); τ_g + Cᵀq̇ (n, N·m); J (6n)]`` with J
     the Jacobian of the contact point (``contact_point`` [m] in the flange frame; rows [ω; v], world frame, row-major)
     — what the momentum observer and the wrench map need, from one plant context per step
-    (:meth:`DrakeArm.rigid_body_terms`). Direct feedthrough."""
+    (:meth:`DrakeArm.rigid_body_terms_into`). Direct feedthrough."""
 
     def __init__(self, desc: RobotDescription, contact_point: tuple[float, float, float] = (0.0, 0.0, 0.0)):
         LeafSystem.__init__(self)
@@ -452,16 +465,14 @@ class RigidBodyTermsSystem(LeafSystem):
         self._contact = np.asarray(contact_point, dtype=float)
         self._state = self.DeclareVectorInputPort("state", 2 * n)
         self.DeclareVectorOutputPort("terms", 8 * n, self._calc)
-        self._out = np.empty(8 * n)
+        self.terms = np.empty(8 * n)
+        self._p, self._beta, self._jac = self.terms[:n], self.terms[n:2 * n], self.terms[2 * n:].reshape(6, n)
 
-    def calc(self, q: np.ndarray, qd: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """The output for one sample — the step function (written into ``out [8n]`` when given)."""
-        p, beta, jac = self._arm.rigid_body_terms(q, qd, self._contact)
-        if out is None:
-            return np.concatenate((p, beta, jac.ravel()))
-        n = self.n
-        out[:n], out[n:2 * n], out[2 * n:] = p, beta, jac.ravel()
-        return out
+    def calc(self, state: np.ndarray) -> np.ndarray:
+        """The output for one sample ``state = [q; q̇]`` — the step function. It is written into this System's own
+        buffer (:attr:`terms`, valid until the next call), which is returned."""
+        self._arm.rigid_body_terms_into(state, self._contact, self._p, self._beta, self._jac)
+        return self.terms
 
     def inverse_dynamics(self, qdd: np.ndarray) -> np.ndarray:
         """τ_rigid [N·m] = ID(q, q̇, q̈) with gravity at the q, q̇ of the last :meth:`calc`, for ``qdd [n]`` [rad/s²],
@@ -471,8 +482,7 @@ class RigidBodyTermsSystem(LeafSystem):
         return self._arm.inverse_dynamics_here(qdd)
 
     def _calc(self, context, output) -> None:
-        x = self._state.Eval(context)
-        output.SetFromVector(self.calc(x[:self.n], x[self.n:], self._out))
+        output.SetFromVector(self.calc(self._state.Eval(context)))
 
 
 def momentum_filter(n: int, time_step: float, gain: float | np.ndarray = 100.0
