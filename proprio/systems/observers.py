@@ -47,7 +47,7 @@ import numpy as np
 from pydrake.multibody.tree import JacobianWrtVariable
 from pydrake.systems.framework import Context, Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Demultiplexer, LinearSystem, MatrixGain, Multiplexer
-from scipy.linalg.lapack import dsyevd
+from scipy.linalg.lapack import dposv, dpotrf, dsyevd
 from scipy.signal import lfilter
 
 from proprio.description import RobotDescription
@@ -136,19 +136,26 @@ def wrench_from_joint_torque(jac: np.ndarray, tau_ext: np.ndarray, mapping: Wren
 
 class WrenchSolver:
     """:func:`wrench_from_joint_torque` for ONE configuration, for the Systems' per-step work, where numpy's per-call
-    overhead dominates the batched path (≈33 µs at N = 1). The same damped least-squares solution from the
-    eigen-decomposition of the k×k matrix ``J W Jᵀ = V diag(σ²) Vᵀ`` (one LAPACK ``dsyevd`` call):
-    ``w = (J W Jᵀ + λ²I)⁻¹ J W τ = V diag(1/(σ² + λ²)) Vᵀ J W τ``, σ_min and ∏σ from the eigenvalues. Our [ω; v] rows
-    would give the unknown in [m; f] order; the rows are permuted instead (below). Forming J W Jᵀ squares the condition number, harmless here
-    (σ_max/ε ≈ 10² → 10⁴). :meth:`solve` maps several torque vectors through the same decomposition (both observers
-    share J(q)); ``solver(jac [6,n], tau_ext [n])`` returns ``[f; m (6), manipulability, unreliable]``. The rows of
-    J are taken in [v; ω] order, so the unknown is [f; m] as returned."""
+    overhead dominates the batched path (≈33 µs at N = 1). The same damped least-squares solution
+    ``w = (J W Jᵀ + λ²I)⁻¹ J W τ`` from the k×k matrix ``J W Jᵀ = V diag(σ²) Vᵀ``, in two ways:
+
+    * away from singularities (the common case, found by the Cholesky factorisation of ``J W Jᵀ − ε²I`` succeeding,
+      i.e. σ_min > ε): λ = 0, and ONE LAPACK ``dposv`` gives w for all torque vectors and the Cholesky factor L, whose
+      diagonal's product is ∏σ = √det(J W Jᵀ);
+    * otherwise the eigen-decomposition (``dsyevd``): σ_min, the damping λ², ``w = V diag(1/(σ² + λ²)) Vᵀ J W τ``.
+
+    Our [ω; v] rows would give the unknown in [m; f] order; the rows are permuted instead (below). Forming J W Jᵀ
+    squares the condition number, harmless here (σ_max/ε ≈ 10² → 10⁴). :meth:`solve` maps several torque vectors
+    through the same factorisation (both observers share J(q)); ``solver(jac [6,n], tau_ext [n])`` returns
+    ``[f; m (6), manipulability, unreliable]``. The rows of J are taken in [v; ω] order, so the unknown is [f; m] as
+    returned."""
 
     def __init__(self, mapping: WrenchMapping, n: int):
         self.mapping = mapping
         self._rows = np.array(_VW[:3] if mapping.force_only else _VW)          # J rows [v] or [v; ω]: w = [f; m]
         self._sqrt_w = _sqrt_weights(mapping, n)
         self._force_only = mapping.force_only
+        self._shift = mapping.sigma_threshold ** 2 * np.eye(len(self._rows))   # ε² I
 
     def solve(self, jac: np.ndarray, tau_ext: np.ndarray) -> tuple[np.ndarray, float, float]:
         """``jac [6,n]`` (rows [ω; v], world frame, of the contact point) and ``tau_ext [m,n]`` [N·m] →
@@ -157,26 +164,30 @@ class WrenchSolver:
         return (wrench, *self.solve_into(jac, tau_ext, wrench))
 
     def solve_into(self, jac: np.ndarray, tau_ext: np.ndarray, wrench_out: np.ndarray) -> tuple[float, float]:
-        """:meth:`solve` with the wrenches written into ``wrench_out [m,6]`` (C-contiguous) →
+        """:meth:`solve` with the wrenches written into ``wrench_out [m,6]`` →
         ``(manipulability ∏σ, unreliable 1.0/0.0)``."""
         a = jac.take(self._rows, axis=0)                             # J [k,n], rows [v; ω] or [v]
         if self._sqrt_w is not None:
             a, tau_ext = a * self._sqrt_w, tau_ext * self._sqrt_w
-        lam, v, info = dsyevd(a @ a.T)                               # J Jᵀ = V diag(σ²) Vᵀ, ascending
+        aat = a @ a.T
+        force = wrench_out[:, :3] if self._force_only else wrench_out
+        if self._force_only:
+            wrench_out[:, 3:] = 0.0
+        if dpotrf(aat - self._shift, lower=1, clean=0, overwrite_a=1)[1] == 0:     # σ_min > ε: no damping
+            chol, sol, info = dposv(aat, a @ tau_ext.T, lower=1, overwrite_a=1, overwrite_b=1)
+            if info != 0:
+                raise np.linalg.LinAlgError(f"WrenchSolver: LAPACK dposv failed (info = {info})")
+            force[:] = sol.T                                         # rows (J Jᵀ)⁻¹ J τ = [f; m] or f
+            return math.prod(chol.diagonal().tolist()), 0.0          # ∏σ = ∏ diag(L)
+        lam, v, info = dsyevd(aat)                                   # J Jᵀ = V diag(σ²) Vᵀ, ascending
         if info != 0:
             raise np.linalg.LinAlgError(f"WrenchSolver: LAPACK dsyevd did not converge (info = {info})")
         sq = lam.tolist()                                            # σ², ascending (≥ 0 up to rounding)
         s_min = math.sqrt(max(sq[0], 0.0))
         unreliable = s_min < self.mapping.sigma_threshold
-        if unreliable:                                               # (the common undamped case skips the add)
+        if unreliable:                                               # (σ_min = ε exactly: undamped)
             lam = lam + float(_damping(s_min, self.mapping))
-        b = (tau_ext @ a.T) @ v
-        b /= lam
-        if self._force_only:                                         # rows (J Jᵀ + λ²)⁻¹ J τ = [f; m] or f
-            wrench_out[:, :3] = b @ v.T
-            wrench_out[:, 3:] = 0.0
-        else:
-            wrench_out[:] = b @ v.T                                  # (faster than matmul's out= here)
+        force[:] = ((tau_ext @ a.T) @ v / lam) @ v.T                 # rows (J Jᵀ + λ²)⁻¹ J τ = [f; m] or f
         return (math.sqrt(math.prod(sq)) if sq[0] > 0 else 0.0), float(unreliable)    # ∏σ (0 if σ_min = 0)
 
     def __call__(self, jac: np.ndarray, tau_ext: np.ndarray) -> np.ndarray:
