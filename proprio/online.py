@@ -128,6 +128,7 @@ class OnlineEstimator:
         terms = estimator.momentum.terms
         self._terms, self._rigid = terms.calc, terms.inverse_dynamics
         self._wrench = estimator.wrench.calc_jacobian
+        self._estimate = estimator.wrench.estimate_buffer()
         rb = terms.terms                                       # its output buffer [p; τ_g + Cᵀq̇; vec(J)]
         self._rb_terms, self._jac = rb[:2 * n], rb[2 * n:].reshape(6, n)
         self._tau_ext = np.empty((2, n))
@@ -245,6 +246,6 @@ class OnlineEstimator:
         self._tau_ext_mom[:] = self._r                              # r_{k−1}: the filter's output before its update
         self._x_mom[:] = self._mom @ self._xmu
         self._t_prev = t
-        v = self._wrench(self._jac, self._tau_ext)
+        v = self._wrench(self._jac, self._tau_ext, self._estimate).copy()
         v.flags.writeable = False
         return WrenchEstimate(t, v)

@@ -118,21 +118,21 @@ class HybridTorqueModel:
 
 
 class HybridTorqueStep(LeafSystem):
-    """The Python part of :class:`HybridTorqueModelSystem`: input ``inputs`` = ``[τ_rigid; q; q̇; q̈]`` (4n) and
-    ``memory`` (the network's); output ``step`` = ``[τ_HYB; τ_int; next memory]`` (:meth:`HybridTorqueModelSystem.
-    step_into`)."""
+    """The Python part of :class:`HybridTorqueModelSystem`: input ``inputs`` = ``[τ_rigid; q; q̇; q̈; memory]``
+    (4n + the network's memory: one stacked port, as each input evaluation from Python costs about a microsecond);
+    output ``step`` = ``[τ_HYB; τ_int; next memory]`` (:meth:`HybridTorqueModelSystem.step_into`)."""
 
     def __init__(self, owner: "HybridTorqueModelSystem"):
         LeafSystem.__init__(self)
         n, size = owner.n, owner.core.memory_size
-        self._owner = owner
-        self._inputs = self.DeclareVectorInputPort("inputs", 4 * n)
-        self._memory = self.DeclareVectorInputPort("memory", size)
+        self._owner, self._k = owner, 4 * n
+        self._inputs = self.DeclareVectorInputPort("inputs", 4 * n + size)
         self.DeclareVectorOutputPort("step", 2 * n + size, self._calc)
         self._out = np.empty(2 * n + size)
 
     def _calc(self, context, output) -> None:
-        output.SetFromVector(self._owner.step_into(self._memory.Eval(context), self._inputs.Eval(context), self._out))
+        x, k = self._inputs.Eval(context), self._k
+        output.SetFromVector(self._owner.step_into(x[k:], x[:k], self._out))
 
 
 class HybridTorqueModelSystem(Diagram):
@@ -140,8 +140,8 @@ class HybridTorqueModelSystem(Diagram):
 
         q, qd ─▶ Multiplexer ─▶ InverseDynamics (C++) ─τ_rigid─┐
         qdd ──────────────────────────┘                        ├─▶ Multiplexer ─▶ HybridTorqueStep ─▶ Demultiplexer
-        q, qd, qdd ────────────────────────────────────────────┘              ▲ memory                ├─▶ tau_dyn
-                                                                  ZeroOrderHold ◀──── next memory ───┤   tau_int
+        q, qd, qdd ────────────────────────────────────────────┤                                     ├─▶ tau_dyn
+                                     ZeroOrderHold ─memory─────┘   ◀──────────── next memory ────────┤   tau_int
     Inputs ``q``, ``qd``, ``qdd`` (rad, rad/s, rad/s²); outputs ``tau_dyn`` = τ_HYB and ``tau_int`` = τ_HYB − τ_rigid
     [N·m]. The one Python step (:meth:`step_into`) adds the backbone's friction and offsets to the C++ rigid-body
     torque (τ_RBD, the network's input) and runs the network (:class:`~proprio.systems.residual_network.
@@ -159,7 +159,7 @@ class HybridTorqueModelSystem(Diagram):
         builder = DiagramBuilder()
         state = builder.AddNamedSystem("state", Multiplexer([n, n]))
         rigid = builder.AddNamedSystem("rigid_body", InverseDynamics(self.arm.plant))
-        inputs = builder.AddNamedSystem("inputs", Multiplexer([n] * 4))
+        inputs = builder.AddNamedSystem("inputs", Multiplexer([n] * 4 + [size]))
         step = builder.AddNamedSystem("step", HybridTorqueStep(self))
         split = builder.AddNamedSystem("split", Demultiplexer([n, n, size]))
         hold = builder.AddNamedSystem("memory", ZeroOrderHold(float(time_step), size))
@@ -171,7 +171,7 @@ class HybridTorqueModelSystem(Diagram):
         for i, name in enumerate(("q", "qd", "qdd")):
             builder.ConnectInput(name, inputs.get_input_port(1 + i))
         builder.Connect(inputs.get_output_port(), step.GetInputPort("inputs"))
-        builder.Connect(hold.get_output_port(), step.GetInputPort("memory"))
+        builder.Connect(hold.get_output_port(), inputs.get_input_port(4))
         builder.Connect(step.get_output_port(), split.get_input_port())
         builder.Connect(split.get_output_port(2), hold.get_input_port())
         builder.ExportOutput(split.get_output_port(0), "tau_dyn")

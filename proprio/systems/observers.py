@@ -312,15 +312,16 @@ class WrenchMapStep(LeafSystem):
         self._inputs = self.DeclareVectorInputPort("inputs", self._k + m * n)
         self.DeclareVectorOutputPort("estimate", 6 * m + 2 + m * n, self._calc)
 
-        self._out = np.empty(6 * m + 2 + m * n)
+        self._out = owner.estimate_buffer()
 
     def _calc(self, context, output) -> None:
         x, k = self._inputs.Eval(context), self._k
         tau_ext = x[k:].reshape(self._m, self._n)
         if self._owner.jacobian_input:
-            output.SetFromVector(self._owner.calc_jacobian(x[:k].reshape(6, self._n), tau_ext, self._out))
+            self._owner.calc_jacobian(x[:k].reshape(6, self._n), tau_ext, self._out)
         else:
-            output.SetFromVector(self._owner.calc(x[:k], tau_ext, self._out))
+            self._owner.calc(x[:k], tau_ext, self._out)
+        output.SetFromVector(self._out[0])
 
 
 class WrenchMap(Diagram):
@@ -363,22 +364,28 @@ class WrenchMap(Diagram):
         builder.BuildInto(self)
         self.set_name("wrench")
 
-    def calc(self, q: np.ndarray, tau_ext: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    def estimate_buffer(self) -> tuple[np.ndarray, ...]:
+        """A preallocated ``estimate`` vector with its views ``(vector, wrenches [m,6], [manipulability,
+        unreliable], τ̂_ext [m,n])``, for the ``out`` argument of :meth:`calc` / :meth:`calc_jacobian`."""
+        n, m = self.n, len(self.sources)
+        v = np.empty(6 * m + 2 + m * n)
+        return v, v[:6 * m].reshape(m, 6), v[6 * m:6 * m + 2], v[6 * m + 2:].reshape(m, n)
+
+    def calc(self, q: np.ndarray, tau_ext: np.ndarray, out: tuple[np.ndarray, ...] | None = None) -> np.ndarray:
         """The ``estimate`` vector for ``q [n]`` and ``tau_ext [m,n]`` (one row per source) — the step function
-        (written into ``out [6m + 2 + mn]`` when given)."""
+        (written into ``out``, an :meth:`estimate_buffer`, when given)."""
         if self._arm is None:
             raise ValueError("WrenchMap: built with jacobian_input=True; call calc_jacobian(J, tau_ext)")
         return self.calc_jacobian(self._arm.flange_jacobian(q, self._contact), tau_ext, out)
 
-    def calc_jacobian(self, jac: np.ndarray, tau_ext: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    def calc_jacobian(self, jac: np.ndarray, tau_ext: np.ndarray, out: tuple[np.ndarray, ...] | None = None
+                      ) -> np.ndarray:
         """The same from the contact point's Jacobian ``jac [6,n]`` (rows [ω; v], world) — the step function with
-        ``jacobian_input`` (written into ``out`` when given, a new array otherwise)."""
-        m = tau_ext.shape[0]
-        if out is None:
-            out = np.empty(6 * m + 2 + tau_ext.size)
-        out[6 * m:6 * m + 2] = self._solver.solve_into(jac, tau_ext, out[:6 * m].reshape(m, 6))
-        out[6 * m + 2:] = tau_ext.ravel()
-        return out
+        ``jacobian_input`` (written into ``out``, an :meth:`estimate_buffer`, when given; a new vector otherwise)."""
+        vector, wrench, flags, tau = self.estimate_buffer() if out is None else out
+        flags[:] = self._solver.solve_into(jac, tau_ext, wrench)
+        tau[:] = tau_ext
+        return vector
 
 
 class JacobianWrenchObserver(Diagram):
