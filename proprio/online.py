@@ -122,8 +122,7 @@ class OnlineEstimator:
         self._tm_in = np.empty(4 * n)
         self._tau_rigid, self._qqdqdd = self._tm_in[:n], self._tm_in[n:]
         self._qdd_f = self._tm_in[3 * n:]
-        outs = [np.empty(torque.output_size) for _ in range(2)]
-        self._outs = [(o, o[:n], o[n:2 * n], o[2 * n:] if o.size > 2 * n else None) for o in outs]
+        self._outs = [torque.output_buffer() for _ in range(2)]
         self._state = self._tm_in[n:3 * n]                    # [q̂; q̂̇]
         terms = estimator.momentum.terms
         self._terms, self._rigid = terms.calc, terms.inverse_dynamics
@@ -232,10 +231,10 @@ class OnlineEstimator:
         tau_f = self._tau_f
         self._terms(self._state)
         self._tau_rigid[:] = self._rigid(self._qdd_f)
-        out, tau_dyn, tau_int, memory = self._outs[self._turn]
+        out = self._outs[self._turn]
         self._turn ^= 1
         self._torque_step(self._memory, self._tm_in, out)
-        self._memory = memory
+        _, tau_dyn, tau_int, self._memory = out
         np.subtract(tau_dyn, tau_f, out=self._tau_ext_jac)
         self._um_terms[:] = self._rb_terms
         self._um_tau[:] = tau_f

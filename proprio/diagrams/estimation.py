@@ -194,20 +194,23 @@ class TorqueModelSystem(Diagram):
         """No state (the streaming interface shared with the hybrid model's System)."""
         return None
 
-    @property
-    def output_size(self) -> int:
-        """Size of :meth:`step_into`'s output ``[τ_dyn; τ_int]`` (no memory)."""
-        return 2 * self.arm.description.n
-
-    def step_into(self, memory: None, inputs: np.ndarray, out: np.ndarray) -> np.ndarray:
-        """``out`` = ``[τ_dyn; τ_int]`` from ``inputs = [τ_rigid; q; q̇; q̈]`` (τ_rigid = ``CalcInverseDynamics`` of the
-        same description, as the C++ ``InverseDynamics`` evaluates it) — the step function without allocating the
-        output (the interface shared with the hybrid model's System)."""
+    def output_buffer(self) -> tuple:
+        """A preallocated output ``[τ_dyn; τ_int]`` for :meth:`step_into`: ``(vector, τ_dyn view, τ_int view, None)``
+        (no memory)."""
         n = self.arm.description.n
-        tau_int = out[n:]
+        out = np.empty(2 * n)
+        return out, out[:n], out[n:], None
+
+    def step_into(self, memory: None, inputs: np.ndarray, out: tuple) -> np.ndarray:
+        """``out`` (an :meth:`output_buffer`) gets ``[τ_dyn; τ_int]`` from ``inputs = [τ_rigid; q; q̇; q̈]`` (τ_rigid =
+        ``CalcInverseDynamics`` of the same description, as the C++ ``InverseDynamics`` evaluates it) — the step
+        function without allocating the output (the interface shared with the hybrid model's System); returns its
+        vector."""
+        n = self.arm.description.n
+        vector, tau_dyn, tau_int, _ = out
         tau_int[:] = self.interaction.calc(inputs[n:2 * n], inputs[2 * n:3 * n], inputs[3 * n:])
-        np.add(inputs[:n], tau_int, out=out[:n])
-        return out
+        np.add(inputs[:n], tau_int, out=tau_dyn)
+        return vector
 
 
 def check_recording_matches(rec: Recording, desc: RobotDescription) -> Recording:

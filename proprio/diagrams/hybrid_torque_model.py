@@ -41,7 +41,7 @@ from proprio.learning.features import feature_matrix, rotational_displacement
 from proprio.learning.models import HybridModel, load_model
 from proprio.recording import Recording, RecordingError
 from proprio.plant import DrakeRobot
-from proprio.systems.residual_network import ResidualNetworkCore
+from proprio.systems.residual_network import MemoryViews, ResidualNetworkCore
 
 __all__ = ["HybridTorqueModel", "load_hybrid_torque_model"]
 
@@ -128,11 +128,13 @@ class HybridTorqueStep(LeafSystem):
         self._owner, self._k = owner, 4 * n
         self._inputs = self.DeclareVectorInputPort("inputs", 4 * n + size)
         self.DeclareVectorOutputPort("step", 2 * n + size, self._calc)
-        self._out = np.empty(2 * n + size)
+        self._out = owner.output_buffer()
+        self._memory = owner.core.memory_views(np.empty(size))       # the memory input, copied into fixed views
 
     def _calc(self, context, output) -> None:
         x, k = self._inputs.Eval(context), self._k
-        output.SetFromVector(self._owner.step_into(x[k:], x[:k], self._out))
+        self._memory.vector[:] = x[k:]
+        output.SetFromVector(self._owner.step_into(self._memory, x[:k], self._out))
 
 
 class HybridTorqueModelSystem(Diagram):
@@ -179,26 +181,29 @@ class HybridTorqueModelSystem(Diagram):
         builder.BuildInto(self)
         self.set_name("hybrid_torque_model")
 
-    def initial_memory(self) -> np.ndarray:
-        return self.core.initial_memory()
+    def initial_memory(self) -> MemoryViews:
+        """The network's memory before the first sample, as :meth:`step_into` reads it."""
+        return self.core.memory_views(self.core.initial_memory())
 
-    @property
-    def output_size(self) -> int:
-        """Size of :meth:`step_into`'s output ``[τ_HYB; τ_int; next memory]``."""
-        return 2 * self.n + self.core.memory_size
-
-    def step_into(self, memory: np.ndarray, inputs: np.ndarray, out: np.ndarray) -> np.ndarray:
-        """``out`` = ``[τ_HYB; τ_int; next memory]`` (:attr:`output_size`, must not alias ``memory``) from the memory
-        and ``inputs = [τ_rigid; q; q̇; q̈]`` (modified in place: its first block becomes τ_RBD = τ_rigid + the
-        backbone's τ_int) — the step function, without allocating the output."""
+    def output_buffer(self) -> tuple:
+        """A preallocated output ``[τ_HYB; τ_int; next memory]`` for :meth:`step_into`: ``(vector, τ_HYB view, τ_int
+        view, next-memory views)``."""
         n = self.n
+        out = np.empty(2 * n + self.core.memory_size)
+        return out, out[:n], out[n:2 * n], self.core.memory_views(out[2 * n:])
+
+    def step_into(self, memory: MemoryViews, inputs: np.ndarray, out: tuple) -> np.ndarray:
+        """The step function without allocation: ``out`` (an :meth:`output_buffer`, whose memory must not be
+        ``memory``) gets ``[τ_HYB; τ_int; next memory]`` from the memory and ``inputs = [τ_rigid; q; q̇; q̈]``
+        (modified in place: its first block becomes τ_RBD = τ_rigid + the backbone's τ_int); returns its vector."""
+        n = self.n
+        vector, tau_hybrid, tau_int, memory_out = out
         friction = self._friction(inputs[2 * n:3 * n])
         inputs[:n] += friction                                        # τ_RBD, the network's input
-        tau_hybrid, tau_int = out[:n], out[n:2 * n]
-        self.core.step_into(memory, inputs, tau_hybrid, out[2 * n:])
+        self.core.step_views(memory, inputs, tau_hybrid, memory_out)
         np.subtract(tau_hybrid, inputs[:n], out=tau_int)
         tau_int += friction                                           # τ_int = τ_HYB − τ_rigid
-        return out
+        return vector
 
 
 def load_hybrid_torque_model(path: str | Path) -> HybridTorqueModel:

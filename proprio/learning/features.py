@@ -121,12 +121,18 @@ class ReversalEncoder:
         self.step_into(state, q, nxt, r)
         return r, nxt
 
-    def step_into(self, state: np.ndarray, q: np.ndarray, state_out: np.ndarray, r_out: np.ndarray) -> None:
-        """:meth:`step_state` into preallocated arrays (no allocation but one temporary): the next state into
-        ``state_out [3n]`` and r [rad] into ``r_out [n]`` (neither may alias ``state`` or ``q``)."""
+    def split_state(self, state: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Views ``(d, d·e, a)`` of a state vector (make them once per buffer, for :meth:`step_into`)."""
         n = self.n
+        return state[:n], state[n:2 * n], state[2 * n:]
+
+    def step_into(self, state: np.ndarray, q: np.ndarray, state_out: np.ndarray, r_out: np.ndarray,
+                  parts_out: tuple[np.ndarray, ...] | None = None) -> None:
+        """:meth:`step_state` into preallocated arrays (for the per-sample Systems): the next state into
+        ``state_out [3n]`` (``parts_out``: its :meth:`split_state` views, if made already) and r [rad] into
+        ``r_out [n]`` (neither may alias ``state`` or ``q``)."""
         state_out[:] = state                                       # no reversal: d, d·e, a
-        d, run, a = state_out[:n], state_out[n:2 * n], state_out[2 * n:]
+        d, run, a = self.split_state(state_out) if parts_out is None else parts_out
         s = d * q
         np.maximum(s, run, out=run)                                # signed running extremum d·e
         rev = run - s > self.h

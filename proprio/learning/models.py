@@ -298,6 +298,7 @@ class StreamingStepper:
             self._z2_h1, self._z2_h2, self._z2_out = z2[:k1], z2[k1:k1 + k2], z2[k1:]
             self._views = [self._cell_views(k) for k in (k1, k2)]
             self.features = self._z1_x if self.columns is None else None
+            self._tau_rbd = z1[:self.n]
 
     @staticmethod
     def _cell_views(k: int) -> tuple[np.ndarray, ...]:
@@ -323,21 +324,31 @@ class StreamingStepper:
         np.tanh(c_out, out=h_out)
         h_out *= o
 
+    def split_state(self, state: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Views ``(h₁, c₁, h₂, c₂)`` of an LSTM state vector (make them once per buffer: :meth:`step_split`)."""
+        k1, k2 = self.sizes[0], self.sizes[2]
+        return state[:k1], state[k1:2 * k1], state[2 * k1:2 * k1 + k2], state[2 * k1 + k2:]
+
     def step_into(self, state: np.ndarray, state_out: np.ndarray, tau_out: np.ndarray) -> None:
         """One LSTM step on the features already in :attr:`features` (the per-sample Systems' path: no allocation):
         τ [n] N·m into ``tau_out`` and the next recurrent state ``[h₁, c₁, h₂, c₂]`` into ``state_out`` (which must not
         alias ``state``)."""
-        k1, k2 = self.sizes[0], self.sizes[2]
-        h1, h2 = state_out[:k1], state_out[2 * k1:2 * k1 + k2]
-        self._z1_h[:] = state[:k1]
-        self._cell(self._z1, self.cells[0], self._views[0], state[k1:2 * k1], state_out[k1:2 * k1], h1)
-        self._z2_h1[:] = h1
-        self._z2_h2[:] = state[2 * k1:2 * k1 + k2]
-        self._cell(self._z2, self.cells[1], self._views[1], state[2 * k1 + k2:], state_out[2 * k1 + k2:], h2)
+        self.step_split(self.split_state(state), self.split_state(state_out), tau_out)
+
+    def step_split(self, state: tuple[np.ndarray, ...], state_out: tuple[np.ndarray, ...], tau_out: np.ndarray
+                   ) -> None:
+        """:meth:`step_into` on the :meth:`split_state` views of the state and the next state."""
+        h1, c1, h2, c2 = state
+        h1_out, c1_out, h2_out, c2_out = state_out
+        self._z1_h[:] = h1
+        self._cell(self._z1, self.cells[0], self._views[0], c1, c1_out, h1_out)
+        self._z2_h1[:] = h1_out
         self._z2_h2[:] = h2
+        self._cell(self._z2, self.cells[1], self._views[1], c2, c2_out, h2_out)
+        self._z2_h2[:] = h2_out
         np.dot(self.w_out, self._z2_out, out=tau_out)
         if self.hybrid:
-            tau_out += self._z1_x[:self.n]                           # + τ_RBD, the first feature block
+            tau_out += self._tau_rbd                                 # + τ_RBD, the first feature block
 
     def step(self, x: np.ndarray, state: np.ndarray, r: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """τ [n] N·m for the features ``x [5n]`` of one sample — or ``x [4n]`` = vec(τ_RBD, q, q̇, q̈) and ``r [n]``

@@ -34,7 +34,7 @@ from pydrake.systems.primitives import Demultiplexer, MatrixGain, Multiplexer, Z
 from proprio.learning.features import ReversalEncoder
 from proprio.learning.models import HybridModel, StreamingStepper
 
-__all__ = ["ResidualNetworkCore", "ResidualNetworkStep", "ResidualNetworkSystem", "AddResidualNetwork"]
+__all__ = ["ResidualNetworkCore", "MemoryViews", "ResidualNetworkStep", "ResidualNetworkSystem", "AddResidualNetwork"]
 
 
 class ResidualNetworkCore:
@@ -75,32 +75,57 @@ class ResidualNetworkCore:
         tau, net_state = self.stepper.step(inputs, net_state, r)
         return tau, enc, net_state
 
+    def memory_views(self, memory: np.ndarray) -> "MemoryViews":
+        """The views of a memory vector that :meth:`step_views` reads and writes (make them once per buffer)."""
+        return MemoryViews(self, memory)
+
     def step_into(self, memory: np.ndarray, inputs: np.ndarray, tau_out: np.ndarray, memory_out: np.ndarray
                   ) -> None:
         """:meth:`step_parts` into preallocated arrays: τ_hybrid [n] N·m into ``tau_out`` and the next memory into
-        ``memory_out`` (which must not alias ``memory``). An LSTM reading all five feature blocks runs without
-        allocation (the encoder writes r straight into the network's input buffer); other models through
-        :meth:`step_parts`."""
+        ``memory_out`` (which must not alias ``memory``)."""
+        self.step_views(self.memory_views(memory), inputs, tau_out, self.memory_views(memory_out))
+
+    def step_views(self, memory: "MemoryViews", inputs: np.ndarray, tau_out: np.ndarray, memory_out: "MemoryViews"
+                   ) -> None:
+        """:meth:`step_into` on :meth:`memory_views` of the memory and the next memory (the per-sample Systems' path).
+        An LSTM reading all five feature blocks runs without allocation (the encoder writes r straight into the
+        network's input buffer); other models through :meth:`step_parts`."""
+        out = memory_out.vector
         if self._x4 is None:
-            tau_out[:], memory_out[1:1 + 3 * self.n], memory_out[1 + 3 * self.n:] = self.step_parts(memory, inputs)
-            memory_out[0] = 1.0
+            tau_out[:], out[1:1 + 3 * self.n], out[1 + 3 * self.n:] = self.step_parts(memory.vector, inputs)
+            out[0] = 1.0
             return
         n = self.n
         q = inputs[n:2 * n]
         self._x4[:] = inputs
-        if memory[0] > 0:
-            enc, net_state = memory[1:1 + 3 * n], memory[1 + 3 * n:]
+        if memory.vector[0] > 0:
+            enc, net_state = memory.encoder, memory.network
         else:
-            enc, net_state = self.encoder.initial_state(q), np.zeros(self._n_net)
-        self.encoder.step_into(enc, q, memory_out[1:1 + 3 * n], self._r)
-        memory_out[0] = 1.0
-        self.stepper.step_into(net_state, memory_out[1 + 3 * n:], tau_out)
+            enc = self.encoder.initial_state(q)
+            net_state = self.stepper.split_state(np.zeros(self._n_net))
+        self.encoder.step_into(enc, q, memory_out.encoder, self._r, memory_out.encoder_parts)
+        out[0] = 1.0
+        self.stepper.step_split(net_state, memory_out.network, tau_out)
 
     def step_stacked(self, memory: np.ndarray, inputs: np.ndarray) -> np.ndarray:
         """:meth:`step_parts` stacked: ``[τ_hybrid (n) N·m; next memory]``."""
         out = np.empty(self.n + self.memory_size)
         self.step_into(memory, inputs, out[:self.n], out[self.n:])
         return out
+
+
+class MemoryViews:
+    """A :class:`ResidualNetworkCore` memory vector ``[started, encoder state (3n), network state]`` and its views:
+    ``encoder`` (3n), ``encoder_parts`` (d, d·e, a) and ``network`` (the LSTM's h₁, c₁, h₂, c₂) — made once per
+    buffer, as each slice costs about as much as a small numpy operation."""
+    __slots__ = ("vector", "encoder", "encoder_parts", "network")
+
+    def __init__(self, core: ResidualNetworkCore, vector: np.ndarray):
+        n = core.n
+        self.vector, self.encoder = vector, vector[1:1 + 3 * n]
+        self.encoder_parts = core.encoder.split_state(self.encoder)
+        net = vector[1 + 3 * n:]
+        self.network = core.stepper.split_state(net) if core.stepper.features is not None else net
 
 
 class ResidualNetworkStep(LeafSystem):
@@ -117,10 +142,11 @@ class ResidualNetworkStep(LeafSystem):
         self._memory = self.DeclareVectorInputPort("memory", size)
         self.DeclareVectorOutputPort("step", n + size, self._calc)
         self._out = np.empty(n + size)
-        self._tau, self._next = self._out[:n], self._out[n:]
+        self._tau, self._next = self._out[:n], owner.memory_views(self._out[n:])
 
     def _calc(self, context, output) -> None:
-        self._owner.step_into(self._memory.Eval(context), self._inputs.Eval(context), self._tau, self._next)
+        self._owner.step_views(self._owner.memory_views(self._memory.Eval(context)), self._inputs.Eval(context),
+                               self._tau, self._next)
         output.SetFromVector(self._out)
 
 
