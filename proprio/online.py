@@ -13,10 +13,13 @@ For users who drive the estimator from their own loop (KUKA FRI at 1 kHz, a ROS 
 
 It runs the stages of :class:`proprio.diagrams.estimation.WrenchEstimator` with a causal conditioning stage
 (:func:`proprio.conditioning.causal_conditioning`): it builds that Diagram and drives its Systems' own step
-functions (the conditioner's and the momentum filter's LTI matrices, the torque model's ``step``, the rigid-body
-terms' ``calc``, the wrench map's ``calc_jacobian``), so the numbers equal the Diagram's (tests: to 1e-9) without
-the framework's per-step overhead. Inputs are validated at the boundary (shape, finiteness, time strictly increasing at the design
-rate); buffers are preallocated; one estimator serves one robot from one thread.
+functions (the conditioner's and the momentum filter's LTI matrices, the rigid-body terms' ``calc``, the torque
+model's ``step_into``, the wrench map's ``calc_jacobian``), so the numbers equal the Diagram's (tests: to 1e-9) without
+the framework's per-step overhead. One difference in the work, not in the numbers: the rigid-body torque τ_rigid that
+the Diagram's torque model gets from its own C++ ``InverseDynamics`` is M(q) q̈ + ID(q, q̇, 0) from the rigid-body
+terms' plant quantities (one set of kinematics per sample, equal to rounding). Inputs are validated at the boundary
+(shape, finiteness, time strictly increasing at the design rate); buffers are preallocated; one estimator serves
+one robot from one thread.
 """
 from __future__ import annotations
 

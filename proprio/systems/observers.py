@@ -230,6 +230,7 @@ class DrakeArm(DrakeRobot):
     def __init__(self, desc: RobotDescription):
         super().__init__(desc)
         self._zero = np.zeros(self.plant.num_velocities())
+        self._mass = self._bias = None             # M(q) and ID(q, q̇, 0) of the last momentum_terms (in order)
 
     def momentum_terms(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``p = M(q)q̇`` [N·m·s] and ``τ_g(q) + C(q,q̇)ᵀq̇`` [N·m] for one sample (Cᵀq̇ = Ṁq̇ − Cq̇)."""
@@ -255,21 +256,25 @@ class DrakeArm(DrakeRobot):
         else:
             beta_out[:] = 0.0
         plant.SetPositionsAndVelocities(ctx, state)
-        np.dot(plant.CalcMassMatrix(ctx), qd, out=p_out)
+        self._mass = plant.CalcMassMatrix(ctx)
+        np.dot(self._mass, qd, out=p_out)
         plant.CalcForceElementsContribution(ctx, self._forces)       # gravity
         # τ_g − C q̇ = −ID(q, q̇, 0) with gravity applied: one call instead of CalcGravity… + CalcBiasTerm
-        beta_out -= plant.CalcInverseDynamics(ctx, self._zero, self._forces)
+        self._bias = plant.CalcInverseDynamics(ctx, self._zero, self._forces)
+        beta_out -= self._bias
 
     def inverse_dynamics_here(self, qdd: np.ndarray) -> np.ndarray:
-        """τ_rigid = ``CalcInverseDynamics`` with gravity [N·m] at the q, q̇ the last :meth:`momentum_terms` /
-        :meth:`rigid_body_terms_into` call left in the context, for the accelerations ``qdd [n]`` [rad/s²]: the kinematics
-        and the gravity forces of that call are reused (the same numbers as :meth:`inverse_dynamics` at that q, q̇)."""
+        """τ_rigid = ID(q, q̇, q̈) with gravity [N·m] at the q, q̇ of the last :meth:`momentum_terms` /
+        :meth:`rigid_body_terms_into` call, for the accelerations ``qdd [n]`` [rad/s²], from what that call computed:
+        ``M(q) q̈ + ID(q, q̇, 0)`` (equal to :meth:`inverse_dynamics` to rounding, without a Drake call)."""
         if not self._in_order:
             self.plant.CalcForceElementsContribution(self.context, self._forces)
             a = np.zeros(self.plant.num_velocities())
             a[self._v_index] = qdd
             return self.plant.CalcInverseDynamics(self.context, a, self._forces)[self._v_index]
-        return self.plant.CalcInverseDynamics(self.context, qdd, self._forces)
+        tau = self._mass @ qdd
+        tau += self._bias
+        return tau
 
     def rigid_body_terms_into(self, state: np.ndarray, p_flange: np.ndarray, p_out: np.ndarray,
                               beta_out: np.ndarray, jac_out: np.ndarray) -> None:
@@ -494,9 +499,9 @@ class RigidBodyTermsSystem(LeafSystem):
 
     def inverse_dynamics(self, qdd: np.ndarray) -> np.ndarray:
         """τ_rigid [N·m] = ID(q, q̇, q̈) with gravity at the q, q̇ of the last :meth:`calc`, for ``qdd [n]`` [rad/s²],
-        from its plant context (:meth:`DrakeArm.inverse_dynamics_here`): what the streaming estimator takes as the
-        torque model's rigid-body torque of the same sample (the C++ ``InverseDynamics`` of the Diagram gives the
-        same numbers)."""
+        from what that call computed (:meth:`DrakeArm.inverse_dynamics_here`): what the streaming estimator takes as
+        the torque model's rigid-body torque of the same sample (the C++ ``InverseDynamics`` of the Diagram gives the
+        same numbers to rounding)."""
         return self._arm.inverse_dynamics_here(qdd)
 
     def _calc(self, context, output) -> None:
