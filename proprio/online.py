@@ -108,6 +108,7 @@ class OnlineEstimator:
         self._mom = np.hstack([np.array(mom.A()), np.array(mom.B())])
         self._xu = np.empty(ns + design.input_size)            # [x; u] of the conditioner
         self._u = self._xu[ns:]                                # its input [q; (q̇); τ_J]
+        self._u_q, self._u_qd, self._u_tau = self._u[:n], self._u[n:2 * n], self._u[-n:]
         self._x, self._nx = self._xu[:ns], ns
         self._yx = np.empty(4 * n + ns)                        # its [y; x⁺] = [q̂; q̂̇; q̂̈; τ̂_J; x⁺]
         self._y, self._tau_f, self._x_next = self._yx[:3 * n], self._yx[3 * n:4 * n], self._yx[4 * n:]
@@ -184,11 +185,11 @@ class OnlineEstimator:
     def _check(self, t: float, q: np.ndarray, tau_J: np.ndarray, qd: np.ndarray | None) -> None:
         n, u = self.n, self._u
         try:
-            u[:n] = q
+            self._u_q[:] = q
         except (ValueError, TypeError):
             raise OnlineInputError(f"q: expected {n} joint positions [rad], got shape {np.shape(q)}") from None
         try:
-            u[-n:] = tau_J
+            self._u_tau[:] = tau_J
         except (ValueError, TypeError):
             raise OnlineInputError(f"tau_J: expected {n} joint torques [N·m], got shape {np.shape(tau_J)}") from None
         if self._velocity:
@@ -196,7 +197,7 @@ class OnlineEstimator:
                 raise OnlineInputError("qd: this estimator filters the robot's own velocity (velocity='measured'); "
                                        "pass qd [rad/s]")
             try:
-                u[n:2 * n] = qd
+                self._u_qd[:] = qd
             except (ValueError, TypeError):
                 raise OnlineInputError(f"qd: expected {n} joint velocities [rad/s], got shape {np.shape(qd)}") \
                     from None
