@@ -117,9 +117,9 @@ class OnlineEstimator:
         self._um = um = self._xmu[3 * n:]                      # its input [p; τ_g + Cᵀq̇; τ_J; τ_int]
         self._um_terms, self._um_tau, self._um_int = um[:2 * n], um[2 * n:3 * n], um[3 * n:]
         self._initial_momentum = estimator.momentum.initial_state
-        # the torque model's step on [τ_rigid; q̂; q̂̇; q̂̈], τ_rigid from the rigid-body terms' plant context (the q̂, q̂̇
-        # they were computed at: one set of kinematics per sample); its output [τ_dyn; τ_int; next memory] goes to
-        # two buffers in turn, so that the memory read in one step is the other buffer's
+        # the torque model's step on [τ_rigid; q̂; q̂̇; q̂̈], τ_rigid = M q̂̈ + ID(q̂, q̂̇, 0) from the rigid-body terms
+        # (one set of kinematics per sample); its output [τ_dyn; τ_int; next memory] goes to two buffers in turn, so
+        # that the memory read in one step is the other buffer's
         torque = estimator.torque_model
         self._torque_step = torque.step_into
         self._initial_memory = torque.initial_memory
