@@ -140,7 +140,7 @@ class WrenchSolver:
     ``w = (J W Jᵀ + λ²I)⁻¹ J W τ`` from the k×k matrix ``J W Jᵀ = V diag(σ²) Vᵀ``, in two ways:
 
     * away from singularities (the common case, found by the Cholesky factorisation of ``J W Jᵀ − ε²I`` succeeding,
-      i.e. σ_min > ε): λ = 0, and ONE LAPACK ``dposv`` gives w for all torque vectors and the Cholesky factor L, whose
+      i.e. σ_min > ε): λ = 0, and ONE LAPACK ``dposv`` gives w for all torque vectors and the Cholesky factor, whose
       diagonal's product is ∏σ = √det(J W Jᵀ);
     * otherwise the eigen-decomposition (``dsyevd``): σ_min, the damping λ², ``w = V diag(1/(σ² + λ²)) Vᵀ J W τ``.
 
@@ -173,12 +173,12 @@ class WrenchSolver:
         force = wrench_out[:, :3] if self._force_only else wrench_out
         if self._force_only:
             wrench_out[:, 3:] = 0.0
-        if dpotrf(aat - self._shift, lower=1, clean=0, overwrite_a=1)[1] == 0:     # σ_min > ε: no damping
-            chol, sol, info = dposv(aat, a @ tau_ext.T, lower=1, overwrite_a=1, overwrite_b=1)
+        if dpotrf(aat - self._shift)[1] == 0:                        # σ_min > ε: no damping (positional
+            chol, sol, info = dposv(aat, np.dot(a, tau_ext.T))       # arguments: f2py parses keywords slowly)
             if info != 0:
                 raise np.linalg.LinAlgError(f"WrenchSolver: LAPACK dposv failed (info = {info})")
             force[:] = sol.T                                         # rows (J Jᵀ)⁻¹ J τ = [f; m] or f
-            return math.prod(chol.diagonal().tolist()), 0.0          # ∏σ = ∏ diag(L)
+            return math.prod(chol.diagonal().tolist()), 0.0          # ∏σ = ∏ diag(U), J Jᵀ = UᵀU
         lam, v, info = dsyevd(aat)                                   # J Jᵀ = V diag(σ²) Vᵀ, ascending
         if info != 0:
             raise np.linalg.LinAlgError(f"WrenchSolver: LAPACK dsyevd did not converge (info = {info})")
@@ -388,7 +388,7 @@ class WrenchMap(Diagram):
         """The same from the contact point's Jacobian ``jac [6,n]`` (rows [ω; v], world) — the step function with
         ``jacobian_input`` (written into ``out``, an :meth:`estimate_buffer`, when given; a new vector otherwise)."""
         vector, wrench, flags, tau = self.estimate_buffer() if out is None else out
-        flags[:] = self._solver.solve_into(jac, tau_ext, wrench)
+        flags[0], flags[1] = self._solver.solve_into(jac, tau_ext, wrench)
         tau[:] = tau_ext
         return vector
 
