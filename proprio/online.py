@@ -109,7 +109,7 @@ class OnlineEstimator:
         self._xu = np.empty(ns + design.input_size)            # [x; u] of the conditioner
         self._u = self._xu[ns:]                                # its input [q; (q̇); τ_J]
         self._u_q, self._u_qd, self._u_tau = self._u[:n], self._u[n:2 * n], self._u[-n:]
-        self._x, self._nx = self._xu[:ns], ns
+        self._x = self._xu[:ns]
         self._yx = np.empty(4 * n + ns)                        # its [y; x⁺] = [q̂; q̂̇; q̂̈; τ̂_J; x⁺]
         self._y, self._tau_f, self._x_next = self._yx[:3 * n], self._yx[3 * n:4 * n], self._yx[4 * n:]
         self._xmu = np.empty(7 * n)                            # [x; u] of the momentum filter
