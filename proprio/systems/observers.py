@@ -185,7 +185,7 @@ class WrenchSolver:
         sq = lam.tolist()                                            # σ², ascending (≥ 0 up to rounding)
         s_min = math.sqrt(max(sq[0], 0.0))
         unreliable = s_min < self.mapping.sigma_threshold
-        if unreliable:                                               # (σ_min = ε exactly: undamped)
+        if unreliable:                                               # (not when σ_min = ε to rounding)
             lam = lam + float(_damping(s_min, self.mapping))
         force[:] = ((tau_ext @ a.T) @ v / lam) @ v.T                 # rows (J Jᵀ + λ²)⁻¹ J τ = [f; m] or f
         return (math.sqrt(math.prod(sq)) if sq[0] > 0 else 0.0), float(unreliable)    # ∏σ (0 if σ_min = 0)
@@ -281,7 +281,7 @@ class DrakeArm(DrakeRobot):
         """:meth:`momentum_terms` and the Jacobian ``[6,n]`` of the point ``p_flange`` [m, flange frame] (rows
         [ω; v], world frame) for ``state = [q; q̇]``, from the same context (which then holds q already), into
         ``p_out``, ``beta_out`` [n] and ``jac_out`` [6,n]."""
-        n = self._zero.shape[0] if self._in_order else self.description.n
+        n = self.description.n
         if not self._in_order:
             p_out[:], beta_out[:] = self._momentum_terms_reindexed(state[:n], state[n:])
             jac_out[:] = self.flange_jacobian(state[:n], p_flange)
@@ -316,7 +316,6 @@ class WrenchMapStep(LeafSystem):
         self._k = 6 * n if owner.jacobian_input else n
         self._inputs = self.DeclareVectorInputPort("inputs", self._k + m * n)
         self.DeclareVectorOutputPort("estimate", 6 * m + 2 + m * n, self._calc)
-
         self._out = owner.estimate_buffer()
 
     def _calc(self, context, output) -> None:
