@@ -13,10 +13,13 @@ For users who drive the estimator from their own loop (KUKA FRI at 1 kHz, a ROS 
 
 It runs the stages of :class:`proprio.diagrams.estimation.WrenchEstimator` with a causal conditioning stage
 (:func:`proprio.conditioning.causal_conditioning`): it builds that Diagram and drives its Systems' own step
-functions (the conditioner's and the momentum filter's LTI matrices, the torque model's ``step``, the rigid-body
-terms' ``calc``, the wrench map's ``calc_jacobian``), so the numbers equal the Diagram's (tests: to 1e-9) without
-the framework's per-step overhead. Inputs are validated at the boundary (shape, finiteness, time strictly increasing at the design
-rate); buffers are preallocated; one estimator serves one robot from one thread.
+functions (the conditioner's and the momentum filter's LTI matrices, the rigid-body terms' ``calc``, the torque
+model's ``step_into``, the wrench map's ``calc_jacobian``), so the numbers equal the Diagram's (tests: to 1e-9) without
+the framework's per-step overhead. One difference in the work, not in the numbers: the rigid-body torque τ_rigid that
+the Diagram's torque model gets from its own C++ ``InverseDynamics`` is M(q) q̈ + ID(q, q̇, 0) from the rigid-body
+terms' plant quantities (one set of kinematics per sample, equal to rounding). Inputs are validated at the boundary
+(shape, finiteness, time strictly increasing at the design rate); buffers are preallocated; one estimator serves
+one robot from one thread.
 """
 from __future__ import annotations
 
@@ -105,17 +108,34 @@ class OnlineEstimator:
         self._mom = np.hstack([np.array(mom.A()), np.array(mom.B())])
         self._xu = np.empty(ns + design.input_size)            # [x; u] of the conditioner
         self._u = self._xu[ns:]                                # its input [q; (q̇); τ_J]
-        self._nx = ns
+        self._u_q, self._u_qd, self._u_tau = self._u[:n], self._u[n:2 * n], self._u[-n:]
+        self._x = self._xu[:ns]
+        self._yx = np.empty(4 * n + ns)                        # its [y; x⁺] = [q̂; q̂̇; q̂̈; τ̂_J; x⁺]
+        self._y, self._tau_f, self._x_next = self._yx[:3 * n], self._yx[3 * n:4 * n], self._yx[4 * n:]
         self._xmu = np.empty(7 * n)                            # [x; u] of the momentum filter
-        self._um = self._xmu[3 * n:]                           # its input [p; τ_g + Cᵀq̇; τ_J; τ_int]
+        self._r, self._x_mom = self._xmu[:n], self._xmu[:3 * n]
+        self._um = um = self._xmu[3 * n:]                      # its input [p; τ_g + Cᵀq̇; τ_J; τ_int]
+        self._um_terms, self._um_tau, self._um_int = um[:2 * n], um[2 * n:3 * n], um[3 * n:]
         self._initial_momentum = estimator.momentum.initial_state
-        self._torque_step = estimator.torque_model.step
-        self._initial_memory = estimator.torque_model.initial_memory
-        self._terms = estimator.momentum.terms.calc
+        # the torque model's step on [τ_rigid; q̂; q̂̇; q̂̈], τ_rigid = M q̂̈ + ID(q̂, q̂̇, 0) from the rigid-body terms
+        # (one set of kinematics per sample); its output [τ_dyn; τ_int; next memory] goes to two buffers in turn, so
+        # that the memory read in one step is the other buffer's
+        torque = estimator.torque_model
+        self._torque_step = torque.step_into
+        self._initial_memory = torque.initial_memory
+        self._tm_in = np.empty(4 * n)
+        self._tau_rigid, self._qqdqdd = self._tm_in[:n], self._tm_in[n:]
+        self._qdd_f = self._tm_in[3 * n:]
+        self._outs = [torque.output_buffer() for _ in range(2)]
+        self._state = self._tm_in[n:3 * n]                    # [q̂; q̂̇]
+        terms = estimator.momentum.terms
+        self._terms, self._rigid = terms.calc, terms.inverse_dynamics
         self._wrench = estimator.wrench.calc_jacobian
-        self._rb = np.empty(8 * n)                             # rigid-body terms [p; τ_g + Cᵀq̇; vec(J)]
-        self._jac = self._rb[2 * n:].reshape(6, n)
+        self._estimate = estimator.wrench.estimate_buffer()
+        rb = terms.terms                                       # its output buffer [p; τ_g + Cᵀq̇; vec(J)]
+        self._rb_terms, self._jac = rb[:2 * n], rb[2 * n:].reshape(6, n)
         self._tau_ext = np.empty((2, n))
+        self._tau_ext_jac, self._tau_ext_mom = self._tau_ext[0], self._tau_ext[1]
         self.reset()
 
     @classmethod
@@ -160,15 +180,16 @@ class OnlineEstimator:
         self._t_prev = -math.inf
         self._started = False
         self._memory = self._initial_memory()
+        self._turn = 0
 
     def _check(self, t: float, q: np.ndarray, tau_J: np.ndarray, qd: np.ndarray | None) -> None:
         n, u = self.n, self._u
         try:
-            u[:n] = q
+            self._u_q[:] = q
         except (ValueError, TypeError):
             raise OnlineInputError(f"q: expected {n} joint positions [rad], got shape {np.shape(q)}") from None
         try:
-            u[-n:] = tau_J
+            self._u_tau[:] = tau_J
         except (ValueError, TypeError):
             raise OnlineInputError(f"tau_J: expected {n} joint torques [N·m], got shape {np.shape(tau_J)}") from None
         if self._velocity:
@@ -176,7 +197,7 @@ class OnlineEstimator:
                 raise OnlineInputError("qd: this estimator filters the robot's own velocity (velocity='measured'); "
                                        "pass qd [rad/s]")
             try:
-                u[n:2 * n] = qd
+                self._u_qd[:] = qd
             except (ValueError, TypeError):
                 raise OnlineInputError(f"qd: expected {n} joint velocities [rad/s], got shape {np.shape(qd)}") \
                     from None
@@ -206,26 +227,28 @@ class OnlineEstimator:
         :class:`OnlineInputError` naming the field for a malformed sample (the state is left as it was)."""
         t = float(t)
         self._check(t, q, tau_J, qd)
-        n, xu, ns = self.n, self._xu, self._nx
         if not self._started:
-            xu[:ns] = self.design.initial_state(self._u)
-        yx = self._cond @ xu                                        # [q̂; q̂̇; q̂̈; τ̂_J; x⁺]
-        xu[:ns] = yx[4 * n:]
-        q_f, qd_f, qdd_f, tau_f = yx[:n], yx[n:2 * n], yx[2 * n:3 * n], yx[3 * n:4 * n]
-        tau_dyn, tau_int, self._memory = self._torque_step(self._memory, q_f, qd_f, qdd_f)
-        tau_ext = self._tau_ext
-        np.subtract(tau_dyn, tau_f, out=tau_ext[0])
-        xmu, um = self._xmu, self._um
-        rb = self._terms(q_f, qd_f, self._rb)
-        um[:2 * n] = rb[:2 * n]
-        um[2 * n:3 * n] = tau_f
-        um[3 * n:] = tau_int
+            self._x[:] = self.design.initial_state(self._u)
+        np.dot(self._cond, self._xu, out=self._yx)                  # [q̂; q̂̇; q̂̈; τ̂_J; x⁺]
+        self._x[:] = self._x_next
+        self._qqdqdd[:] = self._y
+        tau_f = self._tau_f
+        self._terms(self._state)
+        self._tau_rigid[:] = self._rigid(self._qdd_f)
+        out = self._outs[self._turn]
+        self._turn ^= 1
+        self._torque_step(self._memory, self._tm_in, out)
+        _, tau_dyn, tau_int, self._memory = out
+        np.subtract(tau_dyn, tau_f, out=self._tau_ext_jac)
+        self._um_terms[:] = self._rb_terms
+        self._um_tau[:] = tau_f
+        self._um_int[:] = tau_int
         if not self._started:
-            xmu[:3 * n] = self._initial_momentum(um)
+            self._x_mom[:] = self._initial_momentum(self._um)
             self._started = True
-        tau_ext[1] = xmu[:n]                                        # r_{k−1}: the filter's output before its update
-        xmu[:3 * n] = self._mom @ xmu
+        self._tau_ext_mom[:] = self._r                              # r_{k−1}: the filter's output before its update
+        self._x_mom[:] = self._mom @ self._xmu
         self._t_prev = t
-        v = self._wrench(self._jac, tau_ext)
+        v = self._wrench(self._jac, self._tau_ext, self._estimate).copy()
         v.flags.writeable = False
         return WrenchEstimate(t, v)

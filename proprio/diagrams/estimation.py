@@ -194,12 +194,23 @@ class TorqueModelSystem(Diagram):
         """No state (the streaming interface shared with the hybrid model's System)."""
         return None
 
-    def step(self, memory: None, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray
-             ) -> tuple[np.ndarray, np.ndarray, None]:
-        """``(tau_dyn, tau_int, memory)`` for one sample — the step function: the same plant
-        (``CalcInverseDynamics``, as the C++ ``InverseDynamics`` evaluates it) and the same τ_int function."""
-        tau_int = self.interaction.calc(q, qd, qdd)
-        return self.arm.inverse_dynamics(q, qd, qdd) + tau_int, tau_int, None
+    def output_buffer(self) -> tuple:
+        """A preallocated output ``[τ_dyn; τ_int]`` for :meth:`step_into`: ``(vector, τ_dyn view, τ_int view, None)``
+        (no memory)."""
+        n = self.arm.description.n
+        out = np.empty(2 * n)
+        return out, out[:n], out[n:], None
+
+    def step_into(self, memory: None, inputs: np.ndarray, out: tuple) -> np.ndarray:
+        """``out`` (an :meth:`output_buffer`) gets ``[τ_dyn; τ_int]`` from ``inputs = [τ_rigid; q; q̇; q̈]`` (τ_rigid =
+        ``CalcInverseDynamics`` of the same description, as the C++ ``InverseDynamics`` evaluates it) — the step
+        function without allocating the output (the interface shared with the hybrid model's System); returns its
+        vector."""
+        n = self.arm.description.n
+        vector, tau_dyn, tau_int, _ = out
+        tau_int[:] = self.interaction.calc(inputs[n:2 * n], inputs[2 * n:3 * n], inputs[3 * n:])
+        np.add(inputs[:n], tau_int, out=tau_dyn)
+        return vector
 
 
 def check_recording_matches(rec: Recording, desc: RobotDescription) -> Recording:
@@ -247,7 +258,7 @@ class WrenchEstimator(Diagram):
 
     Call :meth:`set_initial_state` once the first sample is on the inputs: it starts the conditioner in that
     sample's steady state and the momentum observer at r = 0 (:class:`MomentumObserver`). The step functions of the
-    stages (``conditioner.design``, ``torque_model.step``, ``momentum.terms.calc`` with ``momentum.filter``'s
+    stages (``conditioner.design``, ``torque_model.step_into``, ``momentum.terms.calc`` with ``momentum.filter``'s
     matrices, ``wrench.calc_jacobian``) are what :class:`proprio.online.OnlineEstimator` drives directly.
     """
 

@@ -41,7 +41,7 @@ from proprio.learning.features import feature_matrix, rotational_displacement
 from proprio.learning.models import HybridModel, load_model
 from proprio.recording import Recording, RecordingError
 from proprio.plant import DrakeRobot
-from proprio.systems.residual_network import STARTED, ResidualNetworkCore
+from proprio.systems.residual_network import MemoryViews, ResidualNetworkCore
 
 __all__ = ["HybridTorqueModel", "load_hybrid_torque_model"]
 
@@ -118,20 +118,23 @@ class HybridTorqueModel:
 
 
 class HybridTorqueStep(LeafSystem):
-    """The Python part of :class:`HybridTorqueModelSystem`: input ``inputs`` = ``[τ_rigid; q; q̇; q̈]`` (4n) and
-    ``memory`` (the network's); output ``step`` = ``[τ_HYB; τ_int; next memory]`` (:meth:`HybridTorqueModelSystem.
-    step_stacked`)."""
+    """The Python part of :class:`HybridTorqueModelSystem`: input ``inputs`` = ``[τ_rigid; q; q̇; q̈; memory]``
+    (4n + the network's memory: one stacked port, as each input evaluation from Python costs about a microsecond);
+    output ``step`` = ``[τ_HYB; τ_int; next memory]`` (:meth:`HybridTorqueModelSystem.step_into`)."""
 
     def __init__(self, owner: "HybridTorqueModelSystem"):
         LeafSystem.__init__(self)
         n, size = owner.n, owner.core.memory_size
-        self._owner = owner
-        self._inputs = self.DeclareVectorInputPort("inputs", 4 * n)
-        self._memory = self.DeclareVectorInputPort("memory", size)
+        self._owner, self._k = owner, 4 * n
+        self._inputs = self.DeclareVectorInputPort("inputs", 4 * n + size)
         self.DeclareVectorOutputPort("step", 2 * n + size, self._calc)
+        self._out = owner.output_buffer()
+        self._memory = owner.core.memory_views(np.empty(size))       # the memory input, copied into fixed views
 
     def _calc(self, context, output) -> None:
-        output.SetFromVector(self._owner.step_stacked(self._memory.Eval(context), self._inputs.Eval(context)))
+        x, k = self._inputs.Eval(context), self._k
+        self._memory.vector[:] = x[k:]
+        output.SetFromVector(self._owner.step_into(self._memory, x[:k], self._out))
 
 
 class HybridTorqueModelSystem(Diagram):
@@ -139,14 +142,14 @@ class HybridTorqueModelSystem(Diagram):
 
         q, qd ─▶ Multiplexer ─▶ InverseDynamics (C++) ─τ_rigid─┐
         qdd ──────────────────────────┘                        ├─▶ Multiplexer ─▶ HybridTorqueStep ─▶ Demultiplexer
-        q, qd, qdd ────────────────────────────────────────────┘              ▲ memory                ├─▶ tau_dyn
-                                                                  ZeroOrderHold ◀──── next memory ───┤   tau_int
+        q, qd, qdd ────────────────────────────────────────────┤                                     ├─▶ tau_dyn
+                                     ZeroOrderHold ─memory─────┘   ◀──────────── next memory ────────┤   tau_int
     Inputs ``q``, ``qd``, ``qdd`` (rad, rad/s, rad/s²); outputs ``tau_dyn`` = τ_HYB and ``tau_int`` = τ_HYB − τ_rigid
-    [N·m]. The one Python step (:meth:`step_stacked`) adds the backbone's friction and offsets to the C++ rigid-body
+    [N·m]. The one Python step (:meth:`step_into`) adds the backbone's friction and offsets to the C++ rigid-body
     torque (τ_RBD, the network's input) and runs the network (:class:`~proprio.systems.residual_network.
     ResidualNetworkCore`, the same step as :class:`~proprio.systems.residual_network.ResidualNetworkSystem`); its
-    memory (r-encoder + LSTM state) is held by a C++ ``ZeroOrderHold``. :meth:`step` is the same computation for
-    one sample with the memory passed in and out (the streaming estimator's interface)."""
+    memory (r-encoder + LSTM state) is held by a C++ ``ZeroOrderHold``, and passed in and out of :meth:`step_into` by
+    the streaming estimator (the interface shared with :class:`~proprio.diagrams.estimation.TorqueModelSystem`)."""
 
     def __init__(self, model: HybridTorqueModel, time_step: float):
         Diagram.__init__(self)
@@ -158,7 +161,7 @@ class HybridTorqueModelSystem(Diagram):
         builder = DiagramBuilder()
         state = builder.AddNamedSystem("state", Multiplexer([n, n]))
         rigid = builder.AddNamedSystem("rigid_body", InverseDynamics(self.arm.plant))
-        inputs = builder.AddNamedSystem("inputs", Multiplexer([n] * 4))
+        inputs = builder.AddNamedSystem("inputs", Multiplexer([n] * 4 + [size]))
         step = builder.AddNamedSystem("step", HybridTorqueStep(self))
         split = builder.AddNamedSystem("split", Demultiplexer([n, n, size]))
         hold = builder.AddNamedSystem("memory", ZeroOrderHold(float(time_step), size))
@@ -170,7 +173,7 @@ class HybridTorqueModelSystem(Diagram):
         for i, name in enumerate(("q", "qd", "qdd")):
             builder.ConnectInput(name, inputs.get_input_port(1 + i))
         builder.Connect(inputs.get_output_port(), step.GetInputPort("inputs"))
-        builder.Connect(hold.get_output_port(), step.GetInputPort("memory"))
+        builder.Connect(hold.get_output_port(), inputs.get_input_port(4))
         builder.Connect(step.get_output_port(), split.get_input_port())
         builder.Connect(split.get_output_port(2), hold.get_input_port())
         builder.ExportOutput(split.get_output_port(0), "tau_dyn")
@@ -178,25 +181,29 @@ class HybridTorqueModelSystem(Diagram):
         builder.BuildInto(self)
         self.set_name("hybrid_torque_model")
 
-    def initial_memory(self) -> np.ndarray:
-        return self.core.initial_memory()
+    def initial_memory(self) -> MemoryViews:
+        """The network's memory before the first sample, as :meth:`step_into` reads it."""
+        return self.core.memory_views(self.core.initial_memory())
 
-    def step_stacked(self, memory: np.ndarray, inputs: np.ndarray) -> np.ndarray:
-        """``[τ_HYB; τ_int; next memory]`` from the memory and ``inputs = [τ_rigid; q; q̇; q̈]`` (modified in place:
-        its first block becomes τ_RBD = τ_rigid + the backbone's τ_int)."""
+    def output_buffer(self) -> tuple:
+        """A preallocated output ``[τ_HYB; τ_int; next memory]`` for :meth:`step_into`: ``(vector, τ_HYB view, τ_int
+        view, next-memory views)``."""
         n = self.n
+        out = np.empty(2 * n + self.core.memory_size)
+        return out, out[:n], out[n:2 * n], self.core.memory_views(out[2 * n:])
+
+    def step_into(self, memory: MemoryViews, inputs: np.ndarray, out: tuple) -> np.ndarray:
+        """The step function without allocation: ``out`` (an :meth:`output_buffer`, whose memory must not be
+        ``memory``) gets ``[τ_HYB; τ_int; next memory]`` from the memory and ``inputs = [τ_rigid; q; q̇; q̈]``
+        (modified in place: its first block becomes τ_RBD = τ_rigid + the backbone's τ_int); returns its vector."""
+        n = self.n
+        vector, tau_hybrid, tau_int, memory_out = out
         friction = self._friction(inputs[2 * n:3 * n])
         inputs[:n] += friction                                        # τ_RBD, the network's input
-        tau_hybrid, enc, net_state = self.core.step_parts(memory, inputs)
-        return np.concatenate((tau_hybrid, friction + (tau_hybrid - inputs[:n]), STARTED, enc, net_state))
-
-    def step(self, memory: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(tau_dyn, tau_int, next memory)`` for one sample — the step function, with the same plant
-        (``CalcInverseDynamics``) as the C++ ``InverseDynamics``."""
-        n = self.n
-        out = self.step_stacked(memory, np.concatenate((self.arm.inverse_dynamics(q, qd, qdd), q, qd, qdd)))
-        return out[:n], out[n:2 * n], out[2 * n:]
+        self.core.step_views(memory, inputs, tau_hybrid, memory_out)
+        np.subtract(tau_hybrid, inputs[:n], out=tau_int)
+        tau_int += friction                                           # τ_int = τ_HYB − τ_rigid
+        return vector
 
 
 def load_hybrid_torque_model(path: str | Path) -> HybridTorqueModel:

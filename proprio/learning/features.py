@@ -117,18 +117,32 @@ class ReversalEncoder:
 
     def step_state(self, state: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(r [n] rad, next state)`` for one sample ``q [n]``; ``state`` is not modified."""
-        n = self.n
-        d = state[:n]
-        s = d * q
-        run = np.maximum(s, state[n:2 * n])                       # signed running extremum d·e
-        rev = run - s > self.h
-        nxt = np.concatenate([d, run, state[2 * n:]])             # no reversal: d, d·e, a
-        if np.count_nonzero(rev):                                 # (cheaper than rev.any() for one sample)
-            nxt[2 * n:][rev] = d[rev] * run[rev]                  # a ← e, the extremum
-            nxt[:n][rev] = -d[rev]                                # d ← −d
-            nxt[n:2 * n][rev] = -s[rev]                           # d·e ← (−d)·q
-        r = np.minimum(np.maximum(q - nxt[2 * n:], -self.r_max), self.r_max)   # = np.clip, less call overhead
+        r, nxt = np.empty(self.n), np.empty(3 * self.n)
+        self.step_into(state, q, nxt, r)
         return r, nxt
+
+    def split_state(self, state: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Views ``(d, d·e, a)`` of a state vector (make them once per buffer, for :meth:`step_into`)."""
+        n = self.n
+        return state[:n], state[n:2 * n], state[2 * n:]
+
+    def step_into(self, state: np.ndarray, q: np.ndarray, state_out: np.ndarray, r_out: np.ndarray,
+                  parts_out: tuple[np.ndarray, ...] | None = None) -> None:
+        """:meth:`step_state` into preallocated arrays (for the per-sample Systems): the next state into
+        ``state_out [3n]`` (``parts_out``: its :meth:`split_state` views, if made already) and r [rad] into
+        ``r_out [n]`` (neither may alias ``state`` or ``q``)."""
+        state_out[:] = state                                       # no reversal: d, d·e, a
+        d, run, a = self.split_state(state_out) if parts_out is None else parts_out
+        s = d * q
+        np.maximum(s, run, out=run)                                # signed running extremum d·e
+        rev = run - s > self.h
+        if np.count_nonzero(rev):                                  # (cheaper than rev.any() for one sample)
+            a[rev] = d[rev] * run[rev]                             # a ← e, the extremum
+            d[rev] = -d[rev]                                       # d ← −d
+            run[rev] = -s[rev]                                     # d·e ← (−d)·q
+        np.subtract(q, a, out=r_out)                               # clipped to ±r_max (np.clip, less call overhead)
+        np.maximum(r_out, -self.r_max, out=r_out)
+        np.minimum(r_out, self.r_max, out=r_out)
 
     def step(self, q: np.ndarray) -> np.ndarray:
         """r [n] rad for the next sample ``q [n]`` rad (the first call initialises the state)."""

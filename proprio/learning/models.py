@@ -244,7 +244,10 @@ class StreamingStepper:
 
     The normalisations are folded into the weights once (eq. 4.33/4.34 are affine, so ``W((x − μ)/σ) + b`` =
     ``(W/σ) x + (b − W μ/σ)`` and the output de-normalisation scales the last layer), which leaves one matrix–vector
-    product per LSTM cell (on [x; h]) and one for the output layer."""
+    product per LSTM cell (on [x; h]) and one for the output layer.
+
+    For the per-sample Systems, an LSTM reading all five feature blocks in order has :attr:`features`, its input
+    buffer vec(τ_RBD, q, q̇, q̈, r) (5n): fill it and call :meth:`step_into` (no allocation). None otherwise."""
 
     def __init__(self, model: HybridModel):
         if not model.cfg.streamable:
@@ -252,6 +255,7 @@ class StreamingStepper:
         sd = {k: v.detach().cpu().double().numpy() for k, v in model.state_dict().items()}
         self.n, self.hybrid = model.cfg.n_joints, model.cfg.hybrid
         self.state_size = model.state_size
+        self.features: np.ndarray | None = None
         columns = sd["columns"].astype(int)
         self.columns = None if np.array_equal(columns, np.arange(5 * self.n)) else columns
         inv_std = 1.0 / sd["x_std"]
@@ -272,9 +276,10 @@ class StreamingStepper:
 
             def cell(w_ih: np.ndarray, w_hh: np.ndarray, b: np.ndarray) -> np.ndarray:
                 k = w_hh.shape[1]
+                rows = np.r_[0:2 * k, 3 * k:4 * k, 2 * k:3 * k]     # PyTorch's i, f, g, o → i, f, o, g
                 scale = np.full(4 * k, 0.5)          # σ(a) = ½ + ½ tanh(a/2) on i, f, o; tanh(a) on g
-                scale[2 * k:3 * k] = 1.0
-                return np.ascontiguousarray(scale[:, None] * np.hstack([w_ih, w_hh, b[:, None]]))
+                scale[3 * k:] = 1.0
+                return np.ascontiguousarray(scale[:, None] * np.hstack([w_ih, w_hh, b[:, None]])[rows])
 
             self.cells = [cell(w_ih, sd["net.cell1.weight_hh_l0"], b1),
                           cell(sd["net.cell2.weight_ih_l0"], sd["net.cell2.weight_hh_l0"],
@@ -286,35 +291,64 @@ class StreamingStepper:
             self.w_out = np.ascontiguousarray(np.hstack([w_out, b_out[:, None]]))       # [W | b] on [h₂; 1]
             k1, k2 = self.sizes[0], self.sizes[2]
             f_in = self.cells[0].shape[1] - k1 - 1
-            # preallocated buffers: z₁ = [x; h₁; 1], z₂ = [h₁; h₂; 1] (the bias rides on the constant 1)
-            self._z1, self._z2 = np.ones(f_in + k1 + 1), np.ones(k1 + k2 + 1)
-            self._a1, self._a2 = np.empty(4 * k1), np.empty(4 * k2)
-            self._gate_scale = [self._affine(k)[0] for k in (k1, k2)]
-            self._gate_shift = [self._affine(k)[1] for k in (k1, k2)]
+            # preallocated buffers: z₁ = [x; h₁; 1], z₂ = [h₁; h₂; 1] (the bias rides on the constant 1), each cell's
+            # pre-activations, and their views made once (a slice costs about as much as a small ufunc call)
+            z1, z2 = self._z1, self._z2 = np.ones(f_in + k1 + 1), np.ones(k1 + k2 + 1)
+            self._z1_x, self._z1_h = z1[:f_in], z1[f_in:f_in + k1]
+            self._z2_h1, self._z2_h2, self._z2_out = z2[:k1], z2[k1:k1 + k2], z2[k1:]
+            self._views = [self._cell_views(k) for k in (k1, k2)]
+            self.features = self._z1_x if self.columns is None else None
+            self._tau_rbd = z1[:self.n]
 
     @staticmethod
-    def _affine(k: int) -> tuple[np.ndarray, np.ndarray]:
-        """tanh outputs t → gates: ½ + ½t on i, f, o; t on g."""
-        scale, shift = np.full(4 * k, 0.5), np.full(4 * k, 0.5)
-        scale[2 * k:3 * k], shift[2 * k:3 * k] = 1.0, 0.0
-        return scale, shift
+    def _cell_views(k: int) -> tuple[np.ndarray, ...]:
+        """``(a, σ rows, i, f, o, g, scratch)`` for a cell of width k: its pre-activation buffer in the row order
+        i, f, o, g, the view of the three sigmoid gates, each gate's view and a scratch vector."""
+        a = np.empty(4 * k)
+        return a, a[:3 * k], a[:k], a[k:2 * k], a[2 * k:3 * k], a[3 * k:], np.empty(k)
 
     @staticmethod
-    def _cell(z: np.ndarray, c: np.ndarray, w: np.ndarray, a: np.ndarray, scale: np.ndarray, shift: np.ndarray,
+    def _cell(z: np.ndarray, w: np.ndarray, views: tuple[np.ndarray, ...], c: np.ndarray, c_out: np.ndarray,
               h_out: np.ndarray) -> None:
-        """One LSTM cell step (eq. 3.66–3.71), PyTorch gate order i, f, g, o, in place: ``c`` (the cell state, a
-        fresh array) is updated and h written to ``h_out``. The gates come from ONE tanh, σ(a) = ½ + ½ tanh(a/2), so
-        ``w = S [W_ih  W_hh  b]`` is pre-scaled by S = ½ on the i, f, o rows and 1 on the g rows, and ``z = [x; h; 1]``.
-        """
-        k = c.shape[0]
+        """One LSTM cell step (eq. 3.66–3.71): the cell state from ``c`` into ``c_out`` and h into ``h_out``. The
+        gates come from ONE tanh, σ(a) = ½ + ½ tanh(a/2), so ``w = S [W_ih  W_hh  b]`` (rows i, f, o, g) is
+        pre-scaled by S = ½ on the i, f, o rows and 1 on the g rows, and ``z = [x; h; 1]``."""
+        a, sig, i, f, o, g, tmp = views
         np.dot(w, z, out=a)
         np.tanh(a, out=a)
-        a *= scale
-        a += shift                                                   # [i, f, g, o]
-        c *= a[k:2 * k]
-        c += a[:k] * a[2 * k:3 * k]
-        np.tanh(c, out=h_out)
-        h_out *= a[3 * k:]
+        sig *= 0.5
+        sig += 0.5                                                   # [i, f, o] = σ, g = tanh
+        np.multiply(c, f, out=c_out)
+        np.multiply(i, g, out=tmp)
+        c_out += tmp
+        np.tanh(c_out, out=h_out)
+        h_out *= o
+
+    def split_state(self, state: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Views ``(h₁, c₁, h₂, c₂)`` of an LSTM state vector (make them once per buffer: :meth:`step_split`)."""
+        k1, k2 = self.sizes[0], self.sizes[2]
+        return state[:k1], state[k1:2 * k1], state[2 * k1:2 * k1 + k2], state[2 * k1 + k2:]
+
+    def step_into(self, state: np.ndarray, state_out: np.ndarray, tau_out: np.ndarray) -> None:
+        """One LSTM step on the features already in :attr:`features` (the per-sample Systems' path: no allocation):
+        τ [n] N·m into ``tau_out`` and the next recurrent state ``[h₁, c₁, h₂, c₂]`` into ``state_out`` (which must not
+        alias ``state``)."""
+        self.step_split(self.split_state(state), self.split_state(state_out), tau_out)
+
+    def step_split(self, state: tuple[np.ndarray, ...], state_out: tuple[np.ndarray, ...], tau_out: np.ndarray
+                   ) -> None:
+        """:meth:`step_into` on the :meth:`split_state` views of the state and the next state."""
+        h1, c1, h2, c2 = state
+        h1_out, c1_out, h2_out, c2_out = state_out
+        self._z1_h[:] = h1
+        self._cell(self._z1, self.cells[0], self._views[0], c1, c1_out, h1_out)
+        self._z2_h1[:] = h1_out
+        self._z2_h2[:] = h2
+        self._cell(self._z2, self.cells[1], self._views[1], c2, c2_out, h2_out)
+        self._z2_h2[:] = h2_out
+        np.dot(self.w_out, self._z2_out, out=tau_out)
+        if self.hybrid:
+            tau_out += self._tau_rbd                                 # + τ_RBD, the first feature block
 
     def step(self, x: np.ndarray, state: np.ndarray, r: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """τ [n] N·m for the features ``x [5n]`` of one sample — or ``x [4n]`` = vec(τ_RBD, q, q̇, q̈) and ``r [n]``
@@ -325,24 +359,13 @@ class StreamingStepper:
         if self.arch == "mlp7":
             h = np.maximum(np.einsum("f,jfh->jh", z, self.w1) + self.b1, 0.0)
             tau = np.einsum("jh,jh->j", h, self.w2) + self.b2
+            return (tau + x[:self.n] if self.hybrid else tau), state
+        f_in = self._z1_x.shape[0]
+        if r is None:
+            self._z1_x[:] = z
         else:
-            k1, k2 = self.sizes[0], self.sizes[2]
-            z1, z2 = self._z1, self._z2
-            f_in = z1.shape[0] - k1 - 1
-            if r is None:
-                z1[:f_in] = z
-            else:
-                z1[:f_in - r.shape[0]] = z
-                z1[f_in - r.shape[0]:f_in] = r
-            z1[f_in:f_in + k1] = state[:k1]
-            nxt = state.copy()                                           # [h₁, c₁, h₂, c₂]
-            self._cell(z1, nxt[k1:2 * k1], self.cells[0], self._a1, self._gate_scale[0], self._gate_shift[0],
-                       nxt[:k1])
-            z2[:k1] = nxt[:k1]
-            z2[k1:k1 + k2] = state[2 * k1:2 * k1 + k2]
-            self._cell(z2, nxt[2 * k1 + k2:], self.cells[1], self._a2, self._gate_scale[1], self._gate_shift[1],
-                       nxt[2 * k1:2 * k1 + k2])
-            z2[k1:k1 + k2] = nxt[2 * k1:2 * k1 + k2]
-            tau = self.w_out @ z2[k1:]
-            state = nxt
-        return (tau + x[:self.n] if self.hybrid else tau), state
+            self._z1_x[:f_in - r.shape[0]] = z
+            self._z1_x[f_in - r.shape[0]:] = r
+        nxt, tau = np.empty_like(state), np.empty(self.n)
+        self.step_into(state, nxt, tau)
+        return tau, nxt

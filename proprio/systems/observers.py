@@ -47,7 +47,7 @@ import numpy as np
 from pydrake.multibody.tree import JacobianWrtVariable
 from pydrake.systems.framework import Context, Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Demultiplexer, LinearSystem, MatrixGain, Multiplexer
-from scipy.linalg.lapack import dsyevd
+from scipy.linalg.lapack import dposv, dpotrf, dsyevd
 from scipy.signal import lfilter
 
 from proprio.description import RobotDescription
@@ -136,38 +136,59 @@ def wrench_from_joint_torque(jac: np.ndarray, tau_ext: np.ndarray, mapping: Wren
 
 class WrenchSolver:
     """:func:`wrench_from_joint_torque` for ONE configuration, for the Systems' per-step work, where numpy's per-call
-    overhead dominates the batched path (≈33 µs at N = 1). The same damped least-squares solution from the
-    eigen-decomposition of the k×k matrix ``J W Jᵀ = V diag(σ²) Vᵀ`` (one LAPACK ``dsyevd`` call):
-    ``w = (J W Jᵀ + λ²I)⁻¹ J W τ = V diag(1/(σ² + λ²)) Vᵀ J W τ``, σ_min and ∏σ from the eigenvalues. Our [ω; v] rows
-    would give the unknown in [m; f] order; the rows are permuted instead (below). Forming J W Jᵀ squares the condition number, harmless here
-    (σ_max/ε ≈ 10² → 10⁴). :meth:`solve` maps several torque vectors through the same decomposition (both observers
-    share J(q)); ``solver(jac [6,n], tau_ext [n])`` returns ``[f; m (6), manipulability, unreliable]``. The rows of
-    J are taken in [v; ω] order, so the unknown is [f; m] as returned."""
+    overhead dominates the batched path (≈33 µs at N = 1). The same damped least-squares solution
+    ``w = (J W Jᵀ + λ²I)⁻¹ J W τ`` from the k×k matrix ``J W Jᵀ = V diag(σ²) Vᵀ``, in two ways:
+
+    * away from singularities (the common case, found by the Cholesky factorisation of ``J W Jᵀ − ε²I`` succeeding,
+      i.e. σ_min > ε): λ = 0, and ONE LAPACK ``dposv`` gives w for all torque vectors and the Cholesky factor, whose
+      diagonal's product is ∏σ = √det(J W Jᵀ);
+    * otherwise the eigen-decomposition (``dsyevd``): σ_min, the damping λ², ``w = V diag(1/(σ² + λ²)) Vᵀ J W τ``.
+
+    Our [ω; v] rows would give the unknown in [m; f] order; the rows are permuted instead (below). Forming J W Jᵀ
+    squares the condition number, harmless here (σ_max/ε ≈ 10² → 10⁴). :meth:`solve` maps several torque vectors
+    through the same factorisation (both observers share J(q)); ``solver(jac [6,n], tau_ext [n])`` returns
+    ``[f; m (6), manipulability, unreliable]``. The rows of J are taken in [v; ω] order, so the unknown is [f; m] as
+    returned."""
 
     def __init__(self, mapping: WrenchMapping, n: int):
         self.mapping = mapping
-        self._rows = slice(3, 6) if mapping.force_only else np.array(_VW)       # J rows [v] or [v; ω]: w = [f; m]
+        self._rows = np.array(_VW[:3] if mapping.force_only else _VW)          # J rows [v] or [v; ω]: w = [f; m]
         self._sqrt_w = _sqrt_weights(mapping, n)
         self._force_only = mapping.force_only
+        self._shift = mapping.sigma_threshold ** 2 * np.eye(len(self._rows))   # ε² I
 
     def solve(self, jac: np.ndarray, tau_ext: np.ndarray) -> tuple[np.ndarray, float, float]:
         """``jac [6,n]`` (rows [ω; v], world frame, of the contact point) and ``tau_ext [m,n]`` [N·m] →
         ``(wrench [m,6] [f; m] N, N·m, manipulability ∏σ, unreliable 1.0/0.0)``."""
-        a = jac[self._rows]                                          # J [k,n], rows [v; ω] or [v]
+        wrench = np.empty((tau_ext.shape[0], 6))
+        return (wrench, *self.solve_into(jac, tau_ext, wrench))
+
+    def solve_into(self, jac: np.ndarray, tau_ext: np.ndarray, wrench_out: np.ndarray) -> tuple[float, float]:
+        """:meth:`solve` with the wrenches written into ``wrench_out [m,6]`` →
+        ``(manipulability ∏σ, unreliable 1.0/0.0)``."""
+        a = jac.take(self._rows, axis=0)                             # J [k,n], rows [v; ω] or [v]
         if self._sqrt_w is not None:
             a, tau_ext = a * self._sqrt_w, tau_ext * self._sqrt_w
-        lam, v, info = dsyevd(a @ a.T)                               # J Jᵀ = V diag(σ²) Vᵀ, ascending
+        aat = a @ a.T
+        force = wrench_out[:, :3] if self._force_only else wrench_out
+        if self._force_only:
+            wrench_out[:, 3:] = 0.0
+        if dpotrf(aat - self._shift)[1] == 0:                        # σ_min > ε: no damping (positional
+            chol, sol, info = dposv(aat, np.dot(a, tau_ext.T))       # arguments: f2py parses keywords slowly)
+            if info != 0:
+                raise np.linalg.LinAlgError(f"WrenchSolver: LAPACK dposv failed (info = {info})")
+            force[:] = sol.T                                         # rows (J Jᵀ)⁻¹ J τ = [f; m] or f
+            return math.prod(chol.diagonal().tolist()), 0.0          # ∏σ = ∏ diag(U), J Jᵀ = UᵀU
+        lam, v, info = dsyevd(aat)                                   # J Jᵀ = V diag(σ²) Vᵀ, ascending
         if info != 0:
             raise np.linalg.LinAlgError(f"WrenchSolver: LAPACK dsyevd did not converge (info = {info})")
         sq = lam.tolist()                                            # σ², ascending (≥ 0 up to rounding)
         s_min = math.sqrt(max(sq[0], 0.0))
         unreliable = s_min < self.mapping.sigma_threshold
-        if unreliable:                                               # (the common undamped case skips the add)
+        if unreliable:                                               # (not when σ_min = ε to rounding)
             lam = lam + float(_damping(s_min, self.mapping))
-        sol = ((tau_ext @ a.T) @ v / lam) @ v.T                      # rows (J Jᵀ + λ²)⁻¹ J τ = [f; m] or f
-        if self._force_only:
-            sol = np.hstack((sol, np.zeros_like(sol)))
-        return sol, (math.sqrt(math.prod(sq)) if sq[0] > 0 else 0.0), float(unreliable)    # ∏σ (0 if σ_min = 0)
+        force[:] = ((tau_ext @ a.T) @ v / lam) @ v.T                 # rows (J Jᵀ + λ²)⁻¹ J τ = [f; m] or f
+        return (math.sqrt(math.prod(sq)) if sq[0] > 0 else 0.0), float(unreliable)    # ∏σ (0 if σ_min = 0)
 
     def __call__(self, jac: np.ndarray, tau_ext: np.ndarray) -> np.ndarray:
         wrench, manip, flag = self.solve(jac, np.asarray(tau_ext, dtype=float)[None, :])
@@ -209,36 +230,65 @@ class DrakeArm(DrakeRobot):
     def __init__(self, desc: RobotDescription):
         super().__init__(desc)
         self._zero = np.zeros(self.plant.num_velocities())
+        self._mass = self._bias = None             # M(q) and ID(q, q̇, 0) of the last momentum_terms (in order)
 
     def momentum_terms(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``p = M(q)q̇`` [N·m·s] and ``τ_g(q) + C(q,q̇)ᵀq̇`` [N·m] for one sample (Cᵀq̇ = Ṁq̇ − Cq̇)."""
         if not self._in_order:
             return self._momentum_terms_reindexed(q, qd)
-        plant, ctx = self.plant, self.context
+        p, beta = np.empty_like(qd, dtype=float), np.empty_like(qd, dtype=float)
+        self._momentum_terms_into(np.concatenate((q, qd)), p, beta)
+        return p, beta
+
+    def _momentum_terms_into(self, state: np.ndarray, p_out: np.ndarray, beta_out: np.ndarray) -> None:
+        """:meth:`momentum_terms` from ``state = [q; q̇]`` into ``p_out``, ``beta_out`` (joints in the plant's order);
+        the context is left at (q, q̇) with the gravity forces in ``_forces``."""
+        plant, ctx, n = self.plant, self.context, self._zero.shape[0]
+        q, qd = state[:n], state[n:]
         speed = math.sqrt(float(qd @ qd))
         if speed > 0:
             u = qd * (_FD_STEP / speed)
             plant.SetPositions(ctx, q + u)
             m_plus = plant.CalcMassMatrix(ctx)
             plant.SetPositions(ctx, q - u)
-            mdot_qd = (m_plus - plant.CalcMassMatrix(ctx)) @ qd * (speed / (2 * _FD_STEP))
+            np.dot(m_plus - plant.CalcMassMatrix(ctx), qd, out=beta_out)
+            beta_out *= speed / (2 * _FD_STEP)                         # Ṁq̇
         else:
-            mdot_qd = 0.0
-        plant.SetPositions(ctx, q)
-        plant.SetVelocities(ctx, qd)
-        p = plant.CalcMassMatrix(ctx) @ qd
+            beta_out[:] = 0.0
+        plant.SetPositionsAndVelocities(ctx, state)
+        self._mass = plant.CalcMassMatrix(ctx)
+        np.dot(self._mass, qd, out=p_out)
         plant.CalcForceElementsContribution(ctx, self._forces)       # gravity
         # τ_g − C q̇ = −ID(q, q̇, 0) with gravity applied: one call instead of CalcGravity… + CalcBiasTerm
-        return p, mdot_qd - plant.CalcInverseDynamics(ctx, self._zero, self._forces)
+        self._bias = plant.CalcInverseDynamics(ctx, self._zero, self._forces)
+        beta_out -= self._bias
 
-    def rigid_body_terms(self, q: np.ndarray, qd: np.ndarray, p_flange: np.ndarray) -> tuple[np.ndarray, ...]:
-        """:meth:`momentum_terms` and the Jacobian ``[6,n]`` of the point ``p_flange`` [m, flange frame] (rows
-        [ω; v], world frame) from the same context, which then holds q already."""
-        p, beta = self.momentum_terms(q, qd)
+    def inverse_dynamics_here(self, qdd: np.ndarray) -> np.ndarray:
+        """τ_rigid = ID(q, q̇, q̈) with gravity [N·m] at the q, q̇ of the last :meth:`momentum_terms` /
+        :meth:`rigid_body_terms_into` call, for the accelerations ``qdd [n]`` [rad/s²], from what that call computed:
+        ``M(q) q̈ + ID(q, q̇, 0)`` (equal to :meth:`inverse_dynamics` to rounding, without a Drake call)."""
         if not self._in_order:
-            return p, beta, self.flange_jacobian(q, p_flange)
-        return p, beta, self.plant.CalcJacobianSpatialVelocity(self.context, JacobianWrtVariable.kV, self.flange,
-                                                               p_flange, self._world, self._world)
+            self.plant.CalcForceElementsContribution(self.context, self._forces)
+            a = np.zeros(self.plant.num_velocities())
+            a[self._v_index] = qdd
+            return self.plant.CalcInverseDynamics(self.context, a, self._forces)[self._v_index]
+        tau = self._mass @ qdd
+        tau += self._bias
+        return tau
+
+    def rigid_body_terms_into(self, state: np.ndarray, p_flange: np.ndarray, p_out: np.ndarray,
+                              beta_out: np.ndarray, jac_out: np.ndarray) -> None:
+        """:meth:`momentum_terms` and the Jacobian ``[6,n]`` of the point ``p_flange`` [m, flange frame] (rows
+        [ω; v], world frame) for ``state = [q; q̇]``, from the same context (which then holds q already), into
+        ``p_out``, ``beta_out`` [n] and ``jac_out`` [6,n]."""
+        n = self.description.n
+        if not self._in_order:
+            p_out[:], beta_out[:] = self._momentum_terms_reindexed(state[:n], state[n:])
+            jac_out[:] = self.flange_jacobian(state[:n], p_flange)
+            return
+        self._momentum_terms_into(state, p_out, beta_out)
+        jac_out[:] = self.plant.CalcJacobianSpatialVelocity(self.context, JacobianWrtVariable.kV, self.flange,
+                                                            p_flange, self._world, self._world)
 
     def _momentum_terms_reindexed(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         speed = float(np.linalg.norm(qd))
@@ -266,14 +316,16 @@ class WrenchMapStep(LeafSystem):
         self._k = 6 * n if owner.jacobian_input else n
         self._inputs = self.DeclareVectorInputPort("inputs", self._k + m * n)
         self.DeclareVectorOutputPort("estimate", 6 * m + 2 + m * n, self._calc)
+        self._out = owner.estimate_buffer()
 
     def _calc(self, context, output) -> None:
         x, k = self._inputs.Eval(context), self._k
         tau_ext = x[k:].reshape(self._m, self._n)
         if self._owner.jacobian_input:
-            output.SetFromVector(self._owner.calc_jacobian(x[:k].reshape(6, self._n), tau_ext))
+            self._owner.calc_jacobian(x[:k].reshape(6, self._n), tau_ext, self._out)
         else:
-            output.SetFromVector(self._owner.calc(x[:k], tau_ext))
+            self._owner.calc(x[:k], tau_ext, self._out)
+        output.SetFromVector(self._out[0])
 
 
 class WrenchMap(Diagram):
@@ -316,17 +368,28 @@ class WrenchMap(Diagram):
         builder.BuildInto(self)
         self.set_name("wrench")
 
-    def calc(self, q: np.ndarray, tau_ext: np.ndarray) -> np.ndarray:
-        """The ``estimate`` vector for ``q [n]`` and ``tau_ext [m,n]`` (one row per source) — the step function."""
+    def estimate_buffer(self) -> tuple[np.ndarray, ...]:
+        """A preallocated ``estimate`` vector with its views ``(vector, wrenches [m,6], [manipulability,
+        unreliable], τ̂_ext [m,n])``, for the ``out`` argument of :meth:`calc` / :meth:`calc_jacobian`."""
+        n, m = self.n, len(self.sources)
+        v = np.empty(6 * m + 2 + m * n)
+        return v, v[:6 * m].reshape(m, 6), v[6 * m:6 * m + 2], v[6 * m + 2:].reshape(m, n)
+
+    def calc(self, q: np.ndarray, tau_ext: np.ndarray, out: tuple[np.ndarray, ...] | None = None) -> np.ndarray:
+        """The ``estimate`` vector for ``q [n]`` and ``tau_ext [m,n]`` (one row per source) — the step function
+        (written into ``out``, an :meth:`estimate_buffer`, when given)."""
         if self._arm is None:
             raise ValueError("WrenchMap: built with jacobian_input=True; call calc_jacobian(J, tau_ext)")
-        return self.calc_jacobian(self._arm.flange_jacobian(q, self._contact), tau_ext)
+        return self.calc_jacobian(self._arm.flange_jacobian(q, self._contact), tau_ext, out)
 
-    def calc_jacobian(self, jac: np.ndarray, tau_ext: np.ndarray) -> np.ndarray:
+    def calc_jacobian(self, jac: np.ndarray, tau_ext: np.ndarray, out: tuple[np.ndarray, ...] | None = None
+                      ) -> np.ndarray:
         """The same from the contact point's Jacobian ``jac [6,n]`` (rows [ω; v], world) — the step function with
-        ``jacobian_input``."""
-        wrench, manip, flag = self._solver.solve(jac, tau_ext)
-        return np.concatenate((wrench.ravel(), (manip, flag), tau_ext.ravel()))
+        ``jacobian_input`` (written into ``out``, an :meth:`estimate_buffer`, when given; a new vector otherwise)."""
+        vector, wrench, flags, tau = self.estimate_buffer() if out is None else out
+        flags[0], flags[1] = self._solver.solve_into(jac, tau_ext, wrench)
+        tau[:] = tau_ext
+        return vector
 
 
 class JacobianWrenchObserver(Diagram):
@@ -415,7 +478,7 @@ class RigidBodyTermsSystem(LeafSystem):
     ``[q; q̇]`` (2n: rad, rad/s); output ``terms`` = ``[p = M(q)q̇ (n, N·m·s); τ_g + Cᵀq̇ (n, N·m); J (6n)]`` with J
     the Jacobian of the contact point (``contact_point`` [m] in the flange frame; rows [ω; v], world frame, row-major)
     — what the momentum observer and the wrench map need, from one plant context per step
-    (:meth:`DrakeArm.rigid_body_terms`). Direct feedthrough."""
+    (:meth:`DrakeArm.rigid_body_terms_into`). Direct feedthrough."""
 
     def __init__(self, desc: RobotDescription, contact_point: tuple[float, float, float] = (0.0, 0.0, 0.0)):
         LeafSystem.__init__(self)
@@ -424,19 +487,24 @@ class RigidBodyTermsSystem(LeafSystem):
         self._contact = np.asarray(contact_point, dtype=float)
         self._state = self.DeclareVectorInputPort("state", 2 * n)
         self.DeclareVectorOutputPort("terms", 8 * n, self._calc)
+        self.terms = np.empty(8 * n)
+        self._p, self._beta, self._jac = self.terms[:n], self.terms[n:2 * n], self.terms[2 * n:].reshape(6, n)
 
-    def calc(self, q: np.ndarray, qd: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """The output for one sample — the step function (written into ``out [8n]`` when given)."""
-        p, beta, jac = self._arm.rigid_body_terms(q, qd, self._contact)
-        if out is None:
-            return np.concatenate((p, beta, jac.ravel()))
-        n = self.n
-        out[:n], out[n:2 * n], out[2 * n:] = p, beta, jac.ravel()
-        return out
+    def calc(self, state: np.ndarray) -> np.ndarray:
+        """The output for one sample ``state = [q; q̇]`` — the step function. It is written into this System's own
+        buffer (:attr:`terms`, valid until the next call), which is returned."""
+        self._arm.rigid_body_terms_into(state, self._contact, self._p, self._beta, self._jac)
+        return self.terms
+
+    def inverse_dynamics(self, qdd: np.ndarray) -> np.ndarray:
+        """τ_rigid [N·m] = ID(q, q̇, q̈) with gravity at the q, q̇ of the last :meth:`calc`, for ``qdd [n]`` [rad/s²],
+        from what that call computed (:meth:`DrakeArm.inverse_dynamics_here`): what the streaming estimator takes as
+        the torque model's rigid-body torque of the same sample (the C++ ``InverseDynamics`` of the Diagram gives the
+        same numbers to rounding)."""
+        return self._arm.inverse_dynamics_here(qdd)
 
     def _calc(self, context, output) -> None:
-        x = self._state.Eval(context)
-        output.SetFromVector(self.calc(x[:self.n], x[self.n:]))
+        output.SetFromVector(self.calc(self._state.Eval(context)))
 
 
 def momentum_filter(n: int, time_step: float, gain: float | np.ndarray = 100.0

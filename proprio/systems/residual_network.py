@@ -34,10 +34,7 @@ from pydrake.systems.primitives import Demultiplexer, MatrixGain, Multiplexer, Z
 from proprio.learning.features import ReversalEncoder
 from proprio.learning.models import HybridModel, StreamingStepper
 
-__all__ = ["STARTED", "ResidualNetworkCore", "ResidualNetworkStep", "ResidualNetworkSystem", "AddResidualNetwork"]
-
-STARTED = np.ones(1)
-"""The memory's first entry once the network has run (0 before its first sample)."""
+__all__ = ["ResidualNetworkCore", "MemoryViews", "ResidualNetworkStep", "ResidualNetworkSystem", "AddResidualNetwork"]
 
 
 class ResidualNetworkCore:
@@ -57,6 +54,8 @@ class ResidualNetworkCore:
         self.encoder = ReversalEncoder(self.n, cfg.reversal_deadband_deg, cfg.r_max_deg)
         self._n_net = self.stepper.state_size
         self.memory_size = 1 + 3 * self.n + self._n_net
+        x = self.stepper.features                                    # the LSTM's own input buffer, if it has one
+        self._x4, self._r = (None, None) if x is None else (x[:4 * self.n], x[4 * self.n:])
 
     def initial_memory(self) -> np.ndarray:
         """The memory before the first sample (``started`` = 0: the encoder starts at the first q)."""
@@ -76,10 +75,57 @@ class ResidualNetworkCore:
         tau, net_state = self.stepper.step(inputs, net_state, r)
         return tau, enc, net_state
 
+    def memory_views(self, memory: np.ndarray) -> "MemoryViews":
+        """The views of a memory vector that :meth:`step_views` reads and writes (make them once per buffer)."""
+        return MemoryViews(self, memory)
+
+    def step_into(self, memory: np.ndarray, inputs: np.ndarray, tau_out: np.ndarray, memory_out: np.ndarray
+                  ) -> None:
+        """:meth:`step_parts` into preallocated arrays: τ_hybrid [n] N·m into ``tau_out`` and the next memory into
+        ``memory_out`` (which must not alias ``memory``)."""
+        self.step_views(self.memory_views(memory), inputs, tau_out, self.memory_views(memory_out))
+
+    def step_views(self, memory: "MemoryViews", inputs: np.ndarray, tau_out: np.ndarray, memory_out: "MemoryViews"
+                   ) -> None:
+        """:meth:`step_into` on :meth:`memory_views` of the memory and the next memory (the per-sample Systems' path).
+        An LSTM reading all five feature blocks runs without allocation (the encoder writes r straight into the
+        network's input buffer); other models through :meth:`step_parts`."""
+        out = memory_out.vector
+        if self._x4 is None:
+            tau_out[:], out[1:1 + 3 * self.n], out[1 + 3 * self.n:] = self.step_parts(memory.vector, inputs)
+            out[0] = 1.0
+            return
+        n = self.n
+        q = inputs[n:2 * n]
+        self._x4[:] = inputs
+        if memory.vector[0] > 0:
+            enc, net_state = memory.encoder, memory.network
+        else:
+            enc = self.encoder.initial_state(q)
+            net_state = self.stepper.split_state(np.zeros(self._n_net))
+        self.encoder.step_into(enc, q, memory_out.encoder, self._r, memory_out.encoder_parts)
+        out[0] = 1.0
+        self.stepper.step_split(net_state, memory_out.network, tau_out)
+
     def step_stacked(self, memory: np.ndarray, inputs: np.ndarray) -> np.ndarray:
         """:meth:`step_parts` stacked: ``[τ_hybrid (n) N·m; next memory]``."""
-        tau, enc, net_state = self.step_parts(memory, inputs)
-        return np.concatenate((tau, STARTED, enc, net_state))
+        out = np.empty(self.n + self.memory_size)
+        self.step_into(memory, inputs, out[:self.n], out[self.n:])
+        return out
+
+
+class MemoryViews:
+    """A :class:`ResidualNetworkCore` memory vector ``[started, encoder state (3n), network state]`` and its views:
+    ``encoder`` (3n), ``encoder_parts`` (d, d·e, a) and ``network`` (the LSTM's h₁, c₁, h₂, c₂) — made once per
+    buffer, as each slice costs about as much as a small numpy operation."""
+    __slots__ = ("vector", "encoder", "encoder_parts", "network")
+
+    def __init__(self, core: ResidualNetworkCore, vector: np.ndarray):
+        n = core.n
+        self.vector, self.encoder = vector, vector[1:1 + 3 * n]
+        self.encoder_parts = core.encoder.split_state(self.encoder)
+        net = vector[1 + 3 * n:]
+        self.network = core.stepper.split_state(net) if core.stepper.features is not None else net
 
 
 class ResidualNetworkStep(LeafSystem):
@@ -95,9 +141,13 @@ class ResidualNetworkStep(LeafSystem):
         self._inputs = self.DeclareVectorInputPort("inputs", 4 * n)
         self._memory = self.DeclareVectorInputPort("memory", size)
         self.DeclareVectorOutputPort("step", n + size, self._calc)
+        self._out = np.empty(n + size)
+        self._tau, self._next = self._out[:n], owner.memory_views(self._out[n:])
 
     def _calc(self, context, output) -> None:
-        output.SetFromVector(self._owner.step_stacked(self._memory.Eval(context), self._inputs.Eval(context)))
+        self._owner.step_views(self._owner.memory_views(self._memory.Eval(context)), self._inputs.Eval(context),
+                               self._tau, self._next)
+        output.SetFromVector(self._out)
 
 
 class ResidualNetworkSystem(Diagram):
