@@ -56,21 +56,27 @@ class _Dumper(yaml.SafeDumper):
     """``yaml.safe_dump`` with lists of numbers on one line (per-joint vectors stay readable)."""
 
 
+class _RoundingDumper(_Dumper):
+    """:class:`_Dumper` writing floats to 7 significant digits (far below every fitted parameter's CI; not for
+    inertials, whose physical consistency may sit at the rounding level)."""
+
+
 def _represent_list(dumper: yaml.SafeDumper, data: list) -> yaml.Node:
     flow = all(isinstance(x, (int, float)) for x in data)
     return dumper.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=flow)
 
 
 def _represent_float(dumper: yaml.SafeDumper, data: float) -> yaml.Node:
-    return dumper.represent_float(float(f"{data:.7g}"))        # 7 significant digits: far below every CI
+    return dumper.represent_float(float(f"{data:.7g}"))
 
 
 _Dumper.add_representer(list, _represent_list)
-_Dumper.add_representer(float, _represent_float)
+_RoundingDumper.add_representer(float, _represent_float)
 
 
-def _dump(data: dict[str, Any]) -> str:
-    return yaml.dump(data, Dumper=_Dumper, sort_keys=False, allow_unicode=True, width=120)
+def _dump(data: dict[str, Any], rounding: bool = True) -> str:
+    return yaml.dump(data, Dumper=_RoundingDumper if rounding else _Dumper, sort_keys=False, allow_unicode=True,
+                     width=120)
 
 
 def patch_entries(att: Attribution, model: SimModel) -> list[PatchEntry]:
@@ -148,7 +154,7 @@ def write_twin_patch(att: Attribution, model: SimModel, path: str | Path) -> dic
     if isinstance(patch.get("robot"), dict):
         robot_path = path.with_name(f"{path.stem}_robot.yaml")
         atomic_write_text(robot_path, f"# {model.robot.name} with the inertials corrected by proprio diagnose "
-                                      f"(see {path.name})\n" + _dump(patch["robot"]))
+                                      f"(see {path.name})\n" + _dump(patch["robot"], rounding=False))
         patch["robot"] = robot_path.name
         files["patch_robot"] = robot_path
     head = [f"twin patch of a gap diagnosis of '{model.robot.name}' ({model.robot.n} joints); model: "
