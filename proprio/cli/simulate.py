@@ -32,6 +32,28 @@ def load_any_trajectory(path: str | Path):
     raise UserError(f"--trajectory: {path} is neither a proprio trajectory (breaks, q, qd) nor a Recording (t, q, tau)")
 
 
+def _replay(args: argparse.Namespace, config, base) -> int:
+    """``simulate --replay REC``: the held-out recording replayed through the (patched) twin without noise."""
+    from proprio.diagnosis.data import DiagnosisError
+    from proprio.diagnosis.replay import replay_gap
+    from proprio.diagrams.twin import TwinConfigError
+    from proprio.recording import RecordingError, load_recording, save_recording
+
+    path = Path(args.replay)
+    if not path.exists():
+        raise UserError(f"--replay: no such file: {path}")
+    try:
+        rec = load_recording(path, config.robot)
+        gap = replay_gap(config, [rec], base=base, trim_s=args.trim, progress=not args.quiet)
+    except (RecordingError, DiagnosisError, TwinConfigError) as exc:
+        raise UserError(f"--replay {path}: {exc}") from exc
+    save_recording(gap.recordings[0], args.out)
+    print(f"replayed {path} ({rec.duration:.1f} s) through {config.name} (no twin noise) -> {args.out}")
+    print(gap.text())
+    print(gap.table())
+    return 0
+
+
 def _simulate(args: argparse.Namespace) -> int:
     import time
 
@@ -40,7 +62,15 @@ def _simulate(args: argparse.Namespace) -> int:
     from proprio.payload import Payload
     from proprio.recording import save_recording
 
-    config = load_twin_config(args.twin)
+    if (args.trajectory is None) == (args.replay is None):
+        raise UserError("give exactly one of --trajectory (a motion to simulate) and --replay (a recording to replay)")
+    try:
+        config = load_twin_config(args.twin, patch=args.patch)
+        base = load_twin_config(args.twin) if args.patch is not None else None
+    except TwinConfigError as exc:
+        raise UserError(f"--twin/--patch: {exc}") from exc
+    if args.replay is not None:
+        return _replay(args, config, base)
     if args.seed is not None:
         config.seed = args.seed
     if args.log_rate is not None:
@@ -86,9 +116,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "only when the simulation finishes (atomic write).")
     p.add_argument("--twin", default="iiwa14_twin",
                    help="twin config: a shipped name (iiwa14_twin, iiwa14_nominal_twin) or a YAML path")
-    p.add_argument("--trajectory", required=True,
+    p.add_argument("--trajectory",
                    help="trajectory .npz from 'proprio trajectory' (breaks, q, qd) or a Recording whose q(t) is "
                         "replayed")
+    p.add_argument("--patch", help="twin patch (twin_patch.yaml from 'proprio diagnose') merged into --twin")
+    p.add_argument("--replay", metavar="REC",
+                   help="instead of --trajectory: a measured (held-out) recording whose conditioned q is replayed "
+                        "through the twin without its noise; writes the twin's Recording and prints the gap "
+                        "RMS(tau_meas - tau_twin) per joint (with --patch: for the base twin and the patched one)")
+    p.add_argument("--trim", type=float, default=0.5,
+                   help="with --replay: seconds left out of the gap at both ends (default 0.5, as diagnose)")
     p.add_argument("--payload-kg", type=float, default=None, help="payload mass at the flange [kg] (overrides the "
                                                                   "config's payload)")
     p.add_argument("--payload-com", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),

@@ -18,17 +18,20 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
-from pydrake.trajectories import PiecewisePolynomial
 
 from proprio.conditioning import ConditionedSignals, ConditioningConfig
 from proprio.description import RobotDescription
 from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING, DiagnosisError, condition_all, kept
 from proprio.diagnosis.selection import Attribution
-from proprio.diagrams.twin import TwinConfig, simulate_twin
 from proprio.recording import Recording
+
+if TYPE_CHECKING:                 # Drake is imported where the twin runs (the diagnosis package loads without it)
+    from pydrake.trajectories import PiecewisePolynomial
+
+    from proprio.diagrams.twin import TwinConfig
 
 __all__ = ["ReplayGap", "replay_trajectory_of", "deterministic_twin", "replay_recording", "twin_gap", "replay_gap",
            "offline_prediction", "LIMIT_MARGIN"]
@@ -96,6 +99,8 @@ def replay_trajectory_of(cs: ConditionedSignals, robot: RobotDescription,
                          knots_per_cycle: float = 10.0) -> PiecewisePolynomial:
     """C² cubic spline through the conditioned q of ``cs`` (knots every ``1/(knots_per_cycle · max cutoff)`` s, at
     least every sample), clipped :data:`LIMIT_MARGIN` inside ``robot``'s joint limits; time as conditioned."""
+    from pydrake.trajectories import PiecewisePolynomial
+
     if cs.q.shape[1] != robot.n:
         raise DiagnosisError(f"replay: the recording has {cs.q.shape[1]} joints, robot '{robot.name}' has {robot.n}")
     spacing = 1.0 / (knots_per_cycle * float(np.max(cs.cutoff_hz)))
@@ -118,6 +123,8 @@ def deterministic_twin(config: TwinConfig) -> TwinConfig:
 def replay_recording(config: TwinConfig, cs: ConditionedSignals, progress: bool = False) -> Recording:
     """The twin (without noise, :func:`deterministic_twin`) along the conditioned motion of ``cs``; its ``t`` is on
     the clock of ``cs.t``."""
+    from proprio.diagrams.twin import simulate_twin
+
     det = deterministic_twin(config)
     rec = simulate_twin(det, replay_trajectory_of(cs, det.robot), progress=progress)
     return dataclasses.replace(rec, t=rec.t + cs.t[0])
