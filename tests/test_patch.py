@@ -41,10 +41,9 @@ def _base_twin(tmp_path, robot: str = "iiwa14_identified") -> dict:
 def offline_case():
     """Offline data (closed-form motion, 200 Hz) with an offset and friction withheld, and its diagnosis."""
     data = generate_case_data(BenchmarkCase("vc+offset", ("viscous_coulomb", "sensor_offset_gain"), 1.0, 3,
-                                            duration_s=12.0))
+                                            duration_s=8.0))
     model = SimModel.from_names(data.robot, data.model_effects)
-    att = attribute(model, data.train, data.holdout,
-                    candidates=["viscous_coulomb", "sensor_offset_gain", "payload", "hysteresis"])
+    att = attribute(model, data.train, data.holdout, candidates=["viscous_coulomb", "sensor_offset_gain", "payload"])
     return data, model, att
 
 
@@ -69,7 +68,8 @@ def test_patch_round_trip_into_the_twin_config(offline_case, tmp_path):
     assert twin.name.endswith("+patch") and twin.robot.name == data.robot.name
     # the same patch as a mapping (what diagnose(twin=...) merges in memory)
     again = load_twin_config(tmp_path / "base.yaml", patch=twin_patch(att, model))
-    np.testing.assert_allclose(again.effect("sensor_offset_gain").offset, twin.effect("sensor_offset_gain").offset)
+    np.testing.assert_allclose(again.effect("sensor_offset_gain").offset, twin.effect("sensor_offset_gain").offset,
+                               rtol=1e-6)   # the file rounds to 7 digits
 
 
 def test_merge_errors_name_the_field(tmp_path):
@@ -126,7 +126,7 @@ def test_effect_patch_clips_a_linear_fit_to_the_effect_bounds():
 
 
 def test_rigid_body_patch_is_a_physical_robot_that_reproduces_the_correction(tmp_path):
-    data = generate_case_data(BenchmarkCase("rb", ("rigid_body",), 1.0, 4, duration_s=12.0))
+    data = generate_case_data(BenchmarkCase("rb", ("rigid_body",), 1.0, 4, duration_s=8.0))
     model = SimModel.from_names(data.robot, data.model_effects)
     att = attribute(model, data.train, data.holdout, candidates=["rigid_body", "sensor_offset_gain"])
     assert att.physical_steps and att.physical_steps[0].name == "rigid_body"

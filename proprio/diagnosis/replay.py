@@ -77,21 +77,21 @@ class ReplayGap:
         out += (f"before {self.total(self.rms_before):.3f}, after {after:.3f} N·m RMS"
                 if self.rms_before is not None else f"{after:.3f} N·m RMS")
         if self.reduction is not None:
-            out += f" (−{100 * self.reduction:.1f} %)"
+            out += f" (RMS −{100 * self.reduction:.1f} %)"
         if self.predicted_before is not None:
             out += (f"; offline prediction: before {self.total(self.predicted_before):.3f}, after "
-                    f"{self.total(self.predicted_after):.3f} N·m RMS (−{100 * self.predicted_reduction:.1f} %)")
+                    f"{self.total(self.predicted_after):.3f} N·m RMS (RMS −{100 * self.predicted_reduction:.1f} %)")
         return out
 
     def table(self) -> str:
-        """Markdown table per joint: through the twin vs the offline prediction [N·m]."""
-        rows = ["| joint | twin before | twin after | predicted before | predicted after |", "|---|---|---|---|---|"]
-
-        def f(a: np.ndarray | None, j: int) -> str:
-            return "–" if a is None else f"{a[j]:.3f}"
+        """Markdown table per joint [N·m]: through the twin (before / after), and the offline prediction when there
+        is one."""
+        cols = [("twin before", self.rms_before), ("twin after", self.rms_after),
+                ("predicted before", self.predicted_before), ("predicted after", self.predicted_after)]
+        cols = [(h, a) for h, a in cols if a is not None]
+        rows = ["| joint | " + " | ".join(h for h, _ in cols) + " |", "|---" * (len(cols) + 1) + "|"]
         for j, nm in enumerate(self.joint_names):
-            rows.append(f"| {nm} | {f(self.rms_before, j)} | {f(self.rms_after, j)} | "
-                        f"{f(self.predicted_before, j)} | {f(self.predicted_after, j)} |")
+            rows.append(f"| {nm} | " + " | ".join(f"{a[j]:.3f}" for _, a in cols) + " |")
         return "\n".join(rows)
 
 
