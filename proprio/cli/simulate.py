@@ -1,12 +1,18 @@
-"""``proprio simulate`` (run the twin along a trajectory) and ``proprio twin hysteresis-test`` (thesis Fig. 2.5)."""
+"""``proprio simulate`` (run the twin along a trajectory — a base twin with a diagnosis' ``--patch`` merged in, or
+``--replay`` of a measured recording with the gap through the twin) and ``proprio twin hysteresis-test`` (thesis
+Fig. 2.5)."""
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from proprio.cli import UserError
+
+if TYPE_CHECKING:
+    from proprio.diagrams.twin import TwinConfig
 
 __all__ = ["register", "load_any_trajectory"]
 
@@ -32,7 +38,7 @@ def load_any_trajectory(path: str | Path):
     raise UserError(f"--trajectory: {path} is neither a proprio trajectory (breaks, q, qd) nor a Recording (t, q, tau)")
 
 
-def _replay(args: argparse.Namespace, config, base) -> int:
+def _replay(args: argparse.Namespace, config: "TwinConfig", base: "TwinConfig | None") -> int:
     """``simulate --replay REC``: the held-out recording replayed through the (patched) twin without noise."""
     from proprio.diagnosis.data import DiagnosisError
     from proprio.diagnosis.replay import replay_gap
@@ -70,6 +76,11 @@ def _simulate(args: argparse.Namespace) -> int:
     except TwinConfigError as exc:
         raise UserError(f"--twin/--patch: {exc}") from exc
     if args.replay is not None:
+        extra = [flag for flag, v in (("--payload-kg", args.payload_kg), ("--seconds", args.seconds),
+                                      ("--log-rate", args.log_rate), ("--seed", args.seed)) if v is not None]
+        if extra:
+            raise UserError(f"--replay replays the whole recording through the twin as configured (no noise, every "
+                            f"step logged): {', '.join(extra)} do not apply")
         return _replay(args, config, base)
     if args.seed is not None:
         config.seed = args.seed
@@ -113,9 +124,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "simulate", help="simulate the twin along a trajectory and write a Recording",
         description="Run the twin (plant + joint effects + sensors) along a trajectory and save the Recording "
                     "(.npz) with measured q, tau, truth channels and the true flange wrench. The file is written "
-                    "only when the simulation finishes (atomic write).")
+                    "only when the simulation finishes (atomic write). --patch merges a twin_patch.yaml from "
+                    "'proprio diagnose' into the twin; --replay re-simulates a measured recording and prints the gap.")
     p.add_argument("--twin", default="iiwa14_twin",
-                   help="twin config: a shipped name (iiwa14_twin, iiwa14_nominal_twin) or a YAML path")
+                   help="twin config: a shipped name (iiwa14_twin, iiwa14_nominal_twin, kuka_lwr4_twin) or a YAML path")
     p.add_argument("--trajectory",
                    help="trajectory .npz from 'proprio trajectory' (breaks, q, qd) or a Recording whose q(t) is "
                         "replayed")
