@@ -24,7 +24,7 @@ import numpy as np
 
 from proprio.conditioning import ConditionedSignals, ConditioningConfig
 from proprio.description import RobotDescription
-from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING, DiagnosisError, condition_all, kept
+from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING, NOISE_EFFECTS, DiagnosisError, condition_all, kept
 from proprio.diagnosis.selection import Attribution
 from proprio.recording import Recording
 
@@ -37,7 +37,6 @@ __all__ = ["ReplayGap", "replay_trajectory_of", "deterministic_twin", "replay_re
            "offline_prediction", "LIMIT_MARGIN"]
 
 LIMIT_MARGIN = 1e-3              # rad kept inside each joint limit by the replayed trajectory
-NOISE_EFFECTS = ("torque_noise", "encoder_noise")
 
 
 @dataclass
