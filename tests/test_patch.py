@@ -16,6 +16,7 @@ from proprio.diagnosis.benchmark_cases import BenchmarkCase, generate_case_data
 from proprio.diagnosis.candidates import EffectCandidate, PayloadCandidate
 from proprio.diagnosis.data import SimModel
 from proprio.diagnosis.patch import twin_patch, write_twin_patch
+from proprio.diagnosis.report import diagnose
 from proprio.diagnosis.replay import replay_gap
 from proprio.diagnosis.selection import attribute
 from proprio.diagrams.twin import TwinConfigError, load_twin_config, merge_twin_patch, simulate_twin
@@ -164,17 +165,20 @@ def test_withheld_effects_found_patched_and_replayed_through_the_twin(tmp_path):
         _, timed = generate_rfma(load_rfma_config(scaffolds=1, seed=11 + k, waypoints=(300, 400)), base.robot)
         recs.append(simulate_twin(replace(data_twin, seed=k), timed.trajectory, progress=False))
     model = SimModel(base.robot.without_friction(), (EFFECTS["torque_noise"](n, std=NOISE),))
-    att = attribute(model, recs[:2], recs[2:], candidates=["viscous_coulomb", "sensor_offset_gain", "payload"])
+    d = diagnose(model, recs[:2], recs[2:], tmp_path / "diag", candidates=["viscous_coulomb", "sensor_offset_gain",
+                                                                           "payload"], twin=base)
+    att, gap = d.attribution, d.replay
     assert {s.name for s in att.physical_steps} == {"viscous_coulomb", "sensor_offset"}
-    files = write_twin_patch(att, model, tmp_path / "twin_patch.yaml")
-    patched = load_twin_config(tmp_path / "base.yaml", patch=files["twin_patch"])
-    gap = replay_gap(patched, recs[2:], base=base, att=att)
     before, after = gap.total(gap.rms_before), gap.total(gap.rms_after)
     assert before > 6 * NOISE
     assert after < 1.5 * NOISE, gap.text()                         # near the floor: the data's own noise
     assert abs(gap.reduction - gap.predicted_reduction) < 0.2 * gap.predicted_reduction, gap.text()
     # the replayed twin moves as the robot did (the gap before ≈ the offline residual of the model)
     assert gap.total(gap.rms_before) == pytest.approx(gap.total(gap.predicted_before), rel=0.05)
+    assert "through the twin: before" in d.files["report_md"].read_text()
+    files = d.files
+    patched = load_twin_config(tmp_path / "base.yaml", patch=files["twin_patch"])
+    np.testing.assert_allclose(replay_gap(patched, recs[2:]).rms_after, gap.rms_after, rtol=1e-6)
 
     # the same through the command line: simulate --twin BASE --patch twin_patch.yaml --replay held_out.npz
     save_recording(recs[2], tmp_path / "held_out.npz")
@@ -190,18 +194,18 @@ def test_withheld_effects_found_patched_and_replayed_through_the_twin(tmp_path):
 def test_lwr_patch_replayed_through_the_twin_reduces_the_real_gap_as_predicted(lwr_dir, tmp_path):
     """The real LWR 4+ files: identify on 2+3, patch the nominal base twin, replay file 1 through it; the gap
     reduction through the twin matches the offline prediction within ±20 % (issue 13, done-when)."""
-    files = [str(lwr_dir / f"measurements_{i}.npz") for i in (1, 2, 3)]
-    out = tmp_path / "lwr"
-    assert main(["diagnose", "--model", str(lwr_dir), "--train", files[1], files[2], "--holdout", files[0],
-                 "--candidates", "rigid_body", "viscous_coulomb", "sensor_offset_gain", "--twin",
-                 str(_lwr_twin(lwr_dir, tmp_path)), "--out", str(out)]) == 0
-    summary = yaml.safe_load((out / "diagnosis.json").read_text())
-    replay = summary["twin_replay"]
-    assert replay["predicted_reduction"] > 0.5                      # the nominal model is far off (README of the data)
-    assert abs(replay["reduction"] - replay["predicted_reduction"]) < 0.2 * replay["predicted_reduction"], replay
-    patch = yaml.safe_load((out / "twin_patch.yaml").read_text())
-    assert patch["patch_for"]["robot"] == "kuka_lwr4plus" and (out / patch["robot"]).exists()
-    assert "The gap through the twin" in (out / "report.md").read_text()
+    robot = load_robot(lwr_dir)
+    recs = [load_recording(lwr_dir / f"measurements_{i}.npz", robot) for i in (1, 2, 3)]
+    model = SimModel(robot)
+    att = attribute(model, recs[1:], recs[:1], candidates=["rigid_body", "viscous_coulomb", "sensor_offset_gain"])
+    files = write_twin_patch(att, model, tmp_path / "twin_patch.yaml")
+    base = _lwr_twin(lwr_dir, tmp_path)
+    gap = replay_gap(load_twin_config(base, patch=files["twin_patch"]), recs[:1], base=load_twin_config(base),
+                     att=att)
+    assert gap.predicted_reduction > 0.5, gap.text()              # the nominal model is far off (README of the data)
+    assert abs(gap.reduction - gap.predicted_reduction) < 0.2 * gap.predicted_reduction, gap.text()
+    assert "patch_robot" in files and yaml.safe_load(files["twin_patch"].read_text())["patch_for"] == \
+        {"robot": "kuka_lwr4plus", "joints": 7}
 
 
 def _lwr_twin(lwr_dir, tmp_path):
