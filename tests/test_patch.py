@@ -57,7 +57,8 @@ def test_patch_round_trip_into_the_twin_config(offline_case, tmp_path):
     patch = yaml.safe_load(text)
     assert patch["patch_for"] == {"robot": data.robot.name, "joints": data.robot.n}
     # offset and gain are tested apart, but the patch has the twin's one sensor_offset_gain block
-    assert set(patch["effects"]) >= {"viscous_coulomb", "sensor_offset_gain"} and "sensor_offset" not in patch["effects"]
+    assert set(patch["effects"]) >= {"viscous_coulomb", "sensor_offset_gain"}
+    assert "sensor_offset" not in patch["effects"]
     _base_twin(tmp_path, robot=data.robot.name)
     twin = load_twin_config(tmp_path / "base.yaml", patch=files["twin_patch"])
     final = att.steps[-1].params

@@ -263,7 +263,8 @@ class RigidBodyCandidate(Candidate):
             model = sdp(robot, q, qd, qdd, target)
             links = parameters_to_links(model.phi, robot)
         except (IdentificationError, ValueError) as exc:
-            self.patch_note = f"rigid_body: not patched — no physically consistent inertials fit the correction ({exc})"
+            self.patch_note = (f"rigid_body: not patched — no physically consistent inertials fit the correction "
+                               f"({exc})")
             return None
         new = self.robot.with_inertials(links)
         miss = float(np.sqrt(np.mean((inverse_dynamics(new.without_friction(), q, qd, qdd) - target) ** 2)))

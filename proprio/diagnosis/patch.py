@@ -144,9 +144,9 @@ def twin_patch(att: Attribution, model: SimModel, entries: list[PatchEntry] | No
 
 def write_twin_patch(att: Attribution, model: SimModel, path: str | Path,
                      entries: list[PatchEntry] | None = None) -> dict[str, Path]:
-    """Write ``path`` (``twin_patch.yaml``: comments + the YAML of a ``yaml.SafeDumper``, atomic) and, when the patch corrects
-    the rigid body, ``<stem>_robot.yaml`` beside it (the patch's ``robot:`` names it relative to its folder).
-    Returns ``{"twin_patch": path[, "patch_robot": robot path]}``; ``entries`` as in :func:`twin_patch`."""
+    """Write ``path`` (``twin_patch.yaml``: comments + the YAML of a ``yaml.SafeDumper``, atomic) and, when the
+    patch corrects the rigid body, ``<stem>_robot.yaml`` beside it (the patch's ``robot:`` names it relative to its
+    folder). Returns ``{"twin_patch": path[, "patch_robot": robot path]}``; ``entries`` as in :func:`twin_patch`."""
     model = SimModel.of(model)
     path = Path(path)
     entries = entries if entries is not None else patch_entries(att, model)

@@ -80,8 +80,8 @@ from proprio.systems.robot_logger import LoggerConfig, RobotLogger
 from proprio.systems.sensors import PositionSensor, TorqueSensor
 from proprio.systems.trajectories import AddTrajectorySource, sample_trajectory
 
-__all__ = ["TwinConfig", "TwinConfigError", "load_twin_config", "merge_twin_patch", "PATCH_KEYS", "TwinDiagram", "build_twin_diagram",
-           "simulate_twin", "payload_wrench", "hysteresis_test_trajectory", "run_hysteresis_test"]
+__all__ = ["TwinConfig", "TwinConfigError", "load_twin_config", "merge_twin_patch", "PATCH_KEYS", "TwinDiagram",
+           "build_twin_diagram", "simulate_twin", "payload_wrench", "hysteresis_test_trajectory", "run_hysteresis_test"]
 
 _TOP_KEYS = {"name", "robot", "time_step", "logger", "seed", "controller", "drive", "payload", "effects"}
 _CONTROLLER_KEYS = {"kp", "ki", "kd", "payload_model"}
