@@ -79,7 +79,7 @@ def _dump(data: dict[str, Any], rounding: bool = True) -> str:
                      width=120)
 
 
-def patch_entries(att: Attribution, model: SimModel) -> list[PatchEntry]:
+def patch_entries(att: Attribution) -> list[PatchEntry]:
     """Every accepted step and noise finding of ``att`` as a :class:`PatchEntry` (processing steps with
     ``fragment=None``)."""
     final = att.steps[-1].params if att.steps else {}
@@ -136,7 +136,7 @@ def twin_patch(att: Attribution, model: SimModel, entries: list[PatchEntry] | No
     :func:`patch_entries` (the rigid-body mapping solves an SDP; compute it once)."""
     model = SimModel.of(model)
     out: dict[str, Any] = {"patch_for": {"robot": model.robot.name, "joints": model.robot.n}}
-    for e in entries if entries is not None else patch_entries(att, model):
+    for e in entries if entries is not None else patch_entries(att):
         if e.fragment is not None:
             _merge(out, e.fragment, e.name)
     return out
@@ -149,7 +149,7 @@ def write_twin_patch(att: Attribution, model: SimModel, path: str | Path,
     folder). Returns ``{"twin_patch": path[, "patch_robot": robot path]}``; ``entries`` as in :func:`twin_patch`."""
     model = SimModel.of(model)
     path = Path(path)
-    entries = entries if entries is not None else patch_entries(att, model)
+    entries = entries if entries is not None else patch_entries(att)
     patch = twin_patch(att, model, entries)
     files = {"twin_patch": path}
     if isinstance(patch.get("robot"), dict):

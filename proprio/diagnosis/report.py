@@ -171,7 +171,7 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
         raise DiagnosisError("twin: the replay through the twin needs held-out recordings (--holdout)")
     att = attribute(model, train_recs, holdout_recs, candidates=candidates, trim_s=trim_s, progress=progress,
                     conditioning=conditioning)
-    entries = patch_entries(att, model)
+    entries = patch_entries(att)
     patch_files = write_twin_patch(att, model, out / "twin_patch.yaml", entries)
     replay = None
     if twin is not None:
