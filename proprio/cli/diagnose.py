@@ -34,7 +34,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--candidates", nargs="*", metavar="NAME", help="test only these candidates")
     p.add_argument("--trim", type=float, default=0.5, help="seconds dropped at both ends of every recording "
                    "(filter start-up; default 0.5)")
-    p.add_argument("--out", required=True, type=Path, help="output directory for the report")
+    p.add_argument("--twin", metavar="BASE",
+                   help="base twin config of the --model robot (a shipped name such as kuka_lwr4_twin, or a YAML "
+                   "path): replay the held-out recordings through it and through it + twin_patch.yaml, and report the "
+                   "gap through the twin next to the offline prediction (needs --holdout)")
+    p.add_argument("--out", required=True, type=Path, help="output directory for the report and twin_patch.yaml")
     p.set_defaults(func=_diagnose)
 
     b = sub.add_parser(
@@ -97,17 +101,33 @@ def _diagnose(args: argparse.Namespace) -> int:
     cutoff = args.cutoff if args.cutoff == "auto" else _positive_float(args.cutoff, "--cutoff")
     conditioning = ConditioningConfig(**{**DIAGNOSIS_CONDITIONING.__dict__, "cutoff_hz": cutoff})
     model = _model(args)
+    twin = None
+    if args.twin is not None:
+        from proprio.diagrams.twin import TwinConfigError, load_twin_config
+
+        if not args.holdout:
+            raise UserError("--twin: the replay through the twin needs held-out recordings (--holdout)")
+        try:
+            twin = load_twin_config(args.twin)
+        except TwinConfigError as exc:
+            raise UserError(f"--twin: {exc}") from exc
+        if twin.robot.name != model.robot.name or twin.robot.n != model.robot.n:
+            raise UserError(f"--twin: the twin's robot is '{twin.robot.name}' ({twin.robot.n} joints), --model is "
+                            f"'{model.robot.name}' ({model.robot.n} joints)")
     train = [load_recording(p, model.robot) for p in args.train]
     hold = [load_recording(p, model.robot) for p in args.holdout]
     bar = tqdm(desc="diagnose", bar_format="{desc}: {elapsed} {postfix}")
     try:
         d = diagnose(model, train, hold, args.out, candidates=args.candidates, trim_s=args.trim,
-                     progress=lambda msg: bar.set_postfix_str(msg), conditioning=conditioning)
+                     progress=lambda msg: bar.set_postfix_str(msg), conditioning=conditioning, twin=twin)
     finally:
         bar.close()
     for line in d.attribution.conditioning:
         print(line)
     print(d.verdict)
+    if d.replay is not None:
+        print(d.replay.text())
+    print(f"twin patch: {d.files['twin_patch']}")
     print(f"report: {d.files['report_html']}")
     return 0
 

@@ -1,12 +1,18 @@
-"""``proprio simulate`` (run the twin along a trajectory) and ``proprio twin hysteresis-test`` (thesis Fig. 2.5)."""
+"""``proprio simulate`` (run the twin along a trajectory — a base twin with a diagnosis' ``--patch`` merged in, or
+``--replay`` of a measured recording with the gap through the twin) and ``proprio twin hysteresis-test`` (thesis
+Fig. 2.5)."""
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from proprio.cli import UserError
+
+if TYPE_CHECKING:
+    from proprio.diagrams.twin import TwinConfig
 
 __all__ = ["register", "load_any_trajectory"]
 
@@ -32,6 +38,28 @@ def load_any_trajectory(path: str | Path):
     raise UserError(f"--trajectory: {path} is neither a proprio trajectory (breaks, q, qd) nor a Recording (t, q, tau)")
 
 
+def _replay(args: argparse.Namespace, config: "TwinConfig", base: "TwinConfig | None") -> int:
+    """``simulate --replay REC``: the held-out recording replayed through the (patched) twin without noise."""
+    from proprio.diagnosis.data import DiagnosisError
+    from proprio.diagnosis.replay import replay_gap
+    from proprio.diagrams.twin import TwinConfigError
+    from proprio.recording import RecordingError, load_recording, save_recording
+
+    path = Path(args.replay)
+    if not path.exists():
+        raise UserError(f"--replay: no such file: {path}")
+    try:
+        rec = load_recording(path, config.robot)
+        gap = replay_gap(config, [rec], base=base, trim_s=args.trim, progress=not args.quiet)
+    except (RecordingError, DiagnosisError, TwinConfigError) as exc:
+        raise UserError(f"--replay {path}: {exc}") from exc
+    save_recording(gap.recordings[0], args.out)
+    print(f"replayed {path} ({rec.duration:.1f} s) through {config.name} (no twin noise) -> {args.out}")
+    print(gap.text())
+    print(gap.table())
+    return 0
+
+
 def _simulate(args: argparse.Namespace) -> int:
     import time
 
@@ -40,7 +68,20 @@ def _simulate(args: argparse.Namespace) -> int:
     from proprio.payload import Payload
     from proprio.recording import save_recording
 
-    config = load_twin_config(args.twin)
+    if (args.trajectory is None) == (args.replay is None):
+        raise UserError("give exactly one of --trajectory (a motion to simulate) and --replay (a recording to replay)")
+    try:
+        config = load_twin_config(args.twin, patch=args.patch)
+        base = load_twin_config(args.twin) if args.patch is not None else None
+    except TwinConfigError as exc:
+        raise UserError(f"--twin/--patch: {exc}") from exc
+    if args.replay is not None:
+        extra = [flag for flag, v in (("--payload-kg", args.payload_kg), ("--seconds", args.seconds),
+                                      ("--log-rate", args.log_rate), ("--seed", args.seed)) if v is not None]
+        if extra:
+            raise UserError(f"--replay replays the whole recording through the twin as configured (no noise, every "
+                            f"step logged): {', '.join(extra)} do not apply")
+        return _replay(args, config, base)
     if args.seed is not None:
         config.seed = args.seed
     if args.log_rate is not None:
@@ -83,12 +124,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "simulate", help="simulate the twin along a trajectory and write a Recording",
         description="Run the twin (plant + joint effects + sensors) along a trajectory and save the Recording "
                     "(.npz) with measured q, tau, truth channels and the true flange wrench. The file is written "
-                    "only when the simulation finishes (atomic write).")
+                    "only when the simulation finishes (atomic write). --patch merges a twin_patch.yaml from "
+                    "'proprio diagnose' into the twin; --replay re-simulates a measured recording and prints the gap.")
     p.add_argument("--twin", default="iiwa14_twin",
-                   help="twin config: a shipped name (iiwa14_twin, iiwa14_nominal_twin) or a YAML path")
-    p.add_argument("--trajectory", required=True,
+                   help="twin config: a shipped name (iiwa14_twin, iiwa14_nominal_twin, kuka_lwr4_twin) or a YAML path")
+    p.add_argument("--trajectory",
                    help="trajectory .npz from 'proprio trajectory' (breaks, q, qd) or a Recording whose q(t) is "
                         "replayed")
+    p.add_argument("--patch", help="twin patch (twin_patch.yaml from 'proprio diagnose') merged into --twin")
+    p.add_argument("--replay", metavar="REC",
+                   help="instead of --trajectory: a measured (held-out) recording whose conditioned q is replayed "
+                        "through the twin without its noise; writes the twin's Recording and prints the gap "
+                        "RMS(tau_meas - tau_twin) per joint (with --patch: for the base twin and the patched one)")
+    p.add_argument("--trim", type=float, default=0.5,
+                   help="with --replay: seconds left out of the gap at both ends (default 0.5, as diagnose)")
     p.add_argument("--payload-kg", type=float, default=None, help="payload mass at the flange [kg] (overrides the "
                                                                   "config's payload)")
     p.add_argument("--payload-com", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),

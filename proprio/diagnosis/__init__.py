@@ -9,6 +9,8 @@ Modules, in the order the diagnosis runs:
 - :mod:`~proprio.diagnosis.fitting` — fitting candidates to the training residual;
 - :mod:`~proprio.diagnosis.selection` — greedy forward selection, scored on held-out blocks, and its statistics;
 - :mod:`~proprio.diagnosis.verdict` — the plain-language verdict;
+- :mod:`~proprio.diagnosis.patch` — the found effects as a twin patch (``twin_patch.yaml``);
+- :mod:`~proprio.diagnosis.replay` — the held-out gap re-measured through the (patched) Drake twin;
 - :mod:`~proprio.diagnosis.report` — :func:`diagnose`: all of the above as one call and one report;
 - :mod:`~proprio.diagnosis.benchmark_cases` — the withheld-effect benchmark's cases and their data;
 - :mod:`~proprio.diagnosis.benchmark` — running and scoring them.

@@ -23,11 +23,18 @@ __all__ = ["Candidate", "EffectCandidate", "RigidBodyCandidate", "PayloadCandida
 
 class Candidate:
     """Something that may explain part of the residual. Linear ones provide ``design(data) -> [M, n, p]`` (at the
-    data's kept samples); nonlinear ones ``torque(theta, data) -> [M, n]``, ``starts``, ``bounds``."""
+    data's kept samples); nonlinear ones ``torque(theta, data) -> [M, n]``, ``starts``, ``bounds``. A physical
+    candidate turns its fitted ``theta`` into a twin-config fragment with :meth:`patch`."""
     name: str = ""
     linear: bool = True
     place: str = ""
     processing: bool = False          # describes the data path, not the robot (reported apart, never as the cause)
+    patch_note: str = ""              # what :meth:`patch` did beyond copying parameters (a comment of the patch)
+
+    def patch(self, theta: np.ndarray) -> dict[str, Any] | None:
+        """The fitted candidate as a twin-config fragment (``effects:`` / ``payload:`` / ``robot:`` blocks, SI
+        units), or ``None`` where the twin cannot express it (data-path steps never go into a patch)."""
+        return None
 
     def param_names(self) -> list[str]:
         raise NotImplementedError
@@ -105,6 +112,24 @@ class EffectCandidate(Candidate):
 
     def joint_of_param(self, n: int) -> np.ndarray:
         return np.tile(np.arange(n), len(self._keys))
+
+    def patch(self, theta: np.ndarray) -> dict[str, Any] | None:
+        """``{"effects": {effect: {fitted keys + settings}}}`` (a partial fit, e.g. ``sensor_offset``, gives only
+        its own keys, so offset and gain merge into one ``sensor_offset_gain`` block)."""
+        theta = np.asarray(theta, dtype=float).reshape(len(self._keys), self._n)
+        lo, hi = (np.asarray(b, dtype=float).reshape(-1, self._n) for b in self.proto.bounds())
+        rows = [list(type(self.proto).parameters).index(k) for k in self._keys]
+        lo, hi = lo[rows], hi[rows]
+        out = (theta < lo) | (theta > hi)
+        self.patch_note = ""
+        if out.any():     # a linear fit is unbounded; the twin's effect is not
+            bad = [f"{self._keys[i]}[{j + 1}] = {theta[i, j]:.3g}" for i, j in zip(*np.nonzero(out))]
+            self.patch_note = (f"{self.name}: outside the effect's bounds, clipped to them in the patch: "
+                               f"{', '.join(bad)}")
+            theta = np.clip(theta, lo, hi)
+        block = {k: theta[i].tolist() for i, k in enumerate(self._keys)}
+        block.update({k: v.tolist() for k, v in self.proto.params().items() if k in type(self.proto).settings})
+        return {"effects": {self.effect: block}}
 
 
 def ripple_candidate(n: int, train: "GapData", max_order: float = 400.0, min_order: float = 60.0) -> EffectCandidate:
@@ -208,6 +233,8 @@ class RigidBodyCandidate(Candidate):
         names = [nm for k, nm in enumerate(parameter_names(robot.n)) if k % PARAMS_PER_JOINT < 10]
         self._names = [f"δ{names[c]}" for c in self.columns]
         train.cache[("design", self.name)] = full[..., self.columns]
+        # the training motion, for mapping a fit back to physical link inertials (:meth:`patch`)
+        self._motion = tuple(train.stack([getattr(s, k) for s in train.signals]) for k in ("q", "qd", "qdd"))
 
     def _inertial(self, data: GapData) -> np.ndarray:
         keep = np.array([k % PARAMS_PER_JOINT < 10 for k in range(PARAMS_PER_JOINT * self.robot.n)])
@@ -218,6 +245,41 @@ class RigidBodyCandidate(Candidate):
 
     def design(self, data: GapData) -> np.ndarray:
         return self._inertial(data)[..., self.columns]
+
+    def patch(self, theta: np.ndarray) -> dict[str, Any] | None:
+        """``{"robot": <corrected description mapping>}``: the fit corrects only identifiable combinations, so the
+        torque it predicts on the training motion, ``Y (φ_nominal + δφ)``, is identified again with the physically
+        consistent SDP (:func:`proprio.identification.estimators.sdp`: pseudo-inertia ⪰ 0, unidentifiable
+        directions nearest the nominal model) and rebuilt as link inertials (friction kept as it was)."""
+        from proprio.identification.estimators import IdentificationError, sdp
+        from proprio.identification.regressor import parameters_to_links, standard_parameters
+
+        robot = self.robot.without_friction()
+        keep = np.array([k % PARAMS_PER_JOINT < 10 for k in range(PARAMS_PER_JOINT * robot.n)])
+        phi = standard_parameters(robot)[keep]
+        phi[self.columns] += np.asarray(theta, dtype=float)
+        q, qd, qdd = self._motion
+        y = regressor(robot, q, qd, qdd)[..., keep]
+        target = y @ phi
+        try:
+            model = sdp(robot, q, qd, qdd, target)
+            links = parameters_to_links(model.phi, robot)
+        except (IdentificationError, ValueError) as exc:
+            self.patch_note = (f"rigid_body: not patched — no physically consistent inertials fit the correction "
+                               f"({exc})")
+            return None
+        new = self.robot.with_inertials(links)
+        miss = float(np.sqrt(np.mean((inverse_dynamics(new.without_friction(), q, qd, qdd) - target) ** 2)))
+        corr = float(np.sqrt(np.mean((target - y @ standard_parameters(robot)[keep]) ** 2)))
+        self.patch_note = (f"rigid_body: the fitted identifiable combinations ({len(self.columns)}) mapped back to "
+                           f"physically consistent link inertials by the SDP of proprio.identification.estimators on "
+                           f"the training motion ({len(q)} samples); the rebuilt robot's torque differs from the "
+                           f"fitted correction by {miss:.3g} N·m RMS (the correction itself: {corr:.3g} N·m RMS)")
+        desc = new.to_dict()
+        desc["name"] = self.robot.name
+        desc["provenance"] = (f"{self.robot.provenance} | inertials corrected by proprio diagnose (rigid_body step, "
+                              "SDP-consistent)").strip(" |")
+        return {"robot": desc}
 
 
 class PayloadCandidate(Candidate):
@@ -242,6 +304,30 @@ class PayloadCandidate(Candidate):
         lo = np.full(10, -np.inf)
         lo[0] = 0.0                                        # a payload has no negative mass
         return lo, np.full(10, np.inf)
+
+    def patch(self, theta: np.ndarray) -> dict[str, Any] | None:
+        """``{"payload": {mass, com_flange, inertia}}``: mass [kg], CoM [m] and inertia about the CoM [kg·m²] in
+        flange axes, from the fitted mass, first moment and inertia about the last link's origin (parallel axes);
+        an indefinite inertia is projected onto the nearest positive semi-definite one (said in ``patch_note``)."""
+        theta = np.asarray(theta, dtype=float)
+        m = float(theta[0])
+        if not m > 0.0:
+            self.patch_note = f"payload: not patched — fitted mass {m:.3g} kg is not positive"
+            return None
+        c = theta[1:4] / m                                            # CoM in flange axes
+        p = self.p_f + self.r_f @ c                                   # CoM in the last link's frame
+        ixx, ixy, ixz, iyy, iyz, izz = theta[4:10]
+        i_o = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
+        i_c = self.r_f.T @ (i_o - m * (p @ p * np.eye(3) - np.outer(p, p))) @ self.r_f
+        ev, vec = np.linalg.eigh(0.5 * np.trace(i_c) * np.eye(3) - i_c)        # central second moment ⪰ 0
+        self.patch_note = ""
+        if ev[0] < 0.0:
+            sig = vec @ np.diag(np.maximum(ev, 0.0)) @ vec.T
+            i_c = np.trace(sig) * np.eye(3) - sig
+            self.patch_note = (f"payload: the fitted inertia about the CoM was not physical (second-moment eigenvalue "
+                               f"{ev[0]:.3g} kg·m²); projected onto the nearest physical one")
+        return {"payload": {"mass": m, "com_flange": c.tolist(),
+                            "inertia": [float(i_c[a, b]) for a, b in ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))]}}
 
     def design(self, data: GapData) -> np.ndarray:
         n = self.robot.n

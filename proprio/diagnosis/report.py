@@ -9,7 +9,7 @@ import html
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import TYPE_CHECKING, Callable, Sequence
 
 import numpy as np
 
@@ -26,12 +26,17 @@ from proprio.diagnosis.localisation import (
     regime_families,
     spectra,
 )
+from proprio.diagnosis.patch import patch_entries, twin_patch, write_twin_patch
+from proprio.diagnosis.replay import ReplayGap, replay_gap
 from proprio.diagnosis.selection import Attribution, attribute
 from proprio.diagnosis.truth import TruthComparison, compare_to_truth, truth_summary
 from proprio.diagnosis.verdict import data_and_processing_text, verdict_text
 from proprio.io import atomic_write_text, save_figure
 from proprio.recording import Recording
 from proprio.timeseries_html import timeseries_html
+
+if TYPE_CHECKING:
+    from proprio.diagrams.twin import TwinConfig
 
 __all__ = ["Diagnosis", "diagnose"]
 
@@ -44,6 +49,7 @@ class Diagnosis:
     verdict: str
     files: dict[str, Path] = field(default_factory=dict)
     truth: TruthComparison | None = None      # twin data only: the twin's effects against what was named
+    replay: ReplayGap | None = None           # the held-out gap through the twin (``diagnose(twin=...)``)
 
 
 def _localise(model: SimModel, recs: Sequence[Recording], trim_s: float,
@@ -146,7 +152,7 @@ def _md_to_html_table(md: str) -> str:
 def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording],
              holdout_recs: Sequence[Recording], out_dir: str | Path, candidates: Sequence[str] | None = None,
              trim_s: float = 0.5, progress: Callable[[str], None] | None = None,
-             conditioning: ConditioningConfig = DIAGNOSIS_CONDITIONING) -> Diagnosis:
+             conditioning: ConditioningConfig = DIAGNOSIS_CONDITIONING, twin: TwinConfig | None = None) -> Diagnosis:
     """Diagnose the torque gap of ``model`` on measured recordings and write the report to ``out_dir``.
 
     ``model``: a :class:`RobotDescription` (rigid body + its friction, if any) or a :class:`SimModel` (+ the effects
@@ -154,12 +160,27 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
     training recordings are cross-validated over time blocks, see :func:`~proprio.diagnosis.selection.attribute`);
     ``candidates`` restricts the candidate set; ``trim_s`` [s] is dropped at both ends of every recording;
     ``conditioning`` the signal conditioning (:mod:`proprio.conditioning`).
-    Writes ``report.md``, ``report.html``, ``gap_map.png``, ``spectra.png``, ``before_after.png`` and
-    ``diagnosis.json``. Raises :class:`DiagnosisError` (a ``ValueError``) on bad input."""
+    Writes ``report.md``, ``report.html``, ``gap_map.png``, ``spectra.png``, ``before_after.png``,
+    ``diagnosis.json`` and ``twin_patch.yaml`` (:mod:`~proprio.diagnosis.patch`). ``twin``: a base twin config of
+    the model's robot; the held-out recordings are then replayed through it and through it + the patch
+    (:mod:`~proprio.diagnosis.replay`) and the report gives the gap through the twin next to the offline
+    prediction. Raises :class:`DiagnosisError` (a ``ValueError``) on bad input."""
+    from proprio.diagrams.twin import TwinConfig, merge_twin_patch
+
     model = SimModel.of(model)
     out = Path(out_dir)
+    if twin is not None and not holdout_recs:
+        raise DiagnosisError("twin: the replay through the twin needs held-out recordings (--holdout)")
     att = attribute(model, train_recs, holdout_recs, candidates=candidates, trim_s=trim_s, progress=progress,
                     conditioning=conditioning)
+    entries = patch_entries(att)
+    patch_files = write_twin_patch(att, model, out / "twin_patch.yaml", entries)
+    replay = None
+    if twin is not None:
+        (progress or (lambda msg: None))("replaying the held-out recordings through the twin")
+        patched = TwinConfig.from_dict(merge_twin_patch(twin.raw, twin_patch(att, model, entries)),
+                                       f"{twin.name} + twin_patch.yaml")
+        replay = replay_gap(patched, holdout_recs, base=twin, att=att, trim_s=trim_s, conditioning=conditioning)
     gm, sp = _localise(model, list(train_recs) + list(holdout_recs), trim_s, conditioning)
     verdict = verdict_text(att, gm)
     files = {"gap_map_png": plot_gap_map(gm, out / "gap_map.png"),
@@ -189,11 +210,16 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
          shr + "\n\n![before/after](before_after.png)"),
         ("Fitted parameters (final joint fit, 95 % CI from the fit Jacobian, autocorrelation-corrected)", par),
         ("What remains unexplained", "\n".join(resid)),
+        ("The twin patch", _patch_text(entries, patch_files)),
     ]
     truth = compare_to_truth(att, model, holdout_recs)
     if truth is not None:
         sections.append(("Against the twin's truth (scoring only: the diagnosis never reads it)",
                          truth.markdown(att.joint_names)))
+    if replay is not None:
+        sections.append(("The gap through the twin: held-out recordings replayed through the base twin and the "
+                         "patched twin (no twin noise), RMS(τ_meas − τ_twin) per joint [N·m]",
+                         f"Twin `{twin.name}`: {replay.text()}.\n\n{replay.table()}"))
     title = f"Sim-to-real gap diagnosis — {model.robot.name}"
     sim_desc = (f"Model: `{model.robot.name}`"
                 + (f" + {', '.join(sorted(model.effect_names))}" if model.effect_names else " (rigid body only)")
@@ -231,9 +257,27 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
                "residual_white": rs.white, "verdict": verdict,
                "data_quality": [{"name": n, **q.to_dict()} for n, q in quality],
                "truth": truth_summary(truth) if truth is not None else None}
+    if replay is not None:
+        summary["twin_replay"] = {"twin": twin.name, "rms_before": replay.rms_before.tolist(),
+                                  "rms_after": replay.rms_after.tolist(), "reduction": replay.reduction,
+                                  "predicted_reduction": replay.predicted_reduction}
     atomic_write_text(out / "diagnosis.json", json.dumps(summary, indent=1))
-    files.update(report_md=out / "report.md", report_html=out / "report.html", json=out / "diagnosis.json")
-    return Diagnosis(gm, sp, att, verdict, files, truth)
+    files.update(report_md=out / "report.md", report_html=out / "report.html", json=out / "diagnosis.json",
+                 **patch_files)
+    return Diagnosis(gm, sp, att, verdict, files, truth, replay)
+
+
+def _patch_text(entries: list, files: dict[str, Path]) -> str:
+    """The patch section: what went into ``twin_patch.yaml`` and what did not."""
+    used = [e.name for e in entries if e.fragment is not None]
+    left = [e.name for e in entries if e.fragment is None]
+    out = (f"`{files['twin_patch'].name}` adds {', '.join(used)} to a base twin of this robot "
+           "(`proprio simulate --twin BASE --patch twin_patch.yaml`)" if used else
+           f"`{files['twin_patch'].name}` is empty: nothing physical was found")
+    if "patch_robot" in files:
+        out += f"; the corrected robot description is `{files['patch_robot'].name}`"
+    out += "." + (f" Not in the patch: {', '.join(left)} (see the comments in the file)." if left else "")
+    return out
 
 
 __all__ += ["DiagnosisError"]

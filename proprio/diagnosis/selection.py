@@ -47,7 +47,7 @@ effective sample size of the autocorrelated residual (Bartlett), i.e. 95 % CI = 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -145,7 +145,8 @@ class CrossValidation:
 
 @dataclass
 class Attribution:
-    """Result of :func:`attribute`."""
+    """Result of :func:`attribute`. ``fitted``: the selected candidates by name (their final parameters are the last
+    step's ``params``), for :func:`proprio.diagnosis.patch.twin_patch`."""
     joint_names: list[str]
     steps: list[Step]
     ranking: list[dict[str, Any]]
@@ -162,6 +163,7 @@ class Attribution:
     data_seconds: tuple[float, float]
     block_s: float
     cv: "CrossValidation | None" = None
+    fitted: dict[str, Candidate] = field(default_factory=dict)
 
     @property
     def physical_steps(self) -> list[Step]:
@@ -444,7 +446,8 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
     noise = _noise_findings(model, structure, hold, r_h)
     return Attribution(model.robot.joint_names, steps, ranking, rmse0, sig, structure, noise,
                        [c.name for c in cands], _split(e_h, hold), _split(pred_h, hold), hold.times, proc_sigma,
-                       sorted({cs.describe() for cs in hold.conditioned + train.conditioned}), data_seconds, block_s)
+                       sorted({cs.describe() for cs in hold.conditioned + train.conditioned}), data_seconds, block_s,
+                       fitted={c.name: c for c in selected})
 
 
 def _noise_findings(model: SimModel, structure: ResidualStructure, hold: GapData,

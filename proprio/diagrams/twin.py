@@ -31,6 +31,15 @@ A twin is described by one YAML file (``proprio/configs/iiwa14_twin.yaml``)::
     drive: {motor_inertia: [...], motor_viscous: [...], motor_coulomb: [...]}   # motor side (hidden), or null
     payload: {mass: 1.0, com_flange: [0, 0, 0.05]}                        # or null
     effects: {viscous_coulomb: {...}, hysteresis: {...}, ...}             # see proprio.effects
+
+``robot`` may also be a robot mapping (the ``proprio-robot/v1`` layout of ``RobotDescription.to_dict``).
+
+**Patches.** A twin patch (``twin_patch.yaml``, written by ``proprio diagnose``) is a fragment of this format that
+adds what a diagnosis found to a base twin: ``patch_for: {robot: <name>, joints: <n>}`` (the robot it was fitted
+for), ``effects:`` blocks, a ``payload:`` and/or a corrected ``robot:`` (a robot YAML path, relative to the patch's
+folder, or a mapping). :func:`merge_twin_patch` merges it into the base config's mapping and
+``load_twin_config(base, patch=...)`` loads the result; an effect the base already simulates, a payload on a base
+that has one, or a patch for another robot or joint count is an error naming the field.
 """
 from __future__ import annotations
 
@@ -55,7 +64,7 @@ from pydrake.systems.primitives import Multiplexer, VectorLogSink
 from pydrake.trajectories import PiecewisePolynomial, Trajectory
 from tqdm import tqdm
 
-from proprio.description import RobotDescription, load_robot
+from proprio.description import DescriptionError, RobotDescription, load_robot, robot_from_dict
 from proprio.dynamics import inverse_dynamics
 from proprio.kinematics import flange_pose, point_jacobian
 from proprio.payload import Payload, attach_payload
@@ -71,11 +80,12 @@ from proprio.systems.robot_logger import LoggerConfig, RobotLogger
 from proprio.systems.sensors import PositionSensor, TorqueSensor
 from proprio.systems.trajectories import AddTrajectorySource, sample_trajectory
 
-__all__ = ["TwinConfig", "TwinConfigError", "load_twin_config", "TwinDiagram", "build_twin_diagram",
-           "simulate_twin", "payload_wrench", "hysteresis_test_trajectory", "run_hysteresis_test"]
+__all__ = ["TwinConfig", "TwinConfigError", "load_twin_config", "merge_twin_patch", "PATCH_KEYS", "TwinDiagram",
+           "build_twin_diagram", "simulate_twin", "payload_wrench", "hysteresis_test_trajectory", "run_hysteresis_test"]
 
 _TOP_KEYS = {"name", "robot", "time_step", "logger", "seed", "controller", "drive", "payload", "effects"}
 _CONTROLLER_KEYS = {"kp", "ki", "kd", "payload_model"}
+PATCH_KEYS = ("patch_for", "robot", "effects", "payload")
 
 
 class TwinConfigError(ValueError):
@@ -111,7 +121,7 @@ class TwinConfig:
             raise TwinConfigError(f"{source}: unknown key(s) {unknown}; valid keys: {sorted(_TOP_KEYS)}")
         if "robot" not in data:
             raise TwinConfigError(f"{source}: 'robot' is required (e.g. iiwa14_identified)")
-        desc = load_robot(data["robot"])
+        desc = _robot_of(data["robot"], f"{source}: robot")
         n = desc.n
         try:
             effects = make_effects(data.get("effects") or {}, n)
@@ -179,8 +189,69 @@ class TwinConfig:
                 "logger": self.logger.to_dict()}
 
 
-def load_twin_config(name_or_path: str | Path) -> TwinConfig:
-    """Load a twin YAML: a shipped config name (``iiwa14_twin`` or ``iiwa14_twin.yaml``) or a file path."""
+def _robot_of(value: Any, where: str) -> RobotDescription:
+    """The robot of a ``robot:`` entry: a built-in name, a file/directory path or a ``proprio-robot/v1`` mapping."""
+    try:
+        return robot_from_dict(value, where) if isinstance(value, dict) else load_robot(value)
+    except (DescriptionError, FileNotFoundError, KeyError, TypeError, ValueError) as exc:
+        raise TwinConfigError(f"{where}: cannot load robot ({exc})") from exc
+
+
+def merge_twin_patch(base: dict[str, Any], patch: dict[str, Any], source: str = "<patch>",
+                     base_dir: str | Path | None = None) -> dict[str, Any]:
+    """The twin-config mapping ``base`` with ``patch`` merged in (module docstring, "Patches").
+
+    ``patch_for`` must name the base's robot (its description's ``name``) and joint count; the patch's effects are
+    added to the base's (an effect the base already has is an error: the patch was fitted against a model without
+    it); its payload needs a base without one; its ``robot`` replaces the base's robot when it has the same joints.
+    A relative ``robot`` path is taken relative to ``base_dir`` (the patch's folder) when the file is there. Raises
+    :class:`TwinConfigError` naming the offending field."""
+    if not isinstance(patch, dict):
+        raise TwinConfigError(f"{source}: a twin patch must be a YAML mapping")
+    unknown = sorted(set(patch) - set(PATCH_KEYS))
+    if unknown:
+        raise TwinConfigError(f"{source}: unknown key(s) {unknown}; a twin patch may hold {list(PATCH_KEYS)}")
+    target = patch.get("patch_for")
+    if not isinstance(target, dict) or not {"robot", "joints"} <= set(target):
+        raise TwinConfigError(f"{source}: patch_for must be a mapping {{robot: <name>, joints: <n>}} (the robot the "
+                              "patch was fitted for)")
+    if "robot" not in base:
+        raise TwinConfigError("base twin: 'robot' is required")
+    desc = _robot_of(base["robot"], "base twin: robot")
+    if str(target["robot"]) != desc.name or int(target["joints"]) != desc.n:
+        raise TwinConfigError(f"{source}: patch_for: the patch is for robot '{target['robot']}' with "
+                              f"{target['joints']} joints, the base twin's robot is '{desc.name}' with {desc.n} joints")
+    out = {k: v for k, v in base.items()}
+    out["name"] = f"{base.get('name', 'twin')}+patch"
+    effects = patch.get("effects") or {}
+    if not isinstance(effects, dict):
+        raise TwinConfigError(f"{source}: effects must be a mapping {{name: parameters}}")
+    have = dict(base.get("effects") or {})
+    twice = sorted(set(effects) & set(have))
+    if twice:
+        raise TwinConfigError(f"{source}: effects {twice} are already in the base twin; the patch was fitted against "
+                              "a model without them (patch a base twin that lacks them)")
+    out["effects"] = {**have, **effects}
+    if patch.get("payload"):
+        if base.get("payload"):
+            raise TwinConfigError(f"{source}: payload: the base twin already has a payload ({base['payload']}); a "
+                                  "patch payload is fitted against a model without one")
+        out["payload"] = patch["payload"]
+    if patch.get("robot") is not None:
+        robot = patch["robot"]
+        if isinstance(robot, str) and base_dir is not None and not Path(robot).is_absolute() \
+                and (Path(base_dir) / robot).exists():
+            robot = str(Path(base_dir) / robot)
+        new = _robot_of(robot, f"{source}: robot")
+        if new.joint_names != desc.joint_names:
+            raise TwinConfigError(f"{source}: robot: its joints {new.joint_names} differ from the base robot's "
+                                  f"{desc.joint_names}")
+        out["robot"] = robot
+    return out
+
+
+def _read_yaml(name_or_path: str | Path, what: str = "twin config") -> tuple[Any, str]:
+    """``(mapping, source)`` of a YAML file or a shipped config name."""
     path = Path(name_or_path)
     if path.exists():
         text, source = path.read_text(), str(path)
@@ -190,13 +261,31 @@ def load_twin_config(name_or_path: str | Path) -> TwinConfig:
         if not res.is_file():
             shipped = sorted(p.name for p in resources.files("proprio.configs").iterdir()
                              if p.name.endswith("twin.yaml"))
-            raise TwinConfigError(f"twin config '{name_or_path}' is neither a file nor a shipped config {shipped}")
+            raise TwinConfigError(f"{what} '{name_or_path}' is neither a file nor a shipped config {shipped}")
         text, source = res.read_text(), stem
     try:
-        data = yaml.safe_load(text)
+        return yaml.safe_load(text), source
     except yaml.YAMLError as exc:
         raise TwinConfigError(f"{source}: not valid YAML ({exc})") from exc
-    return TwinConfig.from_dict(data, source)
+
+
+def load_twin_config(name_or_path: str | Path, patch: str | Path | dict[str, Any] | None = None) -> TwinConfig:
+    """Load a twin YAML: a shipped config name (``iiwa14_twin`` or ``iiwa14_twin.yaml``) or a file path; with
+    ``patch`` (a twin-patch file or mapping) merged in by :func:`merge_twin_patch`."""
+    data, source = _read_yaml(name_or_path)
+    if patch is None:
+        return TwinConfig.from_dict(data, source)
+    if not isinstance(data, dict):
+        raise TwinConfigError(f"{source}: a twin config must be a YAML mapping")
+    if isinstance(patch, dict):
+        merged = merge_twin_patch(data, patch)
+        return TwinConfig.from_dict(merged, f"{source} + patch")
+    path = Path(patch)
+    if not path.is_file():
+        raise TwinConfigError(f"twin patch '{patch}': no such file")
+    pdata, psource = _read_yaml(path, "twin patch")
+    merged = merge_twin_patch(data, pdata, psource, path.parent)
+    return TwinConfig.from_dict(merged, f"{source} + {psource}")
 
 
 # ------------------------------------------------------------------------------------------------------------------
