@@ -47,7 +47,7 @@ effective sample size of the autocorrelated residual (Bartlett), i.e. 95 % CI = 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -59,6 +59,7 @@ from proprio.conditioning import ConditionedSignals, ConditioningConfig, process
 from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, MIN_BLOCK_S, MIN_BLOCKS, DiagnosisError, GapData,
                                     SimModel, condition_all, kept)
 from proprio.diagnosis.fitting import Fit, fit_candidates, predict_candidates
+from proprio.diagnosis.hints import Hint, find_hints, shifted_joints
 from proprio.effects import EFFECTS
 from proprio.recording import Recording, validate_recording
 
@@ -162,6 +163,7 @@ class Attribution:
     data_seconds: tuple[float, float]
     block_s: float
     cv: "CrossValidation | None" = None
+    hints: list[Hint] = field(default_factory=list)
 
     @property
     def physical_steps(self) -> list[Step]:
@@ -442,9 +444,16 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
     rate = float(np.median([cs.rate_hz for cs in hold.conditioned]))
     structure = _residual_structure(r_h, r_tr, train, hold, rate, proc_sigma)
     noise = _noise_findings(model, structure, hold, r_h)
+    say("hints on the remaining residual")
+    structured = np.flatnonzero(structure.structured_time | structure.structured_state
+                                | (shifted_joints(r_h, blk, alpha) & ~structure.within_processing))
+    parts = [np.stack([predict_candidates([c], fit, d) for c in selected], axis=2) if selected and len(structured)
+             else None for d in (train, hold)]
+    hints = find_hints(train, hold, r_tr, r_h, structured, blk, parts[0], parts[1], alpha=alpha)
     return Attribution(model.robot.joint_names, steps, ranking, rmse0, sig, structure, noise,
                        [c.name for c in cands], _split(e_h, hold), _split(pred_h, hold), hold.times, proc_sigma,
-                       sorted({cs.describe() for cs in hold.conditioned + train.conditioned}), data_seconds, block_s)
+                       sorted({cs.describe() for cs in hold.conditioned + train.conditioned}), data_seconds, block_s,
+                       hints=hints)
 
 
 def _noise_findings(model: SimModel, structure: ResidualStructure, hold: GapData,
