@@ -35,7 +35,7 @@ of the block SSEs, as the selection's test) rejects "no gain" at ``α / K`` (Bon
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from scipy import stats
@@ -75,7 +75,8 @@ class Hint:
     coefficients: list[float] = field(default_factory=list)
     t_stat: float = 0.0
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready (``diagnosis.json`` ``hints``)."""
         return {"joint": self.joint, "terms": self.terms, "signals": self.signals, "gain": self.gain,
                 "coefficients": self.coefficients, "t": self.t_stat, "text": self.text}
 
@@ -182,6 +183,8 @@ def _hint_text(j: int, terms: list[Term], coef: np.ndarray, gain: float) -> str:
         phrase = tm.phrase
         if phrase.startswith("grows with") and c < 0:
             phrase = "falls with" + phrase[len("grows with"):]
+        if tm.name == f"τ{_sub(j + 1)}":
+            phrase += " (its own modelled torque: a gain error)"
         bits.append(f"{phrase} (coefficient {c:.3g}{' ' + tm.unit if tm.unit else ''})")
     return (f"Hint (not a library effect): joint {j + 1}'s residual " + "; and ".join(bits)
             + f" — held-out gain {100 * gain:.0f} %.")
