@@ -140,6 +140,23 @@ def _tables(att: Attribution) -> tuple[str, str, str]:
     return "\n".join(rank), "\n".join(shr), "\n".join(par)
 
 
+def _hints_section(att: Attribution) -> str:
+    """The hints beyond the library (:mod:`~proprio.diagnosis.hints`): a table and their plain-language lines."""
+    head = ("Hints, not library effects: a sparse regression of the remaining residual of each structured (or, on the held-out data, "
+            "shifted) joint on "
+            "the measured and modelled signals (every joint's modelled τ, q, q̇, q̈, smooth sign(q̇), harmonics of q, "
+            "time and a few products), fitted on the training data and kept only with a significant held-out gain.")
+    if not att.hints:
+        return head + ("\n\nNo hint: the remaining residual is white and centred on every joint, or no few terms "
+                       "explain a significant share (≥ 5 %, block t-test) of it on the held-out data.")
+    tab = ["| joint | terms (most important first) | signals | coefficients | held-out gain [%] | t (blocks) |",
+           "|---|---|---|---|---|---|"]
+    for h in att.hints:
+        tab.append(f"| {att.joint_names[h.joint]} | {', '.join(h.terms)} | {', '.join(h.signals)} | "
+                   f"{', '.join(_fmt(c) for c in h.coefficients)} | {100 * h.gain:.1f} | {h.t_stat:.1f} |")
+    return "\n\n".join([head, "\n".join(tab)] + [h.text for h in att.hints])
+
+
 def _md_to_html_table(md: str) -> str:
     rows = [r.strip().strip("|").split("|") for r in md.splitlines() if not r.startswith("|---")]
     out = ["<table>"]
@@ -211,6 +228,7 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
         ("Fitted parameters (final joint fit, 95 % CI from the fit Jacobian, autocorrelation-corrected)", par),
         ("What remains unexplained", "\n".join(resid)),
         ("The twin patch", _patch_text(entries, patch_files)),
+        ("Hints beyond the library (not library effects)", _hints_section(att)),
     ]
     truth = compare_to_truth(att, model, holdout_recs)
     if truth is not None:
@@ -254,7 +272,7 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
                           "params": {k: {"names": nm, "value": th.tolist(), "ci95": ci.tolist()}
                                      for k, (th, ci, nm) in s.params.items()}} for s in att.steps],
                "ranking": att.ranking, "noise": [{"name": f.name, "rms": f.rms.tolist()} for f in att.noise],
-               "residual_white": rs.white, "verdict": verdict,
+               "residual_white": rs.white, "hints": [h.to_dict() for h in att.hints], "verdict": verdict,
                "data_quality": [{"name": n, **q.to_dict()} for n, q in quality],
                "truth": truth_summary(truth) if truth is not None else None}
     if replay is not None:

@@ -59,6 +59,7 @@ from proprio.conditioning import ConditionedSignals, ConditioningConfig, process
 from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, MIN_BLOCK_S, MIN_BLOCKS, DiagnosisError, GapData,
                                     SimModel, condition_all, kept)
 from proprio.diagnosis.fitting import Fit, fit_candidates, predict_candidates
+from proprio.diagnosis.hints import Hint, find_hints, shifted_joints
 from proprio.effects import EFFECTS
 from proprio.recording import Recording, validate_recording
 
@@ -164,6 +165,7 @@ class Attribution:
     block_s: float
     cv: "CrossValidation | None" = None
     fitted: dict[str, Candidate] = field(default_factory=dict)
+    hints: list[Hint] = field(default_factory=list)
 
     @property
     def physical_steps(self) -> list[Step]:
@@ -444,10 +446,16 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
     rate = float(np.median([cs.rate_hz for cs in hold.conditioned]))
     structure = _residual_structure(r_h, r_tr, train, hold, rate, proc_sigma)
     noise = _noise_findings(model, structure, hold, r_h)
+    say("hints on the remaining residual")
+    structured = np.flatnonzero(structure.structured_time | structure.structured_state
+                                | (shifted_joints(r_h, blk, alpha) & ~structure.within_processing))
+    parts = [np.stack([predict_candidates([c], fit, d) for c in selected], axis=2) if selected and len(structured)
+             else None for d in (train, hold)]
+    hints = find_hints(train, hold, r_tr, r_h, structured, blk, parts[0], parts[1], alpha=alpha)
     return Attribution(model.robot.joint_names, steps, ranking, rmse0, sig, structure, noise,
                        [c.name for c in cands], _split(e_h, hold), _split(pred_h, hold), hold.times, proc_sigma,
                        sorted({cs.describe() for cs in hold.conditioned + train.conditioned}), data_seconds, block_s,
-                       fitted={c.name: c for c in selected})
+                       fitted={c.name: c for c in selected}, hints=hints)
 
 
 def _noise_findings(model: SimModel, structure: ResidualStructure, hold: GapData,

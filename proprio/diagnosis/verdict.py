@@ -72,6 +72,13 @@ def verdict_text(att: Attribution, gm: GapMap) -> str:
                         f"{float(rs.r2_state.max()):.2f})")
         parts.append("What remains is structured — " + "; ".join(bits) + " — so part of the gap is an effect "
                      "outside the candidate set (or a candidate in a form the library does not model).")
+        if not att.hints:
+            parts.append("No few terms of the measured and modelled signals (τ, q, q̇, q̈, their harmonics, time) "
+                         "explain a significant share of it on the held-out data: no hint.")
+    if att.hints:
+        parts.append(f"A sparse regression of what remains on the measured and modelled signals gives "
+                     f"{len(att.hints)} hint(s) — hints about what the unexplained part follows, scored on the "
+                     "held-out data, not library effects: " + " ".join(h.text for h in att.hints))
     for f in att.noise:
         joints = np.flatnonzero(f.rms > 0)
         parts.append(f"On {', '.join(att.joint_names[j] for j in joints)} the remaining residual is white and larger "
