@@ -9,7 +9,11 @@ from proprio.effects.base import INF, TINY, JointEffect, affine_scan
 from proprio.reversals import ReversalTravel, reversal_travel
 from proprio.signals import MotionSignals
 
-__all__ = ["Hysteresis", "LostMotion"]
+__all__ = ["Hysteresis", "LostMotion", "MAX_LOAD_GAIN"]
+
+MAX_LOAD_GAIN = 0.1
+"""Upper bound of ``load_gain`` [–]: the loop amplitude grows by at most 10 % of the load torque (the calibrated twin
+has 2 %, Fig. 2.5's gravity-loaded joints); a fit beyond it is a light joint's loop taken for a load law."""
 
 
 class Hysteresis(JointEffect):
@@ -30,7 +34,7 @@ class Hysteresis(JointEffect):
     name = "hysteresis"
     place = "sensor"
     linear = False
-    parameters = {"saturation": (0.0, 0.0, INF), "load_gain": (0.0, 0.0, INF),
+    parameters = {"saturation": (0.0, 0.0, INF), "load_gain": (0.0, 0.0, MAX_LOAD_GAIN),
                   "saturation_travel": (math.radians(6.0), TINY, INF)}
     settings = {"reversal_velocity": (2e-3, 0.0, INF)}
 
@@ -70,7 +74,7 @@ class LostMotion(JointEffect):
     name = "lost_motion"
     place = "sensor"
     linear = False
-    parameters = {"amplitude": (0.0, 0.0, INF), "load_gain": (0.0, 0.0, INF),
+    parameters = {"amplitude": (0.0, 0.0, INF), "load_gain": (0.0, 0.0, MAX_LOAD_GAIN),
                   "window": (math.radians(1.0), TINY, INF)}
     settings = {"reversal_velocity": (2e-3, 0.0, INF)}
 
