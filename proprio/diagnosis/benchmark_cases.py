@@ -48,7 +48,8 @@ ENCODER = {"std": np.radians(0.0005), "resolution": np.radians(0.0001)}   # back
 #                                  [rad], the shipped twin's: every case logs measured q, never exact q, q̇, q̈
 PROCESSING_TYPES = ("signal_lag", "encoder_noise")   # data-path cases: scored against the processing section
 EXTRA_TYPES = ("rigid_body", "payload", "signal_lag")
-EFFECT_TYPES = tuple(EFFECTS) + EXTRA_TYPES
+STATIC_EFFECTS = tuple(k for k, cls in EFFECTS.items() if not cls.time_varying)   # time-varying: time_varying_cases
+EFFECT_TYPES = STATIC_EFFECTS + EXTRA_TYPES
 # twin mode: every effect of the shipped iiwa14_twin.yaml, plus the payload (TwinConfig.with_payload)
 TWIN_EFFECT_TYPES = ("viscous_coulomb", "hysteresis", "lost_motion", "ripple", "sensor_offset_gain", "torque_noise",
                      "encoder_noise", "payload")
@@ -184,7 +185,7 @@ def make_cases(quick: bool = False, seed: int = 0, twin: bool = False) -> list[B
         for m in mags:
             s = int(rng.integers(1 << 30))
             cases.append(BenchmarkCase(f"{kind}@{m:g}", (kind,), m, s))
-    library = [k for k in EFFECTS if k not in ("torque_noise", "encoder_noise", "elasticity")]
+    library = [k for k in STATIC_EFFECTS if k not in ("torque_noise", "encoder_noise", "elasticity")]
     for k in range(2 if quick else 6):
         present = tuple(sorted(rng.choice(library, size=k % 3, replace=False))) if k else ()
         cases.append(BenchmarkCase(f"null#{k}" + (f"({'+'.join(present)})" if present else ""), (), 1.0,
