@@ -14,7 +14,8 @@ diagnosis fit):
 Torque sensor chain (thesis §2.1): ``τ_meas = (1 + g)·(τ_J + τ_hyst + τ_lost + τ_ripple) + o + o_d(t) + noise``,
 i.e. the strain-gauge effects act on the transmitted τ_J, the gain/offset error on everything the gauge sees, a
 drifting offset ``o_d`` (``offset_drift``, on the session clock ``MotionSignals.t``) adds to it, and white noise is
-added last (the streaming form has no session clock and refuses time-varying effects). Every contribution is returned separately (the twin's ``tau_<effect>`` truth channels).
+added last (the streaming form has no session clock and refuses time-varying effects). Every contribution is
+returned separately (the twin's ``tau_<effect>`` truth channels).
 """
 from __future__ import annotations
 
