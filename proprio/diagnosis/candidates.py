@@ -217,6 +217,14 @@ class RigidBodyCandidate(Candidate):
         self._names = [f"δ{names[c]}" for c in self.columns]
         train.cache[("design", self.name)] = full[..., self.columns]
 
+    @classmethod
+    def of(cls, robot: RobotDescription, train: GapData) -> "RigidBodyCandidate":
+        """The candidate for ``train``, built once per training set (its rank-revealing QR is the costly part)."""
+        key = ("candidate", cls.name)
+        if key not in train.cache:
+            train.cache[key] = cls(robot, train)
+        return train.cache[key]
+
     def _inertial(self, data: GapData) -> np.ndarray:
         keep = np.array([k % PARAMS_PER_JOINT < 10 for k in range(PARAMS_PER_JOINT * self.robot.n)])
         return data.stack([regressor(self.robot, s.q, s.qd, s.qdd)[..., keep] for s in data.signals])
@@ -317,7 +325,7 @@ def candidate_set(model: SimModel, train: GapData, names: Sequence[str] | None =
         available["sensor_gain"] = lambda: EffectCandidate("sensor_offset_gain", n, ("gain",), "sensor_gain")
     names = None if names is None else [x for k in names for x in
                                         (("sensor_offset", "sensor_gain") if k == "sensor_offset_gain" else (k,))]
-    available["rigid_body"] = lambda: RigidBodyCandidate(model.robot, train)
+    available["rigid_body"] = lambda: RigidBodyCandidate.of(model.robot, train)
     available["payload"] = lambda: PayloadCandidate(model.robot)
     available["signal_lag"] = lambda: SignalLagCandidate(n)
     if names is not None:

@@ -14,7 +14,8 @@ series,
 * ``sign q̇_j`` — a friction level that moves (gearbox warm-up),
 
 are one level per recording 2..K (*across* recordings: steps between sessions; the common level is the static
-offset) and Legendre polynomials P₁, P₂ of the time within each recording (*within*: drift, warm-up). A
+offset) and a slope — Legendre P₁ — of the time within each recording (*within*: drift, warm-up; a curvature
+term cost more block degrees of freedom than it gained on 10–30 s recordings). A
 state-feature regression with per-joint coefficients (q, sin q, cos q, …) was tried first and rejected: with a few
 recordings in different poses it reproduces any per-recording level and absorbed a 0.5 N·m drift whole.
 
@@ -32,7 +33,7 @@ names the joints, the size of the change [N·m] (range of the fitted time functi
 **Blocking (why a nuisance fit).** When time variation is detected, the static candidates — every candidate that is
 not time-varying, rigid body and payload first — are fitted to the training residual *together with* a nuisance
 :class:`TimeTrendNuisance`: per training recording a level (contrasts: the common level stays with the candidates,
-so a constant sensor offset is still found) and P₁, P₂ of the time within it, for the offset and the friction series.
+so a constant sensor offset is still found) and a slope within it, for the offset and the friction series.
 The nuisance predicts nothing on the held-out data, so a static candidate can gain there only through what it explains
 *beyond* a time trend: 43 inertial parameters no longer fit a drift on the training data and carry it over by chance.
 The alternatives were weighed: de-trending the held-out residual before the block t-test would also remove what the
@@ -54,6 +55,7 @@ from proprio.diagnosis.data import GapData, SimModel
 __all__ = ["TimeVariation", "TimeTrendNuisance", "time_variation", "BLOCK_S", "MIN_SHARE"]
 
 BLOCK_S = 2.0            # s, block length of the time-dependence test
+ORDER = 1                # Legendre order of the within-recording time functions
 MIN_SHARE = 0.02         # share of the state-cleared residual variance a time dependence must explain
 MIN_BLOCK_SAMPLES = 10
 SERIES = ("offset", "friction")
@@ -98,7 +100,7 @@ def _static_design(model: SimModel, train: GapData, hold: GapData) -> tuple[np.n
     samples: the rigid-body error's identifiable columns, viscous + Coulomb friction, sensor gain and a common
     offset per joint — the linear static candidates of the diagnosis."""
     n = model.robot.n
-    rigid = RigidBodyCandidate(model.robot, train)
+    rigid = RigidBodyCandidate.of(model.robot, train)
     parts = [rigid.design, EffectCandidate("viscous_coulomb", n).design, EffectCandidate("sensor_offset_gain", n).design]
     return tuple(np.concatenate([f(d) for f in parts], axis=-1) for d in (train, hold))
 
@@ -140,22 +142,23 @@ def _pool(model: SimModel, train: GapData, hold: GapData) -> _Pooled:
     return _Pooled(e, x, ts, _normalised_time(tl, rec, n_rec), rec, sign, block, n_rec)
 
 
-def time_basis(t_norm: np.ndarray, rec: np.ndarray, n_rec: int) -> np.ndarray:
-    """Slow functions of time ``[M, 3K − 1]``: a level for recordings 2..K (contrasts: the common level is left to
-    the static model) and Legendre P₁, P₂ of the normalised time within each recording (``t_norm`` in [−1, 1]).
-    Columns ``level_cols(n_rec)`` are the levels."""
+def time_basis(t_norm: np.ndarray, rec: np.ndarray, n_rec: int, order: int = ORDER) -> np.ndarray:
+    """Slow functions of time ``[M, K − 1 + order·K]``: a level for recordings 2..K (contrasts: the common level is
+    left to the static model) and Legendre P₁..P_order of the normalised time within each recording (``t_norm`` in
+    [−1, 1]). Columns ``level_cols(n_rec, order)`` are the levels."""
+    legendre = [t_norm, 0.5 * (3 * t_norm ** 2 - 1)][:order]
     cols = []
     for r in range(n_rec):
         ind = (rec == r).astype(float)
         if r > 0:
             cols.append(ind)
-        cols += [ind * t_norm, ind * 0.5 * (3 * t_norm ** 2 - 1)]
+        cols += [ind * p for p in legendre]
     return np.stack(cols, axis=1)
 
 
-def level_cols(n_rec: int) -> np.ndarray:
+def level_cols(n_rec: int, order: int = ORDER) -> np.ndarray:
     """Indices of the level (across-recording) columns of :func:`time_basis`."""
-    return np.array([3 * r - 1 for r in range(1, n_rec)], dtype=int)
+    return np.array([order + (order + 1) * (r - 1) for r in range(1, n_rec)], dtype=int)
 
 
 def _block_f_test(y: np.ndarray, x: np.ndarray, wts: np.ndarray, cols: np.ndarray) -> tuple[float, np.ndarray]:
@@ -184,28 +187,23 @@ def time_variation(model: SimModel, train: GapData, hold: GapData, alpha: float 
     pool = _pool(model, train, hold)
     m_s, n = pool.e.shape
     n_blk = int(pool.block.max()) + 1
-    sw = 1.0 / np.sqrt(np.maximum((pool.e ** 2).mean(axis=0), 1e-12))          # every joint counts alike
-    xw = (pool.x * sw[None, :, None]).reshape(m_s * n, -1)
-    norm = np.linalg.norm(xw, axis=0)
-    q_x, r_x = np.linalg.qr(xw[:, norm > 1e-12 * norm.max()] / norm[norm > 1e-12 * norm.max()])
-    d = np.abs(np.diag(r_x))
-    q_x = q_x[:, d > 1e-8 * d.max()]
+    w = 1.0 / np.maximum((pool.e ** 2).mean(axis=0), 1e-12)           # every joint counts alike
+    # Frisch–Waugh: a column ``a`` on joint j's rows less its weighted projection on the static design,
+    # a − X (XᵀWX)⁺ XᵀW a (normal equations of the column-scaled design, tiny directions dropped)
+    scale = np.sqrt(np.einsum("mjp,j->p", pool.x ** 2, w))
+    scale[scale == 0] = 1.0
+    xs = pool.x / scale
+    lam, vec = np.linalg.eigh(np.einsum("mjp,j,mjq->pq", xs, w, xs))
+    keep = lam > 1e-10 * max(float(lam.max()), 1e-300)
+    g_inv = (vec[:, keep] / lam[keep]) @ vec[:, keep].T
 
-    def clear(a: np.ndarray) -> np.ndarray:
-        """Frisch–Waugh: ``a [M, n, c]`` less its weighted projection on the static design (all joints' rows)."""
-        flat = (a * sw[None, :, None]).reshape(m_s * n, -1)
-        return (flat - q_x @ (q_x.T @ flat)).reshape(a.shape) / sw[None, :, None]
+    def clear(j: int, a: np.ndarray) -> np.ndarray:
+        """``a [M, c]`` on joint ``j``'s rows, less what the static model explains (joint j's rows of it)."""
+        return a - xs[:, j, :] @ (g_inv @ (w[j] * xs[:, j, :].T @ a))
 
-    e_res = clear(pool.e[:, :, None])[:, :, 0]
+    e_res = pool.e - xs @ (g_inv @ np.einsum("mjp,j,mj->p", xs, w, pool.e))
     basis = time_basis(pool.t_norm, pool.rec, pool.n_rec)
     n_b = basis.shape[1]
-    stacked = np.zeros((m_s, n, 2 * n * n_b))          # per joint and series, the time basis on that joint's rows
-    for k in range(2):
-        for j in range(n):
-            z = np.ones(m_s) if k == 0 else pool.sign[:, j]
-            c0 = (k * n + j) * n_b
-            stacked[:, j, c0:c0 + n_b] = basis * z[:, None]
-    t_clear = clear(stacked)
     all_cols = np.arange(n_b)
     lv = level_cols(pool.n_rec)
     within = np.setdiff1d(all_cols, lv)
@@ -224,8 +222,7 @@ def time_variation(model: SimModel, train: GapData, hold: GapData, alpha: float 
     for j in range(n):
         best = (1.0, 0.0, 0.0, "")
         for k, z in enumerate((np.ones(m_s), pool.sign[:, j])):
-            c0 = (k * n + j) * n_b
-            t_res = t_clear[:, j, c0:c0 + n_b]
+            t_res = clear(j, basis * z[:, None])
             y, x = block_mean(e_res[:, j] * z), block_mean(t_res * z[:, None])
             p_full, coef = _block_f_test(y, x, counts[ok], all_cols)
             p = min(1.0, 2.0 * p_full)
@@ -269,7 +266,7 @@ def time_variation(model: SimModel, train: GapData, hold: GapData, alpha: float 
 
 class TimeTrendNuisance(Candidate):
     """The time-trend nuisance fitted alongside static candidates when time variation is detected (module
-    docstring): per joint, the :func:`time_basis` of the training recordings (level contrasts, P₁, P₂ within each)
+    docstring): per joint, the :func:`time_basis` of the training recordings (level contrasts, a slope within each)
     times ``1`` and ``sign q̇_j``. It predicts nothing on other data (its design there is zero)."""
     name = "time_trend"
     place = "sensor"
