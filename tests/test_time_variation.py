@@ -143,3 +143,31 @@ def test_session_time_errors_name_the_field():
     bad = replace(rec, meta={**rec.meta, "session_time_s": "late"})
     with pytest.raises(DiagnosisError, match="session_time_s"):
         session_time(bad, "training recording 0")
+
+
+def test_twin_simulates_time_varying_effects_on_the_session_clock():
+    from pydrake.trajectories import PiecewisePolynomial
+
+    from proprio.diagrams.twin import load_twin_config, simulate_twin
+
+    q_a = np.array([0.1, 0.5, -0.2, -1.2, 0.3, 0.7, 0.2])
+    rng = np.random.default_rng(0)
+    knots = q_a + rng.uniform(-0.25, 0.25, (4, N_J))
+    knots[0] = q_a
+    traj = PiecewisePolynomial.CubicShapePreserving(np.linspace(0.0, 1.0, 4), knots.T, True)
+    base = load_twin_config("iiwa14_twin")
+    warm = FrictionWarmup(N_J, viscous=0.3, coulomb=0.2, time_constant=40.0, smooth_velocity=0.05)
+    drift = OffsetDrift(N_J, offset=0.1, drift=0.5, time_constant=60.0)
+    cfg = base.with_effects([e for e in base.effects] + [warm, drift]).with_session_time(30.0)
+    rec = simulate_twin(cfg, traj, progress=False)
+    tr = rec.truth
+    assert rec.meta["session_time_s"] == 30.0 and "friction_warmup" in rec.meta["effects"]
+    # the simulated τ_J holds the warm-up friction (evaluated per step at the session time) ...
+    np.testing.assert_allclose(tr["tau_J_true"], tr["tau_rbd"] + tr["tau_viscous_coulomb"]
+                               + tr["tau_friction_warmup"], atol=1e-6)
+    # t_true is on the logged stamps' clock, which starts at the first (jittered, ≤ 1 ms) stamp: rtol 1e-4
+    s = MotionSignals(tr["t_true"] + 30.0, tr["q_true"], tr["qd"], tr["qdd"])
+    np.testing.assert_allclose(tr["tau_friction_warmup"], warm.torque(s), rtol=1e-4, atol=1e-9)
+    # ... and the measured τ the drifting offset, 30 s into the session
+    np.testing.assert_allclose(tr["tau_offset_drift"], drift.offset_at(s.t), rtol=1e-4)
+    assert tr["tau_offset_drift"][0, 0] == pytest.approx(0.1 + 0.5 * (1 - np.exp(-0.5)), abs=2e-3)
