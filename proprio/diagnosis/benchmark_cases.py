@@ -55,10 +55,10 @@ RATE_HZ = 200.0
 NOISE_STD = 0.05                 # background torque-sensor noise [N·m] (present in data AND model unless withheld)
 ENCODER = {"std": np.radians(0.0005), "resolution": np.radians(0.0001)}   # background encoder noise + quantisation
 #                                  [rad], the shipped twin's: every case logs measured q, never exact q, q̇, q̈
-PROCESSING_TYPES = ("signal_lag", "encoder_noise")
+PROCESSING_TYPES = ("signal_lag", "encoder_noise")   # data-path cases: scored against the processing section
 TIME_TYPES = ("offset_drift", "friction_warmup", "offset_step")   # time-varying cases (time_varying_cases)
 SESSION_S = (0.0, 25.0, 50.0)    # s, session time of the 2 training and the held-out recording (offline)
-TWIN_SESSION_S = (0.0, 35.0, 70.0)   # s, the same through the twin (≈30 s recordings)   # data-path cases: scored against the processing section
+TWIN_SESSION_S = (0.0, 35.0, 70.0)   # s, the same through the twin (≈30 s recordings)
 EXTRA_TYPES = ("rigid_body", "payload", "signal_lag")
 STATIC_EFFECTS = tuple(k for k, cls in EFFECTS.items() if not cls.time_varying)   # time-varying: time_varying_cases
 EFFECT_TYPES = STATIC_EFFECTS + EXTRA_TYPES
