@@ -131,9 +131,6 @@ def test_nuisance_keeps_a_drift_out_of_the_rigid_body():
         r = hold.residual - predict_candidates([rigid], fit, hold)
         gains.append(1.0 - float((r ** 2).sum()) / float((hold.residual ** 2).sum()))
     assert gains[1] < gains[0] - 0.05                           # the trend no longer carries over by chance
-    names = [c.name for c in candidate_set(model, train)]
-    assert "offset_drift" not in names                          # offered only when time variation is detected
-    assert "offset_drift" in [c.name for c in candidate_set(model, train, time_varying=True)]
 
 
 def test_session_time_errors_name_the_field():
@@ -171,3 +168,12 @@ def test_twin_simulates_time_varying_effects_on_the_session_clock():
     # ... and the measured τ the drifting offset, 30 s into the session
     np.testing.assert_allclose(tr["tau_offset_drift"], drift.offset_at(s.t), rtol=1e-4)
     assert tr["tau_offset_drift"][0, 0] == pytest.approx(0.1 + 0.5 * (1 - np.exp(-0.5)), abs=2e-3)
+
+
+def test_candidate_set_offers_time_varying_effects_only_when_asked():
+    model, train, _ = _gap(_short("time:offset_drift@1"))
+    static = {c.name for c in candidate_set(model, train)}
+    varying = {c.name for c in candidate_set(model, train, time_varying=True)}
+    assert {"rigid_body", "payload", "sensor_offset", "sensor_gain", "signal_lag", "viscous_coulomb"} <= static
+    assert varying - static == {"offset_drift", "friction_warmup"}
+    assert [c.name for c in candidate_set(model, train, ["offset_drift"])] == ["offset_drift"]     # when named

@@ -318,7 +318,6 @@ def candidate_set(model: SimModel, train: GapData, names: Sequence[str] | None =
     available: dict[str, Callable[[], Candidate]] = {
         k: special.get(k, lambda k=k: EffectCandidate(k, n)) for k in EFFECTS
         if k not in present and k not in ("torque_noise", "sensor_offset_gain")}
-    offered = set(available) - {k for k, cls in EFFECTS.items() if cls.time_varying and not time_varying}
     if "sensor_offset_gain" not in present:
         # offset and gain error are tested apart: a gain error aliases a scaled rigid body, an offset does not
         available["sensor_offset"] = lambda: EffectCandidate("sensor_offset_gain", n, ("offset",), "sensor_offset")
@@ -335,7 +334,7 @@ def candidate_set(model: SimModel, train: GapData, names: Sequence[str] | None =
             raise DiagnosisError(f"candidates: cannot test {', '.join(why)}; available: {sorted(available)}")
         chosen = [k for k in names if k in available]
     else:
-        chosen = [k for k in available if k in offered]
+        chosen = [k for k in available if time_varying or k not in EFFECTS or not EFFECTS[k].time_varying]
     if not chosen:
         raise DiagnosisError("candidates: no candidate effects left to test — the model already has every effect "
                              "of the library (or only noise effects were requested)")

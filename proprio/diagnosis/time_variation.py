@@ -101,8 +101,8 @@ def _static_design(model: SimModel, train: GapData, hold: GapData) -> tuple[np.n
     offset per joint — the linear static candidates of the diagnosis."""
     n = model.robot.n
     rigid = RigidBodyCandidate.of(model.robot, train)
-    parts = [rigid.design, EffectCandidate("viscous_coulomb", n).design,
-             EffectCandidate("sensor_offset_gain", n).design]
+    parts = [rigid.cached_design, EffectCandidate("viscous_coulomb", n).cached_design,      # shared with the
+             EffectCandidate("sensor_offset_gain", n).cached_design]                      # selection's candidates
     return tuple(np.concatenate([f(d) for f in parts], axis=-1) for d in (train, hold))
 
 
