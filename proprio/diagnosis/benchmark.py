@@ -105,7 +105,8 @@ def case_result_to_dict(r: CaseResult) -> dict[str, Any]:
 def case_result_from_dict(d: dict[str, Any]) -> CaseResult:
     c = d["case"]
     case = BenchmarkCase(**{**c, "withheld": tuple(c["withheld"]), "modelled": tuple(c["modelled"]),
-                            "logger": tuple(tuple(kv) for kv in c.get("logger", ()))})
+                            "logger": tuple(tuple(kv) for kv in c.get("logger", ())),
+                            "session_s": tuple(c.get("session_s", ()))})
     return CaseResult(**{**d, "case": case})
 
 

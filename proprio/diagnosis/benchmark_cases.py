@@ -23,6 +23,14 @@ is ``iiwa14_identified`` without friction + the modelled effects. Effect types: 
 (:data:`TWIN_EFFECT_TYPES`) and payload; null and two-effect cases as above. Scores are computed by the same
 :func:`summarise`. The measured shrinkage still counts only the sensor noise as what remains, so in twin mode it is
 an upper bound: the controller's tracking and the differentiation of q leave a little more.
+
+**Time-varying cases** (:func:`time_varying_cases`): the gap depends on when the data were taken. The three
+recordings are placed on the session clock at ``BenchmarkCase.session_s`` (training first, the held-out one last:
+0, 25, 50 s offline; 0, 35, 70 s through the twin), written to ``Recording.meta["session_time_s"]``. Kinds
+(:data:`TIME_TYPES`): ``offset_drift`` (a drifting torque-sensor offset, time constant 30–90 s), ``friction_warmup``
+(cold-gearbox excess friction fading with a time constant of 20–60 s) and ``offset_step`` (the sensor offset
+re-zeroed between sessions: a constant offset per recording, no library effect explains it), 2 magnitudes each.
+What is scored there is whether the diagnosis says the gap depends on time (``Attribution.time_variation``).
 """
 from __future__ import annotations
 
@@ -39,16 +47,21 @@ from proprio.payload import Payload, attach_payload
 from proprio.recording import Recording
 from proprio.signals import MotionSignals
 
-__all__ = ["BenchmarkCase", "CaseData", "make_cases", "select_cases", "generate_case_data", "generate_twin_case_data",
-           "twin_case_config", "rfma_like_motion", "EFFECT_TYPES", "TWIN_EFFECT_TYPES", "PROCESSING_TYPES", "RATE_HZ"]
+__all__ = ["BenchmarkCase", "CaseData", "make_cases", "time_varying_cases", "select_cases", "generate_case_data",
+           "generate_twin_case_data", "twin_case_config", "rfma_like_motion", "EFFECT_TYPES", "TWIN_EFFECT_TYPES",
+           "PROCESSING_TYPES", "TIME_TYPES", "RATE_HZ"]
 
 RATE_HZ = 200.0
 NOISE_STD = 0.05                 # background torque-sensor noise [N·m] (present in data AND model unless withheld)
 ENCODER = {"std": np.radians(0.0005), "resolution": np.radians(0.0001)}   # background encoder noise + quantisation
 #                                  [rad], the shipped twin's: every case logs measured q, never exact q, q̇, q̈
 PROCESSING_TYPES = ("signal_lag", "encoder_noise")   # data-path cases: scored against the processing section
+TIME_TYPES = ("offset_drift", "friction_warmup", "offset_step")   # time-varying cases (time_varying_cases)
+SESSION_S = (0.0, 25.0, 50.0)    # s, session time of the 2 training and the held-out recording (offline)
+TWIN_SESSION_S = (0.0, 35.0, 70.0)   # s, the same through the twin (≈30 s recordings)
 EXTRA_TYPES = ("rigid_body", "payload", "signal_lag")
-EFFECT_TYPES = tuple(EFFECTS) + EXTRA_TYPES
+STATIC_EFFECTS = tuple(k for k, cls in EFFECTS.items() if not cls.time_varying)   # time-varying: time_varying_cases
+EFFECT_TYPES = STATIC_EFFECTS + EXTRA_TYPES
 # twin mode: every effect of the shipped iiwa14_twin.yaml, plus the payload (TwinConfig.with_payload)
 TWIN_EFFECT_TYPES = ("viscous_coulomb", "hysteresis", "lost_motion", "ripple", "sensor_offset_gain", "torque_noise",
                      "encoder_noise", "payload")
@@ -128,7 +141,8 @@ class BenchmarkCase:
     the withheld effects' base level; ``seed`` draws their parameters and the motion; ``twin``: the recordings
     come from the Drake twin diagram on RFMA trajectories (``duration_s`` unused) instead of the offline model;
     ``logger``: ``(field, value)`` pairs that change the twin's logger (default: 200 Hz, the shipped jitter and
-    losses), e.g. ``(("rate_hz", 1000.0), ("dropout_prob", 0.02))``."""
+    losses), e.g. ``(("rate_hz", 1000.0), ("dropout_prob", 0.02))``; ``session_s``: the session time [s] at the start
+    of each of the 3 recordings (2 training, 1 held-out; empty: 0 each)."""
     name: str
     withheld: tuple[str, ...]
     magnitude: float
@@ -137,6 +151,7 @@ class BenchmarkCase:
     duration_s: float = 20.0
     twin: bool = False
     logger: tuple[tuple[str, Any], ...] = ()
+    session_s: tuple[float, ...] = ()
 
 
 def _draw(kind: str, n: int, mag: float, rng: np.random.Generator) -> dict[str, Any]:
@@ -168,6 +183,12 @@ def _draw(kind: str, n: int, mag: float, rng: np.random.Generator) -> dict[str, 
         return {"mass": float(mag * rng.uniform(0.5, 2.0)), "com": rng.uniform(-0.03, 0.03, 3) + [0, 0, 0.05]}
     if kind == "signal_lag":
         return {"time_constant": float(mag * rng.uniform(0.004, 0.012))}
+    if kind == "offset_drift":
+        return {"drift": mag * u(0.3, 0.9) * rng.choice([-1, 1], n), "time_constant": u(30.0, 90.0)}
+    if kind == "friction_warmup":
+        return {"viscous": mag * u(0.1, 0.37), "coulomb": mag * u(0.1, 0.32), "time_constant": u(20.0, 60.0)}
+    if kind == "offset_step":                    # one offset per recording (re-zeroed between sessions)
+        return {"offsets": mag * rng.uniform(0.2, 0.6, (3, n)) * rng.choice([-1, 1], (3, n))}
     raise ValueError(f"unknown benchmark effect {kind!r}")
 
 
@@ -184,7 +205,7 @@ def make_cases(quick: bool = False, seed: int = 0, twin: bool = False) -> list[B
         for m in mags:
             s = int(rng.integers(1 << 30))
             cases.append(BenchmarkCase(f"{kind}@{m:g}", (kind,), m, s))
-    library = [k for k in EFFECTS if k not in ("torque_noise", "encoder_noise", "elasticity")]
+    library = [k for k in STATIC_EFFECTS if k not in ("torque_noise", "encoder_noise", "elasticity")]
     for k in range(2 if quick else 6):
         present = tuple(sorted(rng.choice(library, size=k % 3, replace=False))) if k else ()
         cases.append(BenchmarkCase(f"null#{k}" + (f"({'+'.join(present)})" if present else ""), (), 1.0,
@@ -194,6 +215,26 @@ def make_cases(quick: bool = False, seed: int = 0, twin: bool = False) -> list[B
     for a, b in pairs[:1 if quick else len(pairs)]:
         cases.append(BenchmarkCase(f"{a}+{b}", (a, b), 1.0, int(rng.integers(1 << 30))))
     return cases
+
+
+def time_varying_cases(quick: bool = False, seed: int = 0, twin: bool = False) -> list[BenchmarkCase]:
+    """The time-varying cases (module docstring): every kind of :data:`TIME_TYPES` at magnitudes 0.5 and 1 (quick:
+    ``offset_drift`` at 1), recordings at :data:`SESSION_S` (``twin``: through the Drake twin at
+    :data:`TWIN_SESSION_S`). Names ``time:<kind>@<magnitude>`` (``twin:time:...`` through the twin)."""
+    rng = np.random.default_rng(seed + 13)
+    kinds = ("offset_drift",) if quick else TIME_TYPES
+    prefix = "twin:time:" if twin else "time:"
+    cases = []
+    for kind in kinds:
+        for m in (1.0,) if quick else (0.5, 1.0):
+            cases.append(BenchmarkCase(f"{prefix}{kind}@{m:g}", (kind,), m, int(rng.integers(1 << 30)), twin=twin,
+                                       session_s=TWIN_SESSION_S if twin else SESSION_S))
+    return cases
+
+
+def _session(case: BenchmarkCase, k: int) -> float:
+    """Session time [s] at the start of the case's recording ``k``."""
+    return float(case.session_s[k]) if case.session_s else 0.0
 
 
 def _twin_cases(quick: bool, seed: int) -> list[BenchmarkCase]:
@@ -255,6 +296,7 @@ def generate_case_data(case: BenchmarkCase, robot: RobotDescription | None = Non
     if "payload" in params:
         data_robot = attach_payload(data_robot, Payload(params["payload"]["mass"], tuple(params["payload"]["com"])))
     present = {**modelled, **{k: v for k, v in params.items() if k in EFFECTS}}
+    steps = params.get("offset_step", {}).get("offsets")
     noise = dict(params.get("torque_noise", {"std": np.full(n, NOISE_STD)}))
     present["torque_noise"] = noise
     effects = {k: EFFECTS[k](n, **v) for k, v in present.items()}
@@ -263,9 +305,9 @@ def generate_case_data(case: BenchmarkCase, robot: RobotDescription | None = Non
     recs = []
     for k in range(3):
         t, q, qd, qdd, seg = rfma_like_motion(robot, case.seed + 7919 * k, case.duration_s)
-        s = MotionSignals(t, q, qd, qdd)
+        s = MotionSignals(t + _session(case, k), q, qd, qdd)          # effects see the session clock
         tau = inverse_dynamics(data_robot, q, qd, qdd)
-        for name in ("viscous_coulomb", "stribeck"):
+        for name in ("viscous_coulomb", "stribeck", "friction_warmup"):
             if name in effects:
                 tau = tau + effects[name].torque(s)
         s = s.with_tau(tau)
@@ -273,7 +315,7 @@ def generate_case_data(case: BenchmarkCase, robot: RobotDescription | None = Non
         for name, eff in effects.items():
             if eff.place == "sensor" and name not in ("torque_noise", "encoder_noise"):
                 sensor += eff.torque(s)
-        tau_meas = tau + sensor
+        tau_meas = tau + sensor + (steps[k] if steps is not None else 0.0)
         if "signal_lag" in params:
             a = np.exp(-1.0 / (RATE_HZ * params["signal_lag"]["time_constant"]))
             tau_meas = signal.lfilter([1 - a], [1, -a], tau_meas - tau_meas[0], axis=0) + tau_meas[0]
@@ -285,22 +327,26 @@ def generate_case_data(case: BenchmarkCase, robot: RobotDescription | None = Non
         enc = {**{k: np.full(n, v) for k, v in ENCODER.items()}, **params.get("encoder_noise", {})}
         q_rec = EFFECTS["encoder_noise"](n, **enc).measure(q_rec, np.random.default_rng(case.seed + 100 + k))
         recs.append(Recording(t=t, q=q_rec, tau=tau_meas, truth={"segment": seg},
-                              meta={"robot": robot.name, "rate_hz": RATE_HZ, "source": "gap-benchmark (offline)"}))
+                              meta={"robot": robot.name, "rate_hz": RATE_HZ, "source": "gap-benchmark (offline)",
+                                    "session_time_s": _session(case, k)}))
     return CaseData(robot, model_effects, model_params, recs[:2], recs[2:])
 
 
-def twin_case_config(case: BenchmarkCase, omit_withheld: bool = False) -> tuple[Any, dict[str, dict[str, Any]]]:
+def twin_case_config(case: BenchmarkCase, omit_withheld: bool = False, recording: int = 0
+                     ) -> tuple[Any, dict[str, dict[str, Any]]]:
     """The twin of a case: the shipped ``iiwa14_twin`` (robot ``iiwa14_identified``, its controller and its hidden
     motor-side drive, whose reflected rotor inertia keeps the explicit friction stable at 1 ms) with its joint
     effects replaced by the case's withheld and modelled ones (parameters drawn as in the offline mode, ``_draw``),
     the payload via ``TwinConfig.with_payload``, and the background torque noise (``NOISE_STD``) unless that is
-    what is withheld. Returns ``(TwinConfig, modelled parameters)``."""
+    what is withheld. ``recording``: which of the case's recordings (0, 1: training, 2: held-out) the twin is for —
+    its session clock starts at ``case.session_s[recording]``, and an ``offset_step`` case's sensor carries that
+    recording's offset. Returns ``(TwinConfig, modelled parameters)``."""
     from proprio.diagrams.twin import load_twin_config
 
-    bad = sorted(set(case.withheld + case.modelled) - set(TWIN_EFFECT_TYPES))
+    bad = sorted(set(case.withheld + case.modelled) - set(TWIN_EFFECT_TYPES + TIME_TYPES))
     if bad:
         raise ValueError(f"twin case {case.name!r}: effect(s) {bad} cannot act in the twin; "
-                         f"valid: {list(TWIN_EFFECT_TYPES)}")
+                         f"valid: {list(TWIN_EFFECT_TYPES + TIME_TYPES)}")
     config = load_twin_config("iiwa14_twin").with_payload(None).with_logger(**{"rate_hz": RATE_HZ,
                                                                               **dict(case.logger)})
     n = config.robot.n
@@ -310,12 +356,16 @@ def twin_case_config(case: BenchmarkCase, omit_withheld: bool = False) -> tuple[
     if omit_withheld:
         params = {k: v for k, v in params.items() if k == "torque_noise"}
     for block in (params, modelled):
-        if "viscous_coulomb" in block:
-            block["viscous_coulomb"]["smooth_velocity"] = np.full(n, TWIN_SMOOTH_VELOCITY)
+        for k in ("viscous_coulomb", "friction_warmup"):
+            if k in block:
+                block[k]["smooth_velocity"] = np.full(n, TWIN_SMOOTH_VELOCITY)
     present = {**modelled, **{k: v for k, v in params.items() if k in EFFECTS}}
     present.setdefault("torque_noise", {"std": np.full(n, NOISE_STD)})
     present["encoder_noise"] = {**{k: np.full(n, v) for k, v in ENCODER.items()}, **present.get("encoder_noise", {})}
+    if "offset_step" in params:                # the sensor re-zeroed: a constant offset per session
+        present["offset_drift"] = {"offset": params["offset_step"]["offsets"][recording]}
     config = config.with_effects([EFFECTS[k](n, **present[k]) for k in EFFECTS if k in present])
+    config = config.with_session_time(_session(case, recording))
     if "payload" in params:
         config = config.with_payload(Payload(params["payload"]["mass"], tuple(params["payload"]["com"])))
     return config, modelled
@@ -331,6 +381,7 @@ def generate_twin_case_data(case: BenchmarkCase, omit_withheld: bool = False) ->
     from proprio.diagrams.twin import simulate_twin
     from proprio.systems.rfma import RfmaError, generate_rfma, load_rfma_config
 
+    configs = [twin_case_config(case, omit_withheld, k)[0] for k in range(3)]    # one per session (recording)
     config, modelled = twin_case_config(case, omit_withheld)
     robot = config.robot.without_friction()
     n = robot.n
@@ -348,7 +399,7 @@ def generate_twin_case_data(case: BenchmarkCase, omit_withheld: bool = False) ->
                 if attempt == 4:
                     raise
                 seed = (seed + 104729) % (1 << 31)
-        rec = simulate_twin(replace(config, seed=seed), timed.trajectory, progress=False)
+        rec = simulate_twin(replace(configs[k], seed=seed), timed.trajectory, progress=False)
         meta = {**rec.meta, "source": "gap-benchmark (twin)"}
         recs.append(Recording(t=rec.t, q=rec.q, tau=rec.tau, truth=rec.truth, meta=meta))
     return CaseData(robot, model_effects, model_params, recs[:2], recs[2:])

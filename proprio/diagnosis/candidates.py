@@ -29,6 +29,7 @@ class Candidate:
     linear: bool = True
     place: str = ""
     processing: bool = False          # describes the data path, not the robot (reported apart, never as the cause)
+    time_varying: bool = False        # depends on the session clock (fitted without the time-trend nuisance)
     patch_note: str = ""              # what :meth:`patch` did beyond copying parameters (a comment of the patch)
 
     def patch(self, theta: np.ndarray) -> dict[str, Any] | None:
@@ -79,6 +80,7 @@ class EffectCandidate(Candidate):
         self.proto: JointEffect = EFFECTS[name](n, **settings)
         self.linear = bool(self.proto.linear)
         self.place = self.proto.place
+        self.time_varying = bool(self.proto.time_varying)
         all_keys = list(type(self.proto).parameters)
         self._keys = list(keys) if keys else all_keys
         self._cols = np.concatenate([np.arange(n) + n * all_keys.index(k) for k in self._keys])
@@ -95,14 +97,20 @@ class EffectCandidate(Candidate):
         return data.stack([eff.torque(s) for s in data.signals])
 
     def starts(self, data: GapData) -> list[np.ndarray]:
+        """Library defaults with zero amplitudes set to 1 and 0.3 × the residual RMS; a time constant [s] starts at
+        its default, then at a quarter of the session span the data cover (a fast and a slow change)."""
         v = np.asarray(self.proto.vector(), dtype=float).reshape(len(self._keys), self._n)
         scale = np.sqrt((data.residual ** 2).mean(axis=0))
+        span = max((float(t[-1]) + s0 for t, s0 in zip(data.times, data.session_s)), default=0.0)
         out = []
         for f in (1.0, 0.3):
             x = v.copy()
             for i, k in enumerate(self._keys):
                 if k in self.AMPLITUDE_KEYS and not np.any(x[i]):
                     x[i] = f * scale
+                if k == "time_constant" and f < 1.0 and span > 0:
+                    lo, hi = type(self.proto).parameters[k][1:]
+                    x[i] = np.clip(0.25 * span, lo, hi)
             out.append(x.reshape(-1))
         return out
 
@@ -235,6 +243,14 @@ class RigidBodyCandidate(Candidate):
         train.cache[("design", self.name)] = full[..., self.columns]
         # the training motion, for mapping a fit back to physical link inertials (:meth:`patch`)
         self._motion = tuple(train.stack([getattr(s, k) for s in train.signals]) for k in ("q", "qd", "qdd"))
+
+    @classmethod
+    def of(cls, robot: RobotDescription, train: GapData) -> "RigidBodyCandidate":
+        """The candidate for ``train``, built once per training set (its rank-revealing QR is the costly part)."""
+        key = ("candidate", cls.name)
+        if key not in train.cache:
+            train.cache[key] = cls(robot, train)
+        return train.cache[key]
 
     def _inertial(self, data: GapData) -> np.ndarray:
         keep = np.array([k % PARAMS_PER_JOINT < 10 for k in range(PARAMS_PER_JOINT * self.robot.n)])
@@ -376,8 +392,11 @@ class SignalLagCandidate(Candidate):
         return np.arange(n)
 
 
-def candidate_set(model: SimModel, train: GapData, names: Sequence[str] | None = None) -> list[Candidate]:
-    """All deterministic candidates the model lacks (or only ``names``, which must be among them)."""
+def candidate_set(model: SimModel, train: GapData, names: Sequence[str] | None = None,
+                  time_varying: bool = False) -> list[Candidate]:
+    """All deterministic candidates the model lacks (or only ``names``, which must be among them). The
+    time-varying library effects are offered only when ``time_varying`` (the residual depends on the session time,
+    :mod:`proprio.diagnosis.time_variation`) or when named."""
     n = model.robot.n
     present = model.effect_names
     special = {"ripple": lambda: ripple_candidate(n, train), "encoder_noise": lambda: EncoderNoiseCandidate(model),
@@ -391,7 +410,7 @@ def candidate_set(model: SimModel, train: GapData, names: Sequence[str] | None =
         available["sensor_gain"] = lambda: EffectCandidate("sensor_offset_gain", n, ("gain",), "sensor_gain")
     names = None if names is None else [x for k in names for x in
                                         (("sensor_offset", "sensor_gain") if k == "sensor_offset_gain" else (k,))]
-    available["rigid_body"] = lambda: RigidBodyCandidate(model.robot, train)
+    available["rigid_body"] = lambda: RigidBodyCandidate.of(model.robot, train)
     available["payload"] = lambda: PayloadCandidate(model.robot)
     available["signal_lag"] = lambda: SignalLagCandidate(n)
     if names is not None:
@@ -401,7 +420,7 @@ def candidate_set(model: SimModel, train: GapData, names: Sequence[str] | None =
             raise DiagnosisError(f"candidates: cannot test {', '.join(why)}; available: {sorted(available)}")
         chosen = [k for k in names if k in available]
     else:
-        chosen = list(available)
+        chosen = [k for k in available if time_varying or k not in EFFECTS or not EFFECTS[k].time_varying]
     if not chosen:
         raise DiagnosisError("candidates: no candidate effects left to test — the model already has every effect "
                              "of the library (or only noise effects were requested)")

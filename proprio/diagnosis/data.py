@@ -1,7 +1,12 @@
 """The simulation model under diagnosis (:class:`SimModel`: a robot description plus the joint effects it already
 simulates) and recordings prepared for the diagnosis (:class:`GapData`: conditioned signals, residual, held-out
 blocks). Every recording goes through the one conditioning path (:mod:`proprio.conditioning`): the residual is
-``e = LP(τ_meas) − τ_sim(conditioned q, q̇, q̈)`` with the same zero-phase low-pass on both sides."""
+``e = LP(τ_meas) − τ_sim(conditioned q, q̇, q̈)`` with the same zero-phase low-pass on both sides.
+
+**Session clock.** Every recording is placed on the session clock by its ``meta["session_time_s"]`` (the session
+time [s] at its t = 0, written by the twin; absent → 0, and recordings are then taken to be in the given order):
+the :class:`~proprio.signals.MotionSignals` the model and the candidates see have ``t + session_time_s``, so a
+time-varying effect (``offset_drift``, ``friction_warmup``) is evaluated at the time the data were taken."""
 from __future__ import annotations
 
 import math
@@ -17,8 +22,8 @@ from proprio.conditioning import ConditionedSignals, ConditioningConfig, conditi
 from proprio.recording import Recording
 from proprio.signals import MotionSignals
 
-__all__ = ["DiagnosisError", "SimModel", "GapData", "signals_of", "condition_all", "kept", "NOISE_EFFECTS",
-           "DIAGNOSIS_CONDITIONING"]
+__all__ = ["DiagnosisError", "SimModel", "GapData", "signals_of", "condition_all", "kept", "session_time",
+           "NOISE_EFFECTS", "DIAGNOSIS_CONDITIONING"]
 
 
 NOISE_EFFECTS = ("torque_noise", "encoder_noise")
@@ -127,6 +132,19 @@ def kept(cs: ConditionedSignals, trim_s: float) -> np.ndarray:
     return (cs.t >= cs.t[0] + trim_s) & (cs.t <= cs.t[-1] - trim_s) & cs.valid
 
 
+def session_time(rec: Recording, role: str = "recording") -> float:
+    """The session time [s] at the recording's t = 0: ``meta["session_time_s"]`` (absent → 0); a value that is not a
+    finite number raises :class:`DiagnosisError` naming the field."""
+    value = rec.meta.get("session_time_s", 0.0)
+    try:
+        out = float(value)
+    except (TypeError, ValueError) as exc:
+        raise DiagnosisError(f"{role}: meta.session_time_s must be a number of seconds, got {value!r}") from exc
+    if not math.isfinite(out):
+        raise DiagnosisError(f"{role}: meta.session_time_s must be finite, got {out}")
+    return out
+
+
 def condition_all(recs: Sequence[Recording], config: ConditioningConfig, role: str) -> list[ConditionedSignals]:
     out = []
     for k, rec in enumerate(recs):
@@ -141,7 +159,8 @@ def condition_all(recs: Sequence[Recording], config: ConditioningConfig, role: s
 class GapData:
     """One set of conditioned recordings (training or held-out) prepared for the diagnosis: motion signals (their
     ``tau`` the modelled link-side torque), the conditioned measured τ, the model's τ, the residual ``e``, the kept
-    sample indices, time stamps [s] and a cache of candidate designs."""
+    sample indices, time stamps [s], the session time [s] at each recording's t = 0 (``session_s``; the signals' ``t``
+    is on the session clock) and a cache of candidate designs."""
     conditioned: list[ConditionedSignals]
     signals: list[MotionSignals]
     tau: list[np.ndarray]
@@ -150,14 +169,19 @@ class GapData:
     fit_index: list[np.ndarray]
     groups: list[int]
     pieces: bool = False
+    session_s: list[float] = field(default_factory=list)
     cache: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
     def build(cls, model: SimModel, conditioned: Sequence[ConditionedSignals], keep: Sequence[np.ndarray],
-              role: str, groups: Sequence[int] | None = None) -> "GapData":
+              role: str, groups: Sequence[int] | None = None, session_s: Sequence[float] | None = None) -> "GapData":
         """``keep [N_k] bool`` per recording: the samples to use (trimmed ends, no gaps); the training set is strided
         down to ``MAX_FIT_SAMPLES`` in total. ``groups``: for pieces cut from recordings (cross-validation blocks),
-        the index of the recording each piece comes from."""
+        the index of the recording each piece comes from. ``session_s``: the session time [s] at each recording's
+        (piece's source recording's) t = 0 (default 0 each)."""
+        session_s = [0.0] * len(conditioned) if session_s is None else [float(x) for x in session_s]
+        if len(session_s) != len(conditioned):
+            raise DiagnosisError(f"{role}: session_s has {len(session_s)} entries for {len(conditioned)} recordings")
         sigs, taus, sims, es, idx = [], [], [], [], []
         total = sum(int(k.sum()) for k in keep)
         stride = max(1, int(math.ceil(total / MAX_FIT_SAMPLES)))
@@ -166,6 +190,7 @@ class GapData:
                 raise DiagnosisError(f"{role} recording {k}: {cs.n_samples} samples ({cs.t[-1]:.2f} s) leave "
                                      "nothing after trimming the filter start-up at each end")
             s = cs.motion()
+            s = MotionSignals(s.t + session_s[k], s.q, s.qd, s.qdd, s.tau)      # on the session clock
             link, sim = model.predict_parts(s)
             sigs.append(s.with_tau(link))     # candidates scale/load with the modelled, not the measured, torque
             taus.append(cs.tau)
@@ -174,7 +199,7 @@ class GapData:
             idx.append(np.flatnonzero(kp)[::stride] if role == "training" else np.flatnonzero(kp))
         pieces = groups is not None
         return cls(list(conditioned), sigs, taus, sims, es, idx, list(groups) if pieces else list(range(len(idx))),
-                   pieces)
+                   pieces, session_s)
 
     @property
     def times(self) -> list[np.ndarray]:

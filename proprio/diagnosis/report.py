@@ -157,6 +157,19 @@ def _hints_section(att: Attribution) -> str:
     return "\n\n".join([head, "\n".join(tab)] + [h.text for h in att.hints])
 
 
+def _time_table(att: Attribution) -> str:
+    """The time-dependence test (:mod:`~proprio.diagnosis.time_variation`): its sentence and a per-joint table."""
+    tv = att.time_variation
+    if tv is None:
+        return "Not tested."
+    rows = ["| joint | p-value | what varies | change [N·m] | share of the static model's residual [%] |",
+            "|---|---|---|---|---|"]
+    for j, nm in enumerate(att.joint_names):
+        what = tv.joint_kinds[j] if tv.joints[j] else "—"
+        rows.append(f"| {nm} | {tv.p_value[j]:.2g} | {what} | {tv.change[j]:.3g} | {100 * tv.share[j]:.1f} |")
+    return tv.text[0].upper() + tv.text[1:] + ".\n\n" + "\n".join(rows)
+
+
 def _md_to_html_table(md: str) -> str:
     rows = [r.strip().strip("|").split("|") for r in md.splitlines() if not r.startswith("|---")]
     out = ["<table>"]
@@ -219,6 +232,7 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
         ("Data quality of each recording (before any fitting)", findings_markdown(quality)),
         ("Verdict", verdict),
         ("Data and processing", data_and_processing_text(att)),
+        ("When the data were taken: time dependence of the gap", _time_table(att)),
         ("Where the gap lies: gap map (share of the total squared residual, %)",
          "![gap map](gap_map.png)\n\n" + gm.table(min_share=0.002)),
         ("Frequency content", "![spectra](spectra.png)\n\n" + "\n".join(freq)),
@@ -273,6 +287,10 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
                                      for k, (th, ci, nm) in s.params.items()}} for s in att.steps],
                "ranking": att.ranking, "noise": [{"name": f.name, "rms": f.rms.tolist()} for f in att.noise],
                "residual_white": rs.white, "hints": [h.to_dict() for h in att.hints], "verdict": verdict,
+               "time_variation": None if att.time_variation is None else {
+                   "detected": att.time_variation.detected, "joints": att.time_variation.joints.tolist(),
+                   "p_value": att.time_variation.p_value.tolist(), "kind": att.time_variation.kind,
+                   "change": att.time_variation.change.tolist(), "text": att.time_variation.text},
                "data_quality": [{"name": n, **q.to_dict()} for n, q in quality],
                "truth": truth_summary(truth) if truth is not None else None}
     if replay is not None:

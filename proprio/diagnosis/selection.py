@@ -41,6 +41,11 @@ modelled torque when the measured motion is de-noised (``EncoderNoiseCandidate``
 a link-side position sensor; it is tested as the deflection a motor-side position sensor would miss
 (``ElasticityCandidate``).
 
+**Time variation.** Before the selection the residual of all recordings is tested for dependence on the session
+time (drift, warm-up, steps between sessions: :mod:`proprio.diagnosis.time_variation`, reported in
+``Attribution.time_variation``). When it is detected, the time-varying library effects join the candidates and every
+static candidate is fitted with a time-trend nuisance, so that none (rigid body, payload) can win by fitting a trend.
+
 Confidence intervals come from the Jacobian of the fit (``σ² (JᵀWJ)⁻¹``) inflated by ``N / N_eff``, the
 effective sample size of the autocorrelated residual (Bartlett), i.e. 95 % CI = ``± 1.96 σ_θ``.
 """
@@ -57,9 +62,10 @@ from proprio.description import RobotDescription
 from proprio.diagnosis.candidates import Candidate, candidate_set
 from proprio.conditioning import ConditionedSignals, ConditioningConfig, processing_torque_sigma
 from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, MIN_BLOCK_S, MIN_BLOCKS, DiagnosisError, GapData,
-                                    SimModel, condition_all, kept)
+                                    SimModel, condition_all, kept, session_time)
 from proprio.diagnosis.fitting import Fit, fit_candidates, predict_candidates
 from proprio.diagnosis.hints import Hint, find_hints, shifted_joints
+from proprio.diagnosis.time_variation import TimeTrendNuisance, TimeVariation, time_variation
 from proprio.effects import EFFECTS
 from proprio.recording import Recording, validate_recording
 
@@ -166,6 +172,7 @@ class Attribution:
     cv: "CrossValidation | None" = None
     fitted: dict[str, Candidate] = field(default_factory=dict)
     hints: list[Hint] = field(default_factory=list)
+    time_variation: TimeVariation | None = None
 
     @property
     def physical_steps(self) -> list[Step]:
@@ -320,6 +327,8 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
                 raise DiagnosisError(f"{exc} (mismatched robots?)") from exc
     say = progress or (lambda msg: None)
     say("conditioning")
+    sess_tr = [session_time(r, f"training recording {k}") for k, r in enumerate(train_recs)]
+    sess_h = [session_time(r, f"holdout recording {k}") for k, r in enumerate(holdout_recs)]
     cond_tr = condition_all(train_recs, conditioning, "training")
     keep_tr = [kept(cs, trim_s) for cs in cond_tr]
     if holdout_recs:
@@ -331,11 +340,13 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
                                  f"short for the block test ({MIN_BLOCKS} blocks of ≥ {MIN_BLOCK_S} s)")
         block_s = float(np.clip(2.0 * _correlation_time(model, cond_h, keep_h), MIN_BLOCK_S,
                                 min(MAX_BLOCK_S, held_s / MIN_BLOCKS)))
-        train = GapData.build(model, cond_tr, keep_tr, "training")
-        hold = GapData.build(model, cond_h, keep_h, "holdout")
+        train = GapData.build(model, cond_tr, keep_tr, "training", session_s=sess_tr)
+        hold = GapData.build(model, cond_h, keep_h, "holdout", session_s=sess_h)
         train_s = sum(float(k.sum()) / cs.rate_hz for cs, k in zip(cond_tr, keep_tr))
+        say("time dependence")
+        tv = time_variation(model, train, hold)
         return _select(model, train, hold, _time_blocks(hold, block_s), block_s, (train_s, held_s), candidates,
-                       alpha, min_gain, max_steps, say)
+                       alpha, min_gain, max_steps, say, tv)
     total_s = sum(float(k.sum()) / cs.rate_hz for cs, k in zip(cond_tr, keep_tr))
     if total_s < 2 * MIN_BLOCKS * MIN_BLOCK_S:
         raise DiagnosisError(f"training: {total_s:.2f} s of data after trimming {trim_s} s per end; a diagnosis "
@@ -357,16 +368,20 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
             n_blocks += 1
     fold_data = []
     for tr, ho in ((halves[0], halves[1]), (halves[1], halves[0])):
-        gt = GapData.build(model, [x[0] for x in tr], [x[1] for x in tr], "training", groups=[x[2] for x in tr])
-        gh = GapData.build(model, [x[0] for x in ho], [x[1] for x in ho], "holdout", groups=[x[2] for x in ho])
+        gt = GapData.build(model, [x[0] for x in tr], [x[1] for x in tr], "training", groups=[x[2] for x in tr],
+                           session_s=[sess_tr[x[2]] for x in tr])
+        gh = GapData.build(model, [x[0] for x in ho], [x[1] for x in ho], "holdout", groups=[x[2] for x in ho],
+                           session_s=[sess_tr[x[2]] for x in ho])
         fold_data.append((gt, gh))
+    say("time dependence")
+    tv = time_variation(model, *fold_data[0])            # both folds together are all the data
     results = []
     for k, (gt, gh) in enumerate(fold_data):
         say(f"fold {k + 1}/2")
         secs = (sum(len(i) for i in gt.fit_index) / cond_tr[0].rate_hz, sum(len(i) for i in gh.fit_index)
                 / cond_tr[0].rate_hz)
         results.append(_select(model, gt, gh, _time_blocks(gh, block_s), block_s, secs,
-                               candidates, alpha, min_gain, max_steps, say))
+                               candidates, alpha, min_gain, max_steps, say, tv))
     tops = [[s.name for s in a.physical_steps] for a in results]
     both = set(tops[0]) | set(tops[1])
     agreement = len(set(tops[0]) & set(tops[1])) / len(both) if both else 1.0
@@ -377,9 +392,17 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
 
 def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, block_s: float,
             data_seconds: tuple[float, float], candidates: Sequence[str] | None, alpha: float, min_gain: float,
-            max_steps: int, say: Callable[[str], None]) -> Attribution:
-    """The greedy forward selection on prepared training / held-out data with held-out block labels ``blk``."""
-    cands = candidate_set(model, train, candidates)
+            max_steps: int, say: Callable[[str], None], tv: TimeVariation) -> Attribution:
+    """The greedy forward selection on prepared training / held-out data with held-out block labels ``blk``; ``tv``:
+    the time-dependence test of the same data (when detected: time-varying candidates offered, static ones fitted
+    with the time-trend nuisance)."""
+    cands = candidate_set(model, train, candidates, time_varying=tv.detected)
+    nuisance = [TimeTrendNuisance(train)] if tv.detected else []
+
+    def with_nuisance(cs: list[Candidate]) -> list[Candidate]:
+        """``cs`` plus the time-trend nuisance while none of them is time-varying (module docstring)."""
+        return cs + nuisance if not any(c.time_varying for c in cs) else cs
+
     e_tr, e_h = train.residual, hold.residual
     w = 1.0 / np.maximum((e_tr ** 2).mean(axis=0), 1e-12)
     n_blk = int(blk.max()) + 1
@@ -398,7 +421,7 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
         scored = []
         for c in remaining:
             say(f"step {len(steps) + 1}: fitting {c.name}")
-            f_c = fit_candidates(selected + [c], train, w, fit.thetas, sweeps=1 if c.linear else 2)
+            f_c = fit_candidates(with_nuisance(selected + [c]), train, w, fit.thetas, sweeps=1 if c.linear else 2)
             delta = predict_candidates(selected + [c], f_c, hold) - pred_h
             db, g = _block_gain(r_s, delta, w, blk, n_blk)
             raw = float((r_s ** 2).sum() - ((r_s - delta) ** 2).sum())    # unweighted held-out SSE change
@@ -430,7 +453,8 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
             processing, reason = False, ""
         selected.append(c)
         remaining = [x for x in remaining if x is not c]     # tied partners stay: they may still add later
-        fit = fit_candidates(selected, train, w, f_c.thetas, sweeps=3) if any(not s.linear for s in selected) else f_c
+        fit = fit_candidates(with_nuisance(selected), train, w, f_c.thetas, sweeps=3) \
+            if any(not s.linear for s in selected) else f_c
         pred_h = predict_candidates(selected, fit, hold)
         r_tr = e_tr - predict_candidates(selected, fit, train)
         infl = _n_eff_factor(r_tr)
@@ -455,7 +479,7 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
     return Attribution(model.robot.joint_names, steps, ranking, rmse0, sig, structure, noise,
                        [c.name for c in cands], _split(e_h, hold), _split(pred_h, hold), hold.times, proc_sigma,
                        sorted({cs.describe() for cs in hold.conditioned + train.conditioned}), data_seconds, block_s,
-                       fitted={c.name: c for c in selected}, hints=hints)
+                       fitted={c.name: c for c in selected}, hints=hints, time_variation=tv)
 
 
 def _noise_findings(model: SimModel, structure: ResidualStructure, hold: GapData,

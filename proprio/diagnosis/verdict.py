@@ -16,7 +16,8 @@ PLAIN = {"viscous_coulomb": "viscous + Coulomb friction", "stribeck": "Stribeck 
          "torque_noise": "torque-sensor noise", "encoder_noise": "position-encoder noise",
          "elasticity": "joint elasticity (deflection unseen by the position sensor)",
          "rigid_body": "rigid-body (inertial) parameter error", "payload": "an unmodelled payload at the flange",
-         "signal_lag": "a time lag between measured and modelled torque (filter delay)"}
+         "signal_lag": "a time lag between measured and modelled torque (filter delay)",
+         "offset_drift": "a drifting torque-sensor offset", "friction_warmup": "friction fading as the joints warm up"}
 
 
 def verdict_text(att: Attribution, gm: GapMap) -> str:
@@ -58,6 +59,9 @@ def verdict_text(att: Attribution, gm: GapMap) -> str:
     else:
         parts.append("No physical candidate shrinks the held-out gap significantly beyond what the signal "
                      "processing explains: the model explains the data as well as any of the candidates can.")
+    tv = att.time_variation
+    if tv is not None and tv.detected:
+        parts.append(tv.text[0].upper() + tv.text[1:] + ".")
     rs = att.residual
     if rs.white:
         parts.append("What remains is white (no autocorrelation, no dependence on the motion state): noise.")

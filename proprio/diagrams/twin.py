@@ -26,6 +26,7 @@ A twin is described by one YAML file (``proprio/configs/iiwa14_twin.yaml``)::
     robot: iiwa14_identified          # built-in name or robot YAML path
     time_step: 0.001                  # s, discrete plant and drive period
     seed: 7
+    session_time_s: 0.0               # s, the session clock at the run's t = 0 (time-varying effects see t + it)
     logger: {rate_hz: 1000, channels: [q, tau], stamp_jitter_ms: 0.1, dropout_prob: 0.002}   # see robot_logger
     controller: {kp: [...], ki: [...], kd: [...], payload_model: false}   # IDC gains (1/s², 1/s³, 1/s)
     drive: {motor_inertia: [...], motor_viscous: [...], motor_coulomb: [...]}   # motor side (hidden), or null
@@ -83,7 +84,8 @@ from proprio.systems.trajectories import AddTrajectorySource, sample_trajectory
 __all__ = ["TwinConfig", "TwinConfigError", "load_twin_config", "merge_twin_patch", "PATCH_KEYS", "TwinDiagram",
            "build_twin_diagram", "simulate_twin", "payload_wrench", "hysteresis_test_trajectory", "run_hysteresis_test"]
 
-_TOP_KEYS = {"name", "robot", "time_step", "logger", "seed", "controller", "drive", "payload", "effects"}
+_TOP_KEYS = {"name", "robot", "time_step", "logger", "seed", "controller", "drive", "payload", "effects",
+             "session_time_s"}
 _CONTROLLER_KEYS = {"kp", "ki", "kd", "payload_model"}
 PATCH_KEYS = ("patch_for", "robot", "effects", "payload")
 
@@ -97,7 +99,9 @@ class TwinConfigError(ValueError):
 # ------------------------------------------------------------------------------------------------------------------
 @dataclass
 class TwinConfig:
-    """One twin: robot, effects and magnitudes, controller gains, rates, payload and seed (see module docstring)."""
+    """One twin: robot, effects and magnitudes, controller gains, rates, payload and seed (see module docstring).
+    ``session_time_s`` [s]: the session clock at the run's t = 0 — time-varying effects (``offset_drift``,
+    ``friction_warmup``) see ``t + session_time_s``, and the Recording carries it in ``meta["session_time_s"]``."""
     robot: RobotDescription
     effects: list[JointEffect]
     kp: np.ndarray
@@ -111,6 +115,7 @@ class TwinConfig:
     seed: int = 0
     name: str = "twin"
     raw: dict[str, Any] = field(default_factory=dict)
+    session_time_s: float = 0.0
 
     @classmethod
     def from_dict(cls, data: dict[str, Any], source: str = "<dict>") -> "TwinConfig":
@@ -138,6 +143,14 @@ class TwinConfig:
             if g.shape != (n,) or np.any(g < 0) or not np.all(np.isfinite(g)):
                 raise TwinConfigError(f"{source}: controller.{key} must be >= 0, a number or {n} numbers")
             gains[key] = g
+        try:
+            session_time_s = float(data.get("session_time_s", 0.0))
+        except (TypeError, ValueError) as exc:
+            raise TwinConfigError(f"{source}: session_time_s must be a number of seconds, got "
+                                  f"{data['session_time_s']!r}") from exc
+        if not (math.isfinite(session_time_s) and session_time_s >= 0):
+            raise TwinConfigError(f"{source}: session_time_s must be a finite number of seconds >= 0, got "
+                                  f"{session_time_s}")
         time_step = float(data.get("time_step", 1e-3))
         if not time_step > 0:
             raise TwinConfigError(f"{source}: time_step must be > 0 s, got {time_step}")
@@ -158,7 +171,7 @@ class TwinConfig:
             raise TwinConfigError(f"{source}: payload: {exc}") from exc
         return cls(robot=desc, effects=effects, payload_model=bool(ctrl.get("payload_model", False)),
                    motor=motor, payload=payload, time_step=time_step, logger=logger, seed=int(data.get("seed", 0)),
-                   name=str(data.get("name", Path(source).stem)), raw=data, **gains)
+                   name=str(data.get("name", Path(source).stem)), raw=data, session_time_s=session_time_s, **gains)
 
     def effect(self, name: str) -> JointEffect | None:
         return next((e for e in self.effects if e.name == name), None)
@@ -168,6 +181,12 @@ class TwinConfig:
 
     def with_effects(self, effects: list[JointEffect]) -> "TwinConfig":
         return dataclasses.replace(self, effects=list(effects))
+
+    def with_session_time(self, session_time_s: float) -> "TwinConfig":
+        """The same twin with its session clock starting at ``session_time_s`` [s] (>= 0)."""
+        if not (math.isfinite(session_time_s) and session_time_s >= 0):
+            raise TwinConfigError(f"session_time_s must be a finite number of seconds >= 0, got {session_time_s}")
+        return dataclasses.replace(self, session_time_s=float(session_time_s))
 
     def with_logger(self, **changes: Any) -> "TwinConfig":
         """The same twin with ``logger`` fields changed (e.g. ``rate_hz=150``), checked like the YAML."""
@@ -186,7 +205,7 @@ class TwinConfig:
                                "payload_model": self.payload_model},
                 "drive": None if self.motor is None else {k: v.tolist() for k, v in self.motor.params().items()},
                 "payload": None if self.payload is None else dataclasses.asdict(self.payload), "seed": self.seed,
-                "logger": self.logger.to_dict()}
+                "logger": self.logger.to_dict(), "session_time_s": self.session_time_s}
 
 
 def _robot_of(value: Any, where: str) -> RobotDescription:
@@ -365,7 +384,7 @@ def build_twin_diagram(config: TwinConfig, trajectory: Trajectory) -> TwinDiagra
     control_plant = _robot_plant(desc, config.payload if config.payload_model else None, 0.0, rotor)
     ctrl = builder.AddSystem(InverseDynamicsController(control_plant, config.kp, config.ki, config.kd, True))
     ctrl.set_name("controller")
-    drive = AddJointDrive(builder, n, link, motor, elastic, dt)
+    drive = AddJointDrive(builder, n, link, motor, elastic, dt, session_time_s=config.session_time_s)
     source = AddTrajectorySource(builder, trajectory)
 
     state = plant.get_state_output_port(instance)
@@ -509,13 +528,13 @@ def _to_recording(config: TwinConfig, drive: JointDrive, t: np.ndarray, data: np
     desc, n = config.robot, config.robot.n
     q, qd, qdd, u = (data[:, k * n:(k + 1) * n] for k in range(4))
     rng = np.random.default_rng(config.seed)
-    s = MotionSignals(t=t, q=q, qd=qd, qdd=qdd)
+    s = MotionSignals(t=t + config.session_time_s, q=q, qd=qd, qdd=qdd)      # effects see the session clock
     truth: dict[str, np.ndarray] = {}
     truth["tau_rbd"] = _in_batches(inverse_dynamics, attach_payload(desc, config.payload), q, qd, qdd)
     for eff in config.effects:
         if eff.place == "link":
             truth[f"tau_{eff.name}"] = eff.torque(s)
-    tau_j = drive.sensed_torque(u, qd, qdd)
+    tau_j = drive.sensed_torque(u, qd, qdd, t)
     truth["tau_J_true"] = tau_j
     sensor_effects = [e for e in config.effects if e.place == "sensor" and not isinstance(e, EncoderNoise)]
     tau_meas, parts = TorqueSensor(sensor_effects).measure(s, tau_j, rng)

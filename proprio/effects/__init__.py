@@ -28,7 +28,15 @@ effect (YAML key)             place   model / calibration source
                                       the twin's ``drive`` block, not an ``EFFECTS`` entry (nothing to fit in τ_J)
 ``elasticity``                motor   series elastic drive (K, D) with the motor's state, simulated by
                                       ``proprio.systems.joint_drive``; zero direct contribution to τ_J
+``offset_drift``              sensor  time-varying: offset ``o0 + Δo(1 − exp(−t/T))`` on the session clock
+                                      (thermal drift after switch-on; off in the calibrated twin)
+``friction_warmup``           link    time-varying: cold-gearbox excess friction ``exp(−t/T)(F_v q̇ + F_c tanh)``
+                                      fading as the joint warms up (off in the calibrated twin)
 ============================ ======= =============================================================================
+
+Time-varying effects (class attribute ``time_varying = True``) read the *session clock* ``MotionSignals.t``: the
+twin adds its config's ``session_time_s`` to the run's time, the diagnosis each recording's
+``meta["session_time_s"]`` (:mod:`proprio.effects.time_varying`).
 
 Hysteresis and lost motion share one state, the *reversal travel* ``r`` (signed joint travel since the last
 direction reversal, :func:`reversal_travel`) — the quantity behind the thesis' feature ``r`` (§4.2), which the learning
@@ -47,7 +55,8 @@ from proprio.effects.friction import Stribeck, ViscousCoulomb
 from proprio.effects.hysteresis import Hysteresis, LostMotion
 from proprio.effects.registry import EFFECTS, make_effects
 from proprio.effects.sensor import EncoderNoise, Ripple, SensorOffsetGain, TorqueNoise
+from proprio.effects.time_varying import FrictionWarmup, OffsetDrift
 
 __all__ = ["JointEffect", "EffectConfigError", "affine_scan", "ViscousCoulomb", "Stribeck", "Hysteresis",
            "LostMotion", "Ripple", "SensorOffsetGain", "TorqueNoise", "EncoderNoise", "Motor", "Elasticity",
-           "EFFECTS", "make_effects"]
+           "OffsetDrift", "FrictionWarmup", "EFFECTS", "make_effects"]

@@ -45,6 +45,7 @@ class JointEffect(ABC):
     name: ClassVar[str]
     place: ClassVar[str]                       # "motor" | "link" | "sensor"
     linear: ClassVar[bool]
+    time_varying: ClassVar[bool] = False       # the torque depends on the session clock MotionSignals.t
     parameters: ClassVar[dict[str, tuple[float, float, float]]] = {}
     settings: ClassVar[dict[str, tuple[float, float, float]]] = {}
 

@@ -6,11 +6,13 @@ from proprio.effects.drive import Elasticity
 from proprio.effects.friction import Stribeck, ViscousCoulomb
 from proprio.effects.hysteresis import Hysteresis, LostMotion
 from proprio.effects.sensor import EncoderNoise, Ripple, SensorOffsetGain, TorqueNoise
+from proprio.effects.time_varying import FrictionWarmup, OffsetDrift
 
 __all__ = ["EFFECTS", "make_effects"]
 
 EFFECTS: dict[str, type[JointEffect]] = {cls.name: cls for cls in (
-    ViscousCoulomb, Stribeck, Hysteresis, LostMotion, Ripple, SensorOffsetGain, TorqueNoise, EncoderNoise, Elasticity)}
+    ViscousCoulomb, Stribeck, Hysteresis, LostMotion, Ripple, SensorOffsetGain, TorqueNoise, EncoderNoise, Elasticity,
+    OffsetDrift, FrictionWarmup)}
 
 
 def make_effects(config: dict | None, n: int) -> list[JointEffect]:

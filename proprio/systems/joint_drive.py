@@ -19,6 +19,8 @@ Either way the plant's net actuation ``u`` satisfies ``τ_J = u + τ_f,link [−
 dynamics give ``τ_J = τ_rbd(q, q̇, q̈) + τ_f,link − Jᵀ f_ext``; the twin recovers the true τ_J from the logged net
 actuation and the motion (:meth:`JointDrive.sensed_torque`).
 
+A time-varying link friction (``friction_warmup``) reads the session clock ``context time + session_time_s`` [s].
+
 Friction acts explicitly (from the state at the start of the step): stable while ``(c_j / m)·dt < 2`` with ``c_j`` the
 friction slope ``F_v + F_c/v_s (+ F_s/v_s)`` (minus the spring's implicit damping D when elastic) and ``m`` the
 smallest inertia the joint's torque sees along the trajectory; the motor side of the elastic drive while
@@ -30,7 +32,7 @@ from __future__ import annotations
 import numpy as np
 from pydrake.systems.framework import BasicVector, Context, DiagramBuilder, DiscreteValues, LeafSystem
 
-from proprio.effects import Elasticity, JointEffect, Motor, Stribeck, ViscousCoulomb
+from proprio.effects import Elasticity, FrictionWarmup, JointEffect, Motor, Stribeck, ViscousCoulomb
 
 __all__ = ["JointDrive", "AddJointDrive", "check_explicit_friction", "check_elastic_stability", "friction_slope"]
 
@@ -43,6 +45,8 @@ def friction_slope(link_effects: list[JointEffect], motor: Motor | None = None) 
             slope = slope + eff.viscous + eff.coulomb / eff.smooth_velocity
         elif isinstance(eff, Stribeck):
             slope = slope + eff.static / eff.smooth_velocity
+        elif isinstance(eff, FrictionWarmup):                  # coldest at session time 0
+            slope = slope + eff.viscous + eff.coulomb / eff.smooth_velocity
     if motor is not None:
         slope = slope + motor.motor_viscous + motor.motor_coulomb / motor.smooth_velocity
     return np.asarray(slope, dtype=float)
@@ -77,14 +81,15 @@ class JointDrive(LeafSystem):
     and for the elastic drive ``net_actuation`` [n] N·m (the plant's applied joint torque, to close action/reaction).
     Output ports: ``actuation`` [n] N·m (the plant's actuation input; feed-forward to the implicit spring when
     elastic) and, for the elastic drive, ``motor_state`` [2n] = [θ; θ̇] (the plant's desired state). τ_f,link is a
-    function of the logged q̇ only, so the twin recomputes it from the log instead of evaluating a second port.
+    function of the logged q̇ (and, with ``friction_warmup``, of the session clock: the context time plus
+    ``session_time_s`` [s]), so the twin recomputes it from the log instead of evaluating a second port.
     """
 
     def __init__(self, n: int, link_effects: list[JointEffect], motor: Motor | None = None,
-                 elasticity: Elasticity | None = None, time_step: float = 1e-3):
+                 elasticity: Elasticity | None = None, time_step: float = 1e-3, session_time_s: float = 0.0):
         super().__init__()
         for eff in link_effects:
-            if not isinstance(eff, (ViscousCoulomb, Stribeck)):
+            if not isinstance(eff, (ViscousCoulomb, Stribeck, FrictionWarmup)):
                 raise ValueError(f"JointDrive: {eff.name} is not a link-side friction effect")
         if elasticity is not None and (motor is None or np.any(motor.motor_inertia <= 0)):
             raise ValueError("JointDrive: an elastic drive needs a motor with motor_inertia > 0")
@@ -93,6 +98,8 @@ class JointDrive(LeafSystem):
         self.motor = motor
         self.elasticity = elasticity
         self.time_step = time_step
+        self.session_time_s = float(session_time_s)
+        self._warmup = [e for e in self.link_effects if isinstance(e, FrictionWarmup)]
         # per-step fast path: every friction acting on q̇ as one viscous sum + stacked smooth-sign terms
         on_qd = self.link_effects + ([motor] if motor is not None and elasticity is None else [])
         self._viscous, self._smooth_sign = np.zeros(n), []          # F_v sum; (F_c, 1/v_s) pairs
@@ -116,42 +123,50 @@ class JointDrive(LeafSystem):
             uses.add(self._u_motor.ticket())
         self.DeclareVectorOutputPort("actuation", n, self._calc_actuation, prerequisites_of_calc=uses)
 
-    def link_friction(self, qd: np.ndarray) -> np.ndarray:
-        """τ_f,link [N·m] for velocities ``qd`` (``[n]`` or ``[N,n]``): the sum of the link friction effects."""
+    def link_friction(self, qd: np.ndarray, t: np.ndarray | float = 0.0) -> np.ndarray:
+        """τ_f,link [N·m] for velocities ``qd`` (``[n]`` or ``[N,n]``) at run time(s) ``t`` [s] (scalar or ``[N]``;
+        only a time-varying friction reads it, on the session clock ``t + session_time_s``): the sum of the link
+        friction effects."""
         out = np.zeros_like(qd)
         for eff in self.link_effects:
-            out = out + eff.friction(qd)
+            out = out + (eff.friction(qd, np.asarray(t) + self.session_time_s) if isinstance(eff, FrictionWarmup)
+                         else eff.friction(qd))
         return out
 
-    def sensed_torque(self, net_actuation: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+    def sensed_torque(self, net_actuation: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
+                      t: np.ndarray | float = 0.0) -> np.ndarray:
         """True τ_J ``[N,n]`` from the plant's logged net actuation and link motion (``u + τ_f,link``, minus
-        ``B q̈`` for the rigid drive whose motor inertia the plant carries as rotor inertia)."""
-        tau = net_actuation + self.link_friction(qd)
+        ``B q̈`` for the rigid drive whose motor inertia the plant carries as rotor inertia) at run times ``t`` [s]."""
+        tau = net_actuation + self.link_friction(qd, t)
         if self.elasticity is None and self.motor is not None:
             tau = tau - self.motor.motor_inertia * qdd
         return tau
 
-    def _friction_on_qd(self, qd: np.ndarray) -> np.ndarray:
-        """All friction acting on the link velocity in one step (link side, plus motor side for a rigid drive)."""
+    def _friction_on_qd(self, qd: np.ndarray, t: float) -> np.ndarray:
+        """All friction acting on the link velocity in one step (link side, plus motor side for a rigid drive) at
+        run time ``t`` [s]."""
         tau = self._viscous * qd
         for coulomb, inv_vs in self._smooth_sign:
             tau += coulomb * np.tanh(qd * inv_vs)
         for eff in self._stribeck:
             tau = tau + eff.friction(qd)
+        for eff in self._warmup:
+            tau = tau + eff.friction(qd, t + self.session_time_s)
         return tau
 
     def _calc_actuation(self, context: Context, output: BasicVector) -> None:
         qd = self._u_link.Eval(context)[self.n:]
         if self.elasticity is not None:
-            output.SetFromVector(-self._friction_on_qd(qd))
+            output.SetFromVector(-self._friction_on_qd(qd, context.get_time()))
         else:
-            output.SetFromVector(self._u_motor.Eval(context) - self._friction_on_qd(qd))
+            output.SetFromVector(self._u_motor.Eval(context) - self._friction_on_qd(qd, context.get_time()))
 
     def _update_motor(self, context: Context, discrete_state: DiscreteValues) -> None:
         n, motor = self.n, self.motor
         x = context.get_discrete_state(self._state).value()
         qd = self._u_link.Eval(context)[n:]
-        tau_s = self._u_net.Eval(context) + self._friction_on_qd(qd)      # the spring torque the plant applied
+        # the spring torque the plant applied
+        tau_s = self._u_net.Eval(context) + self._friction_on_qd(qd, context.get_time())
         tau_m = self._u_motor.Eval(context)
         theta_dot = x[n:] + self.time_step / motor.motor_inertia * (tau_m - motor.friction(x[n:]) - tau_s)
         discrete_state.set_value(self._state, np.concatenate([x[:n] + self.time_step * theta_dot, theta_dot]))
@@ -165,8 +180,9 @@ class JointDrive(LeafSystem):
 
 def AddJointDrive(builder: DiagramBuilder, n: int, link_effects: list[JointEffect], motor: Motor | None = None,
                   elasticity: Elasticity | None = None, time_step: float = 1e-3,
-                  name: str = "joint_drive") -> JointDrive:
-    """Add a :class:`JointDrive` to ``builder`` (ports ``motor_torque``, ``link_state`` → ``actuation``)."""
-    drive = builder.AddSystem(JointDrive(n, link_effects, motor, elasticity, time_step))
+                  name: str = "joint_drive", session_time_s: float = 0.0) -> JointDrive:
+    """Add a :class:`JointDrive` to ``builder`` (ports ``motor_torque``, ``link_state`` → ``actuation``;
+    ``session_time_s`` [s]: the session clock at context time 0, for time-varying friction)."""
+    drive = builder.AddSystem(JointDrive(n, link_effects, motor, elasticity, time_step, session_time_s))
     drive.set_name(name)
     return drive

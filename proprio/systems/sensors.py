@@ -11,9 +11,11 @@ diagnosis fit):
   discrete state (one vectorised update per step), for live diagrams; :func:`AddTorqueSensor` adds it with Drake's
   C++ ``RandomSource`` for the white noise. It reproduces :class:`TorqueSensor` sample by sample (tests).
 
-Torque sensor chain (thesis §2.1): ``τ_meas = (1 + g)·(τ_J + τ_hyst + τ_lost + τ_ripple) + o + noise``, i.e. the
-strain-gauge effects act on the transmitted τ_J, the gain/offset error on everything the gauge sees, and white
-noise is added last. Every contribution is returned separately (the twin's ``tau_<effect>`` truth channels).
+Torque sensor chain (thesis §2.1): ``τ_meas = (1 + g)·(τ_J + τ_hyst + τ_lost + τ_ripple) + o + o_d(t) + noise``,
+i.e. the strain-gauge effects act on the transmitted τ_J, the gain/offset error on everything the gauge sees, a
+drifting offset ``o_d`` (``offset_drift``, on the session clock ``MotionSignals.t``) adds to it, and white noise is
+added last (the streaming form has no session clock and refuses time-varying effects). Every contribution is
+returned separately (the twin's ``tau_<effect>`` truth channels).
 """
 from __future__ import annotations
 
@@ -22,8 +24,8 @@ from pydrake.common import RandomDistribution
 from pydrake.systems.framework import BasicVector, Context, DiagramBuilder, DiscreteValues, LeafSystem
 from pydrake.systems.primitives import Adder, Gain, RandomSource
 
-from proprio.effects import (EncoderNoise, Hysteresis, JointEffect, LostMotion, Ripple, SensorOffsetGain,
-                             TorqueNoise)
+from proprio.effects import (EncoderNoise, Hysteresis, JointEffect, LostMotion, OffsetDrift, Ripple,
+                             SensorOffsetGain, TorqueNoise)
 from proprio.signals import MotionSignals
 
 __all__ = ["TorqueSensor", "PositionSensor", "TorqueSensorSystem", "AddTorqueSensor"]
@@ -41,6 +43,7 @@ class TorqueSensor:
         by_name = {e.name: e for e in effects}
         self.gauge = [by_name[k] for k in _GAUGE_ORDER if k in by_name]
         self.offset_gain: SensorOffsetGain | None = by_name.get("sensor_offset_gain")
+        self.drift: OffsetDrift | None = by_name.get("offset_drift")
         self.noise: TorqueNoise | None = by_name.get("torque_noise")
 
     def measure(self, s: MotionSignals, tau_j: np.ndarray, rng: np.random.Generator
@@ -56,6 +59,9 @@ class TorqueSensor:
         if self.offset_gain is not None:
             parts[self.offset_gain.name] = self.offset_gain.torque(s.with_tau(seen), rng)
             seen = seen + parts[self.offset_gain.name]
+        if self.drift is not None:
+            parts[self.drift.name] = self.drift.torque(s, rng)
+            seen = seen + parts[self.drift.name]
         if self.noise is not None:
             parts[self.noise.name] = self.noise.torque(s, rng)
             seen = seen + parts[self.noise.name]
@@ -87,6 +93,10 @@ class TorqueSensorSystem(LeafSystem):
 
     def __init__(self, n: int, effects: list[JointEffect], time_step: float = 1e-3):
         super().__init__()
+        varying = [e.name for e in effects if e.time_varying]
+        if varying:
+            raise ValueError(f"TorqueSensorSystem: time-varying effect(s) {varying} need the session clock; "
+                             "use the vectorised TorqueSensor")
         sensor = TorqueSensor([e for e in effects if not isinstance(e, TorqueNoise)])
         by_type = {type(e): e for e in sensor.gauge}
         self.n = n
