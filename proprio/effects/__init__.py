@@ -45,9 +45,10 @@ from proprio.effects.base import EffectConfigError, JointEffect, affine_scan
 from proprio.effects.drive import Elasticity, Motor
 from proprio.effects.friction import Stribeck, ViscousCoulomb
 from proprio.effects.hysteresis import Hysteresis, LostMotion
+from proprio.effects.plugins import effect_key, resolve_effect
 from proprio.effects.registry import EFFECTS, make_effects
 from proprio.effects.sensor import EncoderNoise, Ripple, SensorOffsetGain, TorqueNoise
 
 __all__ = ["JointEffect", "EffectConfigError", "affine_scan", "ViscousCoulomb", "Stribeck", "Hysteresis",
            "LostMotion", "Ripple", "SensorOffsetGain", "TorqueNoise", "EncoderNoise", "Motor", "Elasticity",
-           "EFFECTS", "make_effects"]
+           "EFFECTS", "make_effects", "resolve_effect", "effect_key"]

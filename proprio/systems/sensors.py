@@ -13,7 +13,9 @@ diagnosis fit):
 
 Torque sensor chain (thesis §2.1): ``τ_meas = (1 + g)·(τ_J + τ_hyst + τ_lost + τ_ripple) + o + noise``, i.e. the
 strain-gauge effects act on the transmitted τ_J, the gain/offset error on everything the gauge sees, and white
-noise is added last. Every contribution is returned separately (the twin's ``tau_<effect>`` truth channels).
+noise is added last. Sensor-side plugins (:mod:`proprio.effects.plugins`) act with the strain-gauge effects, after
+the library's, on the transmitted τ_J (``s.tau``). Every contribution is returned separately (the twin's
+``tau_<effect>`` truth channels). The streaming :class:`TorqueSensorSystem` models the library effects only.
 """
 from __future__ import annotations
 
@@ -39,7 +41,10 @@ class TorqueSensor:
         if bad:
             raise ValueError(f"TorqueSensor: {bad} are not torque-sensor effects")
         by_name = {e.name: e for e in effects}
-        self.gauge = [by_name[k] for k in _GAUGE_ORDER if k in by_name]
+        library = set(_GAUGE_ORDER) | {"sensor_offset_gain", "torque_noise"}
+        # the library's strain-gauge effects in their order, then sensor-side plugins in the config's order
+        self.gauge = [by_name[k] for k in _GAUGE_ORDER if k in by_name] + \
+            [e for e in effects if e.name not in library]
         self.offset_gain: SensorOffsetGain | None = by_name.get("sensor_offset_gain")
         self.noise: TorqueNoise | None = by_name.get("torque_noise")
 
@@ -88,6 +93,10 @@ class TorqueSensorSystem(LeafSystem):
     def __init__(self, n: int, effects: list[JointEffect], time_step: float = 1e-3):
         super().__init__()
         sensor = TorqueSensor([e for e in effects if not isinstance(e, TorqueNoise)])
+        others = [e.name for e in sensor.gauge if e.name not in _GAUGE_ORDER]
+        if others:
+            raise ValueError(f"TorqueSensorSystem: {others} are not library effects; the streaming sensor models "
+                             f"{list(_GAUGE_ORDER) + ['sensor_offset_gain', 'torque_noise']} (plugins: TorqueSensor)")
         by_type = {type(e): e for e in sensor.gauge}
         self.n = n
         self.hysteresis: Hysteresis | None = by_type.get(Hysteresis)
