@@ -20,8 +20,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="simulation model: a built-in robot name (iiwa14_nominal, ...), a robot YAML/URDF, or a "
                    "directory with robot.yaml (e.g. ../shared/data/kuka_lwr4)")
     p.add_argument("--effects", nargs="*", default=[], metavar="EFFECT",
-                   help="library effects the simulation already has (at the parameters of --effects-config, else "
-                   "the library defaults)")
+                   help="effects the simulation already has: library names or your own effects as "
+                   "'package.module:Class' (at the parameters of --effects-config, else the class defaults)")
     p.add_argument("--effects-config", type=Path, help="YAML with an 'effects:' mapping {name: parameters}")
     p.add_argument("--train", nargs="+", required=True, type=Path, metavar="REC",
                    help="training recordings (.npz Recording or FloBaRoID LWR measurement files)")
@@ -32,6 +32,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="low-pass cutoff of the signal conditioning [Hz], or 'auto' (per joint from the data's noise "
                    "floor; default)")
     p.add_argument("--candidates", nargs="*", metavar="NAME", help="test only these candidates")
+    p.add_argument("--candidate", action="append", default=[], metavar="MODULE:CLASS",
+                   help="your own effect (a proprio.effects.JointEffect subclass, README 'Your own effect') tested "
+                   "alongside the library candidates; repeatable")
     p.add_argument("--trim", type=float, default=0.5, help="seconds dropped at both ends of every recording "
                    "(filter start-up; default 0.5)")
     p.add_argument("--out", required=True, type=Path, help="output directory for the report")
@@ -83,7 +86,10 @@ def _model(args: argparse.Namespace):
     if robot.has_friction and "viscous_coulomb" in chosen:
         raise UserError(f"friction given twice: the robot file of --model {args.model!r} already has link friction "
                         "(friction.viscous / friction.coulomb) and --effects names viscous_coulomb; drop one")
-    return SimModel(robot, tuple(make_effects(chosen, robot.n)))
+    try:
+        return SimModel(robot, tuple(make_effects(chosen, robot.n)))
+    except ValueError as exc:
+        raise UserError(f"--effects: {exc}") from exc
 
 
 def _diagnose(args: argparse.Namespace) -> int:
@@ -102,7 +108,8 @@ def _diagnose(args: argparse.Namespace) -> int:
     bar = tqdm(desc="diagnose", bar_format="{desc}: {elapsed} {postfix}")
     try:
         d = diagnose(model, train, hold, args.out, candidates=args.candidates, trim_s=args.trim,
-                     progress=lambda msg: bar.set_postfix_str(msg), conditioning=conditioning)
+                     progress=lambda msg: bar.set_postfix_str(msg), conditioning=conditioning,
+                     plugins=args.candidate)
     finally:
         bar.close()
     for line in d.attribution.conditioning:

@@ -144,20 +144,22 @@ def _md_to_html_table(md: str) -> str:
 def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording],
              holdout_recs: Sequence[Recording], out_dir: str | Path, candidates: Sequence[str] | None = None,
              trim_s: float = 0.5, progress: Callable[[str], None] | None = None,
-             conditioning: ConditioningConfig = DIAGNOSIS_CONDITIONING) -> Diagnosis:
+             conditioning: ConditioningConfig = DIAGNOSIS_CONDITIONING, plugins: Sequence[str | type] = ()
+             ) -> Diagnosis:
     """Diagnose the torque gap of ``model`` on measured recordings and write the report to ``out_dir``.
 
     ``model``: a :class:`RobotDescription` (rigid body + its friction, if any) or a :class:`SimModel` (+ the effects
     the simulation already has); ``train_recs`` fit the candidate effects, ``holdout_recs`` score them (empty: the
     training recordings are cross-validated over time blocks, see :func:`~proprio.diagnosis.selection.attribute`);
-    ``candidates`` restricts the candidate set; ``trim_s`` [s] is dropped at both ends of every recording;
+    ``candidates`` restricts the candidate set; ``plugins`` adds user-defined effects (``"package.module:Class"``,
+    :mod:`proprio.effects.plugins`) to it; ``trim_s`` [s] is dropped at both ends of every recording;
     ``conditioning`` the signal conditioning (:mod:`proprio.conditioning`).
     Writes ``report.md``, ``report.html``, ``gap_map.png``, ``spectra.png``, ``before_after.png`` and
     ``diagnosis.json``. Raises :class:`DiagnosisError` (a ``ValueError``) on bad input."""
     model = SimModel.of(model)
     out = Path(out_dir)
     att = attribute(model, train_recs, holdout_recs, candidates=candidates, trim_s=trim_s, progress=progress,
-                    conditioning=conditioning)
+                    conditioning=conditioning, plugins=plugins)
     gm, sp = _localise(model, list(train_recs) + list(holdout_recs), trim_s, conditioning)
     verdict = verdict_text(att, gm)
     files = {"gap_map_png": plot_gap_map(gm, out / "gap_map.png"),

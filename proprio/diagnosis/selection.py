@@ -291,14 +291,17 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
               holdout_recs: Sequence[Recording] = (), candidates: Sequence[str] | None = None, trim_s: float = 0.5,
               alpha: float = 0.01, min_gain: float = 0.02, max_steps: int = 6,
               progress: Callable[[str], None] | None = None,
-              conditioning: ConditioningConfig = DIAGNOSIS_CONDITIONING) -> Attribution:
+              conditioning: ConditioningConfig = DIAGNOSIS_CONDITIONING,
+              plugins: Sequence[str | type] = ()) -> Attribution:
     """Greedy forward attribution of the residual ``τ_meas − τ_sim`` to candidate effects (module docstring).
 
     ``model``: the simulation model (a RobotDescription = rigid body + its friction, or a :class:`SimModel`);
     ``train_recs`` / ``holdout_recs``: Recordings of the same robot, conditioned by ``conditioning``
     (:mod:`proprio.conditioning`). Without ``holdout_recs`` the training recordings are cross-validated over time
     blocks (sized from the residual's correlation time): alternate blocks train and score, in two folds with the roles
-    swapped, and the result reports how well the folds agree. ``candidates``: restrict to these names; ``trim_s``:
+    swapped, and the result reports how well the folds agree. ``candidates``: restrict to these names; ``plugins``:
+    user-defined effects (plugin paths ``"package.module:Class"`` or ``JointEffect`` subclasses,
+    :mod:`proprio.effects.plugins`) tested alongside the library candidates; ``trim_s``:
     seconds dropped at both ends of every recording (filter start-up). Raises :class:`DiagnosisError` on bad input
     (no recordings, joint-count mismatch, too little data for the block test, nothing to test)."""
     model = SimModel.of(model)
@@ -331,7 +334,7 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
         hold = GapData.build(model, cond_h, keep_h, "holdout")
         train_s = sum(float(k.sum()) / cs.rate_hz for cs, k in zip(cond_tr, keep_tr))
         return _select(model, train, hold, _time_blocks(hold, block_s), block_s, (train_s, held_s), candidates,
-                       alpha, min_gain, max_steps, say)
+                       alpha, min_gain, max_steps, say, plugins)
     total_s = sum(float(k.sum()) / cs.rate_hz for cs, k in zip(cond_tr, keep_tr))
     if total_s < 2 * MIN_BLOCKS * MIN_BLOCK_S:
         raise DiagnosisError(f"training: {total_s:.2f} s of data after trimming {trim_s} s per end; a diagnosis "
@@ -362,7 +365,7 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
         secs = (sum(len(i) for i in gt.fit_index) / cond_tr[0].rate_hz, sum(len(i) for i in gh.fit_index)
                 / cond_tr[0].rate_hz)
         results.append(_select(model, gt, gh, _time_blocks(gh, block_s), block_s, secs,
-                               candidates, alpha, min_gain, max_steps, say))
+                               candidates, alpha, min_gain, max_steps, say, plugins))
     tops = [[s.name for s in a.physical_steps] for a in results]
     both = set(tops[0]) | set(tops[1])
     agreement = len(set(tops[0]) & set(tops[1])) / len(both) if both else 1.0
@@ -373,9 +376,9 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
 
 def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, block_s: float,
             data_seconds: tuple[float, float], candidates: Sequence[str] | None, alpha: float, min_gain: float,
-            max_steps: int, say: Callable[[str], None]) -> Attribution:
+            max_steps: int, say: Callable[[str], None], plugins: Sequence[str | type] = ()) -> Attribution:
     """The greedy forward selection on prepared training / held-out data with held-out block labels ``blk``."""
-    cands = candidate_set(model, train, candidates)
+    cands = candidate_set(model, train, candidates, plugins)
     e_tr, e_h = train.residual, hold.residual
     w = 1.0 / np.maximum((e_tr ** 2).mean(axis=0), 1e-12)
     n_blk = int(blk.max()) + 1
