@@ -23,6 +23,13 @@ is ``iiwa14_identified`` without friction + the modelled effects. Effect types: 
 (:data:`TWIN_EFFECT_TYPES`) and payload; null and two-effect cases as above. Scores are computed by the same
 :func:`summarise`. The measured shrinkage still counts only the sensor noise as what remains, so in twin mode it is
 an upper bound: the controller's tracking and the differentiation of q leave a little more.
+
+**Out-of-library cases** (:func:`open_world_cases`, ``open:<type>@<mag>``; in twin mode ``twin:open:...``): an
+effect no library class expresses (:data:`OPEN_WORLD_TYPES`: the plugins of :mod:`proprio.effects.open_world`,
+reached only through their plugin paths, as a user's own effect) at magnitudes 1 and 2 on one drawn joint, the
+model without it. The right answer is "structured, outside the candidate set": no library effect named above 5 %
+held-out gain, and a hint naming the case's ``expected_signal`` on that joint. **Time-varying cases** come from
+``time_varying_cases(quick, seed, twin)`` (engineer B's, :data:`TIME_VARYING_TYPES`) when that function exists.
 """
 from __future__ import annotations
 

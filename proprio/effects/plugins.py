@@ -44,7 +44,7 @@ def resolve_effect(name: str) -> type[JointEffect]:
         raise EffectConfigError(f"effect name must be a library name or 'package.module:Class', got {name!r}")
     if not is_plugin_path(name):
         if name not in EFFECTS:
-            raise EffectConfigError(f"unknown joint effect {name!r}; valid effects: {sorted(EFFECTS)} or a plugin "
+            raise EffectConfigError(f"unknown effect {name!r}; valid effects: {sorted(EFFECTS)} or a plugin "
                                     "'package.module:Class'")
         return EFFECTS[name]
     module_name, _, class_name = name.partition(":")
