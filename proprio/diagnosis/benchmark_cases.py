@@ -68,7 +68,7 @@ _OW = "proprio.effects.open_world"
 OPEN_WORLD_TYPES: dict[str, tuple[str, tuple[int, ...], Any]] = {
     "cross_talk": (f"{_OW}:TorqueCrossTalk", (0, 2), lambda j: f"tau_{j + 2}"),     # next joint gravity-loaded
     "position_friction": (f"{_OW}:PositionFriction", (0, 1, 2, 3, 4, 5, 6), lambda j: f"q_{j + 1}"),
-    "cable_spring": (f"{_OW}:CableSpring", (0, 2), lambda j: f"q_{j + 1}"),
+    "cable_spring": (f"{_OW}:CableSpring", (0,), lambda j: f"q_{j + 2}"),      # joint 1: no gravity term
     "neighbour_drag": (f"{_OW}:NeighbourDrag", (0, 1, 2, 3, 4, 5), lambda j: f"qd_{j + 2}"),
 }
 # time-varying library effects (engineer B's time_varying_cases): scored on the time-dependence test
@@ -182,7 +182,7 @@ def _draw_open(kind: str, n: int, mag: float, joint: int, rng: np.random.Generat
         amp, ph = mag * rng.uniform(0.3, 0.6), rng.uniform(0, 2 * np.pi)
         return {"cos_amplitude": one(amp * np.cos(ph)), "sin_amplitude": one(amp * np.sin(ph)),
                 "order": rng.uniform(4.0, 6.0, n), "smooth_velocity": np.full(n, TWIN_SMOOTH_VELOCITY)}
-    if name == "CableSpring":                       # 0.5–1 N·m/rad: ≈1 N·m over a reach of a radian
+    if name == "CableSpring":                       # 0.5–1 N·m/rad: ≈1 N·m over a reach of a radian of joint j+1
         return {"stiffness": one(mag * rng.uniform(0.5, 1.0)), "reference": rng.uniform(-0.3, 0.3, n)}
     if name == "NeighbourDrag":                     # 0.3–0.6 N·m when the next joint turns
         return {"drag": one(sign * mag * rng.uniform(0.3, 0.6)), "smooth_velocity": np.full(n, TWIN_SMOOTH_VELOCITY)}

@@ -11,14 +11,16 @@ class                 place   contribution to the measured τ [N·m]            
 ``PositionFriction``  link    ``(a_j cos k_j q_j + b_j sin k_j q_j) tanh(q̇_j/v_s)``:    ``q_<j>``
                               Coulomb level varying along the stroke (seal / bearing
                               preload that is not round)
-``CableSpring``       link    ``k_j (q_j − q_ref,j)``: the dress pack (cables, hoses)     ``q_<j>``
-                              acts as a torsion spring on the joint
+``CableSpring``       link    ``k_j (q_j+1 − q_ref,j)``: a dress pack (cables, hoses)     ``q_<j+1>``
+                              routed across joint j+1 twists with it and loads joint j
 ``NeighbourDrag``     link    ``c_j tanh(q̇_j+1/v_s)``: cables crossing joint j+1 drag   ``qd_<j+1>``
                               on link j when joint j+1 turns
 ==================== ======= ======================================================== ===========================
 
 All four are linear in their fitted parameters (their ``regressor`` is exact). Link-side ones depend on q and q̇
-only (the plugin contract for the twin's drive).
+only (the plugin contract for the twin's drive). Three of them couple neighbouring joints, which no library effect
+does (each acts on its own joint); a spring in the joint's *own* angle would not be out of the library: the Dahl
+hysteresis with a long saturation travel is locally exactly such a spring.
 """
 from __future__ import annotations
 
@@ -86,23 +88,27 @@ class PositionFriction(JointEffect):
 
 
 class CableSpring(JointEffect):
-    """The dress pack as a torsion spring: ``k (q − q_ref)`` [N·m] (the torque the drive must add to hold it).
+    """A dress pack routed across joint j+1: it twists when joint j+1 turns and loads joint j like a torsion spring,
+    ``k_j (q_j+1 − q_ref,j)`` [N·m] on joint j (the torque the drive must add to hold it).
 
-    Parameter ``stiffness`` k [N·m/rad]; setting ``reference`` q_ref [rad] (YAML ``reference_deg``), where the
-    cables are relaxed."""
+    Parameter ``stiffness`` k_j [N·m/rad] (the last joint has no next joint); setting ``reference`` q_ref,j [rad]
+    (YAML ``reference_deg``): the next joint's angle where the cables are relaxed."""
     name = "cable_spring"
     place = "link"
     linear = True
     parameters = {"stiffness": (0.0, -INF, INF)}
     settings = {"reference": (0.0, -INF, INF)}
 
+    def _column(self, s: MotionSignals) -> np.ndarray:
+        return (_next_joint(s.q) - self.reference) * (np.arange(self.n) < self.n - 1)
+
     def torque(self, s: MotionSignals, rng: np.random.Generator | None = None) -> np.ndarray:
         self._check_n(s)
-        return self.stiffness * (s.q - self.reference)
+        return self.stiffness * self._column(s)
 
     def regressor(self, s: MotionSignals) -> np.ndarray:
         self._check_n(s)
-        return diagonal_regressor([s.q - self.reference])
+        return diagonal_regressor([self._column(s)])
 
 
 class NeighbourDrag(JointEffect):
