@@ -10,7 +10,10 @@ predicted shrinkage (the diagnosis' own held-out SSE reduction after its first s
 
 The cases and how their data are made: :mod:`proprio.diagnosis.benchmark_cases`. Here: running a case
 (:func:`run_case`), running many on the engine of :mod:`proprio.tasks` (local processes or Ray, resumable), and
-scoring them (:func:`summarise`, :func:`write_results`). Per case it also reports the held-out RMS after the last step
+scoring them (:func:`summarise`, :func:`write_results`). Out-of-library cases (a plugin effect no library candidate
+expresses) are scored apart: flagged as structured-unexplained with no library effect above 5 % held-out gain, and
+whether a hint (``Attribution.hints``, where the diagnosis has them) names the expected signal; time-varying cases by
+whether the diagnosis detects the time dependence (``Attribution.time_variation``). Per case it also reports the held-out RMS after the last step
 (``final_rms``) and the floor (``floor_rms``: the same model on held-out data made without the withheld effects).
 """
 from __future__ import annotations
@@ -194,7 +197,9 @@ def summarise(results: list[CaseResult]) -> tuple[dict[str, Any], str]:
                    "open_hint_names_signal": float(np.mean(hinted)) if hinted else float("nan"),
                    "open_hints_computed": len(with_hints), "time_varying": len(timed),
                    "time_dependence_detected": float(np.mean([r.time_dependent for r in tested])) if tested
-                   else float("nan"), "time_variation_tested": len(tested)}
+                   else float("nan"), "time_variation_tested": len(tested),
+                   "time_varying_top1": float(np.mean([bool(r.top) and r.top[0] in r.case.withheld for r in timed]))
+                   if timed else float("nan")}
     scores = {"cases": len(results), "single": len(single), "null": len(null), "pairs": len(pair),
               "failed": len(failed), "top1": float(top1), "top1_physical": float(top1_phys), "top2": float(top2), "null_false_positive_rate":
               float(null_fp), "pairs_both_found": float(pair_both),
@@ -228,7 +233,8 @@ def summarise(results: list[CaseResult]) -> tuple[dict[str, Any], str]:
                  else "not computed (this diagnosis has no hints)"),
               f"time-varying cases: {len(timed)}  time dependence detected: "
               + (f"{pct(open_scores['time_dependence_detected'])} of {len(tested)} (wanted ≥ 80 %)" if tested
-                 else "not computed (this diagnosis has no time-variation test)" if timed else "n/a")]
+                 else "not computed (this diagnosis has no time-variation test)" if timed else "n/a")
+              + (f"; withheld effect named first: {pct(open_scores['time_varying_top1'])}" if timed else "")]
     if open_w:
         lines += ["", "out-of-library case".ljust(34) + "expected  structured  library steps (gain)".ljust(56)
                   + "hints on the joint"]
