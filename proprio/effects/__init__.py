@@ -30,6 +30,10 @@ effect (YAML key)             place   model / calibration source
                                       ``proprio.systems.joint_drive``; zero direct contribution to τ_J
 ============================ ======= =============================================================================
 
+Effects beyond this library are *plugins*: a :class:`JointEffect` subclass in any module, named by its dotted path
+``"package.module:Class"`` in an ``effects:`` mapping or a diagnosis candidate list (:mod:`proprio.effects.plugins`,
+:func:`resolve_effect`); :mod:`proprio.effects.open_world` ships four, which the gap benchmark reaches only that way.
+
 Hysteresis and lost motion share one state, the *reversal travel* ``r`` (signed joint travel since the last
 direction reversal, :func:`reversal_travel`) — the quantity behind the thesis' feature ``r`` (§4.2), which the learning
 stack encodes causally with a position deadband and ±10° clipping in :mod:`proprio.learning.features`. Reversals are detected
