@@ -2,6 +2,8 @@
 in the joint drive, sensor side in the torque sensor), named by the diagnosis when the model lacks them."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 import yaml
@@ -131,3 +133,24 @@ def test_diagnosis_names_a_withheld_plugin_effect():
     # the same plugin in the model: nothing left to name
     with_it = SimModel(model.robot, model.effects + (HoseSpring(7, stiffness=k),))
     assert not attribute(with_it, recs[:2], recs[2:]).physical_steps
+
+
+def test_cli_names_a_bad_plugin_in_one_line(tmp_path, capsys):
+    from proprio.cli import main
+    from proprio.dynamics import inverse_dynamics
+    from proprio.recording import save_recording
+
+    robot = load_robot("iiwa14_nominal")
+    paths = []
+    for seed in (1, 2):
+        t, q, qd, qdd, _ = rfma_like_motion(robot, seed, 8.0)
+        rec = Recording(t=t, q=q, tau=inverse_dynamics(robot, q, qd, qdd), meta={"robot": robot.name})
+        paths.append(str(save_recording(rec, tmp_path / f"r{seed}.npz")))
+    base = ["diagnose", "--model", "iiwa14_nominal", "--train", paths[0], "--holdout", paths[1], "--out",
+            str(tmp_path / "d")]
+    for extra, expected in ((["--candidate", "no_such_package_xyz:Spring"], "--candidate: .*cannot be imported"),
+                            (["--candidate", f"{__name__}:NotAnEffect"], "not a subclass"),
+                            (["--effects", f"{__name__}:MotorSidePlugin"], "--effects: .*place = 'motor'")):
+        assert main(base + extra) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and re.search(expected, err[0]), err

@@ -99,11 +99,17 @@ def _diagnose(args: argparse.Namespace) -> int:
     from proprio.conditioning import ConditioningConfig
     from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING
     from proprio.diagnosis.report import diagnose
+    from proprio.effects import resolve_effect
     from proprio.recording import load_recording
 
     cutoff = args.cutoff if args.cutoff == "auto" else _positive_float(args.cutoff, "--cutoff")
     conditioning = ConditioningConfig(**{**DIAGNOSIS_CONDITIONING.__dict__, "cutoff_hz": cutoff})
     model = _model(args)
+    for name in args.candidate:                     # a bad plugin is refused before any data are read
+        try:
+            resolve_effect(name)
+        except ValueError as exc:
+            raise UserError(f"--candidate: {exc}") from exc
     train = [load_recording(p, model.robot) for p in args.train]
     hold = [load_recording(p, model.robot) for p in args.holdout]
     bar = tqdm(desc="diagnose", bar_format="{desc}: {elapsed} {postfix}")
