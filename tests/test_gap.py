@@ -211,3 +211,50 @@ def test_twin_case_records_the_withheld_effects_through_the_twin():
     with pytest.raises(ValueError, match="cannot act in the twin"):
         generate_case_data(BenchmarkCase("x", ("rigid_body",), 1.0, 0, twin=True))
     assert all(c.twin for c in make_cases(quick=True, twin=True))
+
+
+def test_quick_lists_hold_one_out_of_library_case_reached_through_its_plugin_path():
+    from proprio.diagnosis.benchmark_cases import OPEN_WORLD_TYPES, is_open_world
+    from proprio.effects import resolve_effect
+
+    for twin in (False, True):
+        open_cases = [c for c in make_cases(quick=True, twin=twin) if is_open_world(c)]
+        assert len(open_cases) == 1 and open_cases[0].twin == twin
+        cls = resolve_effect(open_cases[0].withheld[0])
+        assert cls not in EFFECTS.values() and open_cases[0].expected_signal
+    full = [c for c in make_cases(twin=True) if is_open_world(c)]
+    assert len(full) == 2 * len(OPEN_WORLD_TYPES) >= 8
+    # offline data of an open case: the plugin's contribution is what the data hold beyond the case without it
+    case = next(c for c in make_cases(quick=True) if is_open_world(c))
+    with_it, without = generate_case_data(case), generate_case_data(case, omit_withheld=True)
+    diff = with_it.holdout[0].tau - without.holdout[0].tau
+    j = case.open_joint
+    assert np.sqrt(np.mean(diff[:, j] ** 2)) > 0.1 and np.allclose(np.delete(diff, j, axis=1), 0.0)
+
+
+def test_open_world_and_time_metrics_are_scored_and_old_results_still_read():
+    from proprio.diagnosis.benchmark import CaseResult, case_result_from_dict, case_result_to_dict, summarise
+
+    path = "proprio.effects.open_world:TorqueCrossTalk"
+    case = BenchmarkCase("open:x@1", (path,), 1.0, 0, open_joint=0, expected_signal="tau_2")
+    ok = CaseResult(case, [], [], 0.0, 0.5, 1.0, structured=True, physical_gains={"hysteresis": 0.03},
+                    hints=[[1, ["tau_2"], 0.5], [0, ["q_1"], 0.4], [0, ["tau_2", "q_2"], 0.2]])
+    named = CaseResult(case, ["rigid_body"], ["rigid_body"], 0.2, 0.5, 1.0, structured=True,
+                       physical_gains={"rigid_body": 0.2}, hints=[[0, ["q_1"], 0.1]])
+    white = CaseResult(case, [], [], 0.0, 0.5, 1.0, structured=False, hints=[])
+    drift = BenchmarkCase("offset_drift@1", ("offset_drift",), 1.0, 0)
+    timed = [CaseResult(drift, [], [], 0.0, 0.5, 1.0, time_dependent=v) for v in (True, True, False)]
+    scores, text = summarise([ok, named, white] + timed)
+    assert scores["open_world"] == 3 and scores["open_flagged_unexplained"] == pytest.approx(1 / 3)
+    assert scores["open_hint_names_signal"] == pytest.approx(1 / 3) and scores["open_hints_computed"] == 3
+    assert scores["time_varying"] == 3 and scores["time_dependence_detected"] == pytest.approx(2 / 3)
+    assert scores["single"] == 0 and "out-of-library cases: 3" in text and "time dependence detected: 67 %" in text
+    # a result file written before these fields existed reads back with them unknown ("not computed")
+    old = case_result_to_dict(ok)
+    for key in ("structured", "physical_gains", "hints", "time_dependent"):
+        old.pop(key)
+    old["case"] = {k: v for k, v in old["case"].items() if k not in ("open_joint", "expected_signal")}
+    back = case_result_from_dict(old)
+    assert back.hints is None and back.structured is None and back.case.open_joint == -1
+    assert case_result_from_dict(case_result_to_dict(ok)) == ok
+    assert "not computed" in summarise([back])[1]

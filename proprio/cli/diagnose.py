@@ -20,8 +20,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="simulation model: a built-in robot name (iiwa14_nominal, ...), a robot YAML/URDF, or a "
                    "directory with robot.yaml (e.g. ../shared/data/kuka_lwr4)")
     p.add_argument("--effects", nargs="*", default=[], metavar="EFFECT",
-                   help="library effects the simulation already has (at the parameters of --effects-config, else "
-                   "the library defaults)")
+                   help="effects the simulation already has: library names or your own effects as "
+                   "'package.module:Class' (at the parameters of --effects-config, else the class defaults)")
     p.add_argument("--effects-config", type=Path, help="YAML with an 'effects:' mapping {name: parameters}")
     p.add_argument("--train", nargs="+", required=True, type=Path, metavar="REC",
                    help="training recordings (.npz Recording or FloBaRoID LWR measurement files)")
@@ -32,6 +32,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="low-pass cutoff of the signal conditioning [Hz], or 'auto' (per joint from the data's noise "
                    "floor; default)")
     p.add_argument("--candidates", nargs="*", metavar="NAME", help="test only these candidates")
+    p.add_argument("--candidate", action="append", default=[], metavar="MODULE:CLASS",
+                   help="your own effect (a proprio.effects.JointEffect subclass, README 'Your own effect') tested "
+                   "alongside the library candidates; repeatable")
     p.add_argument("--trim", type=float, default=0.5, help="seconds dropped at both ends of every recording "
                    "(filter start-up; default 0.5)")
     p.add_argument("--twin", metavar="BASE",
@@ -54,7 +57,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "(viscous_coulomb, hysteresis, lost_motion, ripple, sensor_offset_gain, torque_noise, "
                    "encoder_noise) and payload; slower (~30 s of CPU per case)")
     b.add_argument("--quick", action="store_true", help="one magnitude per effect type, 2 null, 1 two-effect case "
-                   "(with --twin: 4 effect types, 1 null, 1 two-effect case)")
+                   "(with --twin: 4 effect types, 1 null, 1 two-effect case), 1 out-of-library case (and 1 "
+                   "time-varying case where the diagnosis has them)")
     b.add_argument("--cases", nargs="+", metavar="NAME", default=None,
                    help="run only these cases of the list (names as in benchmark.txt, e.g. viscous_coulomb@1 null#0; "
                    "the scores then cover only them)")
@@ -87,7 +91,10 @@ def _model(args: argparse.Namespace):
     if robot.has_friction and "viscous_coulomb" in chosen:
         raise UserError(f"friction given twice: the robot file of --model {args.model!r} already has link friction "
                         "(friction.viscous / friction.coulomb) and --effects names viscous_coulomb; drop one")
-    return SimModel(robot, tuple(make_effects(chosen, robot.n)))
+    try:
+        return SimModel(robot, tuple(make_effects(chosen, robot.n)))
+    except ValueError as exc:
+        raise UserError(f"--effects: {exc}") from exc
 
 
 def _diagnose(args: argparse.Namespace) -> int:
@@ -96,11 +103,17 @@ def _diagnose(args: argparse.Namespace) -> int:
     from proprio.conditioning import ConditioningConfig
     from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING
     from proprio.diagnosis.report import diagnose
+    from proprio.effects import resolve_effect
     from proprio.recording import load_recording
 
     cutoff = args.cutoff if args.cutoff == "auto" else _positive_float(args.cutoff, "--cutoff")
     conditioning = ConditioningConfig(**{**DIAGNOSIS_CONDITIONING.__dict__, "cutoff_hz": cutoff})
     model = _model(args)
+    for name in args.candidate:                     # a bad plugin is refused before any data are read
+        try:
+            resolve_effect(name)
+        except ValueError as exc:
+            raise UserError(f"--candidate: {exc}") from exc
     twin = None
     if args.twin is not None:
         from proprio.diagrams.twin import TwinConfigError, load_twin_config
@@ -119,7 +132,8 @@ def _diagnose(args: argparse.Namespace) -> int:
     bar = tqdm(desc="diagnose", bar_format="{desc}: {elapsed} {postfix}")
     try:
         d = diagnose(model, train, hold, args.out, candidates=args.candidates, trim_s=args.trim,
-                     progress=lambda msg: bar.set_postfix_str(msg), conditioning=conditioning, twin=twin)
+                     progress=lambda msg: bar.set_postfix_str(msg), conditioning=conditioning, twin=twin,
+                     plugins=args.candidate)
     finally:
         bar.close()
     for line in d.attribution.conditioning:

@@ -10,7 +10,10 @@ predicted shrinkage (the diagnosis' own held-out SSE reduction after its first s
 
 The cases and how their data are made: :mod:`proprio.diagnosis.benchmark_cases`. Here: running a case
 (:func:`run_case`), running many on the engine of :mod:`proprio.tasks` (local processes or Ray, resumable), and
-scoring them (:func:`summarise`, :func:`write_results`). Per case it also reports the held-out RMS after the last step
+scoring them (:func:`summarise`, :func:`write_results`). Out-of-library cases (a plugin effect no library candidate
+expresses) are scored apart: flagged as structured-unexplained with no library effect above 5 % held-out gain, and
+whether a hint (``Attribution.hints``, where the diagnosis has them) names the expected signal; time-varying cases by
+whether the diagnosis detects the time dependence (``Attribution.time_variation``). Per case it also reports the held-out RMS after the last step
 (``final_rms``) and the floor (``floor_rms``: the same model on held-out data made without the withheld effects).
 """
 from __future__ import annotations
@@ -23,12 +26,15 @@ from typing import Any
 
 import numpy as np
 
-from proprio.diagnosis.benchmark_cases import PROCESSING_TYPES, BenchmarkCase, generate_case_data
+from proprio.diagnosis.benchmark_cases import (PROCESSING_TYPES, BenchmarkCase, generate_case_data, is_open_world,
+                                               is_time_varying)
 from proprio.effects import EFFECTS
 from proprio.io import atomic_write_text
 
 __all__ = ["CaseResult", "run_case", "run_benchmark", "summarise", "write_results", "case_result_to_dict",
            "case_result_from_dict"]
+
+OPEN_LIBRARY_GAIN = 0.05      # an out-of-library case may name library effects up to this held-out gain
 
 
 @dataclass
@@ -44,6 +50,10 @@ class CaseResult:
     processing: list[str] = field(default_factory=list)
     final_rms: float = float("nan")           # N·m: held-out residual RMS after the diagnosis' last step
     floor_rms: float = float("nan")           # N·m: the same model on held-out data made without the withheld effects
+    structured: bool | None = None            # the remaining held-out residual is not white (None: old result file)
+    physical_gains: dict[str, float] = field(default_factory=dict)   # held-out gain of every physical step named
+    hints: list[list[Any]] | None = None      # [joint (0-based), signals, gain] per hint; None: no hints computed
+    time_dependent: bool | None = None        # the time-variation test's verdict; None: not computed
 
 
 def run_case(case: BenchmarkCase) -> CaseResult:
@@ -89,10 +99,15 @@ def run_case(case: BenchmarkCase) -> CaseResult:
     for name in names:                               # sub-candidates count as their library effect
         if base(name) not in top:
             top.append(base(name))
+    tv = att.time_variation
     return CaseResult(case, top[:3], att.selected, pred, meas, time.perf_counter() - t0,
                       params={s.name: float(s.gain) for s in att.steps},
                       processing=[s.name for s in att.processing_steps],
-                      final_rms=float(np.sqrt(np.mean(final ** 2))), floor_rms=floor_rms)
+                      final_rms=float(np.sqrt(np.mean(final ** 2))), floor_rms=floor_rms,
+                      structured=not att.residual.white,
+                      physical_gains={s.name: float(s.gain) for s in att.physical_steps},
+                      hints=[[int(h.joint), list(h.signals), float(h.gain)] for h in att.hints],
+                      time_dependent=None if tv is None else bool(tv.detected))
 
 
 def case_result_to_dict(r: CaseResult) -> dict[str, Any]:
@@ -146,10 +161,15 @@ def run_benchmark(cases: list[BenchmarkCase], workers: int | None = None, progre
 
 
 def summarise(results: list[CaseResult]) -> tuple[dict[str, Any], str]:
-    """Scores and a printable report (confusion matrix, accuracies, null FP rate, shrinkage error)."""
-    single = [r for r in results if len(r.case.withheld) == 1 and not r.error]
-    null = [r for r in results if not r.case.withheld and not r.error]
-    pair = [r for r in results if len(r.case.withheld) == 2 and not r.error]
+    """Scores and a printable report (confusion matrix, accuracies, null FP rate, shrinkage error; for the
+    out-of-library cases the share flagged as structured-unexplained and the hint accuracy, for the time-varying
+    cases the share whose time dependence was detected)."""
+    open_w = [r for r in results if is_open_world(r.case) and not r.error]
+    timed = [r for r in results if is_time_varying(r.case) and not r.error]
+    library = [r for r in results if not (is_open_world(r.case) or is_time_varying(r.case))]
+    single = [r for r in library if len(r.case.withheld) == 1 and not r.error]
+    null = [r for r in library if not r.case.withheld and not r.error]
+    pair = [r for r in library if len(r.case.withheld) == 2 and not r.error]
     failed = [r for r in results if r.error]
     labels = sorted({r.case.withheld[0] for r in single})
     pred_labels = labels + ["(other)", "(none)"]
@@ -168,13 +188,25 @@ def summarise(results: list[CaseResult]) -> tuple[dict[str, Any], str]:
     shr = [(r.predicted_shrinkage, r.measured_shrinkage) for r in single
            if r.measured_shrinkage > 0.05 and r.top and r.top[0] == r.case.withheld[0]]
     rel = np.array([abs(p - m) / m for p, m in shr]) if shr else np.zeros(0)
+    flagged = [_flagged_unexplained(r) for r in open_w]
+    with_hints = [r for r in open_w if r.hints is not None]
+    hinted = [_hint_names_signal(r) for r in with_hints]
+    tested = [r for r in timed if r.time_dependent is not None]
+    open_scores = {"open_world": len(open_w),
+                   "open_flagged_unexplained": float(np.mean(flagged)) if flagged else float("nan"),
+                   "open_hint_names_signal": float(np.mean(hinted)) if hinted else float("nan"),
+                   "open_hints_computed": len(with_hints), "time_varying": len(timed),
+                   "time_dependence_detected": float(np.mean([r.time_dependent for r in tested])) if tested
+                   else float("nan"), "time_variation_tested": len(tested),
+                   "time_varying_top1": float(np.mean([bool(r.top) and r.top[0] in r.case.withheld for r in timed]))
+                   if timed else float("nan")}
     scores = {"cases": len(results), "single": len(single), "null": len(null), "pairs": len(pair),
               "failed": len(failed), "top1": float(top1), "top1_physical": float(top1_phys), "top2": float(top2), "null_false_positive_rate":
               float(null_fp), "pairs_both_found": float(pair_both),
               "shrinkage_rel_error_median": float(np.median(rel)) if rel.size else float("nan"),
               "shrinkage_rel_error_max": float(rel.max()) if rel.size else float("nan"),
               "shrinkage_within_20pct": float(np.mean(rel <= 0.2)) if rel.size else float("nan"),
-              "effect_types": labels}
+              "effect_types": labels, **open_scores}
     w = max(len(x) for x in labels + ["withheld"]) + 1
     lines = ["Confusion matrix (rows: withheld effect, columns: top-1 attribution)", ""]
     short = [p[:6] for p in pred_labels]
@@ -192,6 +224,26 @@ def summarise(results: list[CaseResult]) -> tuple[dict[str, Any], str]:
               f"shrinkage (correct top-1, measured > 5 %): median rel. error "
               f"{100 * scores['shrinkage_rel_error_median']:.1f} %, max {100 * scores['shrinkage_rel_error_max']:.1f}"
               f" %, within 20 %: {100 * scores['shrinkage_within_20pct']:.0f} % of {rel.size}"]
+    pct = lambda x: "n/a" if np.isnan(x) else f"{100 * x:.0f} %"  # noqa: E731
+    lines += [f"out-of-library cases: {len(open_w)}  flagged structured-unexplained with no library effect above "
+              f"{100 * OPEN_LIBRARY_GAIN:.0f} % held-out gain: {pct(open_scores['open_flagged_unexplained'])} "
+              f"(wanted ≥ 80 %)",
+              "  hint names the right signal (one of the first 3 hints on the affected joint): "
+              + (f"{pct(open_scores['open_hint_names_signal'])} of {len(with_hints)} (wanted ≥ 60 %)" if with_hints
+                 else "not computed (this diagnosis has no hints)"),
+              f"time-varying cases: {len(timed)}  time dependence detected: "
+              + (f"{pct(open_scores['time_dependence_detected'])} of {len(tested)} (wanted ≥ 80 %)" if tested
+                 else "not computed (this diagnosis has no time-variation test)" if timed else "n/a")
+              + (f"; withheld effect named first: {pct(open_scores['time_varying_top1'])}" if timed else "")]
+    if open_w:
+        lines += ["", "out-of-library case".ljust(34) + "expected  structured  library steps (gain)".ljust(56)
+                  + "hints on the joint"]
+        for r in open_w:
+            lib = ", ".join(f"{k} {100 * g:.0f} %" for k, g in r.physical_gains.items()) or "none"
+            hints = "n/a" if r.hints is None else "; ".join(
+                "+".join(h[1]) for h in [h for h in r.hints if h[0] == r.case.open_joint][:3]) or "none"
+            lines.append(r.case.name[:33].ljust(34) + f"{r.case.expected_signal:9s} {str(r.structured):11s} "
+                         + lib[:44].ljust(45) + hints)
     if failed:
         lines.append(f"failed cases: {len(failed)}: " + "; ".join(f"{r.case.name}: {r.error}" for r in failed))
     lines += ["", "case".ljust(44) + "attribution (top 3)".ljust(52)
@@ -201,6 +253,18 @@ def summarise(results: list[CaseResult]) -> tuple[dict[str, Any], str]:
                      + f"{r.predicted_shrinkage:8.3f} {r.measured_shrinkage:8.3f} {r.final_rms:5.3f} "
                      + f"{r.floor_rms:5.3f}       {r.seconds:4.0f}")
     return scores, "\n".join(lines)
+
+
+def _flagged_unexplained(r: CaseResult) -> bool:
+    """An out-of-library case handled right: the residual stays structured and no library effect is named with
+    more than :data:`OPEN_LIBRARY_GAIN` held-out gain."""
+    return bool(r.structured) and all(g <= OPEN_LIBRARY_GAIN for g in r.physical_gains.values())
+
+
+def _hint_names_signal(r: CaseResult) -> bool:
+    """The case's expected signal is among the signals of one of the first 3 hints on its affected joint."""
+    on_joint = [h for h in r.hints or [] if h[0] == r.case.open_joint][:3]
+    return any(r.case.expected_signal in h[1] for h in on_joint)
 
 
 def write_results(results: list[CaseResult], out_dir: str | Path) -> tuple[dict[str, Any], str]:
@@ -213,7 +277,9 @@ def write_results(results: list[CaseResult], out_dir: str | Path) -> tuple[dict[
     rows = [{"case": r.case.name, "source": "twin" if r.case.twin else "offline", "withheld": list(r.case.withheld), "magnitude": r.case.magnitude,
              "seed": r.case.seed, "modelled": list(r.case.modelled), "top": r.top, "selected": r.steps, "processing": r.processing,
              "predicted_shrinkage": r.predicted_shrinkage, "measured_shrinkage": r.measured_shrinkage,
-             "final_rms": r.final_rms, "floor_rms": r.floor_rms, "seconds": r.seconds, "error": r.error}
+             "final_rms": r.final_rms, "floor_rms": r.floor_rms, "seconds": r.seconds, "error": r.error,
+             "structured": r.structured, "physical_gains": r.physical_gains, "open_joint": r.case.open_joint,
+             "expected_signal": r.case.expected_signal, "hints": r.hints, "time_dependent": r.time_dependent}
             for r in results]
     atomic_write_text(out / "benchmark.json", json.dumps({"scores": scores, "cases": rows}, indent=1))
     return scores, text

@@ -24,6 +24,12 @@ is ``iiwa14_identified`` without friction + the modelled effects. Effect types: 
 :func:`summarise`. The measured shrinkage still counts only the sensor noise as what remains, so in twin mode it is
 an upper bound: the controller's tracking and the differentiation of q leave a little more.
 
+**Out-of-library cases** (:func:`open_world_cases`, ``open:<type>@<mag>``; in twin mode ``twin:open:...``): an
+effect no library class expresses (:data:`OPEN_WORLD_TYPES`: the plugins of :mod:`proprio.effects.open_world`,
+reached only through their plugin paths, as a user's own effect) at magnitudes 1 and 2 on one drawn joint, the
+model without it. The right answer is "structured, outside the candidate set": no library effect named above 5 %
+held-out gain, and a hint naming the case's ``expected_signal`` on that joint. 
+
 **Time-varying cases** (:func:`time_varying_cases`): the gap depends on when the data were taken. The three
 recordings are placed on the session clock at ``BenchmarkCase.session_s`` (training first, the held-out one last:
 0, 25, 50 s offline; 0, 35, 70 s through the twin), written to ``Recording.meta["session_time_s"]``. Kinds
@@ -42,14 +48,16 @@ from scipy import signal
 
 from proprio.description import Link, RobotDescription, load_robot
 from proprio.dynamics import inverse_dynamics
-from proprio.effects import EFFECTS
+from proprio.effects import EFFECTS, resolve_effect
+from proprio.effects.plugins import is_plugin_path
 from proprio.payload import Payload, attach_payload
 from proprio.recording import Recording
 from proprio.signals import MotionSignals
 
 __all__ = ["BenchmarkCase", "CaseData", "make_cases", "time_varying_cases", "select_cases", "generate_case_data",
            "generate_twin_case_data", "twin_case_config", "rfma_like_motion", "EFFECT_TYPES", "TWIN_EFFECT_TYPES",
-           "PROCESSING_TYPES", "TIME_TYPES", "RATE_HZ"]
+           "PROCESSING_TYPES", "TIME_TYPES", "RATE_HZ", "OPEN_WORLD_TYPES", "open_world_cases", "is_open_world",
+           "is_time_varying"]
 
 RATE_HZ = 200.0
 NOISE_STD = 0.05                 # background torque-sensor noise [N·m] (present in data AND model unless withheld)
@@ -66,6 +74,15 @@ EFFECT_TYPES = STATIC_EFFECTS + EXTRA_TYPES
 TWIN_EFFECT_TYPES = ("viscous_coulomb", "hysteresis", "lost_motion", "ripple", "sensor_offset_gain", "torque_noise",
                      "encoder_noise", "payload")
 TWIN_SMOOTH_VELOCITY = 0.05      # rad/s, tanh width of the twin's Coulomb friction (explicit-friction stability)
+# out-of-library effects, reached only through their plugin paths: short name → (plugin path, joints (0-based) the
+# effect may act on, the hint signal of joint j as a function of j: "tau_<k>", "q_<k>", "qd_<k>" with 1-based k)
+_OW = "proprio.effects.open_world"
+OPEN_WORLD_TYPES: dict[str, tuple[str, tuple[int, ...], Any]] = {
+    "cross_talk": (f"{_OW}:TorqueCrossTalk", (0, 2), lambda j: f"tau_{j + 2}"),     # next joint gravity-loaded
+    "position_friction": (f"{_OW}:PositionFriction", (0, 1, 2, 3, 4, 5, 6), lambda j: f"q_{j + 1}"),
+    "cable_spring": (f"{_OW}:CableSpring", (0,), lambda j: f"q_{j + 2}"),      # joint 1: no gravity term
+    "neighbour_drag": (f"{_OW}:NeighbourDrag", (0, 1, 2, 3, 4, 5), lambda j: f"qd_{j + 2}"),
+}
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -152,10 +169,43 @@ class BenchmarkCase:
     twin: bool = False
     logger: tuple[tuple[str, Any], ...] = ()
     session_s: tuple[float, ...] = ()
+    open_joint: int = -1                 # out-of-library cases: the joint (0-based) the withheld plugin acts on
+    expected_signal: str = ""            # ... and the signal a hint should name for it ("tau_3", "q_1", "qd_2")
 
 
-def _draw(kind: str, n: int, mag: float, rng: np.random.Generator) -> dict[str, Any]:
-    """Parameters of one effect at magnitude ``mag`` (base levels from DESIGN.md's calibration ranges)."""
+def is_open_world(case: BenchmarkCase) -> bool:
+    """An out-of-library case: its withheld effect is a plugin (no library candidate can express it)."""
+    return any(is_plugin_path(k) for k in case.withheld)
+
+
+def is_time_varying(case: BenchmarkCase) -> bool:
+    """A case whose withheld effect varies with time (:data:`TIME_TYPES`)."""
+    return bool(set(case.withheld) & set(TIME_TYPES))
+
+
+def _draw_open(kind: str, n: int, mag: float, joint: int, rng: np.random.Generator) -> dict[str, Any]:
+    """Parameters of an out-of-library plugin at magnitude ``mag``, acting on ``joint`` only (zero elsewhere)."""
+    one = lambda x: np.where(np.arange(n) == joint, x, 0.0)  # noqa: E731
+    sign = float(rng.choice([-1.0, 1.0]))
+    name = kind.rpartition(":")[2]
+    if name == "TorqueCrossTalk":                   # 2–4 % of the neighbour's torque (tens of N·m on joints 2–4)
+        return {"coupling": one(sign * mag * rng.uniform(0.02, 0.04))}
+    if name == "PositionFriction":                  # 0.3–0.6 N·m, a pattern of 4–6 rad⁻¹ along the stroke
+        amp, ph = mag * rng.uniform(0.3, 0.6), rng.uniform(0, 2 * np.pi)
+        return {"cos_amplitude": one(amp * np.cos(ph)), "sin_amplitude": one(amp * np.sin(ph)),
+                "order": rng.uniform(4.0, 6.0, n), "smooth_velocity": np.full(n, TWIN_SMOOTH_VELOCITY)}
+    if name == "CableSpring":                       # 0.5–1 N·m/rad: ≈1 N·m over a reach of a radian of joint j+1
+        return {"stiffness": one(mag * rng.uniform(0.5, 1.0)), "reference": rng.uniform(-0.3, 0.3, n)}
+    if name == "NeighbourDrag":                     # 0.3–0.6 N·m when the next joint turns
+        return {"drag": one(sign * mag * rng.uniform(0.3, 0.6)), "smooth_velocity": np.full(n, TWIN_SMOOTH_VELOCITY)}
+    raise ValueError(f"unknown out-of-library benchmark effect {kind!r}")
+
+
+def _draw(kind: str, n: int, mag: float, rng: np.random.Generator, joint: int = -1) -> dict[str, Any]:
+    """Parameters of one effect at magnitude ``mag`` (base levels from DESIGN.md's calibration ranges; a plugin
+    of :data:`OPEN_WORLD_TYPES` acts on ``joint`` only)."""
+    if is_plugin_path(kind):
+        return _draw_open(kind, n, mag, joint, rng)
     u = lambda a, b: rng.uniform(a, b, n)  # noqa: E731
     if kind == "viscous_coulomb":
         return {"viscous": mag * u(0.10, 0.37), "coulomb": mag * u(0.03, 0.32)}
@@ -195,9 +245,12 @@ def _draw(kind: str, n: int, mag: float, rng: np.random.Generator) -> dict[str, 
 def make_cases(quick: bool = False, seed: int = 0, twin: bool = False) -> list[BenchmarkCase]:
     """The case list: every effect type × magnitudes (0.5, 1, 2; quick: 1) + null cases + two-effect cases.
 
-    ``twin``: the twin-diagram cases instead (:data:`TWIN_EFFECT_TYPES`; quick: 4 single, 1 null, 1 pair)."""
+    ``twin``: the twin-diagram cases instead (:data:`TWIN_EFFECT_TYPES`; quick: 4 single, 1 null, 1 pair). Both
+    lists end with the out-of-library cases (:func:`open_world_cases`; quick: 1) and the time-varying ones
+    (:func:`time_varying_cases`; quick: 1)."""
+    extra = open_world_cases(quick, seed, twin) + time_varying_cases(quick, seed, twin)
     if twin:
-        return _twin_cases(quick, seed)
+        return _twin_cases(quick, seed) + extra
     rng = np.random.default_rng(seed)
     mags = (1.0,) if quick else (0.5, 1.0, 2.0)
     cases = []
@@ -214,6 +267,22 @@ def make_cases(quick: bool = False, seed: int = 0, twin: bool = False) -> list[B
              ("rigid_body", "viscous_coulomb"), ("lost_motion", "sensor_offset_gain"), ("elasticity", "ripple")]
     for a, b in pairs[:1 if quick else len(pairs)]:
         cases.append(BenchmarkCase(f"{a}+{b}", (a, b), 1.0, int(rng.integers(1 << 30))))
+    return cases + extra
+
+
+def open_world_cases(quick: bool = False, seed: int = 0, twin: bool = False) -> list[BenchmarkCase]:
+    """Out-of-library cases: every :data:`OPEN_WORLD_TYPES` plugin at magnitudes 1 and 2 on a drawn joint (quick:
+    the first type at magnitude 1), the model without it; named ``open:<type>@<mag>`` (``twin:open:...`` in twin
+    mode). The diagnosis should flag the residual as structured and unexplained, name no library effect, and its
+    hints should name the case's ``expected_signal``."""
+    rng = np.random.default_rng([seed, 13])
+    prefix = "twin:" if twin else ""
+    cases = []
+    for short, (path, joints, signal_of) in list(OPEN_WORLD_TYPES.items())[:1 if quick else None]:
+        for m in (1.0,) if quick else (1.0, 2.0):
+            j = int(rng.choice(joints))
+            cases.append(BenchmarkCase(f"{prefix}open:{short}@{m:g}", (path,), m, int(rng.integers(1 << 30)),
+                                       twin=twin, open_joint=j, expected_signal=signal_of(j)))
     return cases
 
 
@@ -238,6 +307,7 @@ def _session(case: BenchmarkCase, k: int) -> float:
 
 
 def _twin_cases(quick: bool, seed: int) -> list[BenchmarkCase]:
+    """The library's twin cases (:func:`make_cases` adds the out-of-library and time-varying ones)."""
     rng = np.random.default_rng(seed)
     mags = (0.5, 1.0, 2.0)
     kinds = ("viscous_coulomb", "hysteresis", "sensor_offset_gain", "payload") if quick else TWIN_EFFECT_TYPES
@@ -286,7 +356,7 @@ def generate_case_data(case: BenchmarkCase, robot: RobotDescription | None = Non
     robot = robot or load_robot("iiwa14_nominal")
     n = robot.n
     rng = np.random.default_rng(case.seed)
-    params = {k: _draw(k, n, case.magnitude, rng) for k in case.withheld}
+    params = {k: _draw(k, n, case.magnitude, rng, case.open_joint) for k in case.withheld}
     modelled = {k: _draw(k, n, 1.0, rng) for k in case.modelled}
     if omit_withheld:
         params = {k: v for k, v in params.items() if k == "torque_noise"}
@@ -295,11 +365,11 @@ def generate_case_data(case: BenchmarkCase, robot: RobotDescription | None = Non
         data_robot = _perturbed(data_robot, params["rigid_body"])
     if "payload" in params:
         data_robot = attach_payload(data_robot, Payload(params["payload"]["mass"], tuple(params["payload"]["com"])))
-    present = {**modelled, **{k: v for k, v in params.items() if k in EFFECTS}}
+    present = {**modelled, **{k: v for k, v in params.items() if k in EFFECTS or is_plugin_path(k)}}
     steps = params.get("offset_step", {}).get("offsets")
     noise = dict(params.get("torque_noise", {"std": np.full(n, NOISE_STD)}))
     present["torque_noise"] = noise
-    effects = {k: EFFECTS[k](n, **v) for k, v in present.items()}
+    effects = {k: resolve_effect(k)(n, **v) for k, v in present.items()}
     model_effects = tuple(k for k in modelled) + (() if "torque_noise" in params else ("torque_noise",))
     model_params = {**modelled, "torque_noise": {"std": np.full(n, NOISE_STD)}}
     recs = []
@@ -310,6 +380,9 @@ def generate_case_data(case: BenchmarkCase, robot: RobotDescription | None = Non
         for name in ("viscous_coulomb", "stribeck", "friction_warmup"):
             if name in effects:
                 tau = tau + effects[name].torque(s)
+        for name, eff in effects.items():          # link-side plugins (q, q̇ only, as in the twin's drive)
+            if is_plugin_path(name) and eff.place == "link":
+                tau = tau + eff.torque(s)
         s = s.with_tau(tau)
         sensor = np.zeros_like(tau)
         for name, eff in effects.items():
@@ -343,15 +416,16 @@ def twin_case_config(case: BenchmarkCase, omit_withheld: bool = False, recording
     recording's offset. Returns ``(TwinConfig, modelled parameters)``."""
     from proprio.diagrams.twin import load_twin_config
 
-    bad = sorted(set(case.withheld + case.modelled) - set(TWIN_EFFECT_TYPES + TIME_TYPES))
+    bad = sorted(k for k in set(case.withheld + case.modelled) - set(TWIN_EFFECT_TYPES + TIME_TYPES)
+                 if not is_plugin_path(k))
     if bad:
         raise ValueError(f"twin case {case.name!r}: effect(s) {bad} cannot act in the twin; "
-                         f"valid: {list(TWIN_EFFECT_TYPES + TIME_TYPES)}")
+                         f"valid: {list(TWIN_EFFECT_TYPES + TIME_TYPES)} or a plugin 'package.module:Class'")
     config = load_twin_config("iiwa14_twin").with_payload(None).with_logger(**{"rate_hz": RATE_HZ,
                                                                               **dict(case.logger)})
     n = config.robot.n
     rng = np.random.default_rng(case.seed)
-    params = {k: _draw(k, n, case.magnitude, rng) for k in case.withheld}
+    params = {k: _draw(k, n, case.magnitude, rng, case.open_joint) for k in case.withheld}
     modelled = {k: _draw(k, n, 1.0, rng) for k in case.modelled}
     if omit_withheld:
         params = {k: v for k, v in params.items() if k == "torque_noise"}
@@ -359,12 +433,13 @@ def twin_case_config(case: BenchmarkCase, omit_withheld: bool = False, recording
         for k in ("viscous_coulomb", "friction_warmup"):
             if k in block:
                 block[k]["smooth_velocity"] = np.full(n, TWIN_SMOOTH_VELOCITY)
-    present = {**modelled, **{k: v for k, v in params.items() if k in EFFECTS}}
+    present = {**modelled, **{k: v for k, v in params.items() if k in EFFECTS or is_plugin_path(k)}}
     present.setdefault("torque_noise", {"std": np.full(n, NOISE_STD)})
     present["encoder_noise"] = {**{k: np.full(n, v) for k, v in ENCODER.items()}, **present.get("encoder_noise", {})}
     if "offset_step" in params:                # the sensor re-zeroed: a constant offset per session
         present["offset_drift"] = {"offset": params["offset_step"]["offsets"][recording]}
-    config = config.with_effects([EFFECTS[k](n, **present[k]) for k in EFFECTS if k in present])
+    config = config.with_effects([EFFECTS[k](n, **present[k]) for k in EFFECTS if k in present]
+                                 + [resolve_effect(k)(n, **v) for k, v in present.items() if is_plugin_path(k)])
     config = config.with_session_time(_session(case, recording))
     if "payload" in params:
         config = config.with_payload(Payload(params["payload"]["mass"], tuple(params["payload"]["com"])))

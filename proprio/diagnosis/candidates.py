@@ -13,7 +13,7 @@ from proprio.description import RobotDescription
 from proprio.diagnosis.data import DiagnosisError, GapData, SimModel
 from proprio.diagnosis.localisation import peak_orders
 from proprio.dynamics import inverse_dynamics
-from proprio.effects import EFFECTS, JointEffect
+from proprio.effects import EFFECTS, JointEffect, effect_key, resolve_effect
 from proprio.identification.regressor import PARAMS_PER_JOINT, parameter_names, regressor
 from proprio.signals import MotionSignals
 
@@ -68,16 +68,20 @@ class Candidate:
 
 
 class EffectCandidate(Candidate):
-    """A joint effect of the twin's library. Linear effects are fitted through their own ``regressor``; nonlinear
-    ones start from the library defaults with every torque-amplitude parameter (default 0) set to a fraction of
-    the residual's RMS per joint (two starts)."""
+    """A joint effect: a library name, a plugin path ``"package.module:Class"`` or a ``JointEffect`` subclass
+    (:mod:`proprio.effects.plugins`); the candidate is named by the class' ``name``. Linear effects are fitted through
+    their own ``regressor``; nonlinear ones start from the class defaults with every torque-amplitude parameter
+    (default 0) set to a fraction of the residual's RMS per joint (two starts)."""
     AMPLITUDE_KEYS = ("static", "saturation", "amplitude", "offset")
 
-    def __init__(self, name: str, n: int, keys: Sequence[str] | None = None, label: str | None = None,
-                 **settings: Any):
-        self.name = label or name
-        self.effect = name
-        self.proto: JointEffect = EFFECTS[name](n, **settings)
+    def __init__(self, effect: str | type[JointEffect], n: int, keys: Sequence[str] | None = None,
+                 label: str | None = None, **settings: Any):
+        cls = resolve_effect(effect) if isinstance(effect, str) else effect
+        if not (isinstance(cls, type) and issubclass(cls, JointEffect)):
+            raise DiagnosisError(f"candidate {effect!r} is neither an effect name nor a JointEffect subclass")
+        self.name = label or cls.name
+        self.effect = effect_key(cls)
+        self.proto: JointEffect = cls(n, **settings)
         self.linear = bool(self.proto.linear)
         self.place = self.proto.place
         self.time_varying = bool(self.proto.time_varying)
@@ -393,12 +397,26 @@ class SignalLagCandidate(Candidate):
 
 
 def candidate_set(model: SimModel, train: GapData, names: Sequence[str] | None = None,
-                  time_varying: bool = False) -> list[Candidate]:
-    """All deterministic candidates the model lacks (or only ``names``, which must be among them). The
-    time-varying library effects are offered only when ``time_varying`` (the residual depends on the session time,
-    :mod:`proprio.diagnosis.time_variation`) or when named."""
+                  plugins: Sequence[str | type[JointEffect]] = (), time_varying: bool = False) -> list[Candidate]:
+    """All deterministic candidates the model lacks (or only ``names``, which must be among them), plus the user's
+    ``plugins`` (plugin paths ``"package.module:Class"`` or ``JointEffect`` subclasses, tested alongside; a plugin
+    path in ``names`` counts as one). The time-varying library effects are offered only when ``time_varying`` (the
+    residual depends on the session time, :mod:`proprio.diagnosis.time_variation`) or when named. Raises
+    :class:`DiagnosisError` for a plugin that cannot be resolved or that the model already has."""
     n = model.robot.n
     present = model.effect_names
+    plugins = list(plugins) + [k for k in names or () if ":" in k]
+    names = None if names is None else [k for k in names if ":" not in k]
+    extra: dict[str, EffectCandidate] = {}
+    for p in plugins:
+        try:
+            cand = EffectCandidate(p, n)
+        except ValueError as exc:
+            raise DiagnosisError(f"candidates: {exc}") from exc
+        if cand.name in present or cand.name in extra:
+            raise DiagnosisError(f"candidates: plugin {cand.effect} ({cand.name}) is already in the model or "
+                                 "given twice")
+        extra[cand.name] = cand
     special = {"ripple": lambda: ripple_candidate(n, train), "encoder_noise": lambda: EncoderNoiseCandidate(model),
                "elasticity": lambda: ElasticityCandidate(model)}
     available: dict[str, Callable[[], Candidate]] = {
@@ -417,11 +435,12 @@ def candidate_set(model: SimModel, train: GapData, names: Sequence[str] | None =
         unknown = [k for k in names if k not in available and k != "torque_noise"]
         if unknown:
             why = [f"{k} (already in the model)" if k in present else f"{k} (unknown)" for k in unknown]
-            raise DiagnosisError(f"candidates: cannot test {', '.join(why)}; available: {sorted(available)}")
+            raise DiagnosisError(f"candidates: cannot test {', '.join(why)}; available: {sorted(available)} or a "
+                                 "plugin 'package.module:Class'")
         chosen = [k for k in names if k in available]
     else:
         chosen = [k for k in available if time_varying or k not in EFFECTS or not EFFECTS[k].time_varying]
-    if not chosen:
+    if not chosen and not extra:
         raise DiagnosisError("candidates: no candidate effects left to test — the model already has every effect "
                              "of the library (or only noise effects were requested)")
-    return [available[k]() for k in chosen]
+    return [available[k]() for k in chosen] + list(extra.values())

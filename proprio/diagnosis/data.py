@@ -17,7 +17,7 @@ import numpy as np
 
 from proprio.description import RobotDescription
 from proprio.dynamics import inverse_dynamics
-from proprio.effects import EFFECTS, JointEffect
+from proprio.effects import JointEffect, resolve_effect
 from proprio.conditioning import ConditionedSignals, ConditioningConfig, condition
 from proprio.recording import Recording
 from proprio.signals import MotionSignals
@@ -65,11 +65,13 @@ class SimModel:
 
     @classmethod
     def from_names(cls, robot: RobotDescription, names: Sequence[str] = ()) -> "SimModel":
-        """The model with the named library effects at their default parameters."""
-        bad = [k for k in names if k not in EFFECTS]
-        if bad:
-            raise DiagnosisError(f"effects: unknown effect(s) {bad}; the library has {sorted(EFFECTS)}")
-        return cls(robot, tuple(EFFECTS[k](robot.n) for k in names))
+        """The model with the named effects (library names or plugin paths ``"package.module:Class"``) at their
+        default parameters."""
+        try:
+            classes = [resolve_effect(k) for k in names]
+        except ValueError as exc:
+            raise DiagnosisError(f"effects: {exc}") from exc
+        return cls(robot, tuple(c(robot.n) for c in classes))
 
     @property
     def effect_names(self) -> set[str]:

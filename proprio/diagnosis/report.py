@@ -182,13 +182,15 @@ def _md_to_html_table(md: str) -> str:
 def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording],
              holdout_recs: Sequence[Recording], out_dir: str | Path, candidates: Sequence[str] | None = None,
              trim_s: float = 0.5, progress: Callable[[str], None] | None = None,
-             conditioning: ConditioningConfig = DIAGNOSIS_CONDITIONING, twin: TwinConfig | None = None) -> Diagnosis:
+             conditioning: ConditioningConfig = DIAGNOSIS_CONDITIONING, twin: TwinConfig | None = None,
+             plugins: Sequence[str | type] = ()) -> Diagnosis:
     """Diagnose the torque gap of ``model`` on measured recordings and write the report to ``out_dir``.
 
     ``model``: a :class:`RobotDescription` (rigid body + its friction, if any) or a :class:`SimModel` (+ the effects
     the simulation already has); ``train_recs`` fit the candidate effects, ``holdout_recs`` score them (empty: the
     training recordings are cross-validated over time blocks, see :func:`~proprio.diagnosis.selection.attribute`);
-    ``candidates`` restricts the candidate set; ``trim_s`` [s] is dropped at both ends of every recording;
+    ``candidates`` restricts the candidate set; ``plugins`` adds user-defined effects (``"package.module:Class"``,
+    :mod:`proprio.effects.plugins`) to it; ``trim_s`` [s] is dropped at both ends of every recording;
     ``conditioning`` the signal conditioning (:mod:`proprio.conditioning`).
     Writes ``report.md``, ``report.html``, ``gap_map.png``, ``spectra.png``, ``before_after.png``,
     ``diagnosis.json`` and ``twin_patch.yaml`` (:mod:`~proprio.diagnosis.patch`). ``twin``: a base twin config of
@@ -202,7 +204,7 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
     if twin is not None and not holdout_recs:
         raise DiagnosisError("twin: the replay through the twin needs held-out recordings (--holdout)")
     att = attribute(model, train_recs, holdout_recs, candidates=candidates, trim_s=trim_s, progress=progress,
-                    conditioning=conditioning)
+                    conditioning=conditioning, plugins=plugins)
     entries = patch_entries(att)
     patch_files = write_twin_patch(att, model, out / "twin_patch.yaml", entries)
     replay = None

@@ -302,14 +302,17 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
               holdout_recs: Sequence[Recording] = (), candidates: Sequence[str] | None = None, trim_s: float = 0.5,
               alpha: float = 0.01, min_gain: float = 0.02, max_steps: int = 6,
               progress: Callable[[str], None] | None = None,
-              conditioning: ConditioningConfig = DIAGNOSIS_CONDITIONING) -> Attribution:
+              conditioning: ConditioningConfig = DIAGNOSIS_CONDITIONING,
+              plugins: Sequence[str | type] = ()) -> Attribution:
     """Greedy forward attribution of the residual ``τ_meas − τ_sim`` to candidate effects (module docstring).
 
     ``model``: the simulation model (a RobotDescription = rigid body + its friction, or a :class:`SimModel`);
     ``train_recs`` / ``holdout_recs``: Recordings of the same robot, conditioned by ``conditioning``
     (:mod:`proprio.conditioning`). Without ``holdout_recs`` the training recordings are cross-validated over time
     blocks (sized from the residual's correlation time): alternate blocks train and score, in two folds with the roles
-    swapped, and the result reports how well the folds agree. ``candidates``: restrict to these names; ``trim_s``:
+    swapped, and the result reports how well the folds agree. ``candidates``: restrict to these names; ``plugins``:
+    user-defined effects (plugin paths ``"package.module:Class"`` or ``JointEffect`` subclasses,
+    :mod:`proprio.effects.plugins`) tested alongside the library candidates; ``trim_s``:
     seconds dropped at both ends of every recording (filter start-up). Raises :class:`DiagnosisError` on bad input
     (no recordings, joint-count mismatch, too little data for the block test, nothing to test)."""
     model = SimModel.of(model)
@@ -346,7 +349,7 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
         say("time dependence")
         tv = time_variation(model, train, hold)
         return _select(model, train, hold, _time_blocks(hold, block_s), block_s, (train_s, held_s), candidates,
-                       alpha, min_gain, max_steps, say, tv)
+                       alpha, min_gain, max_steps, say, tv, plugins)
     total_s = sum(float(k.sum()) / cs.rate_hz for cs, k in zip(cond_tr, keep_tr))
     if total_s < 2 * MIN_BLOCKS * MIN_BLOCK_S:
         raise DiagnosisError(f"training: {total_s:.2f} s of data after trimming {trim_s} s per end; a diagnosis "
@@ -381,7 +384,7 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
         secs = (sum(len(i) for i in gt.fit_index) / cond_tr[0].rate_hz, sum(len(i) for i in gh.fit_index)
                 / cond_tr[0].rate_hz)
         results.append(_select(model, gt, gh, _time_blocks(gh, block_s), block_s, secs,
-                               candidates, alpha, min_gain, max_steps, say, tv))
+                               candidates, alpha, min_gain, max_steps, say, tv, plugins))
     tops = [[s.name for s in a.physical_steps] for a in results]
     both = set(tops[0]) | set(tops[1])
     agreement = len(set(tops[0]) & set(tops[1])) / len(both) if both else 1.0
@@ -392,11 +395,12 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
 
 def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, block_s: float,
             data_seconds: tuple[float, float], candidates: Sequence[str] | None, alpha: float, min_gain: float,
-            max_steps: int, say: Callable[[str], None], tv: TimeVariation) -> Attribution:
+            max_steps: int, say: Callable[[str], None], tv: TimeVariation,
+            plugins: Sequence[str | type] = ()) -> Attribution:
     """The greedy forward selection on prepared training / held-out data with held-out block labels ``blk``; ``tv``:
     the time-dependence test of the same data (when detected: time-varying candidates offered, static ones fitted
     with the time-trend nuisance)."""
-    cands = candidate_set(model, train, candidates, time_varying=tv.detected)
+    cands = candidate_set(model, train, candidates, plugins, time_varying=tv.detected)
     nuisance = [TimeTrendNuisance(train)] if tv.detected else []
 
     def with_nuisance(cs: list[Candidate]) -> list[Candidate]:

@@ -32,6 +32,11 @@ A twin is described by one YAML file (``proprio/configs/iiwa14_twin.yaml``)::
     drive: {motor_inertia: [...], motor_viscous: [...], motor_coulomb: [...]}   # motor side (hidden), or null
     payload: {mass: 1.0, com_flange: [0, 0, 0.05]}                        # or null
     effects: {viscous_coulomb: {...}, hysteresis: {...}, ...}             # see proprio.effects
+    # user-defined effects (proprio.effects.plugins) by their dotted path, e.g.
+    #   effects: {"my_package.my_effects:CableSpring": {stiffness: [0.5, 0, 0, 0, 0, 0, 0]}}
+    # link-side plugins act in the JointDrive (on t, q, q̇), sensor-side ones in the TorqueSensor
+
+Every effect's contribution is logged as ``tau_<name>`` (a plugin's ``name`` class attribute).
 
 ``robot`` may also be a robot mapping (the ``proprio-robot/v1`` layout of ``RobotDescription.to_dict``).
 
@@ -75,7 +80,7 @@ from proprio.urdf import to_urdf
 from proprio.systems.joint_drive import (
     AddJointDrive, JointDrive, check_elastic_stability, check_explicit_friction, friction_slope,
 )
-from proprio.effects import Elasticity, EncoderNoise, JointEffect, Motor, make_effects
+from proprio.effects import Elasticity, EncoderNoise, JointEffect, Motor, effect_key, make_effects
 from proprio.signals import MotionSignals
 from proprio.systems.robot_logger import LoggerConfig, RobotLogger
 from proprio.systems.sensors import PositionSensor, TorqueSensor
@@ -200,7 +205,7 @@ class TwinConfig:
     def meta(self) -> dict[str, Any]:
         """JSON-able description for ``Recording.meta``."""
         return {"twin": self.name, "robot": self.robot.name, "time_step": self.time_step,
-                "effects": {e.name: {k: v.tolist() for k, v in e.params().items()} for e in self.effects},
+                "effects": {effect_key(e): {k: v.tolist() for k, v in e.params().items()} for e in self.effects},
                 "controller": {"kp": self.kp.tolist(), "ki": self.ki.tolist(), "kd": self.kd.tolist(),
                                "payload_model": self.payload_model},
                 "drive": None if self.motor is None else {k: v.tolist() for k, v in self.motor.params().items()},
@@ -531,10 +536,12 @@ def _to_recording(config: TwinConfig, drive: JointDrive, t: np.ndarray, data: np
     s = MotionSignals(t=t + config.session_time_s, q=q, qd=qd, qdd=qdd)      # effects see the session clock
     truth: dict[str, np.ndarray] = {}
     truth["tau_rbd"] = _in_batches(inverse_dynamics, attach_payload(desc, config.payload), q, qd, qdd)
+    # link-side effects act with q̈ = 0, on the session clock
+    s_drive = MotionSignals(t=t + config.session_time_s, q=q, qd=qd, qdd=np.zeros_like(qdd))
     for eff in config.effects:
         if eff.place == "link":
-            truth[f"tau_{eff.name}"] = eff.torque(s)
-    tau_j = drive.sensed_torque(u, qd, qdd, t)
+            truth[f"tau_{eff.name}"] = eff.torque(s_drive)
+    tau_j = drive.sensed_torque(u, t, q, qd, qdd)
     truth["tau_J_true"] = tau_j
     sensor_effects = [e for e in config.effects if e.place == "sensor" and not isinstance(e, EncoderNoise)]
     tau_meas, parts = TorqueSensor(sensor_effects).measure(s, tau_j, rng)

@@ -15,11 +15,15 @@ One Python :class:`JointDrive` ``LeafSystem`` holds all per-step Python work of 
   like the iiwa's motor encoders): PD on the link position through the spring is the classic unstable
   non-collocated loop.
 
+Link-side effects other than the library's friction (user plugins, :mod:`proprio.effects.plugins`) act like the
+friction: each step the drive evaluates their ``torque`` on the current state ``(t, q, q̇)`` with ``q̈ = 0`` and no
+torque (a link-side effect may depend on t, q and q̇ only) and subtracts it from the actuation. Their time is the
+session clock, the context time plus ``session_time_s`` [s] (a time-varying friction such as ``friction_warmup``
+reads it).
+
 Either way the plant's net actuation ``u`` satisfies ``τ_J = u + τ_f,link [− B q̈ for the rigid drive]``, and the link
 dynamics give ``τ_J = τ_rbd(q, q̇, q̈) + τ_f,link − Jᵀ f_ext``; the twin recovers the true τ_J from the logged net
 actuation and the motion (:meth:`JointDrive.sensed_torque`).
-
-A time-varying link friction (``friction_warmup``) reads the session clock ``context time + session_time_s`` [s].
 
 Friction acts explicitly (from the state at the start of the step): stable while ``(c_j / m)·dt < 2`` with ``c_j`` the
 friction slope ``F_v + F_c/v_s (+ F_s/v_s)`` (minus the spring's implicit damping D when elastic) and ``m`` the
@@ -32,24 +36,35 @@ from __future__ import annotations
 import numpy as np
 from pydrake.systems.framework import BasicVector, Context, DiagramBuilder, DiscreteValues, LeafSystem
 
-from proprio.effects import Elasticity, FrictionWarmup, JointEffect, Motor, Stribeck, ViscousCoulomb
+from proprio.effects import Elasticity, JointEffect, Motor, Stribeck, ViscousCoulomb
+from proprio.signals import MotionSignals
 
 __all__ = ["JointDrive", "AddJointDrive", "check_explicit_friction", "check_elastic_stability", "friction_slope"]
 
 
 def friction_slope(link_effects: list[JointEffect], motor: Motor | None = None) -> np.ndarray:
-    """Largest ``∂τ_f/∂q̇`` [N·m·s/rad] per joint of the velocity-dependent friction (at q̇ = 0)."""
+    """Largest ``∂τ_f/∂q̇`` [N·m·s/rad] per joint of the velocity-dependent friction (at q̇ = 0; for other link-side
+    effects, e.g. plugins, the central difference ``|∂τ_j/∂q̇_j|`` at q = 0, q̇ = 0 with a 1e-4 rad/s step)."""
     slope = 0.0
     for eff in link_effects:
         if isinstance(eff, ViscousCoulomb):
             slope = slope + eff.viscous + eff.coulomb / eff.smooth_velocity
         elif isinstance(eff, Stribeck):
             slope = slope + eff.static / eff.smooth_velocity
-        elif isinstance(eff, FrictionWarmup):                  # coldest at session time 0
-            slope = slope + eff.viscous + eff.coulomb / eff.smooth_velocity
+        else:
+            slope = slope + _numeric_slope(eff)
     if motor is not None:
         slope = slope + motor.motor_viscous + motor.motor_coulomb / motor.smooth_velocity
     return np.asarray(slope, dtype=float)
+
+
+def _numeric_slope(eff: JointEffect, h: float = 1e-4) -> np.ndarray:
+    """``|∂τ_j/∂q̇_j|`` [N·m·s/rad] per joint of a link-side effect at q = 0, q̇ = 0 (one batch of 2n samples)."""
+    n = eff.n
+    qd = np.concatenate([h * np.eye(n), -h * np.eye(n)])
+    z = np.zeros_like(qd)
+    tau = eff.torque(MotionSignals(np.zeros(2 * n), z, qd, z))
+    return np.abs(np.diag(tau[:n]) - np.diag(tau[n:])) / (2 * h)
 
 
 def check_explicit_friction(slope: np.ndarray, inertia: np.ndarray, time_step: float) -> None:
@@ -80,17 +95,16 @@ class JointDrive(LeafSystem):
     Input ports: ``motor_torque`` [n] N·m (the controller's command), ``link_state`` [2n] = [q; q̇] (plant state),
     and for the elastic drive ``net_actuation`` [n] N·m (the plant's applied joint torque, to close action/reaction).
     Output ports: ``actuation`` [n] N·m (the plant's actuation input; feed-forward to the implicit spring when
-    elastic) and, for the elastic drive, ``motor_state`` [2n] = [θ; θ̇] (the plant's desired state). τ_f,link is a
-    function of the logged q̇ (and, with ``friction_warmup``, of the session clock: the context time plus
-    ``session_time_s`` [s]), so the twin recomputes it from the log instead of evaluating a second port.
+    elastic) and, for the elastic drive, ``motor_state`` [2n] = [θ; θ̇] (the plant's desired state). τ_link is a
+    function of the logged t, q, q̇ only, so the twin recomputes it from the log instead of evaluating a second port.
     """
 
     def __init__(self, n: int, link_effects: list[JointEffect], motor: Motor | None = None,
                  elasticity: Elasticity | None = None, time_step: float = 1e-3, session_time_s: float = 0.0):
         super().__init__()
         for eff in link_effects:
-            if not isinstance(eff, (ViscousCoulomb, Stribeck, FrictionWarmup)):
-                raise ValueError(f"JointDrive: {eff.name} is not a link-side friction effect")
+            if eff.place != "link":
+                raise ValueError(f"JointDrive: {eff.name} is not a link-side effect (place {eff.place!r})")
         if elasticity is not None and (motor is None or np.any(motor.motor_inertia <= 0)):
             raise ValueError("JointDrive: an elastic drive needs a motor with motor_inertia > 0")
         self.n = n
@@ -99,11 +113,11 @@ class JointDrive(LeafSystem):
         self.elasticity = elasticity
         self.time_step = time_step
         self.session_time_s = float(session_time_s)
-        self._warmup = [e for e in self.link_effects if isinstance(e, FrictionWarmup)]
         # per-step fast path: every friction acting on q̇ as one viscous sum + stacked smooth-sign terms
         on_qd = self.link_effects + ([motor] if motor is not None and elasticity is None else [])
         self._viscous, self._smooth_sign = np.zeros(n), []          # F_v sum; (F_c, 1/v_s) pairs
         self._stribeck = [e for e in on_qd if isinstance(e, Stribeck)]
+        self._general = [e for e in self.link_effects if not isinstance(e, (ViscousCoulomb, Stribeck))]
         for eff in on_qd:
             if isinstance(eff, ViscousCoulomb):
                 self._viscous = self._viscous + eff.viscous
@@ -113,7 +127,7 @@ class JointDrive(LeafSystem):
                 self._smooth_sign.append((eff.motor_coulomb, 1.0 / eff.smooth_velocity))
         self._u_motor = self.DeclareVectorInputPort("motor_torque", n)
         self._u_link = self.DeclareVectorInputPort("link_state", 2 * n)
-        uses = {self._u_link.ticket()}
+        uses = {self._u_link.ticket()} | ({self.time_ticket()} if self._general else set())
         if elasticity is not None:
             self._u_net = self.DeclareVectorInputPort("net_actuation", n)
             self._state = self.DeclareDiscreteState(2 * n)
@@ -123,50 +137,52 @@ class JointDrive(LeafSystem):
             uses.add(self._u_motor.ticket())
         self.DeclareVectorOutputPort("actuation", n, self._calc_actuation, prerequisites_of_calc=uses)
 
-    def link_friction(self, qd: np.ndarray, t: np.ndarray | float = 0.0) -> np.ndarray:
-        """τ_f,link [N·m] for velocities ``qd`` (``[n]`` or ``[N,n]``) at run time(s) ``t`` [s] (scalar or ``[N]``;
-        only a time-varying friction reads it, on the session clock ``t + session_time_s``): the sum of the link
-        friction effects."""
+    def link_torque(self, t: np.ndarray, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """τ_link [N·m] ``[N,n]`` at run times ``t`` [s] ``[N]`` (the effects see the session clock ``t +
+        session_time_s``) and states ``q``, ``qd`` ``[N,n]``: the sum of the link-side effects (friction and plugins),
+        evaluated as the drive applies them (q̈ = 0)."""
+        s = MotionSignals(np.asarray(t, dtype=float) + self.session_time_s, q, qd, np.zeros_like(qd))
         out = np.zeros_like(qd)
         for eff in self.link_effects:
-            out = out + (eff.friction(qd, np.asarray(t) + self.session_time_s) if isinstance(eff, FrictionWarmup)
-                         else eff.friction(qd))
+            out = out + eff.torque(s)
         return out
 
-    def sensed_torque(self, net_actuation: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
-                      t: np.ndarray | float = 0.0) -> np.ndarray:
-        """True τ_J ``[N,n]`` from the plant's logged net actuation and link motion (``u + τ_f,link``, minus
-        ``B q̈`` for the rigid drive whose motor inertia the plant carries as rotor inertia) at run times ``t`` [s]."""
-        tau = net_actuation + self.link_friction(qd, t)
+    def sensed_torque(self, net_actuation: np.ndarray, t: np.ndarray, q: np.ndarray, qd: np.ndarray,
+                      qdd: np.ndarray) -> np.ndarray:
+        """True τ_J ``[N,n]`` from the plant's logged net actuation and link motion (``u + τ_link``, minus
+        ``B q̈`` for the rigid drive whose motor inertia the plant carries as rotor inertia)."""
+        tau = net_actuation + self.link_torque(t, q, qd)
         if self.elasticity is None and self.motor is not None:
             tau = tau - self.motor.motor_inertia * qdd
         return tau
 
-    def _friction_on_qd(self, qd: np.ndarray, t: float) -> np.ndarray:
-        """All friction acting on the link velocity in one step (link side, plus motor side for a rigid drive) at
-        run time ``t`` [s]."""
+    def _link_on_state(self, context: Context) -> np.ndarray:
+        """Everything acting on the link state in one step: friction on q̇ (link side, plus motor side for a rigid
+        drive) and the other link-side effects on (t, q, q̇)."""
+        x = self._u_link.Eval(context)
+        q, qd = x[:self.n], x[self.n:]
         tau = self._viscous * qd
         for coulomb, inv_vs in self._smooth_sign:
             tau += coulomb * np.tanh(qd * inv_vs)
         for eff in self._stribeck:
             tau = tau + eff.friction(qd)
-        for eff in self._warmup:
-            tau = tau + eff.friction(qd, t + self.session_time_s)
+        if self._general:
+            s = MotionSignals(np.array([context.get_time() + self.session_time_s]), q[None], qd[None],
+                              np.zeros((1, self.n)))
+            for eff in self._general:
+                tau = tau + eff.torque(s)[0]
         return tau
 
     def _calc_actuation(self, context: Context, output: BasicVector) -> None:
-        qd = self._u_link.Eval(context)[self.n:]
         if self.elasticity is not None:
-            output.SetFromVector(-self._friction_on_qd(qd, context.get_time()))
+            output.SetFromVector(-self._link_on_state(context))
         else:
-            output.SetFromVector(self._u_motor.Eval(context) - self._friction_on_qd(qd, context.get_time()))
+            output.SetFromVector(self._u_motor.Eval(context) - self._link_on_state(context))
 
     def _update_motor(self, context: Context, discrete_state: DiscreteValues) -> None:
         n, motor = self.n, self.motor
         x = context.get_discrete_state(self._state).value()
-        qd = self._u_link.Eval(context)[n:]
-        # the spring torque the plant applied
-        tau_s = self._u_net.Eval(context) + self._friction_on_qd(qd, context.get_time())
+        tau_s = self._u_net.Eval(context) + self._link_on_state(context)  # the spring torque the plant applied
         tau_m = self._u_motor.Eval(context)
         theta_dot = x[n:] + self.time_step / motor.motor_inertia * (tau_m - motor.friction(x[n:]) - tau_s)
         discrete_state.set_value(self._state, np.concatenate([x[:n] + self.time_step * theta_dot, theta_dot]))
@@ -182,7 +198,7 @@ def AddJointDrive(builder: DiagramBuilder, n: int, link_effects: list[JointEffec
                   elasticity: Elasticity | None = None, time_step: float = 1e-3,
                   name: str = "joint_drive", session_time_s: float = 0.0) -> JointDrive:
     """Add a :class:`JointDrive` to ``builder`` (ports ``motor_torque``, ``link_state`` → ``actuation``;
-    ``session_time_s`` [s]: the session clock at context time 0, for time-varying friction)."""
+    ``session_time_s`` [s]: the session clock at context time 0, for time-varying link effects)."""
     drive = builder.AddSystem(JointDrive(n, link_effects, motor, elasticity, time_step, session_time_s))
     drive.set_name(name)
     return drive

@@ -14,8 +14,10 @@ diagnosis fit):
 Torque sensor chain (thesis §2.1): ``τ_meas = (1 + g)·(τ_J + τ_hyst + τ_lost + τ_ripple) + o + o_d(t) + noise``,
 i.e. the strain-gauge effects act on the transmitted τ_J, the gain/offset error on everything the gauge sees, a
 drifting offset ``o_d`` (``offset_drift``, on the session clock ``MotionSignals.t``) adds to it, and white noise is
-added last (the streaming form has no session clock and refuses time-varying effects). Every contribution is
-returned separately (the twin's ``tau_<effect>`` truth channels).
+added last. Sensor-side plugins (:mod:`proprio.effects.plugins`) act with the strain-gauge effects, after the
+library's, on the transmitted τ_J (``s.tau``). Every contribution is returned separately (the twin's
+``tau_<effect>`` truth channels). The streaming :class:`TorqueSensorSystem` models the library's time-invariant
+effects only (it has no session clock) and refuses the others.
 """
 from __future__ import annotations
 
@@ -41,7 +43,10 @@ class TorqueSensor:
         if bad:
             raise ValueError(f"TorqueSensor: {bad} are not torque-sensor effects")
         by_name = {e.name: e for e in effects}
-        self.gauge = [by_name[k] for k in _GAUGE_ORDER if k in by_name]
+        library = set(_GAUGE_ORDER) | {"sensor_offset_gain", "offset_drift", "torque_noise"}
+        # the library's strain-gauge effects in their order, then sensor-side plugins in the config's order
+        self.gauge = [by_name[k] for k in _GAUGE_ORDER if k in by_name] + \
+            [e for e in effects if e.name not in library]
         self.offset_gain: SensorOffsetGain | None = by_name.get("sensor_offset_gain")
         self.drift: OffsetDrift | None = by_name.get("offset_drift")
         self.noise: TorqueNoise | None = by_name.get("torque_noise")
@@ -98,6 +103,10 @@ class TorqueSensorSystem(LeafSystem):
             raise ValueError(f"TorqueSensorSystem: time-varying effect(s) {varying} need the session clock; "
                              "use the vectorised TorqueSensor")
         sensor = TorqueSensor([e for e in effects if not isinstance(e, TorqueNoise)])
+        others = [e.name for e in sensor.gauge if e.name not in _GAUGE_ORDER]
+        if others:
+            raise ValueError(f"TorqueSensorSystem: {others} are not library effects; the streaming sensor models "
+                             f"{list(_GAUGE_ORDER) + ['sensor_offset_gain', 'torque_noise']} (plugins: TorqueSensor)")
         by_type = {type(e): e for e in sensor.gauge}
         self.n = n
         self.hysteresis: Hysteresis | None = by_type.get(Hysteresis)
