@@ -76,7 +76,7 @@ def test_twin_config_session_time_is_validated_and_logged():
     qd = np.full((3, N_J), 0.4)
     drive = JointDrive(N_J, [warm], session_time_s=60.0)
     t = np.array([0.0, 10.0, 20.0])
-    np.testing.assert_allclose(drive.link_friction(qd, t), warm.friction(qd, t + 60.0))
+    np.testing.assert_allclose(drive.link_torque(t, np.zeros_like(qd), qd), warm.friction(qd, t + 60.0))
 
 
 @lru_cache(maxsize=8)
