@@ -193,7 +193,8 @@ def test_twin_case_records_the_withheld_effects_through_the_twin():
     case = BenchmarkCase("twin:payload+sensor_offset_gain", ("payload", "sensor_offset_gain"), 1.0, 5,
                          modelled=("ripple",), twin=True)
     data = generate_case_data(case)
-    assert data.model_effects == ("ripple", "torque_noise") and data.robot.name == "iiwa14_identified"
+    assert data.model_effects == ("ripple", "torque_noise", "encoder_noise")
+    assert data.robot.name == "iiwa14_identified"
     assert not data.robot.has_friction
     recs = data.train + data.holdout
     assert len(data.train) == 2 and len(data.holdout) == 1

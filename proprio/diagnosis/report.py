@@ -220,6 +220,8 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
                "steps": [{"name": s.name, "tied": s.tied, "gain": s.gain, "t": s.t_stat,
                           "rmse_after": s.rmse_after.tolist()} for s in att.steps],
                "ranking": att.ranking, "noise": [{"name": f.name, "rms": f.rms.tolist()} for f in att.noise],
+               "processing": att.processing_findings,
+               "encoder_floor": att.encoder.to_dict() if att.encoder is not None else None,
                "residual_white": rs.white, "verdict": verdict,
                "data_quality": [{"name": n, **q.to_dict()} for n, q in quality]}
     atomic_write_text(out / "diagnosis.json", json.dumps(summary, indent=1))

@@ -37,9 +37,12 @@ A candidate that lowers the weighted error but raises the unweighted held-out SS
 **Noise.** Torque noise cannot shrink a held-out error. After the deterministic steps, an unmodelled
 ``torque_noise`` is reported when the remaining residual is white (Ljung–Box and state R²) and its variance
 exceeds the noise the model already predicts. Encoder noise *can* be predicted: its signature is the change of the
-modelled torque when the measured motion is de-noised (``EncoderNoiseCandidate``). Elasticity leaves τ_J exact for
-a link-side position sensor; it is tested as the deflection a motor-side position sensor would miss
-(``ElasticityCandidate``).
+modelled torque when the measured motion is de-noised (``EncoderNoiseCandidate``, for a model without encoder noise).
+Past the low-pass that signature is mostly unpredictable band-limited noise, so encoder noise is also compared by
+*level*: the data's position-noise floor against the model's encoder noise (:mod:`proprio.diagnosis.encoder_floor`,
+:attr:`Attribution.encoder`), a data-path finding (:attr:`Attribution.processing_findings`), never a cause.
+Elasticity leaves τ_J exact for a link-side position sensor; it is tested as the deflection a motor-side position
+sensor would miss (``ElasticityCandidate``).
 
 Confidence intervals come from the Jacobian of the fit (``σ² (JᵀWJ)⁻¹``) inflated by ``N / N_eff``, the
 effective sample size of the autocorrelated residual (Bartlett), i.e. 95 % CI = ``± 1.96 σ_θ``.
@@ -58,6 +61,7 @@ from proprio.diagnosis.candidates import Candidate, candidate_set
 from proprio.conditioning import ConditionedSignals, ConditioningConfig, processing_torque_sigma
 from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, MIN_BLOCK_S, MIN_BLOCKS, DiagnosisError, GapData,
                                     SimModel, condition_all, kept)
+from proprio.diagnosis.encoder_floor import EncoderFloor, encoder_floor
 from proprio.diagnosis.fitting import Fit, fit_candidates, predict_candidates
 from proprio.effects import EFFECTS
 from proprio.recording import Recording, validate_recording
@@ -162,6 +166,7 @@ class Attribution:
     data_seconds: tuple[float, float]
     block_s: float
     cv: "CrossValidation | None" = None
+    encoder: EncoderFloor | None = None
 
     @property
     def physical_steps(self) -> list[Step]:
@@ -170,6 +175,16 @@ class Attribution:
     @property
     def processing_steps(self) -> list[Step]:
         return [s for s in self.steps if s.processing]
+
+    @property
+    def processing_findings(self) -> list[str]:
+        """Names of every data-path finding, the report's "data and processing" section (never a cause): the
+        processing steps in selection order, then ``encoder_noise`` when the data's position-noise floor is above
+        the model's encoder noise (:mod:`proprio.diagnosis.encoder_floor`)."""
+        out = [s.name for s in self.processing_steps]
+        if self.encoder is not None and self.encoder.reported and self.encoder.name not in out:
+            out.append(self.encoder.name)
+        return out
 
     @property
     def selected(self) -> list[str]:
@@ -330,8 +345,10 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
         train = GapData.build(model, cond_tr, keep_tr, "training")
         hold = GapData.build(model, cond_h, keep_h, "holdout")
         train_s = sum(float(k.sum()) / cs.rate_hz for cs, k in zip(cond_tr, keep_tr))
-        return _select(model, train, hold, _time_blocks(hold, block_s), block_s, (train_s, held_s), candidates,
-                       alpha, min_gain, max_steps, say)
+        att = _select(model, train, hold, _time_blocks(hold, block_s), block_s, (train_s, held_s), candidates,
+                      alpha, min_gain, max_steps, say)
+        att.encoder = encoder_floor(model, cond_tr + cond_h)
+        return att
     total_s = sum(float(k.sum()) / cs.rate_hz for cs, k in zip(cond_tr, keep_tr))
     if total_s < 2 * MIN_BLOCKS * MIN_BLOCK_S:
         raise DiagnosisError(f"training: {total_s:.2f} s of data after trimming {trim_s} s per end; a diagnosis "
@@ -368,6 +385,7 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
     agreement = len(set(tops[0]) & set(tops[1])) / len(both) if both else 1.0
     att = results[0]
     att.cv = CrossValidation(block_s, n_blocks, tops, agreement)
+    att.encoder = encoder_floor(model, cond_tr)
     return att
 
 
