@@ -8,6 +8,7 @@ Modules, in the order the diagnosis runs:
 - :mod:`~proprio.diagnosis.candidates` — *which*: the candidate effects;
 - :mod:`~proprio.diagnosis.fitting` — fitting candidates to the training residual;
 - :mod:`~proprio.diagnosis.selection` — greedy forward selection, scored on held-out blocks, and its statistics;
+- :mod:`~proprio.diagnosis.encoder_floor` — the data's position-noise floor against the model's encoder noise;
 - :mod:`~proprio.diagnosis.verdict` — the plain-language verdict;
 - :mod:`~proprio.diagnosis.report` — :func:`diagnose`: all of the above as one call and one report;
 - :mod:`~proprio.diagnosis.benchmark_cases` — the withheld-effect benchmark's cases and their data;

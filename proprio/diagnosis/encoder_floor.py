@@ -71,7 +71,8 @@ class EncoderFloor:
         if not self.reported:
             return (head + f" The model's encoder noise predicts {model} µrad (√(std² + res²/12)); the data's "
                     "floor is within it on every joint.")
-        joints = ", ".join(f"{joint_names[j]} ({self.measured[j] / max(self.modelled[j], 1e-300):.2g}×)"
+        joints = ", ".join(f"{joint_names[j]} ({self.measured[j] / self.modelled[j]:.2g}×)" if self.modelled[j] > 0
+                           else f"{joint_names[j]} (the model states an ideal sensor)"
                            for j in np.flatnonzero(self.excess))
         return (head + f" The model's encoder noise predicts {model} µrad (√(std² + res²/12)). Data path: "
                 f"position-encoder noise above the model's on {joints} — the measured floor exceeds the model's "

@@ -149,7 +149,8 @@ class CrossValidation:
 
 @dataclass
 class Attribution:
-    """Result of :func:`attribute`."""
+    """Result of :func:`attribute`. ``encoder``: the data's position-noise floor against the model's encoder noise
+    (:mod:`proprio.diagnosis.encoder_floor`; a data-path comparison over all the recordings)."""
     joint_names: list[str]
     steps: list[Step]
     ranking: list[dict[str, Any]]
