@@ -9,8 +9,8 @@ on the *recorded* q (encoder noise + quantisation; a motor-side position sensor 
 τ_J/K), which is how they reach a torque residual. Recordings store q only (q̇, q̈ are differentiated by the
 diagnosis, as from a real recorder). The model carries the background noise the data were made with: torque noise
 (unless withheld) and the encoder's stated noise and quantisation, against which the diagnosis compares the data's
-position-noise floor (:mod:`proprio.diagnosis.encoder_floor`). This applies the twin's effect library offline to twin-like motion; it does
-not run the Drake twin diagram (``diagrams/twin.py``).
+position-noise floor (:mod:`proprio.diagnosis.encoder_floor`). This applies the twin's effect library offline to
+twin-like motion; it does not run the Drake twin diagram (``diagrams/twin.py``).
 
 **Twin mode** (``make_cases(twin=True)``, ``proprio gap-benchmark --twin``): the recordings come from the Drake
 twin diagram instead, i.e. twin data with the effect present and a sim model without it. Each case's twin is the
