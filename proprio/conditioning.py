@@ -46,7 +46,7 @@ from proprio.recording import Recording, RecordingError
 from proprio.signals import MotionSignals
 
 __all__ = ["ConditioningConfig", "ConditionedSignals", "condition", "zero_phase_lowpass", "auto_cutoff",
-           "uniform_time_base", "clock_stamps", "processing_torque_sigma"]
+           "uniform_time_base", "clock_stamps", "processing_torque_sigma", "noise_floor_dof"]
 
 
 @dataclass(frozen=True)
@@ -106,7 +106,8 @@ class ConditionedSignals:
 
     ``t [N]`` s (uniform, from 0), ``q, qd, qdd, tau [N,n]`` (rad, rad/s, rad/s², N·m), ``valid [N]`` (False inside
     gaps of the original log), ``cutoff_hz [n]``, ``rate_hz``, the estimated white noise of ``q`` (``sigma_q [n]``,
-    rad) and the estimated errors of the derivatives (``sigma_qd``, ``sigma_qdd [n]``), ``velocity_source``,
+    rad; ``sigma_q_dof``: the χ² degrees of freedom of ``sigma_q²``, :func:`noise_floor_dof`) and the estimated
+    errors of the derivatives (``sigma_qd``, ``sigma_qdd [n]``), ``velocity_source``,
     ``tau_gain [n]`` (the factor by which the τ low-pass scales the variance of white noise: compare a noise level
     with the conditioned τ through it) and ``notes`` (what was done to the time base)."""
     t: np.ndarray
@@ -118,6 +119,7 @@ class ConditionedSignals:
     rate_hz: float
     cutoff_hz: np.ndarray
     sigma_q: np.ndarray
+    sigma_q_dof: float
     sigma_qd: np.ndarray
     sigma_qdd: np.ndarray
     velocity_source: str
@@ -135,7 +137,8 @@ class ConditionedSignals:
         edge transients)."""
         sl = slice(i0, i1)
         return ConditionedSignals(self.t[sl], self.q[sl], self.qd[sl], self.qdd[sl], self.tau[sl], self.valid[sl],
-                                  self.rate_hz, self.cutoff_hz, self.sigma_q, self.sigma_qd, self.sigma_qdd,
+                                  self.rate_hz, self.cutoff_hz, self.sigma_q, self.sigma_q_dof, self.sigma_qd,
+                                  self.sigma_qdd,
                                   self.velocity_source, self.auto_cutoff, self.tau_gain, list(self.notes), None)
 
     def motion(self, tau: np.ndarray | None = None) -> MotionSignals:
@@ -262,6 +265,36 @@ def _second_difference(q: np.ndarray, rate_hz: float, t: np.ndarray | None) -> n
     return 2.0 * np.diff(dq, axis=0) / (h[1:] + h[:-1])
 
 
+def _welch_length(m: int) -> int:
+    """Welch segment length of the noise-floor spectrum of ``m`` second differences: ≈ m/8, a power of two ≥ 256."""
+    return int(min(m, max(256, 2 ** int(np.floor(np.log2(max(m // 8, 2)))))))
+
+
+def noise_floor_dof(n_samples: int) -> float:
+    """Equivalent χ² degrees of freedom ``D`` of the white floor ``P_0`` (hence of ``σ_q²``) estimated from
+    ``n_samples`` samples of q (:func:`auto_cutoff`): ``D·σ̂²/σ² ~ χ²_D``, so a confidence bound of the floor follows.
+
+    Counted from the spectral estimate itself: each Welch bin (periodic Hann, 50 % overlap, ``M`` segments) has
+    ``ν = 2M / (1 + 2 Σ_k (1 − k/M) ρ_k²)`` degrees of freedom (Welch 1967; ``ρ_k`` the overlap correlation of the
+    window), and the mean over the ``K`` bins of the upper half of the band counts ``K_eff = K² / Σ_{i,l} r_{|i−l|}``
+    independent bins (``r_l`` the correlation of periodogram ordinates ``l`` bins apart, ``|Σ w² e^{−2πi l n/L}|²`` /
+    ``(Σ w²)²``); ``D = ν · K_eff`` (≈ n/2, the bound of 2 per independent frequency of the band)."""
+    m = n_samples - 2
+    if m < 4:
+        return 0.0
+    nper = _welch_length(m)
+    step = nper - nper // 2
+    segs = 1 + (m - nper) // step
+    w = scipy.signal.get_window("hann", nper)
+    lags = np.arange(1, segs)
+    rho = np.array([float(w[k * step:] @ w[:nper - k * step]) for k in lags if k * step < nper]) / float(w @ w)
+    nu = 2.0 * segs / (1.0 + 2.0 * float(np.sum((1.0 - lags[:rho.size] / segs) * rho ** 2)))
+    r = np.abs(np.fft.fft(w ** 2)) ** 2 / float(w @ w) ** 2          # r_l at l = 0 .. nper-1 (r_0 = 1)
+    k = int(np.sum(np.fft.rfftfreq(nper) >= 0.25))                  # bins f ≥ rate/4, as in _spectra
+    lag = np.abs(np.arange(k)[:, None] - np.arange(k)[None, :])
+    return float(nu * k ** 2 / r[lag].sum())
+
+
 def _spectra(q: np.ndarray, rate_hz: float, t: np.ndarray | None = None
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Frequencies ``f [F]``, the q̈ signal spectrum ``S [F,n]`` and the q̈ noise spectrum ``N [F,n]`` [(rad/s²)²/Hz],
@@ -274,7 +307,7 @@ def _spectra(q: np.ndarray, rate_hz: float, t: np.ndarray | None = None
     signal is counted only below the floor's band and in bins at least three times the floor."""
     h = 1.0 / rate_hz
     d2 = _second_difference(q, rate_hz, t)
-    nper = int(min(d2.shape[0], max(256, 2 ** int(np.floor(np.log2(max(d2.shape[0] // 8, 2)))))))
+    nper = _welch_length(d2.shape[0])
     f, p = scipy.signal.welch(d2, fs=rate_hz, nperseg=nper, detrend="constant", axis=0)
     if t is None:
         shape = 16.0 * np.sin(np.pi * f * h) ** 4 / h ** 4                 # |Δ²/h²|² at f
@@ -402,7 +435,9 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
     sigma_qd = np.sqrt(sigma_q ** 2 * gains[:, 1] + lost_qd ** 2)
     sigma_qdd = np.sqrt(sigma_q ** 2 * gains[:, 2] + lost_qdd ** 2)
     return ConditionedSignals(t=t_u, q=q_f, qd=qd, qdd=qdd, tau=lp(tau) if config.tau_filter else tau, valid=valid,
-                              rate_hz=rate, cutoff_hz=cutoff, sigma_q=sigma_q, sigma_qd=sigma_qd,
+                              rate_hz=rate, cutoff_hz=cutoff, sigma_q=sigma_q,
+                              sigma_q_dof=noise_floor_dof(rec.n_samples) if q.shape[0] >= 64 else 0.0,
+                              sigma_qd=sigma_qd,
                               sigma_qdd=sigma_qdd, velocity_source=velocity_source,
                               auto_cutoff=config.cutoff_hz == "auto",
                               tau_gain=gains[:, 0] if config.tau_filter else np.ones(n), notes=notes, source=rec)

@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from proprio.conditioning import (ConditioningConfig, clock_stamps, condition, processing_torque_sigma,
-                                 zero_phase_lowpass)
+from proprio.conditioning import (ConditioningConfig, auto_cutoff, clock_stamps, condition, noise_floor_dof,
+                                 processing_torque_sigma, zero_phase_lowpass)
 from proprio.recording import Recording, RecordingError
 
 AMP = np.array([0.4, 0.3, 0.5])
@@ -54,6 +54,20 @@ def test_jittered_log_gives_accurate_derivatives_and_an_honest_error_estimate():
     assert np.all(cs.sigma_qd < 5 * err_qd + 1e-4)
     assert cs.sigma_q == pytest.approx(np.full(3, ENC_STD), rel=0.3)
     assert "cutoff" in cs.describe() and "auto" in cs.describe()
+
+
+def test_noise_floor_degrees_of_freedom_match_the_spread_of_the_estimate():
+    # D·σ̂²/σ² ~ χ²_D: over many white-noise records the relative variance of σ̂² is 2/D
+    rng = np.random.default_rng(4)
+    for n in (1500, 4000):
+        q = rng.normal(0.0, ENC_STD, (n, 300))
+        ratio = (auto_cutoff(q, 200.0)[1] / ENC_STD) ** 2
+        d = noise_floor_dof(n)
+        assert 0.35 * n < d < 0.55 * n                                # ≈ 2 per independent frequency of the band
+        assert 2.0 / np.var(ratio) == pytest.approx(d, rel=0.2)
+        assert np.mean(ratio) == pytest.approx(1.0, abs=0.02)          # the floor is unbiased within 2 %
+    cs = condition(_recording(np.arange(0.0, 10.0, 1e-3)))
+    assert cs.sigma_q_dof == noise_floor_dof(cs.n_samples) and cs.slice(0, 100).sigma_q_dof == cs.sigma_q_dof
 
 
 def test_gaps_are_flagged_and_dropouts_interpolated():

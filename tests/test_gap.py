@@ -15,7 +15,9 @@ from proprio.diagnosis.selection import attribute
 from proprio.diagnosis.benchmark_cases import BenchmarkCase, generate_case_data, make_cases, rfma_like_motion
 from proprio.diagnosis.localisation import REVERSAL_DEADBAND, gap_map, regime_families
 from proprio.reversals import reversal_travel
+from proprio.diagnosis.encoder_floor import encoder_floor
 from proprio.diagnosis.report import diagnose
+from proprio.diagnosis.verdict import data_and_processing_text
 from proprio.recording import Recording
 from proprio.effects import EFFECTS
 from proprio.signals import MotionSignals
@@ -105,6 +107,11 @@ def test_coulomb_friction_is_found_and_recovered(robot, tmp_path):
     assert "![before/after](before_after.png)" in d.files["report_md"].read_text()
     md = d.files["report_md"].read_text()                     # data-quality findings come first
     assert "| train 1 |" in md and md.index("## Data quality") < md.index("## Verdict")
+    # the data's position-noise floor is reported (the model has no encoder noise: information, not a finding)
+    summary = json.loads(d.files["json"].read_text())
+    assert summary["processing"] == [] and summary["encoder_floor"]["modelled_sigma"] is None
+    np.testing.assert_allclose(summary["encoder_floor"]["measured_sigma"], ENCODER_STD, rtol=0.1)
+    assert "Position-noise floor of the data" in md and "information only" in md
 
 
 def test_null_case_attributes_nothing(robot):
@@ -193,7 +200,8 @@ def test_twin_case_records_the_withheld_effects_through_the_twin():
     case = BenchmarkCase("twin:payload+sensor_offset_gain", ("payload", "sensor_offset_gain"), 1.0, 5,
                          modelled=("ripple",), twin=True)
     data = generate_case_data(case)
-    assert data.model_effects == ("ripple", "torque_noise") and data.robot.name == "iiwa14_identified"
+    assert data.model_effects == ("ripple", "torque_noise", "encoder_noise")
+    assert data.robot.name == "iiwa14_identified"
     assert not data.robot.has_friction
     recs = data.train + data.holdout
     assert len(data.train) == 2 and len(data.holdout) == 1
@@ -258,3 +266,31 @@ def test_open_world_and_time_metrics_are_scored_and_old_results_still_read():
     assert back.hints is None and back.structured is None and back.case.open_joint == -1
     assert case_result_from_dict(case_result_to_dict(ok)) == ok
     assert "not computed" in summarise([back])[1]
+
+
+def test_extra_encoder_noise_is_a_data_path_finding_and_the_null_case_has_none(robot):
+    # the benchmark's model states the background encoder noise; half the benchmark's extra noise must be named in the
+    # data-path section (never as a cause), and the same data without it must name nothing there
+    atts, conds = {}, {}
+    for name, withheld in (("extra", ("encoder_noise",)), ("null", ())):
+        data = generate_case_data(BenchmarkCase(name, withheld, 0.5, 17, duration_s=12.0), robot)
+        assert "encoder_noise" in data.model_effects
+        model = SimModel(robot, tuple(EFFECTS[k](robot.n, **data.model_params[k]) for k in data.model_effects))
+        atts[name] = attribute(model, data.train, data.holdout, candidates=["viscous_coulomb", "signal_lag"])
+        conds[name] = [condition(r, ConditioningConfig(tau_filter=False)) for r in data.train + data.holdout]
+    extra, null = atts["extra"], atts["null"]
+    assert extra.processing_findings == ["encoder_noise"]
+    assert "encoder_noise" not in extra.selected and extra.top(3) == []
+    enc = extra.encoder
+    assert np.all((enc.lower <= enc.measured) & (enc.measured <= enc.upper) & (enc.bound > enc.modelled))
+    assert np.array_equal(enc.excess, enc.measured > enc.bound) and enc.excess.sum() >= 3
+    text = data_and_processing_text(extra)
+    assert "position-encoder noise above the model's" in text and "not a cause of the gap" in text
+    assert null.processing_findings == [] and not null.encoder.reported
+    assert np.all(np.abs(null.encoder.measured / null.encoder.modelled - 1.0) < 0.1)   # the stated spec is found
+    assert "within it on every joint" in data_and_processing_text(null)
+    # a model without encoder noise gives no level to compare with: information, never a finding
+    bare = encoder_floor(SimModel(robot), conds["extra"])
+    assert bare.modelled is None and not bare.reported
+    np.testing.assert_allclose(bare.measured, enc.measured)
+    assert "information only" in bare.text(extra.joint_names)

@@ -9,6 +9,7 @@ Modules, in the order the diagnosis runs:
 - :mod:`~proprio.diagnosis.fitting` — fitting candidates to the training residual;
 - :mod:`~proprio.diagnosis.selection` — greedy forward selection, scored on held-out blocks, and its statistics;
 - :mod:`~proprio.diagnosis.hints` — hints beyond the library: a sparse regression of a structured remaining residual;
+- :mod:`~proprio.diagnosis.encoder_floor` — the data's position-noise floor against the model's encoder noise;
 - :mod:`~proprio.diagnosis.verdict` — the plain-language verdict;
 - :mod:`~proprio.diagnosis.patch` — the found effects as a twin patch (``twin_patch.yaml``);
 - :mod:`~proprio.diagnosis.replay` — the held-out gap re-measured through the (patched) Drake twin;

@@ -7,8 +7,10 @@ measured torque is ``τ_J = τ_rbd(q, q̇, q̈) + Σ effect.torque(...)`` with t
 friction first, then sensor effects on the resulting τ_J) plus white sensor noise; encoder noise and elasticity act
 on the *recorded* q (encoder noise + quantisation; a motor-side position sensor that sees the spring deflection
 τ_J/K), which is how they reach a torque residual. Recordings store q only (q̇, q̈ are differentiated by the
-diagnosis, as from a real recorder). This applies the twin's effect library offline to twin-like motion; it does
-not run the Drake twin diagram (``diagrams/twin.py``).
+diagnosis, as from a real recorder). The model carries the background noise the data were made with: torque noise
+(unless withheld) and the encoder's stated noise and quantisation, against which the diagnosis compares the data's
+position-noise floor (:mod:`proprio.diagnosis.encoder_floor`). This applies the twin's effect library offline to
+twin-like motion; it does not run the Drake twin diagram (``diagrams/twin.py``).
 
 **Twin mode** (``make_cases(twin=True)``, ``proprio gap-benchmark --twin``): the recordings come from the Drake
 twin diagram instead, i.e. twin data with the effect present and a sim model without it. Each case's twin is the
@@ -62,7 +64,8 @@ __all__ = ["BenchmarkCase", "CaseData", "make_cases", "time_varying_cases", "sel
 RATE_HZ = 200.0
 NOISE_STD = 0.05                 # background torque-sensor noise [N·m] (present in data AND model unless withheld)
 ENCODER = {"std": np.radians(0.0005), "resolution": np.radians(0.0001)}   # background encoder noise + quantisation
-#                                  [rad], the shipped twin's: every case logs measured q, never exact q, q̇, q̈
+#                                  [rad], the shipped twin's: every case logs measured q, never exact q, q̇, q̈; the
+#                                  model states it too (a withheld encoder_noise replaces its std by a larger one)
 PROCESSING_TYPES = ("signal_lag", "encoder_noise")   # data-path cases: scored against the processing section
 TIME_TYPES = ("offset_drift", "friction_warmup", "offset_step")   # time-varying cases (time_varying_cases)
 SESSION_S = (0.0, 25.0, 50.0)    # s, session time of the 2 training and the held-out recording (offline)
@@ -345,6 +348,17 @@ def _perturbed(robot: RobotDescription, p: dict[str, Any]) -> RobotDescription:
     return robot.with_inertials(links)
 
 
+def _model(modelled: dict[str, dict[str, Any]], torque_noise_withheld: bool, n: int
+           ) -> tuple[tuple[str, ...], dict[str, dict[str, Any]]]:
+    """The model's effect list and parameters: the modelled effects, the background torque noise (``NOISE_STD``)
+    unless torque noise is what is withheld, and always the background encoder noise (``ENCODER``: the encoder's
+    stated spec; a withheld ``encoder_noise`` is extra noise in the data beyond it)."""
+    effects = tuple(modelled) + (() if torque_noise_withheld else ("torque_noise",)) + ("encoder_noise",)
+    params = {**modelled, "torque_noise": {"std": np.full(n, NOISE_STD)},
+              "encoder_noise": {k: np.full(n, v) for k, v in ENCODER.items()}}
+    return effects, params
+
+
 def generate_case_data(case: BenchmarkCase, robot: RobotDescription | None = None,
                        omit_withheld: bool = False) -> CaseData:
     """Training (2 recordings) and held-out (1) data of a case, and the model's effect list (module docstring).
@@ -370,8 +384,7 @@ def generate_case_data(case: BenchmarkCase, robot: RobotDescription | None = Non
     noise = dict(params.get("torque_noise", {"std": np.full(n, NOISE_STD)}))
     present["torque_noise"] = noise
     effects = {k: resolve_effect(k)(n, **v) for k, v in present.items()}
-    model_effects = tuple(k for k in modelled) + (() if "torque_noise" in params else ("torque_noise",))
-    model_params = {**modelled, "torque_noise": {"std": np.full(n, NOISE_STD)}}
+    model_effects, model_params = _model(modelled, "torque_noise" in params, n)
     recs = []
     for k in range(3):
         t, q, qd, qdd, seg = rfma_like_motion(robot, case.seed + 7919 * k, case.duration_s)
@@ -452,7 +465,7 @@ def generate_twin_case_data(case: BenchmarkCase, omit_withheld: bool = False) ->
     (2 scaffolds, 600–800 waypoints per exploration, own seed per recording; a seed for which RFMA finds no
     collision-free reach is replaced by a derived one), logged at 200 Hz like a robot (q, τ; f_ext is dropped). Model:
     ``iiwa14_identified`` without
-    friction + the modelled effects + the background noise."""
+    friction + the modelled effects + the background torque and encoder noise (``_model``)."""
     from proprio.diagrams.twin import simulate_twin
     from proprio.systems.rfma import RfmaError, generate_rfma, load_rfma_config
 
@@ -460,8 +473,7 @@ def generate_twin_case_data(case: BenchmarkCase, omit_withheld: bool = False) ->
     config, modelled = twin_case_config(case, omit_withheld)
     robot = config.robot.without_friction()
     n = robot.n
-    model_effects = tuple(modelled) + (() if "torque_noise" in case.withheld else ("torque_noise",))
-    model_params = {**modelled, "torque_noise": {"std": np.full(n, NOISE_STD)}}
+    model_effects, model_params = _model(modelled, "torque_noise" in case.withheld, n)
     recs = []
     for k in range(3):
         seed = (case.seed + 7919 * k) % (1 << 31)

@@ -288,6 +288,8 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
                           "params": {k: {"names": nm, "value": th.tolist(), "ci95": ci.tolist()}
                                      for k, (th, ci, nm) in s.params.items()}} for s in att.steps],
                "ranking": att.ranking, "noise": [{"name": f.name, "rms": f.rms.tolist()} for f in att.noise],
+               "processing": att.processing_findings,
+               "encoder_floor": att.encoder.to_dict() if att.encoder is not None else None,
                "residual_white": rs.white, "hints": [h.to_dict() for h in att.hints], "verdict": verdict,
                "time_variation": None if att.time_variation is None else {
                    "detected": att.time_variation.detected, "joints": att.time_variation.joints.tolist(),

@@ -37,9 +37,12 @@ A candidate that lowers the weighted error but raises the unweighted held-out SS
 **Noise.** Torque noise cannot shrink a held-out error. After the deterministic steps, an unmodelled
 ``torque_noise`` is reported when the remaining residual is white (Ljung–Box and state R²) and its variance
 exceeds the noise the model already predicts. Encoder noise *can* be predicted: its signature is the change of the
-modelled torque when the measured motion is de-noised (``EncoderNoiseCandidate``). Elasticity leaves τ_J exact for
-a link-side position sensor; it is tested as the deflection a motor-side position sensor would miss
-(``ElasticityCandidate``).
+modelled torque when the measured motion is de-noised (``EncoderNoiseCandidate``, for a model without encoder noise).
+Past the low-pass that signature is mostly unpredictable band-limited noise, so encoder noise is also compared by
+*level*: the data's position-noise floor against the model's encoder noise (:mod:`proprio.diagnosis.encoder_floor`,
+:attr:`Attribution.encoder`), a data-path finding (:attr:`Attribution.processing_findings`), never a cause.
+Elasticity leaves τ_J exact for a link-side position sensor; it is tested as the deflection a motor-side position
+sensor would miss (``ElasticityCandidate``).
 
 **Time variation.** Before the selection the residual of all recordings is tested for dependence on the session
 time (drift, warm-up, steps between sessions: :mod:`proprio.diagnosis.time_variation`, reported in
@@ -63,6 +66,7 @@ from proprio.diagnosis.candidates import Candidate, candidate_set
 from proprio.conditioning import ConditionedSignals, ConditioningConfig, processing_torque_sigma
 from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, MIN_BLOCK_S, MIN_BLOCKS, DiagnosisError, GapData,
                                     SimModel, condition_all, kept, session_time)
+from proprio.diagnosis.encoder_floor import EncoderFloor, encoder_floor
 from proprio.diagnosis.fitting import Fit, fit_candidates, predict_candidates
 from proprio.diagnosis.hints import Hint, find_hints, shifted_joints
 from proprio.diagnosis.time_variation import TimeTrendNuisance, TimeVariation, time_variation
@@ -153,7 +157,9 @@ class CrossValidation:
 @dataclass
 class Attribution:
     """Result of :func:`attribute`. ``fitted``: the selected candidates by name (their final parameters are the last
-    step's ``params``), for :func:`proprio.diagnosis.patch.twin_patch`."""
+    step's ``params``), for :func:`proprio.diagnosis.patch.twin_patch`. ``encoder``: the data's position-noise floor
+    against the model's encoder noise (:mod:`proprio.diagnosis.encoder_floor`; a data-path comparison over all the
+    recordings)."""
     joint_names: list[str]
     steps: list[Step]
     ranking: list[dict[str, Any]]
@@ -173,6 +179,7 @@ class Attribution:
     fitted: dict[str, Candidate] = field(default_factory=dict)
     hints: list[Hint] = field(default_factory=list)
     time_variation: TimeVariation | None = None
+    encoder: EncoderFloor | None = None
 
     @property
     def physical_steps(self) -> list[Step]:
@@ -181,6 +188,16 @@ class Attribution:
     @property
     def processing_steps(self) -> list[Step]:
         return [s for s in self.steps if s.processing]
+
+    @property
+    def processing_findings(self) -> list[str]:
+        """Names of every data-path finding, the report's "data and processing" section (never a cause): the
+        processing steps in selection order, then ``encoder_noise`` when the data's position-noise floor is above
+        the model's encoder noise (:mod:`proprio.diagnosis.encoder_floor`)."""
+        out = [s.name for s in self.processing_steps]
+        if self.encoder is not None and self.encoder.reported and self.encoder.name not in out:
+            out.append(self.encoder.name)
+        return out
 
     @property
     def selected(self) -> list[str]:
@@ -348,8 +365,10 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
         train_s = sum(float(k.sum()) / cs.rate_hz for cs, k in zip(cond_tr, keep_tr))
         say("time dependence")
         tv = time_variation(model, train, hold)
-        return _select(model, train, hold, _time_blocks(hold, block_s), block_s, (train_s, held_s), candidates,
-                       alpha, min_gain, max_steps, say, tv, plugins)
+        att = _select(model, train, hold, _time_blocks(hold, block_s), block_s, (train_s, held_s), candidates,
+                      alpha, min_gain, max_steps, say, tv, plugins)
+        att.encoder = encoder_floor(model, cond_tr + cond_h)
+        return att
     total_s = sum(float(k.sum()) / cs.rate_hz for cs, k in zip(cond_tr, keep_tr))
     if total_s < 2 * MIN_BLOCKS * MIN_BLOCK_S:
         raise DiagnosisError(f"training: {total_s:.2f} s of data after trimming {trim_s} s per end; a diagnosis "
@@ -390,6 +409,7 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
     agreement = len(set(tops[0]) & set(tops[1])) / len(both) if both else 1.0
     att = results[0]
     att.cv = CrossValidation(block_s, n_blocks, tops, agreement)
+    att.encoder = encoder_floor(model, cond_tr)
     return att
 
 

@@ -94,7 +94,8 @@ def verdict_text(att: Attribution, gm: GapMap) -> str:
 def data_and_processing_text(att: Attribution) -> str:
     """The data path, apart from the physics: the conditioning of every recording, how much data there was and how
     the held-out test was made (and, for one cross-validated recording, how well the folds agree), the torque error
-    the processing itself explains, and the data-path candidates the selection found (never reported as a cause)."""
+    the processing itself explains, the data-path candidates the selection found and the data's position-noise floor
+    against the model's encoder noise (never reported as a cause)."""
     train_s, hold_s = att.data_seconds
     parts = [f"Data: {train_s:.1f} s for fitting and {hold_s:.1f} s held out, scored in time blocks of "
              f"{att.block_s:.2f} s (twice the residual's correlation time, within the limits the data length allows)."]
@@ -113,4 +114,6 @@ def data_and_processing_text(att: Attribution) -> str:
     for st in att.processing_steps:
         parts.append(f"Data path: {PLAIN.get(st.name, st.name)} lowers the held-out error by "
                      f"{100 * st.gain:.0f} % — not a property of the robot: it {st.reason}.")
+    if att.encoder is not None:
+        parts.append(att.encoder.text(att.joint_names))
     return "\n\n".join(parts)
