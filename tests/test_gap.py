@@ -294,3 +294,20 @@ def test_extra_encoder_noise_is_a_data_path_finding_and_the_null_case_has_none(r
     assert bare.modelled is None and not bare.reported
     np.testing.assert_allclose(bare.measured, enc.measured)
     assert "information only" in bare.text(extra.joint_names)
+
+
+@pytest.mark.slow
+def test_quick_benchmark_scores_its_out_of_library_and_time_varying_cases(tmp_path, capsys):
+    """The --quick list's out-of-library and time-varying cases through the CLI (with a null case), scored by the
+    open-world metrics: flagged as structured with no library effect above 5 %, a hint naming the right signal, the
+    time dependence detected and the drift named."""
+    from proprio.cli import main
+
+    cases = ["open:cross_talk@1", "time:offset_drift@1", "null#0"]
+    assert main(["gap-benchmark", "--quick", "--cases", *cases, "--out", str(tmp_path), "--workers", "2"]) == 0
+    scores = json.loads((tmp_path / "benchmark.json").read_text())["scores"]
+    assert scores["open_world"] == 1 and scores["open_flagged_unexplained"] == 1.0
+    assert scores["open_hint_names_signal"] == 1.0
+    assert scores["time_varying"] == 1 and scores["time_dependence_detected"] == 1.0
+    assert scores["time_varying_top1"] == 1.0 and scores["null_false_positive_rate"] == 0.0
+    assert "out-of-library cases: 1" in capsys.readouterr().out

@@ -57,8 +57,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "(viscous_coulomb, hysteresis, lost_motion, ripple, sensor_offset_gain, torque_noise, "
                    "encoder_noise) and payload; slower (~30 s of CPU per case)")
     b.add_argument("--quick", action="store_true", help="one magnitude per effect type, 2 null, 1 two-effect case "
-                   "(with --twin: 4 effect types, 1 null, 1 two-effect case), 1 out-of-library case (and 1 "
-                   "time-varying case where the diagnosis has them)")
+                   "(with --twin: 4 effect types, 1 null, 1 two-effect case), 1 out-of-library and 1 time-varying "
+                   "case")
     b.add_argument("--cases", nargs="+", metavar="NAME", default=None,
                    help="run only these cases of the list (names as in benchmark.txt, e.g. viscous_coulomb@1 null#0; "
                    "the scores then cover only them)")

@@ -4,6 +4,7 @@ it and how far it shrinks once that effect is added, checked by a withheld-effec
 Modules, in the order the diagnosis runs:
 
 - :mod:`~proprio.diagnosis.data` — the simulation model (:class:`SimModel`) and recordings prepared for it;
+- :mod:`~proprio.diagnosis.time_variation` — whether the gap depends on when the data were taken;
 - :mod:`~proprio.diagnosis.localisation` — *where*: the gap by joint × motion regime × frequency;
 - :mod:`~proprio.diagnosis.candidates` — *which*: the candidate effects;
 - :mod:`~proprio.diagnosis.fitting` — fitting candidates to the training residual;
@@ -11,6 +12,7 @@ Modules, in the order the diagnosis runs:
 - :mod:`~proprio.diagnosis.hints` — hints beyond the library: a sparse regression of a structured remaining residual;
 - :mod:`~proprio.diagnosis.encoder_floor` — the data's position-noise floor against the model's encoder noise;
 - :mod:`~proprio.diagnosis.verdict` — the plain-language verdict;
+- :mod:`~proprio.diagnosis.truth` — twin data only: what was named and fitted against the twin's truth;
 - :mod:`~proprio.diagnosis.patch` — the found effects as a twin patch (``twin_patch.yaml``);
 - :mod:`~proprio.diagnosis.replay` — the held-out gap re-measured through the (patched) Drake twin;
 - :mod:`~proprio.diagnosis.report` — :func:`diagnose`: all of the above as one call and one report;

@@ -12,9 +12,9 @@ The cases and how their data are made: :mod:`proprio.diagnosis.benchmark_cases`.
 (:func:`run_case`), running many on the engine of :mod:`proprio.tasks` (local processes or Ray, resumable), and
 scoring them (:func:`summarise`, :func:`write_results`). Out-of-library cases (a plugin effect no library candidate
 expresses) are scored apart: flagged as structured-unexplained with no library effect above 5 % held-out gain, and
-whether a hint (``Attribution.hints``, where the diagnosis has them) names the expected signal; time-varying cases by
-whether the diagnosis detects the time dependence (``Attribution.time_variation``). Per case it also reports the held-out RMS after the last step
-(``final_rms``) and the floor (``floor_rms``: the same model on held-out data made without the withheld effects).
+whether a hint (``Attribution.hints``) names the expected signal; time-varying cases by whether the diagnosis
+detects the time dependence (``Attribution.time_variation``). Per case it also reports the held-out RMS after the
+last step (``final_rms``) and the floor (``floor_rms``: the same model on held-out data made without the withheld effects).
 """
 from __future__ import annotations
 
@@ -55,12 +55,13 @@ class CaseResult:
     structured: bool | None = None            # the remaining held-out residual is not white (None: old result file)
     physical_gains: dict[str, float] = field(default_factory=dict)   # held-out gain of every physical step named
     hints: list[list[Any]] | None = None      # [joint (0-based), signals, gain] per hint; None: no hints computed
-    time_dependent: bool | None = None        # the time-variation test's verdict; None: not computed
+    time_dependent: bool | None = None        # the time-variation test's verdict; None: an older result file
 
 
 def run_case(case: BenchmarkCase) -> CaseResult:
     """Generate, diagnose (not told what was withheld) and score one case."""
-    from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING, SimModel, condition_all, kept
+    from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, SimModel, condition_all, kept, session_motion,
+                                        session_time)
     from proprio.diagnosis.selection import attribute
 
     t0 = time.perf_counter()
@@ -90,7 +91,8 @@ def run_case(case: BenchmarkCase) -> CaseResult:
     if case.withheld and case.withheld != ("torque_noise",):
         floor = generate_case_data(case, omit_withheld=True).holdout
         cond = condition_all(floor, DIAGNOSIS_CONDITIONING, "holdout")
-        e_floor = np.concatenate([(cs.tau - model.predict(cs.motion()))[kept(cs, 0.5)] for cs in cond])
+        e_floor = np.concatenate([(cs.tau - model.predict(session_motion(cs, session_time(r))))[kept(cs, 0.5)]
+                                  for cs, r in zip(cond, floor)])
         meas = 1.0 - float((e_floor ** 2).sum()) / sse0
         floor_rms = float(np.sqrt(np.mean(e_floor ** 2)))
     final = att.steps[-1].rmse_after if att.steps else att.rmse_before
@@ -197,6 +199,7 @@ def summarise(results: list[CaseResult]) -> tuple[dict[str, Any], str]:
     with_hints = [r for r in open_w if r.hints is not None]
     hinted = [_hint_names_signal(r) for r in with_hints]
     tested = [r for r in timed if r.time_dependent is not None]
+    static = [r for r in results if r not in timed and r.time_dependent is not None]   # no time variation in the data
     open_scores = {"open_world": len(open_w),
                    "open_flagged_unexplained": float(np.mean(flagged)) if flagged else float("nan"),
                    "open_hint_names_signal": float(np.mean(hinted)) if hinted else float("nan"),
@@ -204,7 +207,9 @@ def summarise(results: list[CaseResult]) -> tuple[dict[str, Any], str]:
                    "time_dependence_detected": float(np.mean([r.time_dependent for r in tested])) if tested
                    else float("nan"), "time_variation_tested": len(tested),
                    "time_varying_top1": float(np.mean([bool(r.top) and r.top[0] in r.case.withheld for r in timed]))
-                   if timed else float("nan")}
+                   if timed else float("nan"),
+                   "time_dependence_on_static_cases": float(np.mean([r.time_dependent for r in static])) if static
+                   else float("nan")}
     scores = {"cases": len(results), "single": len(single), "null": len(null), "pairs": len(pair),
               "failed": len(failed), "top1": float(top1), "top1_physical": float(top1_phys), "top2": float(top2), "null_false_positive_rate":
               float(null_fp), "pairs_both_found": float(pair_both),
@@ -236,11 +241,13 @@ def summarise(results: list[CaseResult]) -> tuple[dict[str, Any], str]:
               f"(wanted ≥ 80 %)",
               "  hint names the right signal (one of the first 3 hints on the affected joint): "
               + (f"{pct(open_scores['open_hint_names_signal'])} of {len(with_hints)} (wanted ≥ 60 %)" if with_hints
-                 else "not computed (this diagnosis has no hints)"),
+                 else "not computed (result files written before hints)"),
               f"time-varying cases: {len(timed)}  time dependence detected: "
               + (f"{pct(open_scores['time_dependence_detected'])} of {len(tested)} (wanted ≥ 80 %)" if tested
-                 else "not computed (this diagnosis has no time-variation test)" if timed else "n/a")
-              + (f"; withheld effect named first: {pct(open_scores['time_varying_top1'])}" if timed else "")]
+                 else "not computed (result files written before the time-variation test)" if timed else "n/a")
+              + (f"; withheld effect named first: {pct(open_scores['time_varying_top1'])}" if timed else ""),
+              f"  time dependence reported on cases without any (false alarms): "
+              + (f"{pct(open_scores['time_dependence_on_static_cases'])} of {len(static)}" if static else "n/a")]
     if open_w:
         lines += ["", "out-of-library case".ljust(34) + "expected  structured  library steps (gain)".ljust(56)
                   + "hints on the joint"]

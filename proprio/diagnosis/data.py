@@ -4,7 +4,7 @@ blocks). Every recording goes through the one conditioning path (:mod:`proprio.c
 ``e = LP(τ_meas) − τ_sim(conditioned q, q̇, q̈)`` with the same zero-phase low-pass on both sides.
 
 **Session clock.** Every recording is placed on the session clock by its ``meta["session_time_s"]`` (the session
-time [s] at its t = 0, written by the twin; absent → 0, and recordings are then taken to be in the given order):
+time [s] at its t = 0, written by the twin; absent → 0):
 the :class:`~proprio.signals.MotionSignals` the model and the candidates see have ``t + session_time_s``, so a
 time-varying effect (``offset_drift``, ``friction_warmup``) is evaluated at the time the data were taken."""
 from __future__ import annotations
@@ -23,7 +23,7 @@ from proprio.recording import Recording
 from proprio.signals import MotionSignals
 
 __all__ = ["DiagnosisError", "SimModel", "GapData", "signals_of", "condition_all", "kept", "session_time",
-           "NOISE_EFFECTS", "DIAGNOSIS_CONDITIONING"]
+           "session_motion", "NOISE_EFFECTS", "DIAGNOSIS_CONDITIONING"]
 
 
 NOISE_EFFECTS = ("torque_noise", "encoder_noise")
@@ -147,6 +147,13 @@ def session_time(rec: Recording, role: str = "recording") -> float:
     return out
 
 
+def session_motion(cs: ConditionedSignals, session_s: float) -> MotionSignals:
+    """The conditioned motion of ``cs`` on the session clock: ``t + session_s`` [s] (its ``tau`` the conditioned
+    measured torque)."""
+    s = cs.motion()
+    return MotionSignals(s.t + session_s, s.q, s.qd, s.qdd, s.tau)
+
+
 def condition_all(recs: Sequence[Recording], config: ConditioningConfig, role: str) -> list[ConditionedSignals]:
     out = []
     for k, rec in enumerate(recs):
@@ -191,8 +198,7 @@ class GapData:
             if kp.sum() < 10:
                 raise DiagnosisError(f"{role} recording {k}: {cs.n_samples} samples ({cs.t[-1]:.2f} s) leave "
                                      "nothing after trimming the filter start-up at each end")
-            s = cs.motion()
-            s = MotionSignals(s.t + session_s[k], s.q, s.qd, s.qdd, s.tau)      # on the session clock
+            s = session_motion(cs, session_s[k])
             link, sim = model.predict_parts(s)
             sigs.append(s.with_tau(link))     # candidates scale/load with the modelled, not the measured, torque
             taus.append(cs.tau)

@@ -13,8 +13,8 @@ as a library effect.
 * ``q_k``, ``q̇_k``, ``q̈_k`` (conditioned), ``tanh(q̇_k / v₀)`` (a smooth sign, ``v₀`` = 0.02 rad/s), ``|q̇_k| q̇_k``;
 * ``sin(m q_k)``, ``cos(m q_k)``, ``m`` = 1..3 (position-dependent terms, e.g. an unmodelled ripple or cogging);
 * products ``q̇_k |τ_k|`` and ``tanh(q̇_k / v₀) |τ_k|`` (load-dependent viscous / Coulomb friction);
-* ``time`` — the session clock ``t + meta["session_time_s"]`` [s] when the recording has one, else the recording's
-  own time (a drift).
+* ``time`` — the session clock ``t + meta["session_time_s"]`` [s] (:class:`~proprio.diagnosis.data.GapData`; the
+  recording's own time where it has no session time): a drift.
 
 **Fit.** Features are standardised on the training samples (the training set is already strided down to
 ``MAX_FIT_SAMPLES``, :class:`~proprio.diagnosis.data.GapData`). A candidate fitted to a residual that also holds an
@@ -128,20 +128,9 @@ def dictionary(q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, tau: np.ndarray, 
     return np.concatenate([f, t[:, None]], axis=1), _terms(n)
 
 
-def _session_time(data: GapData) -> list[np.ndarray]:
-    """Time [s] per recording at every sample: ``t + meta["session_time_s"]`` (0 when absent or for a piece cut from a
-    recording without its source)."""
-    out = []
-    for cs in data.conditioned:
-        meta = cs.source.meta if cs.source is not None else {}
-        out.append(cs.t + float(meta.get("session_time_s", 0.0)))
-    return out
-
-
 def _features(data: GapData) -> tuple[np.ndarray, list[Term]]:
-    ts = _session_time(data)
-    cols = [dictionary(s.q[i], s.qd[i], s.qdd[i], s.tau[i], t[i])[0]
-            for s, t, i in zip(data.signals, ts, data.fit_index)]
+    # data.signals are on the session clock (GapData.build), cross-validation pieces included
+    cols = [dictionary(s.q[i], s.qd[i], s.qdd[i], s.tau[i], s.t[i])[0] for s, i in zip(data.signals, data.fit_index)]
     return np.concatenate(cols), _terms(data.signals[0].q.shape[1])
 
 

@@ -24,7 +24,8 @@ import numpy as np
 
 from proprio.conditioning import ConditionedSignals, ConditioningConfig
 from proprio.description import RobotDescription
-from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING, NOISE_EFFECTS, DiagnosisError, condition_all, kept
+from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, NOISE_EFFECTS, DiagnosisError, condition_all, kept,
+                                    session_time)
 from proprio.diagnosis.selection import Attribution
 from proprio.recording import Recording
 
@@ -166,9 +167,12 @@ def replay_gap(patched: TwinConfig, holdout: Sequence[Recording], base: TwinConf
             raise DiagnosisError(f"replay: held-out recording {k} has {r.n_joints} joints, the twin's robot "
                                  f"'{patched.robot.name}' has {patched.robot.n}")
     cond = condition_all(holdout, conditioning, "holdout")
-    after_recs = [replay_recording(patched, cs, progress) for cs in cond]
+    # each recording at its own session time, so a time-varying effect of the patch acts as when it was recorded
+    sessions = [session_time(r, f"held-out recording {k}") for k, r in enumerate(holdout)]
+    after_recs = [replay_recording(patched.with_session_time(t0), cs, progress) for cs, t0 in zip(cond, sessions)]
     before = None
     if base is not None:
-        before = twin_gap([replay_recording(base, cs, progress) for cs in cond], cond, trim_s)
+        before = twin_gap([replay_recording(base.with_session_time(t0), cs, progress)
+                           for cs, t0 in zip(cond, sessions)], cond, trim_s)
     pb, pa = offline_prediction(att) if att is not None else (None, None)
     return ReplayGap(patched.robot.joint_names, before, twin_gap(after_recs, cond, trim_s), pb, pa, after_recs)

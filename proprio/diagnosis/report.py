@@ -16,7 +16,8 @@ import numpy as np
 from proprio.data_quality import assess, findings_markdown
 from proprio.description import RobotDescription
 from proprio.conditioning import ConditioningConfig
-from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING, DiagnosisError, SimModel, signals_of
+from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, DiagnosisError, SimModel, session_motion, session_time,
+                                    signals_of)
 from proprio.diagnosis.localisation import (
     GapMap,
     Spectra,
@@ -58,7 +59,7 @@ def _localise(model: SimModel, recs: Sequence[Recording], trim_s: float,
     rob = model.robot
     for raw in recs:
         cs = signals_of(raw, conditioning)
-        rec, s = cs.as_recording(), cs.motion()
+        rec, s = cs.as_recording(), session_motion(cs, session_time(raw))
         keep = (rec.t >= rec.t[0] + trim_s) & (rec.t <= rec.t[-1] - trim_s) & cs.valid
         e = (rec.tau - model.predict(s))[keep]
         fam = regime_families(s.q, s.qd, rob.lower, rob.upper, rob.velocity_limits, rec)

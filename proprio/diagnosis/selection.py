@@ -65,7 +65,7 @@ from proprio.description import RobotDescription
 from proprio.diagnosis.candidates import Candidate, candidate_set
 from proprio.conditioning import ConditionedSignals, ConditioningConfig, processing_torque_sigma
 from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, MIN_BLOCK_S, MIN_BLOCKS, DiagnosisError, GapData,
-                                    SimModel, condition_all, kept, session_time)
+                                    SimModel, condition_all, kept, session_motion, session_time)
 from proprio.diagnosis.encoder_floor import EncoderFloor, encoder_floor
 from proprio.diagnosis.fitting import Fit, fit_candidates, predict_candidates
 from proprio.diagnosis.hints import Hint, find_hints, shifted_joints
@@ -286,12 +286,13 @@ def _series(x: np.ndarray, data: GapData) -> list[np.ndarray]:
     return [np.concatenate(v) for v in groups.values()]
 
 
-def _correlation_time(model: SimModel, conditioned: Sequence[ConditionedSignals], keep: Sequence[np.ndarray]) -> float:
-    """Correlation time [s] of the model residual: the lag where its autocorrelation first falls below 1/e (FFT,
-    median over joints and recordings)."""
+def _correlation_time(model: SimModel, conditioned: Sequence[ConditionedSignals], keep: Sequence[np.ndarray],
+                      session_s: Sequence[float]) -> float:
+    """Correlation time [s] of the model residual (the model on the session clock ``session_s`` [s] per recording):
+    the lag where its autocorrelation first falls below 1/e (FFT, median over joints and recordings)."""
     out = []
-    for cs, kp in zip(conditioned, keep):
-        e = (cs.tau - model.predict(cs.motion()))[kp]
+    for cs, kp, t0 in zip(conditioned, keep, session_s):
+        e = (cs.tau - model.predict(session_motion(cs, t0)))[kp]
         e = e - e.mean(axis=0)
         m = len(e)
         spec = np.fft.rfft(e, n=2 * m, axis=0)
@@ -358,13 +359,13 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
         if held_s < MIN_BLOCKS * MIN_BLOCK_S:
             raise DiagnosisError(f"holdout: {held_s:.2f} s of held-out data after trimming {trim_s} s per end is too "
                                  f"short for the block test ({MIN_BLOCKS} blocks of ≥ {MIN_BLOCK_S} s)")
-        block_s = float(np.clip(2.0 * _correlation_time(model, cond_h, keep_h), MIN_BLOCK_S,
+        block_s = float(np.clip(2.0 * _correlation_time(model, cond_h, keep_h, sess_h), MIN_BLOCK_S,
                                 min(MAX_BLOCK_S, held_s / MIN_BLOCKS)))
         train = GapData.build(model, cond_tr, keep_tr, "training", session_s=sess_tr)
         hold = GapData.build(model, cond_h, keep_h, "holdout", session_s=sess_h)
         train_s = sum(float(k.sum()) / cs.rate_hz for cs, k in zip(cond_tr, keep_tr))
         say("time dependence")
-        tv = time_variation(model, train, hold)
+        tv = time_variation(model, train, hold, alpha)
         att = _select(model, train, hold, _time_blocks(hold, block_s), block_s, (train_s, held_s), candidates,
                       alpha, min_gain, max_steps, say, tv, plugins)
         att.encoder = encoder_floor(model, cond_tr + cond_h)
@@ -374,7 +375,7 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
         raise DiagnosisError(f"training: {total_s:.2f} s of data after trimming {trim_s} s per end; a diagnosis "
                              f"without --holdout cross-validates over time blocks and needs ≥ "
                              f"{2 * MIN_BLOCKS * MIN_BLOCK_S + 2 * trim_s:.1f} s")
-    block_s = float(np.clip(2.0 * _correlation_time(model, cond_tr, keep_tr), MIN_BLOCK_S,
+    block_s = float(np.clip(2.0 * _correlation_time(model, cond_tr, keep_tr, sess_tr), MIN_BLOCK_S,
                             min(MAX_BLOCK_S, total_s / (2 * MIN_BLOCKS))))
     halves: tuple[list, list] = ([], [])          # (conditioned piece, keep, source index) per half
     n_blocks = 0
@@ -396,7 +397,7 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
                            session_s=[sess_tr[x[2]] for x in ho])
         fold_data.append((gt, gh))
     say("time dependence")
-    tv = time_variation(model, *fold_data[0])            # both folds together are all the data
+    tv = time_variation(model, *fold_data[0], alpha)     # both folds together are all the data
     results = []
     for k, (gt, gh) in enumerate(fold_data):
         say(f"fold {k + 1}/2")

@@ -2,7 +2,8 @@
 named, and how close the fitted parameters are to the true ones (DESIGN.md "Gap diagnosis", step 5, on a mixture).
 
 The truth is what the twin wrote into its Recordings: ``meta["effects"]`` (every joint effect with its parameters),
-``meta["robot"]`` and ``meta["payload"]``, and the exact motion ``truth__q_true/qd/qdd``. The diagnosis never
+``meta["robot_description"]`` (the simulated robot; older Recordings: the built-in robot named ``meta["robot"]``),
+``meta["payload"]``, and the exact motion ``truth__q_true/qd/qdd``. The diagnosis never
 reads any of it; this module only compares afterwards (the demo's "diagnosis against the truth" table, and the
 report's section when the held-out data come from the twin).
 
@@ -32,7 +33,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from proprio.description import RobotDescription, load_robot
+from proprio.description import DescriptionError, RobotDescription, load_robot, robot_from_dict
 from proprio.diagnosis.data import SimModel
 from proprio.diagnosis.selection import Attribution
 from proprio.dynamics import inverse_dynamics
@@ -164,14 +165,18 @@ def _rigid_correction(names: list[str], theta: np.ndarray, robot: RobotDescripti
 def compare_to_truth(att: Attribution, model: SimModel, holdout: Sequence[Recording]) -> TruthComparison | None:
     """Compare ``att`` (a diagnosis of ``model`` on data whose held-out recordings ``holdout`` came from the twin)
     with the twin's truth; ``None`` when the recordings carry no twin truth (``meta["effects"]``,
-    ``truth__q_true``)."""
+    ``truth__q_true``) or the twin's robot cannot be rebuilt."""
     if not holdout or any("effects" not in r.meta or "q_true" not in r.truth for r in holdout):
         return None
     effects = _true_effects(holdout)
     meta_payload = holdout[0].meta.get("payload")
     payload = Payload(float(meta_payload["mass"]), tuple(meta_payload.get("com_flange", (0.0, 0.0, 0.0)))) \
         if isinstance(meta_payload, dict) and meta_payload.get("mass") else None
-    true_robot = load_robot(holdout[0].meta["robot"])
+    try:
+        desc = holdout[0].meta.get("robot_description")
+        true_robot = robot_from_dict(desc) if isinstance(desc, dict) else load_robot(holdout[0].meta["robot"])
+    except (DescriptionError, FileNotFoundError, KeyError):
+        return None                                   # the twin's robot cannot be rebuilt: no truth to compare with
     n = model.robot.n
     named = set(att.top(len(att.steps) + len(att.noise) + 8))
     fams = [f for f, (names, _) in FAMILIES.items() if named & set(names)]

@@ -204,7 +204,8 @@ class TwinConfig:
 
     def meta(self) -> dict[str, Any]:
         """JSON-able description for ``Recording.meta``."""
-        return {"twin": self.name, "robot": self.robot.name, "time_step": self.time_step,
+        return {"twin": self.name, "robot": self.robot.name, "robot_description": self.robot.to_dict(),
+                "time_step": self.time_step,
                 "effects": {effect_key(e): {k: v.tolist() for k, v in e.params().items()} for e in self.effects},
                 "controller": {"kp": self.kp.tolist(), "ki": self.ki.tolist(), "kd": self.kd.tolist(),
                                "payload_model": self.payload_model},

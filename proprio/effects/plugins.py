@@ -13,8 +13,9 @@ A plugin declares, like the library classes:
 
 Link-side plugins are evaluated by the twin every time step with the current state ``(t, q, q̇)``, ``q̈ = 0`` and
 ``tau = None``: **a link-side effect may depend on t, q and q̇ only** (not on q̈ or on the torque, which the step
-has not computed yet). Sensor-side plugins see the whole logged motion and ``s.tau`` = the true transmitted τ_J
-(after the library's strain-gauge effects, before the offset/gain error and the noise), so they may couple joints
+has not computed yet). Sensor-side plugins see the whole logged motion and ``s.tau`` = the true transmitted τ_J;
+their contribution is added after the library's strain-gauge effects and before the offset/gain error and the
+noise, so they may couple joints
 (e.g. cross-talk ``τ_meas,j += c_j τ_J,j+1``). Motor-side plugins are refused: nothing of them reaches τ_J.
 """
 from __future__ import annotations

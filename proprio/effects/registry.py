@@ -16,8 +16,8 @@ EFFECTS: dict[str, type[JointEffect]] = {cls.name: cls for cls in (
 
 
 def make_effects(config: dict | None, n: int) -> list[JointEffect]:
-    """Build the effects of a YAML ``effects:`` mapping ``{name: block}``: library effects in registry order (link,
-    sensor, motor), then plugins (``"package.module:Class"`` keys, :mod:`proprio.effects.plugins`) in the mapping's
+    """Build the effects of a YAML ``effects:`` mapping ``{name: block}``: library effects in registry order, then
+    plugins (``"package.module:Class"`` keys, :mod:`proprio.effects.plugins`) in the mapping's
     order.
 
     Unknown names raise :class:`EffectConfigError` listing the valid ones (the payload and the motor side have the
