@@ -129,12 +129,10 @@ class EffectCandidate(Candidate):
         """``{"effects": {effect: {fitted keys + settings}}}`` (a partial fit, e.g. ``sensor_offset``, gives only
         its own keys, so offset and gain merge into one ``sensor_offset_gain`` block)."""
         theta = np.asarray(theta, dtype=float).reshape(len(self._keys), self._n)
-        lo, hi = (np.asarray(b, dtype=float).reshape(-1, self._n) for b in self.proto.bounds())
-        rows = [list(type(self.proto).parameters).index(k) for k in self._keys]
-        lo, hi = lo[rows], hi[rows]
+        lo, hi = (b.reshape(len(self._keys), self._n) for b in self.bounds())
         out = (theta < lo) | (theta > hi)
         self.patch_note = ""
-        if out.any():     # a linear fit is unbounded; the twin's effect is not
+        if out.any():     # the diagnosis fits within the bounds; a θ from elsewhere may not be, the twin refuses it
             bad = [f"{self._keys[i]}[{j + 1}] = {theta[i, j]:.3g}" for i, j in zip(*np.nonzero(out))]
             self.patch_note = (f"{self.name}: outside the effect's bounds, clipped to them in the patch: "
                                f"{', '.join(bad)}")

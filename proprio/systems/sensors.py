@@ -33,6 +33,7 @@ from proprio.signals import MotionSignals
 __all__ = ["TorqueSensor", "PositionSensor", "TorqueSensorSystem", "AddTorqueSensor"]
 
 _GAUGE_ORDER = ("hysteresis", "lost_motion", "ripple")
+_SENSOR_LIBRARY = ("sensor_offset_gain", "offset_drift", "torque_noise")   # library sensor effects past the gauge
 
 
 class TorqueSensor:
@@ -43,7 +44,7 @@ class TorqueSensor:
         if bad:
             raise ValueError(f"TorqueSensor: {bad} are not torque-sensor effects")
         by_name = {e.name: e for e in effects}
-        library = set(_GAUGE_ORDER) | {"sensor_offset_gain", "offset_drift", "torque_noise"}
+        library = set(_GAUGE_ORDER) | set(_SENSOR_LIBRARY)
         # the library's strain-gauge effects in their order, then sensor-side plugins in the config's order
         self.gauge = [by_name[k] for k in _GAUGE_ORDER if k in by_name] + \
             [e for e in effects if e.name not in library]
