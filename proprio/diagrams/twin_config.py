@@ -1,0 +1,243 @@
+"""The twin's configuration: :class:`TwinConfig`, its YAML loader and the twin-patch overlay (see
+:mod:`proprio.diagrams.twin` for the format)."""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from proprio.description import DescriptionError, RobotDescription, load_robot, robot_from_dict
+from proprio.effects import Elasticity, JointEffect, Motor, effect_key, make_effects
+from proprio.payload import Payload
+from proprio.systems.robot_logger import LoggerConfig
+
+__all__ = ["TwinConfig", "TwinConfigError", "load_twin_config", "merge_twin_patch", "PATCH_KEYS"]
+
+_TOP_KEYS = {"name", "robot", "time_step", "logger", "seed", "controller", "drive", "payload", "effects",
+             "session_time_s"}
+_CONTROLLER_KEYS = {"kp", "ki", "kd", "payload_model"}
+PATCH_KEYS = ("patch_for", "robot", "effects", "payload")
+
+
+class TwinConfigError(ValueError):
+    """A twin configuration (or its trajectory) is invalid; the message names the field."""
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# configuration
+# ------------------------------------------------------------------------------------------------------------------
+@dataclass
+class TwinConfig:
+    """One twin: robot, effects and magnitudes, controller gains, rates, payload and seed (see module docstring).
+    ``session_time_s`` [s]: the session clock at the run's t = 0 — time-varying effects (``offset_drift``,
+    ``friction_warmup``) see ``t + session_time_s``, and the Recording carries it in ``meta["session_time_s"]``."""
+    robot: RobotDescription
+    effects: list[JointEffect]
+    kp: np.ndarray
+    ki: np.ndarray
+    kd: np.ndarray
+    payload_model: bool = False
+    motor: Motor | None = None
+    payload: Payload | None = None
+    time_step: float = 1e-3
+    logger: LoggerConfig = LoggerConfig()
+    seed: int = 0
+    name: str = "twin"
+    raw: dict[str, Any] = field(default_factory=dict)
+    session_time_s: float = 0.0
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], source: str = "<dict>") -> "TwinConfig":
+        if not isinstance(data, dict):
+            raise TwinConfigError(f"{source}: a twin config must be a YAML mapping")
+        unknown = sorted(set(data) - _TOP_KEYS)
+        if unknown:
+            raise TwinConfigError(f"{source}: unknown key(s) {unknown}; valid keys: {sorted(_TOP_KEYS)}")
+        if "robot" not in data:
+            raise TwinConfigError(f"{source}: 'robot' is required (e.g. iiwa14_identified)")
+        desc = _robot_of(data["robot"], f"{source}: robot")
+        n = desc.n
+        try:
+            effects = make_effects(data.get("effects") or {}, n)
+        except ValueError as exc:
+            raise TwinConfigError(f"{source}: effects: {exc}") from exc
+        ctrl = data.get("controller") or {}
+        bad = sorted(set(ctrl) - _CONTROLLER_KEYS)
+        if bad:
+            raise TwinConfigError(f"{source}: controller: unknown key(s) {bad}; valid: {sorted(_CONTROLLER_KEYS)}")
+        gains = {}
+        for key, default in (("kp", 900.0), ("ki", 0.0), ("kd", 60.0)):
+            g = np.asarray(ctrl.get(key, default), dtype=float)
+            g = np.full(n, float(g)) if g.ndim == 0 else g
+            if g.shape != (n,) or np.any(g < 0) or not np.all(np.isfinite(g)):
+                raise TwinConfigError(f"{source}: controller.{key} must be >= 0, a number or {n} numbers")
+            gains[key] = g
+        try:
+            session_time_s = float(data.get("session_time_s", 0.0))
+        except (TypeError, ValueError) as exc:
+            raise TwinConfigError(f"{source}: session_time_s must be a number of seconds, got "
+                                  f"{data['session_time_s']!r}") from exc
+        if not (math.isfinite(session_time_s) and session_time_s >= 0):
+            raise TwinConfigError(f"{source}: session_time_s must be a finite number of seconds >= 0, got "
+                                  f"{session_time_s}")
+        time_step = float(data.get("time_step", 1e-3))
+        if not time_step > 0:
+            raise TwinConfigError(f"{source}: time_step must be > 0 s, got {time_step}")
+        try:
+            logger = LoggerConfig.from_dict(data.get("logger"), time_step, f"{source}: logger")
+        except ValueError as exc:
+            raise TwinConfigError(str(exc)) from exc
+        try:
+            motor = Motor.from_config(data["drive"], n) if data.get("drive") is not None else None
+        except ValueError as exc:
+            raise TwinConfigError(f"{source}: drive: {exc}") from exc
+        if any(isinstance(e, Elasticity) for e in effects) and (motor is None or np.any(motor.motor_inertia <= 0)):
+            raise TwinConfigError(f"{source}: effects.elasticity needs a 'drive' block with motor_inertia > 0 on every "
+                                  "joint (the motor-side state)")
+        try:
+            payload = Payload.from_dict(data.get("payload"))
+        except (ValueError, KeyError, TypeError) as exc:
+            raise TwinConfigError(f"{source}: payload: {exc}") from exc
+        return cls(robot=desc, effects=effects, payload_model=bool(ctrl.get("payload_model", False)),
+                   motor=motor, payload=payload, time_step=time_step, logger=logger, seed=int(data.get("seed", 0)),
+                   name=str(data.get("name", Path(source).stem)), raw=data, session_time_s=session_time_s, **gains)
+
+    def effect(self, name: str) -> JointEffect | None:
+        return next((e for e in self.effects if e.name == name), None)
+
+    def with_payload(self, payload: Payload | None) -> "TwinConfig":
+        return dataclasses.replace(self, payload=payload)
+
+    def with_effects(self, effects: list[JointEffect]) -> "TwinConfig":
+        return dataclasses.replace(self, effects=list(effects))
+
+    def with_session_time(self, session_time_s: float) -> "TwinConfig":
+        """The same twin with its session clock starting at ``session_time_s`` [s] (>= 0)."""
+        if not (math.isfinite(session_time_s) and session_time_s >= 0):
+            raise TwinConfigError(f"session_time_s must be a finite number of seconds >= 0, got {session_time_s}")
+        return dataclasses.replace(self, session_time_s=float(session_time_s))
+
+    def with_logger(self, **changes: Any) -> "TwinConfig":
+        """The same twin with ``logger`` fields changed (e.g. ``rate_hz=150``), checked like the YAML."""
+        try:
+            logger = dataclasses.replace(self.logger, **changes)
+            logger.check(self.time_step)
+        except (TypeError, ValueError) as exc:
+            raise TwinConfigError(f"logger: {exc}") from exc
+        return dataclasses.replace(self, logger=logger)
+
+    def meta(self) -> dict[str, Any]:
+        """JSON-able description for ``Recording.meta``."""
+        return {"twin": self.name, "robot": self.robot.name, "robot_description": self.robot.to_dict(),
+                "time_step": self.time_step,
+                "effects": {effect_key(e): {k: v.tolist() for k, v in e.params().items()} for e in self.effects},
+                "controller": {"kp": self.kp.tolist(), "ki": self.ki.tolist(), "kd": self.kd.tolist(),
+                               "payload_model": self.payload_model},
+                "drive": None if self.motor is None else {k: v.tolist() for k, v in self.motor.params().items()},
+                "payload": None if self.payload is None else dataclasses.asdict(self.payload), "seed": self.seed,
+                "logger": self.logger.to_dict(), "session_time_s": self.session_time_s}
+
+
+def _robot_of(value: Any, where: str) -> RobotDescription:
+    """The robot of a ``robot:`` entry: a built-in name, a file/directory path or a ``proprio-robot/v1`` mapping."""
+    try:
+        return robot_from_dict(value, where) if isinstance(value, dict) else load_robot(value)
+    except (DescriptionError, FileNotFoundError, KeyError, TypeError, ValueError) as exc:
+        raise TwinConfigError(f"{where}: cannot load robot ({exc})") from exc
+
+
+def merge_twin_patch(base: dict[str, Any], patch: dict[str, Any], source: str = "<patch>",
+                     base_dir: str | Path | None = None) -> dict[str, Any]:
+    """The twin-config mapping ``base`` with ``patch`` merged in (module docstring, "Patches").
+
+    ``patch_for`` must name the base's robot (its description's ``name``) and joint count; the patch's effects are
+    added to the base's (an effect the base already has is an error: the patch was fitted against a model without
+    it); its payload needs a base without one; its ``robot`` replaces the base's robot when it has the same joints.
+    A relative ``robot`` path is taken relative to ``base_dir`` (the patch's folder) when the file is there. Raises
+    :class:`TwinConfigError` naming the offending field."""
+    if not isinstance(patch, dict):
+        raise TwinConfigError(f"{source}: a twin patch must be a YAML mapping")
+    unknown = sorted(set(patch) - set(PATCH_KEYS))
+    if unknown:
+        raise TwinConfigError(f"{source}: unknown key(s) {unknown}; a twin patch may hold {list(PATCH_KEYS)}")
+    target = patch.get("patch_for")
+    if not isinstance(target, dict) or not {"robot", "joints"} <= set(target):
+        raise TwinConfigError(f"{source}: patch_for must be a mapping {{robot: <name>, joints: <n>}} (the robot the "
+                              "patch was fitted for)")
+    if "robot" not in base:
+        raise TwinConfigError("base twin: 'robot' is required")
+    desc = _robot_of(base["robot"], "base twin: robot")
+    if str(target["robot"]) != desc.name or int(target["joints"]) != desc.n:
+        raise TwinConfigError(f"{source}: patch_for: the patch is for robot '{target['robot']}' with "
+                              f"{target['joints']} joints, the base twin's robot is '{desc.name}' with {desc.n} joints")
+    out = {k: v for k, v in base.items()}
+    out["name"] = f"{base.get('name', 'twin')}+patch"
+    effects = patch.get("effects") or {}
+    if not isinstance(effects, dict):
+        raise TwinConfigError(f"{source}: effects must be a mapping {{name: parameters}}")
+    have = dict(base.get("effects") or {})
+    twice = sorted(set(effects) & set(have))
+    if twice:
+        raise TwinConfigError(f"{source}: effects {twice} are already in the base twin; the patch was fitted against "
+                              "a model without them (patch a base twin that lacks them)")
+    out["effects"] = {**have, **effects}
+    if patch.get("payload"):
+        if base.get("payload"):
+            raise TwinConfigError(f"{source}: payload: the base twin already has a payload ({base['payload']}); a "
+                                  "patch payload is fitted against a model without one")
+        out["payload"] = patch["payload"]
+    if patch.get("robot") is not None:
+        robot = patch["robot"]
+        if isinstance(robot, str) and base_dir is not None and not Path(robot).is_absolute() \
+                and (Path(base_dir) / robot).exists():
+            robot = str(Path(base_dir) / robot)
+        new = _robot_of(robot, f"{source}: robot")
+        if new.joint_names != desc.joint_names:
+            raise TwinConfigError(f"{source}: robot: its joints {new.joint_names} differ from the base robot's "
+                                  f"{desc.joint_names}")
+        out["robot"] = robot
+    return out
+
+
+def _read_yaml(name_or_path: str | Path, what: str = "twin config") -> tuple[Any, str]:
+    """``(mapping, source)`` of a YAML file or a shipped config name."""
+    path = Path(name_or_path)
+    if path.exists():
+        text, source = path.read_text(), str(path)
+    else:
+        stem = path.name if path.suffix in (".yaml", ".yml") else f"{path.name}.yaml"
+        res = resources.files("proprio.configs").joinpath(stem)
+        if not res.is_file():
+            shipped = sorted(p.name for p in resources.files("proprio.configs").iterdir()
+                             if p.name.endswith("twin.yaml"))
+            raise TwinConfigError(f"{what} '{name_or_path}' is neither a file nor a shipped config {shipped}")
+        text, source = res.read_text(), stem
+    try:
+        return yaml.safe_load(text), source
+    except yaml.YAMLError as exc:
+        raise TwinConfigError(f"{source}: not valid YAML ({exc})") from exc
+
+
+def load_twin_config(name_or_path: str | Path, patch: str | Path | dict[str, Any] | None = None) -> TwinConfig:
+    """Load a twin YAML: a shipped config name (``iiwa14_twin`` or ``iiwa14_twin.yaml``) or a file path; with
+    ``patch`` (a twin-patch file or mapping) merged in by :func:`merge_twin_patch`."""
+    data, source = _read_yaml(name_or_path)
+    if patch is None:
+        return TwinConfig.from_dict(data, source)
+    if not isinstance(data, dict):
+        raise TwinConfigError(f"{source}: a twin config must be a YAML mapping")
+    if isinstance(patch, dict):
+        merged = merge_twin_patch(data, patch)
+        return TwinConfig.from_dict(merged, f"{source} + patch")
+    path = Path(patch)
+    if not path.is_file():
+        raise TwinConfigError(f"twin patch '{patch}': no such file")
+    pdata, psource = _read_yaml(path, "twin patch")
+    merged = merge_twin_patch(data, pdata, psource, path.parent)
+    return TwinConfig.from_dict(merged, f"{source} + {psource}")
