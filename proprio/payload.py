@@ -7,8 +7,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from proprio.description import INERTIA_KEYS, DescriptionError, Link, RobotDescription, rpy_to_matrix
+from proprio.typed_yaml import load_typed
 
-__all__ = ["Payload", "attach_payload"]
+__all__ = ["Payload", "PayloadBlock", "attach_payload"]
 
 
 @dataclass(frozen=True)
@@ -32,15 +33,37 @@ class Payload:
             raise DescriptionError(f"payload.inertia is not positive semi-definite: {self.inertia}")
 
     @classmethod
-    def from_dict(cls, d: dict | None) -> "Payload | None":
-        """Parse a YAML block ``{mass, com_flange, inertia}``; ``None`` or mass 0 gives ``None``."""
-        if not d or float(d.get("mass", 0.0)) == 0.0:
+    def from_dict(cls, d: dict | None, where: str = "payload") -> "Payload | None":
+        """Parse a YAML block ``{mass, com_flange, inertia}`` strictly (:mod:`proprio.typed_yaml`: an unknown key
+        names the nearest one, a word or a wrong-length list names the field); ``None`` or mass 0 gives ``None``.
+        ``inertia`` is 6 numbers or a mapping ``{ixx, iyy, izz, ixy, ixz, iyz}``."""
+        block = load_typed(PayloadBlock, d, where, DescriptionError)
+        if block.mass == 0.0:
             return None
-        inertia = d.get("inertia", (0.0,) * 6)
-        if isinstance(inertia, dict):
-            inertia = tuple(float(inertia.get(k, 0.0)) for k in INERTIA_KEYS)
-        return cls(float(d["mass"]), tuple(float(x) for x in d.get("com_flange", (0, 0, 0))),
-                   tuple(float(x) for x in inertia))
+        inertia = block.inertia
+        if isinstance(inertia, InertiaBlock):
+            inertia = tuple(getattr(inertia, k) for k in INERTIA_KEYS)
+        return cls(block.mass, block.com_flange, inertia)
+
+
+@dataclass(frozen=True)
+class InertiaBlock:
+    """The mapping form of a payload's ``inertia`` [kg·m²], about its CoM in flange axes."""
+    ixx: float = 0.0
+    iyy: float = 0.0
+    izz: float = 0.0
+    ixy: float = 0.0
+    ixz: float = 0.0
+    iyz: float = 0.0
+
+
+@dataclass(frozen=True)
+class PayloadBlock:
+    """The YAML schema of a ``payload:`` block (twin config, twin patch): ``mass`` [kg], ``com_flange`` [m],
+    ``inertia`` [kg·m²] (6 numbers or an :class:`InertiaBlock`)."""
+    mass: float = 0.0
+    com_flange: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    inertia: tuple[float, float, float, float, float, float] | InertiaBlock = (0.0,) * 6
 
 
 def attach_payload(desc: RobotDescription, payload: Payload | None) -> RobotDescription:

@@ -10,19 +10,65 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from proprio.description import DescriptionError, RobotDescription, load_robot, robot_from_dict
 from proprio.effects import Elasticity, JointEffect, Motor, effect_key, make_effects
-from proprio.payload import Payload
+from proprio.effects.schema import check_effect_block, check_effects_block
+from proprio.payload import Payload, PayloadBlock
 from proprio.systems.robot_logger import LoggerConfig
+from proprio.typed_yaml import load_typed, per_joint, read_yaml
 
-__all__ = ["TwinConfig", "TwinConfigError", "load_twin_config", "merge_twin_patch", "PATCH_KEYS"]
+__all__ = ["TwinConfig", "TwinConfigError", "TwinYaml", "TwinPatchYaml", "ControllerBlock", "PatchFor",
+           "load_twin_config", "merge_twin_patch", "PATCH_KEYS"]
 
-_TOP_KEYS = {"name", "robot", "time_step", "logger", "seed", "controller", "drive", "payload", "effects",
-             "session_time_s"}
-_CONTROLLER_KEYS = {"kp", "ki", "kd", "payload_model"}
 PATCH_KEYS = ("patch_for", "robot", "effects", "payload")
+
+PerJoint = float | list[float]
+"""One number for every joint, or one per joint (the length is checked against the robot)."""
+
+
+@dataclass
+class ControllerBlock:
+    """The ``controller:`` block: inverse-dynamics gains ``kp`` [1/s²], ``ki`` [1/s³], ``kd`` [1/s] and whether the
+    controller's model includes the payload."""
+    kp: PerJoint = 900.0
+    ki: PerJoint = 0.0
+    kd: PerJoint = 60.0
+    payload_model: bool = False
+
+
+@dataclass
+class TwinYaml:
+    """The schema of a twin YAML file (module :mod:`proprio.diagrams.twin` docstring). The ``logger`` block is a
+    :class:`~proprio.systems.robot_logger.LoggerConfig`, ``payload`` a :class:`~proprio.payload.PayloadBlock`,
+    ``drive`` and ``effects`` blocks are checked against the effect classes' declarations
+    (:mod:`proprio.effects.schema`) once the robot's joint count is known."""
+    robot: str | dict[str, Any]
+    name: str | None = None
+    time_step: float = 1e-3
+    seed: int = 0
+    session_time_s: float = 0.0
+    logger: dict[str, Any] | None = None
+    controller: ControllerBlock | None = None
+    drive: dict[str, Any] | None = None
+    payload: dict[str, Any] | None = None
+    effects: dict[str, Any] | None = None
+
+
+@dataclass
+class PatchFor:
+    """The robot a twin patch was fitted for: its description's ``robot`` name and ``joints`` count."""
+    robot: str
+    joints: int
+
+
+@dataclass
+class TwinPatchYaml:
+    """The schema of a twin patch (``twin_patch.yaml``): an overlay on a base twin (module docstring, "Patches")."""
+    patch_for: PatchFor
+    robot: str | dict[str, Any] | None = None
+    effects: dict[str, Any] | None = None
+    payload: dict[str, Any] | None = None
 
 
 class TwinConfigError(ValueError):
@@ -54,59 +100,52 @@ class TwinConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any], source: str = "<dict>") -> "TwinConfig":
+        """Load the mapping of a twin YAML (``source`` names it in errors): first its shape, strictly
+        (:class:`TwinYaml`: an unknown key names the nearest valid one), then the physics checks."""
         if not isinstance(data, dict):
             raise TwinConfigError(f"{source}: a twin config must be a YAML mapping")
-        unknown = sorted(set(data) - _TOP_KEYS)
-        if unknown:
-            raise TwinConfigError(f"{source}: unknown key(s) {unknown}; valid keys: {sorted(_TOP_KEYS)}")
-        if "robot" not in data:
-            raise TwinConfigError(f"{source}: 'robot' is required (e.g. iiwa14_identified)")
-        desc = _robot_of(data["robot"], f"{source}: robot")
+        spec = load_typed(TwinYaml, data, source, TwinConfigError)
+        desc = _robot_of(spec.robot, f"{source}: robot")
         n = desc.n
+        check_effects_block(spec.effects, n, f"{source}: effects", TwinConfigError)
         try:
-            effects = make_effects(data.get("effects") or {}, n)
+            effects = make_effects(spec.effects or {}, n)
         except ValueError as exc:
             raise TwinConfigError(f"{source}: effects: {exc}") from exc
-        ctrl = data.get("controller") or {}
-        bad = sorted(set(ctrl) - _CONTROLLER_KEYS)
-        if bad:
-            raise TwinConfigError(f"{source}: controller: unknown key(s) {bad}; valid: {sorted(_CONTROLLER_KEYS)}")
+        ctrl = spec.controller or ControllerBlock()
         gains = {}
-        for key, default in (("kp", 900.0), ("ki", 0.0), ("kd", 60.0)):
-            g = np.asarray(ctrl.get(key, default), dtype=float)
-            g = np.full(n, float(g)) if g.ndim == 0 else g
-            if g.shape != (n,) or np.any(g < 0) or not np.all(np.isfinite(g)):
+        for key in ("kp", "ki", "kd"):
+            g = np.asarray(per_joint(getattr(ctrl, key), n, f"{source}: controller.{key}", TwinConfigError))
+            if np.any(g < 0) or not np.all(np.isfinite(g)):
                 raise TwinConfigError(f"{source}: controller.{key} must be >= 0, a number or {n} numbers")
             gains[key] = g
-        try:
-            session_time_s = float(data.get("session_time_s", 0.0))
-        except (TypeError, ValueError) as exc:
-            raise TwinConfigError(f"{source}: session_time_s must be a number of seconds, got "
-                                  f"{data['session_time_s']!r}") from exc
+        session_time_s = spec.session_time_s
         if not (math.isfinite(session_time_s) and session_time_s >= 0):
             raise TwinConfigError(f"{source}: session_time_s must be a finite number of seconds >= 0, got "
                                   f"{session_time_s}")
-        time_step = float(data.get("time_step", 1e-3))
+        time_step = spec.time_step
         if not time_step > 0:
             raise TwinConfigError(f"{source}: time_step must be > 0 s, got {time_step}")
         try:
-            logger = LoggerConfig.from_dict(data.get("logger"), time_step, f"{source}: logger")
+            logger = LoggerConfig.from_dict(spec.logger, time_step, f"{source}: logger")
         except ValueError as exc:
             raise TwinConfigError(str(exc)) from exc
+        if spec.drive is not None:
+            check_effect_block(Motor, spec.drive, n, f"{source}: drive", TwinConfigError)
         try:
-            motor = Motor.from_config(data["drive"], n) if data.get("drive") is not None else None
+            motor = Motor.from_config(spec.drive, n) if spec.drive is not None else None
         except ValueError as exc:
             raise TwinConfigError(f"{source}: drive: {exc}") from exc
         if any(isinstance(e, Elasticity) for e in effects) and (motor is None or np.any(motor.motor_inertia <= 0)):
             raise TwinConfigError(f"{source}: effects.elasticity needs a 'drive' block with motor_inertia > 0 on every "
                                   "joint (the motor-side state)")
         try:
-            payload = Payload.from_dict(data.get("payload"))
-        except (ValueError, KeyError, TypeError) as exc:
-            raise TwinConfigError(f"{source}: payload: {exc}") from exc
-        return cls(robot=desc, effects=effects, payload_model=bool(ctrl.get("payload_model", False)),
-                   motor=motor, payload=payload, time_step=time_step, logger=logger, seed=int(data.get("seed", 0)),
-                   name=str(data.get("name", Path(source).stem)), raw=data, session_time_s=session_time_s, **gains)
+            payload = Payload.from_dict(spec.payload, f"{source}: payload")
+        except ValueError as exc:
+            raise TwinConfigError(str(exc) if str(exc).startswith(source) else f"{source}: payload: {exc}") from exc
+        return cls(robot=desc, effects=effects, payload_model=ctrl.payload_model, motor=motor, payload=payload,
+                   time_step=time_step, logger=logger, seed=spec.seed, name=spec.name or Path(source).stem,
+                   raw=data, session_time_s=session_time_s, **gains)
 
     def effect(self, name: str) -> JointEffect | None:
         return next((e for e in self.effects if e.name == name), None)
@@ -163,37 +202,34 @@ def merge_twin_patch(base: dict[str, Any], patch: dict[str, Any], source: str = 
     :class:`TwinConfigError` naming the offending field."""
     if not isinstance(patch, dict):
         raise TwinConfigError(f"{source}: a twin patch must be a YAML mapping")
-    unknown = sorted(set(patch) - set(PATCH_KEYS))
-    if unknown:
-        raise TwinConfigError(f"{source}: unknown key(s) {unknown}; a twin patch may hold {list(PATCH_KEYS)}")
-    target = patch.get("patch_for")
-    if not isinstance(target, dict) or not {"robot", "joints"} <= set(target):
-        raise TwinConfigError(f"{source}: patch_for must be a mapping {{robot: <name>, joints: <n>}} (the robot the "
-                              "patch was fitted for)")
-    if "robot" not in base:
-        raise TwinConfigError("base twin: 'robot' is required")
-    desc = _robot_of(base["robot"], "base twin: robot")
-    if str(target["robot"]) != desc.name or int(target["joints"]) != desc.n:
-        raise TwinConfigError(f"{source}: patch_for: the patch is for robot '{target['robot']}' with "
-                              f"{target['joints']} joints, the base twin's robot is '{desc.name}' with {desc.n} joints")
+    if not isinstance(base, dict):
+        raise TwinConfigError("base twin: a twin config must be a YAML mapping")
+    spec = load_typed(TwinPatchYaml, patch, source, TwinConfigError)
+    base_spec = load_typed(TwinYaml, base, "base twin", TwinConfigError)
+    target = spec.patch_for
+    desc = _robot_of(base_spec.robot, "base twin: robot")
+    if target.robot != desc.name or target.joints != desc.n:
+        raise TwinConfigError(f"{source}: patch_for: the patch is for robot '{target.robot}' with "
+                              f"{target.joints} joints, the base twin's robot is '{desc.name}' with {desc.n} joints")
+    check_effects_block(spec.effects, desc.n, f"{source}: effects", TwinConfigError)
+    if spec.payload is not None:
+        load_typed(PayloadBlock, spec.payload, f"{source}: payload", TwinConfigError)
     out = {k: v for k, v in base.items()}
     out["name"] = f"{base.get('name', 'twin')}+patch"
-    effects = patch.get("effects") or {}
-    if not isinstance(effects, dict):
-        raise TwinConfigError(f"{source}: effects must be a mapping {{name: parameters}}")
-    have = dict(base.get("effects") or {})
+    effects = spec.effects or {}
+    have = dict(base_spec.effects or {})
     twice = sorted(set(effects) & set(have))
     if twice:
         raise TwinConfigError(f"{source}: effects {twice} are already in the base twin; the patch was fitted against "
                               "a model without them (patch a base twin that lacks them)")
     out["effects"] = {**have, **effects}
-    if patch.get("payload"):
-        if base.get("payload"):
+    if spec.payload:
+        if base_spec.payload:
             raise TwinConfigError(f"{source}: payload: the base twin already has a payload ({base['payload']}); a "
                                   "patch payload is fitted against a model without one")
-        out["payload"] = patch["payload"]
-    if patch.get("robot") is not None:
-        robot = patch["robot"]
+        out["payload"] = spec.payload
+    if spec.robot is not None:
+        robot = spec.robot
         if isinstance(robot, str) and base_dir is not None and not Path(robot).is_absolute() \
                 and (Path(base_dir) / robot).exists():
             robot = str(Path(base_dir) / robot)
@@ -218,10 +254,7 @@ def _read_yaml(name_or_path: str | Path, what: str = "twin config") -> tuple[Any
                              if p.name.endswith("twin.yaml"))
             raise TwinConfigError(f"{what} '{name_or_path}' is neither a file nor a shipped config {shipped}")
         text, source = res.read_text(), stem
-    try:
-        return yaml.safe_load(text), source
-    except yaml.YAMLError as exc:
-        raise TwinConfigError(f"{source}: not valid YAML ({exc})") from exc
+    return read_yaml(text=text, source=source, error=TwinConfigError), source
 
 
 def load_twin_config(name_or_path: str | Path, patch: str | Path | dict[str, Any] | None = None) -> TwinConfig:

@@ -21,6 +21,7 @@ class Ripple(JointEffect):
     linear = True
     parameters = {"sin_amplitude": (0.0, -INF, INF), "cos_amplitude": (0.0, -INF, INF)}
     settings = {"gear_ratio": (160.0, TINY, INF), "harmonic": (2.0, TINY, INF)}
+    yaml_keys = ("amplitude", "phase_deg")      # converted by from_config (proprio.effects.schema)
 
     @classmethod
     def from_config(cls, block: dict | None, n: int) -> "JointEffect":

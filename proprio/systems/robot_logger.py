@@ -22,11 +22,13 @@ not change when the logger's settings do.
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import numpy as np
 import scipy.signal
+
+from proprio.typed_yaml import load_typed
 
 __all__ = ["LoggerConfig", "RobotLogger", "LoggedSamples"]
 
@@ -47,22 +49,11 @@ class LoggerConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None, time_step: float, where: str = "logger") -> "LoggerConfig":
-        """Parse and check a ``logger:`` mapping for a twin stepping at ``time_step`` [s]; errors name the field."""
-        d = dict(d or {})
-        known = set(cls.__dataclass_fields__)
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ValueError(f"{where}: unknown key(s) {unknown}; valid: {sorted(known)}")
-        if "channels" in d:
-            d["channels"] = tuple(str(c) for c in d["channels"])
-        d.setdefault("rate_hz", 1.0 / time_step)
-        try:
-            for key in ("rate_hz", "stamp_jitter_ms", "dropout_prob"):
-                d[key] = float(d.get(key, getattr(cls, key)))
-            d["dropout_max_samples"] = int(d.get("dropout_max_samples", 1))
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"{where}: {exc}") from exc
-        cfg = cls(**d)
+        """Parse (strictly, :mod:`proprio.typed_yaml`) and check a ``logger:`` mapping for a twin stepping at
+        ``time_step`` [s]; ``rate_hz`` defaults to ``1/time_step``. Errors name the field (and the nearest key)."""
+        cfg = load_typed(cls, d, where, ValueError)
+        if "rate_hz" not in (d or {}):
+            cfg = replace(cfg, rate_hz=1.0 / time_step)
         cfg.check(time_step, where)
         return cfg
 
