@@ -9,7 +9,7 @@ bodies welded together, so "self-collision" means two non-adjacent links overlap
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Iterable, Sequence
+from typing import Sequence
 
 import numpy as np
 from pydrake.geometry import Box
@@ -20,7 +20,7 @@ from pydrake.systems.framework import DiagramBuilder
 from proprio.description import RobotDescription
 from proprio.plant import AddRobot
 
-__all__ = ["EnvironmentBox", "CollisionChecker", "boxes_from_config"]
+__all__ = ["EnvironmentBox", "CollisionChecker"]
 
 
 @dataclass(frozen=True)
@@ -35,20 +35,6 @@ class EnvironmentBox:
     def __post_init__(self) -> None:
         if len(self.size) != 3 or min(self.size) <= 0.0:
             raise ValueError(f"environment box '{self.name}': size_m must be 3 positive extents, got {self.size}")
-
-
-def boxes_from_config(entries: Iterable[dict[str, Any]] | None) -> tuple[EnvironmentBox, ...]:
-    """Boxes from config mappings ``{name, size_m: [3], xyz_m: [3], rpy_deg: [3]}`` (degrees converted here)."""
-    boxes = []
-    for k, e in enumerate(entries or []):
-        name = str(e.get("name", f"box_{k}"))
-        try:
-            boxes.append(EnvironmentBox(name, tuple(float(x) for x in e["size_m"]),
-                                        tuple(float(x) for x in e.get("xyz_m", (0.0, 0.0, 0.0))),
-                                        tuple(float(np.deg2rad(x)) for x in e.get("rpy_deg", (0.0, 0.0, 0.0)))))
-        except KeyError as exc:
-            raise ValueError(f"environment_boxes[{k}] ('{name}'): missing field {exc}") from exc
-    return tuple(boxes)
 
 
 class CollisionChecker:

@@ -51,23 +51,23 @@ def _excite(args: argparse.Namespace) -> int:
     result = optimise_excitation(robot, cfg, progress=True)
     print(f"cond(K_b) = {result.cond:.1f} (thesis: 68); per start: "
           + ", ".join(f"{c:.1f}" for c in result.start_conds))
-    period_t = np.arange(0.0, result.trajectory.period, 1.0 / cfg["collision"]["check_rate_hz"])
+    period_t = np.arange(0.0, result.trajectory.period, 1.0 / cfg.collision.check_rate_hz)
     hits = check_collisions(robot, result.trajectory.evaluate(period_t)[0])
     if hits:
         k, a, b = hits[0]
         print(f"WARNING: {len(hits)} self-collision samples, first at t = {period_t[k]:.2f} s ({a} / {b})")
     else:
         print(f"collision check: free ({period_t.size} samples)")
-    pr = cfg["protocol"]
-    t, q, qd, qdd = protocol_trajectory(result.trajectory, pr["speed_factors"], pr["rate_hz"])
+    pr = cfg.protocol
+    t, q, qd, qdd = protocol_trajectory(result.trajectory, list(pr.speed_factors), pr.rate_hz)
     meta = {"robot": robot.name, "cond": result.cond, "start_conds": result.start_conds, "solver": result.solver,
-            "repetitions": pr["repetitions"], "speed_factors": pr["speed_factors"], "collisions": len(hits),
-            "config": cfg}
+            "repetitions": pr.repetitions, "speed_factors": list(pr.speed_factors), "collisions": len(hits),
+            "config": cfg.to_dict()}
     with atomic_path(args.out, suffix=".npz") as tmp:
         with open(tmp, "wb") as fh:
             np.savez(fh, t=t, q=q, qd=qd, qdd=qdd, a=result.trajectory.a, b=result.trajectory.b,
                      omega_f=result.trajectory.omega_f, meta=np.array(json.dumps(meta)))
-    print(f"wrote {args.out}: {t.size} samples, {t[-1]:.1f} s per repetition × {pr['repetitions']}")
+    print(f"wrote {args.out}: {t.size} samples, {t[-1]:.1f} s per repetition × {pr.repetitions}")
     return 0
 
 

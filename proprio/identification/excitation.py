@@ -15,35 +15,112 @@ gradient costs one batched regressor call. SNOPT (or IPOPT) runs from several se
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from importlib import resources
 from typing import Any
 
 import numpy as np
-import yaml
 
 from proprio.description import RobotDescription
 from proprio.identification.base_parameters import BaseParameters, base_parameters
 from proprio.identification.regressor import regressor_buffer, regressor_geometry
+from proprio.typed_yaml import ConfigError, check_keys, load_typed, read_yaml
 
-__all__ = ["FourierTrajectory", "ExcitationResult", "load_excitation_config", "condition_number",
+__all__ = ["FourierTrajectory", "ExcitationResult", "ExcitationConfig", "load_excitation_config", "condition_number",
            "optimise_excitation", "check_collisions", "protocol_trajectory", "load_shipped_excitation",
            "protocol_piecewise"]
 
 
-def load_excitation_config(overrides: dict[str, Any] | None = None) -> dict[str, Any]:
-    """The packaged ``excitation.yaml`` with optional section-wise overrides."""
-    text = resources.files("proprio.configs").joinpath("excitation.yaml").read_text()
-    cfg = yaml.safe_load(text)
-    for section, values in (overrides or {}).items():
-        if section not in cfg:
-            raise ValueError(f"excitation config: unknown section {section!r}")
-        unknown = set(values) - set(cfg[section])
-        if unknown:
-            raise ValueError(f"excitation config: unknown keys {sorted(unknown)} in {section!r}")
-        cfg[section].update(values)
-    return cfg
+@dataclass(frozen=True)
+class FourierSettings:
+    """``fourier:`` — ``harmonics`` L and base frequency ``omega_f`` [rad/s] of eq. (4.9)."""
+    harmonics: int = 5
+    omega_f: float = 0.1 * math.pi
+
+
+@dataclass(frozen=True)
+class LimitSettings:
+    """``limits:`` — position limits tightened by ``position_margin_deg`` [°] on both sides; ``velocity_fraction``
+    of the description's velocity limits."""
+    position_margin_deg: float = 2.0
+    velocity_fraction: float = 1.0
+
+
+@dataclass(frozen=True)
+class OptimisationSettings:
+    """``optimisation:`` — ``solver`` (snopt | ipopt), multi-``starts``, ``seed``, ``cost_samples`` and
+    ``constraint_samples`` per period, ``initial_amplitude`` [rad/s], ``coulomb_velocity_scale`` [rad/s],
+    ``max_iterations``."""
+    solver: str = "snopt"
+    starts: int = 4
+    seed: int = 0
+    cost_samples: int = 100
+    constraint_samples: int = 400
+    initial_amplitude: float = 0.3
+    coulomb_velocity_scale: float = 0.02
+    max_iterations: int = 300
+
+
+@dataclass(frozen=True)
+class CollisionSettings:
+    """``collision:`` — ``check_rate_hz`` [Hz] at which the optimised period is checked for self-collision."""
+    check_rate_hz: float = 50.0
+
+
+@dataclass(frozen=True)
+class ProtocolSettings:
+    """``protocol:`` — the period played once per speed factor, ``repetitions`` times, sampled at ``rate_hz``."""
+    speed_factors: tuple[float, ...] = (1.0, 0.8, 0.65, 0.5, 0.4, 0.33, 0.28, 0.25, 0.22)
+    repetitions: int = 10
+    rate_hz: float = 150.0
+
+
+@dataclass(frozen=True)
+class ExcitationConfig:
+    """The excitation design config (``proprio/configs/excitation.yaml``), loaded strictly (:mod:`proprio.typed_yaml`:
+    an unknown key names the nearest valid one)."""
+    fourier: FourierSettings = FourierSettings()
+    limits: LimitSettings = LimitSettings()
+    optimisation: OptimisationSettings = OptimisationSettings()
+    collision: CollisionSettings = CollisionSettings()
+    protocol: ProtocolSettings = ProtocolSettings()
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able form (for a result's metadata)."""
+        return dataclasses.asdict(self)
+
+
+def load_excitation_config(overrides: dict[str, Any] | None = None) -> ExcitationConfig:
+    """The packaged ``excitation.yaml`` with optional section-wise ``overrides`` (``{section: {key: value}}``, checked
+    like the file); an unknown section or key is an error naming it and the nearest valid one."""
+    source = "excitation.yaml"
+    cfg = read_yaml(text=resources.files("proprio.configs").joinpath(source).read_text(), source=source)
+    if not isinstance(cfg, dict):
+        raise ConfigError(f"{source}: expected a mapping of sections")
+    overrides = overrides or {}
+    check_keys(overrides, [f.name for f in dataclasses.fields(ExcitationConfig)], "excitation overrides")
+    merged = {**cfg}
+    for section, values in overrides.items():
+        merged[section] = {**(cfg.get(section) or {}), **values}
+    config = load_typed(ExcitationConfig, merged, source)
+    if config.optimisation.solver not in ("snopt", "ipopt"):
+        raise ConfigError(f"{source}: optimisation.solver must be snopt or ipopt, got {config.optimisation.solver!r}")
+    return config
+
+
+@dataclass(frozen=True)
+class ShippedExcitation:
+    """The schema of a shipped optimal excitation (``proprio/configs/<name>.yaml``): coefficients ``a, b [n][L]``
+    [rad/s], ``omega_f`` [rad/s] and provenance."""
+    a: list[list[float]]
+    b: list[list[float]]
+    omega_f: float
+    name: str = ""
+    provenance: str = ""
+    robot: str = ""
+    cond: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -133,7 +210,7 @@ class ExcitationResult:
     solver: str = ""
 
 
-def optimise_excitation(desc: RobotDescription, config: dict[str, Any] | None = None,
+def optimise_excitation(desc: RobotDescription, config: ExcitationConfig | None = None,
                         base: BaseParameters | None = None, progress: bool = False) -> ExcitationResult:
     """Minimise ``cond(K_b)`` over the Fourier coefficients (eq. 4.12–4.19) from ``optimisation.starts`` seeded
     random starts; returns the best feasible result."""
@@ -141,29 +218,29 @@ def optimise_excitation(desc: RobotDescription, config: dict[str, Any] | None = 
     from pydrake.solvers import IpoptSolver, MathematicalProgram, SnoptSolver, SolverOptions
 
     cfg = config or load_excitation_config()
-    fo, li, op = cfg["fourier"], cfg["limits"], cfg["optimisation"]
-    n, L, w = desc.n, int(fo["harmonics"]), float(fo["omega_f"])
+    fo, li, op = cfg.fourier, cfg.limits, cfg.optimisation
+    n, L, w = desc.n, fo.harmonics, fo.omega_f
     base = base or base_parameters(desc)
     period = 2 * math.pi / w
-    t_cost = np.linspace(0.0, period, int(op["cost_samples"]), endpoint=False)
-    cost = _CondCost(desc, base, t_cost, L, w, float(op["coulomb_velocity_scale"]))
-    t_con = np.linspace(0.0, period, int(op["constraint_samples"]), endpoint=False)
+    t_cost = np.linspace(0.0, period, op.cost_samples, endpoint=False)
+    cost = _CondCost(desc, base, t_cost, L, w, op.coulomb_velocity_scale)
+    t_con = np.linspace(0.0, period, op.constraint_samples, endpoint=False)
     qa, qb, va, vb, _, _ = FourierTrajectory(np.zeros((n, L)), np.zeros((n, L)), w).basis(t_con)
     qa0, qb0, va0, vb0, aa0, ab0 = FourierTrajectory(np.zeros((n, L)), np.zeros((n, L)), w).basis(np.zeros(1))
-    margin = math.radians(float(li["position_margin_deg"]))
+    margin = math.radians(li.position_margin_deg)
     lo, hi = desc.lower + margin, desc.upper - margin
     if np.any(lo >= 0) or np.any(hi <= 0):
         raise ValueError("excitation: the zero start configuration must lie strictly inside the tightened limits")
-    vmax = desc.velocity_limits * float(li["velocity_fraction"])
+    vmax = desc.velocity_limits * li.velocity_fraction
 
-    solver = SnoptSolver() if op["solver"] == "snopt" else IpoptSolver()
+    solver = SnoptSolver() if op.solver == "snopt" else IpoptSolver()
     if not solver.available():
         solver = IpoptSolver()
     options = SolverOptions()
     if solver.solver_id() == SnoptSolver.id():
-        options.SetOption(SnoptSolver.id(), "Major iterations limit", int(op["max_iterations"]))
+        options.SetOption(SnoptSolver.id(), "Major iterations limit", op.max_iterations)
     else:
-        options.SetOption(IpoptSolver.id(), "max_iter", int(op["max_iterations"]))
+        options.SetOption(IpoptSolver.id(), "max_iter", op.max_iterations)
 
     def cost_fn(x):
         if x.dtype == object:
@@ -171,10 +248,10 @@ def optimise_excitation(desc: RobotDescription, config: dict[str, Any] | None = 
             return AutoDiffXd(val, grad @ ExtractGradient(x))
         return cost.value_and_gradient(np.asarray(x, dtype=float))[0]
 
-    rng = np.random.default_rng(int(op["seed"]))
+    rng = np.random.default_rng(op.seed)
     best: ExcitationResult | None = None
     conds = []
-    starts = range(int(op["starts"]))
+    starts = range(op.starts)
     if progress:
         from tqdm import tqdm
         starts = tqdm(starts, desc="excitation starts", unit="start")
@@ -192,7 +269,7 @@ def optimise_excitation(desc: RobotDescription, config: dict[str, Any] | None = 
                                      np.full(t_con.size, vmax[j]), x_j)
         x_all = np.concatenate([a.ravel(), b.ravel()])
         prog.AddCost(cost_fn, vars=x_all)
-        x0 = _feasible_start(rng, float(op["initial_amplitude"]), n, L, (qa0, qb0, va0, vb0, aa0, ab0),
+        x0 = _feasible_start(rng, op.initial_amplitude, n, L, (qa0, qb0, va0, vb0, aa0, ab0),
                              (qa, qb, va, vb), lo, hi, vmax)
         result = solver.Solve(prog, x0, options)
         x = result.GetSolution(x_all)
@@ -293,11 +370,14 @@ def protocol_trajectory(traj: FourierTrajectory, speed_factors: list[float], rat
 
 def load_shipped_excitation(name: str = "iiwa14_excitation") -> tuple[FourierTrajectory, dict[str, Any]]:
     """A precomputed optimal excitation shipped in ``proprio/configs/<name>.yaml`` (coefficients and provenance)."""
-    text = resources.files("proprio.configs").joinpath(f"{name}.yaml").read_text()
-    data = yaml.safe_load(text)
-    traj = FourierTrajectory(a=np.asarray(data["a"], dtype=float), b=np.asarray(data["b"], dtype=float),
-                             omega_f=float(data["omega_f"]))
-    return traj, {k: v for k, v in data.items() if k not in ("a", "b")}
+    source = f"{name}.yaml"
+    data = load_typed(ShippedExcitation, read_yaml(text=resources.files("proprio.configs").joinpath(source).read_text(),
+                                                   source=source), source)
+    a, b = np.asarray(data.a, dtype=float), np.asarray(data.b, dtype=float)
+    if a.ndim != 2 or a.shape != b.shape:
+        raise ConfigError(f"{source}: a and b must be matrices of the same shape [joints][harmonics]")
+    traj = FourierTrajectory(a=a, b=b, omega_f=data.omega_f)
+    return traj, {k: v for k, v in dataclasses.asdict(data).items() if k not in ("a", "b")}
 
 
 def protocol_piecewise(traj: FourierTrajectory, speed_factors: list[float], rate_hz: float = 100.0):

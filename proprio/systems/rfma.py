@@ -45,14 +45,14 @@ from pathlib import Path
 from typing import Any, Iterator
 
 import numpy as np
-import yaml
 from scipy.spatial import cKDTree
 from tqdm.auto import tqdm
 
 from proprio.description import RobotDescription, load_robot
 from proprio.kinematics import chain_geometry, flange_position
-from proprio.collision import CollisionChecker, EnvironmentBox, boxes_from_config
+from proprio.collision import CollisionChecker, EnvironmentBox
 from proprio.systems.trajectories import Phase, TimedPath, save_trajectory, time_parameterize
+from proprio.typed_yaml import load_typed, read_yaml
 
 __all__ = ["RfmaError", "RfmaConfig", "RfmaPath", "load_rfma_config", "flange_in_workspace", "sample_scaffolds",
            "unvisited_by_distance", "segment_in_collision", "waypoints_in_collision", "exploration_waypoints",
@@ -106,20 +106,81 @@ class RfmaConfig:
         return d
 
 
-def _interval(section: dict[str, Any], key: str, where: str, lo_min: float | None = None,
+Interval = tuple[float, float]
+
+
+@dataclass(frozen=True)
+class _Workspace:
+    radius_m: float = 0.8
+    x_min_m: float = 0.0
+    z_min_m: float = 0.0
+
+
+@dataclass(frozen=True)
+class _Box:
+    size_m: tuple[float, float, float]
+    name: str | None = None
+    xyz_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class _PathCheck:
+    enabled: bool = True
+    step_deg: float = 1.0
+
+
+@dataclass(frozen=True)
+class _Sampling:
+    batch: int = 4096
+    max_tries: int = 400_000
+
+
+@dataclass(frozen=True)
+class _Exploration:
+    amplitude_deg: Interval
+    frequency: Interval
+    phase_rad: Interval
+    waypoints: tuple[int, int]
+    velocity_fraction: Interval
+    terms: int = 3
+    waypoints_per_unit: float = 600.0
+    acceleration_fraction: float = 0.9
+
+
+@dataclass(frozen=True)
+class _Reach:
+    velocity_fraction: Interval
+
+
+@dataclass(frozen=True)
+class RfmaYaml:
+    """The schema of an RFMA YAML file (``proprio/configs/rfma.yaml`` documents each key); loaded strictly by
+    :func:`proprio.typed_yaml.load_typed` (an unknown key names the nearest valid one)."""
+    exploration: _Exploration
+    reach: _Reach
+    seed: int = 0
+    robot: str = "iiwa14_identified"
+    scaffolds: int = 150
+    joint_margin_deg: float = 2.0
+    home_deg: list[float] = field(default_factory=lambda: [0.0] * 7)
+    return_home: bool = True
+    workspace: _Workspace = _Workspace()
+    environment_boxes: list[_Box] | None = None
+    path_collision_check: _PathCheck = _PathCheck()
+    sampling: _Sampling = _Sampling()
+    knot_dt_s: float = 0.02
+
+
+def _interval(v: tuple[float, float], where: str, lo_min: float | None = None,
               hi_max: float | None = None) -> tuple[float, float]:
-    if key not in section:
-        raise RfmaError(f"{where}.{key}: missing")
-    v = section[key]
-    if not isinstance(v, (list, tuple)) or len(v) != 2:
-        raise RfmaError(f"{where}.{key}: expected an interval [low, high], got {v!r}")
-    lo, hi = float(v[0]), float(v[1])
+    lo, hi = v
     if not lo <= hi:
-        raise RfmaError(f"{where}.{key}: inverted interval [{lo}, {hi}] (low > high)")
+        raise RfmaError(f"{where}: inverted interval [{lo}, {hi}] (low > high)")
     if lo_min is not None and lo < lo_min:
-        raise RfmaError(f"{where}.{key}: low bound {lo} is below {lo_min}")
+        raise RfmaError(f"{where}: low bound {lo} is below {lo_min}")
     if hi_max is not None and hi > hi_max:
-        raise RfmaError(f"{where}.{key}: high bound {hi} exceeds {hi_max}")
+        raise RfmaError(f"{where}: high bound {hi} exceeds {hi_max}")
     return lo, hi
 
 
@@ -150,51 +211,56 @@ def _validated(c: RfmaConfig) -> RfmaConfig:
     return c
 
 
-def _config_from_dict(d: dict[str, Any]) -> RfmaConfig:
+def _config_from_dict(d: Any, source: str) -> RfmaConfig:
+    """The :class:`RfmaConfig` of a parsed RFMA YAML: its shape checked by :class:`RfmaYaml`, then its values."""
     if not isinstance(d, dict):
-        raise RfmaError("RFMA config: expected a mapping at the top level")
-    ws, sm = d.get("workspace", {}), d.get("sampling", {})
-    ex, re = d.get("exploration", {}), d.get("reach", {})
-    if "scaffolds" in d and int(d["scaffolds"]) < 1:
-        raise RfmaError(f"scaffolds: must be >= 1, got {d['scaffolds']}")
-    t_lo, t_hi = _interval(ex, "waypoints", "exploration")
+        raise RfmaError(f"{source}: expected a mapping at the top level")
+    y = load_typed(RfmaYaml, d, source, RfmaError)
+    ex, re = y.exploration, y.reach
+    if y.scaffolds < 1:
+        raise RfmaError(f"{source}: scaffolds: must be >= 1, got {y.scaffolds}")
+    boxes = []
+    for k, b in enumerate(y.environment_boxes or []):
+        try:
+            boxes.append(EnvironmentBox(b.name or f"box_{k}", b.size_m, b.xyz_m,
+                                        tuple(math.radians(x) for x in b.rpy_deg)))
+        except ValueError as exc:
+            raise RfmaError(f"{source}: environment_boxes[{k}]: {exc}") from exc
     c = RfmaConfig(
-        seed=int(d.get("seed", 0)), robot=str(d.get("robot", "iiwa14_identified")),
-        scaffolds=int(d.get("scaffolds", 150)),
-        joint_margin=math.radians(float(d.get("joint_margin_deg", 2.0))),
-        home=tuple(math.radians(float(x)) for x in d.get("home_deg", [0.0] * 7)),
-        return_home=bool(d.get("return_home", True)),
-        radius=float(ws.get("radius_m", 0.8)), x_min=float(ws.get("x_min_m", 0.0)),
-        z_min=float(ws.get("z_min_m", 0.0)),
-        boxes=boxes_from_config(d.get("environment_boxes")),
-        batch=int(sm.get("batch", 4096)), max_tries=int(sm.get("max_tries", 400_000)),
-        terms=int(ex.get("terms", 3)),
-        amplitude=tuple(math.radians(x) for x in _interval(ex, "amplitude_deg", "exploration", lo_min=0.0)),
-        frequency=_interval(ex, "frequency", "exploration"),
-        phase=_interval(ex, "phase_rad", "exploration"),
-        waypoints=(int(t_lo), int(t_hi)),
-        waypoints_per_unit=float(ex.get("waypoints_per_unit", 600.0)),
-        explore_velocity_fraction=_interval(ex, "velocity_fraction", "exploration", 1e-6, 1.0),
-        explore_acceleration_fraction=float(ex.get("acceleration_fraction", 0.9)),
-        reach_velocity_fraction=_interval(re, "velocity_fraction", "reach", 1e-6, 1.0),
-        knot_dt=float(d.get("knot_dt_s", 0.02)),
-        check_path=bool(d.get("path_collision_check", {}).get("enabled", True)),
-        check_step=math.radians(float(d.get("path_collision_check", {}).get("step_deg", 1.0))),
+        seed=y.seed, robot=y.robot, scaffolds=y.scaffolds, joint_margin=math.radians(y.joint_margin_deg),
+        home=tuple(math.radians(x) for x in y.home_deg), return_home=y.return_home,
+        radius=y.workspace.radius_m, x_min=y.workspace.x_min_m, z_min=y.workspace.z_min_m, boxes=tuple(boxes),
+        batch=y.sampling.batch, max_tries=y.sampling.max_tries, terms=ex.terms,
+        amplitude=tuple(math.radians(x) for x in _interval(ex.amplitude_deg, f"{source}: exploration.amplitude_deg",
+                                                           lo_min=0.0)),
+        frequency=_interval(ex.frequency, f"{source}: exploration.frequency"),
+        phase=_interval(ex.phase_rad, f"{source}: exploration.phase_rad"),
+        waypoints=ex.waypoints, waypoints_per_unit=ex.waypoints_per_unit,
+        explore_velocity_fraction=_interval(ex.velocity_fraction, f"{source}: exploration.velocity_fraction", 1e-6,
+                                            1.0),
+        explore_acceleration_fraction=ex.acceleration_fraction,
+        reach_velocity_fraction=_interval(re.velocity_fraction, f"{source}: reach.velocity_fraction", 1e-6, 1.0),
+        knot_dt=y.knot_dt_s, check_path=y.path_collision_check.enabled,
+        check_step=math.radians(y.path_collision_check.step_deg),
     )
-    return _validated(c)
+    try:
+        return _validated(c)
+    except RfmaError as exc:
+        raise RfmaError(f"{source}: {exc}") from exc
 
 
 def load_rfma_config(path: str | Path | None = None, **overrides: Any) -> RfmaConfig:
     """Load an RFMA YAML config (default: the shipped ``proprio/configs/rfma.yaml``), then apply ``overrides``
-    (RfmaConfig field names, e.g. ``scaffolds=3, seed=1``). Raises :class:`RfmaError` naming a bad field."""
+    (RfmaConfig field names, e.g. ``scaffolds=3, seed=1``). Raises :class:`RfmaError` naming the file and a bad
+    field (an unknown key with the nearest valid one)."""
     if path is None:
-        text = resources.files("proprio.configs").joinpath("rfma.yaml").read_text()
+        text, source = resources.files("proprio.configs").joinpath("rfma.yaml").read_text(), "rfma.yaml"
     else:
         path = Path(path)
         if not path.exists():
             raise FileNotFoundError(f"RFMA config not found: {path}")
-        text = path.read_text()
-    cfg = _config_from_dict(yaml.safe_load(text) or {})
+        text, source = path.read_text(), str(path)
+    cfg = _config_from_dict(read_yaml(text=text, source=source, error=RfmaError), source)
     return cfg.replace(**overrides) if overrides else cfg
 
 
