@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import numbers
 import types
 import typing
 from pathlib import Path
@@ -128,15 +129,15 @@ def _convert(tp: Any, value: Any, where: str, error: type[Exception]) -> Any:
             raise error(f"{where}: expected true or false, got {value!r}")
         return value
     if tp is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
+        if isinstance(value, bool) or not isinstance(value, numbers.Real):
             raise error(f"{where}: expected a number, got {value!r}")
         return float(value)
     if tp is int:
         if isinstance(value, float) and value.is_integer():
             value = int(value)
-        if isinstance(value, bool) or not isinstance(value, int):
+        if isinstance(value, bool) or not isinstance(value, numbers.Integral):
             raise error(f"{where}: expected an integer, got {value!r}")
-        return value
+        return int(value)
     if tp is str:
         if not isinstance(value, str):
             raise error(f"{where}: expected a string, got {value!r}")

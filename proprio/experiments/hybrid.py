@@ -13,13 +13,12 @@ from __future__ import annotations
 import importlib.resources
 import json
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 import torch
-import yaml
 
 from proprio.description import RobotDescription, load_robot
 from proprio.io import atomic_write_text
@@ -30,8 +29,9 @@ from proprio.learning.features import TauRbdProvider, rbd_provider
 from proprio.learning.models import ARCHS, HybridModel, ModelConfig, load_model, save_model
 from proprio.learning.training import TrainConfig, TrainResult, train_model
 from proprio.recording import Recording
+from proprio.typed_yaml import ConfigError, check_keys, load_typed, read_yaml
 
-__all__ = ["load_config", "Backbone", "resolve_backbone", "prepare_split", "train_from_config", "evaluate_saved",
+__all__ = ["load_config", "check_training_config", "TrainingYaml", "GridSection", "Backbone", "resolve_backbone", "prepare_split", "train_from_config", "evaluate_saved",
            "train_grid", "train_grid_model", "grid_tag", "search_hyperparameters", "SEARCH_SPACE", "demo_hybrid",
            "payload_table", "GRID_VARIANTS"]
 
@@ -51,16 +51,48 @@ def load_config(spec: str | Path) -> dict[str, Any]:
         text = res.read_text()
     else:
         text = path.read_text()
-    try:
-        cfg = yaml.safe_load(text) or {}
-    except yaml.YAMLError as exc:
-        raise ValueError(f"config {spec}: invalid YAML ({exc})") from exc
+    source = str(spec)
+    cfg = read_yaml(text=text, source=source) or {}
     if not isinstance(cfg, dict):
-        raise ValueError(f"config {spec}: top level must be a mapping with model/data/train sections")
-    unknown = sorted(set(cfg) - {"model", "data", "train", "grid", "search"})
-    if unknown:
-        raise ValueError(f"config {spec}: unknown section(s) {unknown}; allowed: model, data, train, grid, search")
+        raise ConfigError(f"{source}: top level must be a mapping with model/data/train sections")
+    check_training_config(cfg, source)
     return cfg
+
+
+@dataclass(frozen=True)
+class GridSection:
+    """The ``grid:`` section of a training config: the ``archs`` and the ``[hybrid, use_r]`` ``variants`` trained
+    by ``train-grid``."""
+    archs: tuple[str, ...] = tuple(ARCHS)
+    variants: tuple[tuple[bool, bool], ...] = GRID_VARIANTS
+
+
+@dataclass(frozen=True)
+class TrainingYaml:
+    """The schema of a ``train_*.yaml``: ``model`` (:class:`~proprio.learning.models.ModelConfig`), ``data``
+    (:class:`~proprio.learning.datasets.DataConfig`), ``train`` (:class:`~proprio.learning.training.TrainConfig`),
+    ``grid`` (:class:`GridSection`) and ``search`` (``train:`` key → ``[kind, ...]``, see :data:`SEARCH_SPACE`)."""
+    model: dict[str, Any] | None = None
+    data: dict[str, Any] | None = None
+    train: dict[str, Any] | None = None
+    grid: GridSection | None = None
+    search: dict[str, list[Any]] | None = None
+
+
+def check_training_config(cfg: dict[str, Any], source: str) -> None:
+    """Check a training-config mapping strictly (:mod:`proprio.typed_yaml`): each section loads into its dataclass
+    and passes its checks; an unknown key is an error naming ``source``, the key path and the nearest valid key."""
+    spec = load_typed(TrainingYaml, cfg, source)
+    try:
+        ModelConfig.from_dict(spec.model or {})
+        DataConfig.from_dict(spec.data)
+        TrainConfig.from_dict(spec.train)
+    except ValueError as exc:
+        raise ConfigError(f"{source}: {exc}") from exc
+    check_keys(spec.search or {}, [f.name for f in fields(TrainConfig)], f"{source}: search")
+    bad = [a for a in (spec.grid.archs if spec.grid else ()) if a not in ARCHS]
+    if bad:
+        raise ConfigError(f"{source}: grid.archs: unknown {bad}; choose from {list(ARCHS)}")
 
 
 @dataclass
@@ -187,9 +219,8 @@ def train_grid(cfg: dict[str, Any], train_recs: Sequence[Recording], backbone: B
     (:func:`search_hyperparameters`, ASHA early stopping), whose best ``train:`` settings the model is then trained
     with (``search_<tag>.json``)."""
     out_dir = Path(out_dir)
-    grid = cfg.get("grid", {})
-    archs = grid.get("archs", list(ARCHS))
-    variants = [tuple(v) for v in grid.get("variants", GRID_VARIANTS)]
+    grid = load_typed(GridSection, cfg.get("grid"), "grid")
+    archs, variants = list(grid.archs), list(grid.variants)
     bad = [a for a in archs if a not in ARCHS]
     if bad:
         raise ValueError(f"grid.archs: unknown architecture(s) {bad}; choose from {list(ARCHS)}")

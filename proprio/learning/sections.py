@@ -1,8 +1,9 @@
 """The sections of a training config (``model:``, ``data:``, ``train:`` of a ``train_*.yaml``) as dataclasses."""
 from __future__ import annotations
 
-from dataclasses import fields
 from typing import Any, TypeVar
+
+from proprio.typed_yaml import load_typed
 
 __all__ = ["section_from_dict"]
 
@@ -10,11 +11,7 @@ T = TypeVar("T")
 
 
 def section_from_dict(cls: type[T], d: dict[str, Any] | None, section: str) -> T:
-    """``cls(**d)`` for the dataclass ``cls`` of config section ``section``; a key that is not one of its fields
-    raises ``ValueError`` naming the section, the keys and the allowed ones. ``None`` gives the defaults."""
-    d = dict(d or {})
-    known = {f.name for f in fields(cls)}
-    unknown = sorted(set(d) - known)
-    if unknown:
-        raise ValueError(f"{section}: unknown key(s) {unknown}; allowed: {sorted(known)}")
-    return cls(**d)
+    """The dataclass ``cls`` of config section ``section`` built strictly from ``d``
+    (:func:`proprio.typed_yaml.load_typed`): an unknown key raises ``ValueError`` naming the section, the key and the
+    nearest allowed one; a value of the wrong type names the field. ``None`` gives the defaults."""
+    return load_typed(cls, d, section)
