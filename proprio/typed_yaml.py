@@ -26,7 +26,7 @@ from typing import Any, Iterable, TypeVar
 
 import yaml
 
-__all__ = ["ConfigError", "load_typed", "read_yaml", "check_keys", "nearest_hint", "per_joint", "join_key"]
+__all__ = ["ConfigError", "load_typed", "read_yaml", "check_keys", "nearest_key", "nearest_hint", "per_joint", "join_key"]
 
 T = TypeVar("T")
 
@@ -35,13 +35,28 @@ class ConfigError(ValueError):
     """A config file does not fit its schema; the message names the file, the key path and the problem."""
 
 
-def nearest_hint(key: str, valid: Iterable[str]) -> str:
-    """``"; did you mean 'x'?"`` for the valid key nearest ``key`` (difflib), else the list of valid keys."""
+def nearest_key(key: str, valid: Iterable[str]) -> str | None:
+    """The valid key nearest ``key``: the closest by :mod:`difflib` (ratio ≥ 0.6), else one that ``key`` abbreviates
+    or extends (``com`` → ``com_flange``), else the closest with ratio ≥ 0.4; ``None`` when nothing is near."""
     valid = sorted(str(v) for v in valid)
-    close = difflib.get_close_matches(str(key), valid, n=1, cutoff=0.5)
+    key = str(key)
+    close = difflib.get_close_matches(key, valid, n=1, cutoff=0.6)
     if close:
-        return f"; did you mean '{close[0]}'? (valid: {', '.join(valid)})"
-    return f"; valid keys: {', '.join(valid) or '(none)'}"
+        return close[0]
+    affix = [v for v in valid if key and (v.startswith(key) or key.startswith(v))]
+    if affix:
+        return min(affix, key=lambda v: abs(len(v) - len(key)))
+    close = difflib.get_close_matches(key, valid, n=1, cutoff=0.4)
+    return close[0] if close else None
+
+
+def nearest_hint(key: str, valid: Iterable[str]) -> str:
+    """``"; did you mean 'x'? (valid: ...)"`` for the valid key nearest ``key`` (:func:`nearest_key`), else the
+    list of valid keys."""
+    valid = sorted(str(v) for v in valid)
+    near = nearest_key(key, valid)
+    listing = ", ".join(valid) or "(none)"
+    return f"; did you mean '{near}'? (valid: {listing})" if near else f"; valid keys: {listing}"
 
 
 def check_keys(mapping: dict[str, Any], valid: Iterable[str], where: str,

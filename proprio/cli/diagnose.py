@@ -70,9 +70,25 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.set_defaults(func=_benchmark)
 
 
-def _model(args: argparse.Namespace):
-    import yaml
+def _effects_config(path: Path, n: int) -> dict:
+    """The effects mapping of an ``--effects-config`` file — a twin config or patch (its ``effects:`` block) or a bare
+    ``{name: parameters}`` mapping — checked strictly against the effect classes for ``n`` joints
+    (:mod:`proprio.effects.schema`: a misspelt name or field names the nearest valid one)."""
+    from proprio.effects.schema import check_effects_block
+    from proprio.typed_yaml import read_yaml
 
+    if not path.is_file():
+        raise UserError(f"--effects-config: no such file {path}")
+    data = read_yaml(path, error=UserError) or {}
+    if not isinstance(data, dict):
+        raise UserError(f"--effects-config {path}: expected a mapping (a twin config or {{effect: parameters}})")
+    where = f"{path}: effects" if "effects" in data else str(path)
+    config = data["effects"] if "effects" in data else data
+    check_effects_block(config, n, where, UserError)
+    return config or {}
+
+
+def _model(args: argparse.Namespace):
     from proprio.description import load_robot
     from proprio.diagnosis.data import SimModel
     from proprio.effects import make_effects
@@ -83,10 +99,7 @@ def _model(args: argparse.Namespace):
         raise UserError(f"--model: cannot load robot {args.model!r} ({exc})") from exc
     config = {}
     if args.effects_config:
-        if not args.effects_config.exists():
-            raise UserError(f"--effects-config: no such file {args.effects_config}")
-        data = yaml.safe_load(args.effects_config.read_text()) or {}
-        config = data.get("effects", data) if isinstance(data, dict) else {}
+        config = _effects_config(args.effects_config, robot.n)
     chosen = {k: config.get(k) for k in args.effects}
     if robot.has_friction and "viscous_coulomb" in chosen:
         raise UserError(f"friction given twice: the robot file of --model {args.model!r} already has link friction "
