@@ -24,9 +24,11 @@ import typing
 from pathlib import Path
 from typing import Any, Iterable, TypeVar
 
+import numpy as np
 import yaml
 
-__all__ = ["ConfigError", "load_typed", "read_yaml", "check_keys", "nearest_key", "nearest_hint", "per_joint", "join_key"]
+__all__ = ["ConfigError", "load_typed", "read_yaml", "check_keys", "nearest_key", "nearest_hint", "per_joint",
+           "join_key"]
 
 T = TypeVar("T")
 
@@ -124,6 +126,8 @@ def _type_name(tp: Any) -> str:
 def _convert(tp: Any, value: Any, where: str, error: type[Exception]) -> Any:
     if tp is Any:
         return value
+    if isinstance(value, np.ndarray):            # a mapping built in code (a diagnosis' patch) may hold arrays
+        value = value.tolist()
     origin = typing.get_origin(tp)
     if origin in (typing.Union, types.UnionType):
         args = typing.get_args(tp)

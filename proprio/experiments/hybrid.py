@@ -31,7 +31,8 @@ from proprio.learning.training import TrainConfig, TrainResult, train_model
 from proprio.recording import Recording
 from proprio.typed_yaml import ConfigError, check_keys, load_typed, read_yaml
 
-__all__ = ["load_config", "check_training_config", "TrainingYaml", "GridSection", "Backbone", "resolve_backbone", "prepare_split", "train_from_config", "evaluate_saved",
+__all__ = ["load_config", "check_training_config", "TrainingYaml", "GridSection", "Backbone", "resolve_backbone",
+           "prepare_split", "train_from_config", "evaluate_saved",
            "train_grid", "train_grid_model", "grid_tag", "search_hyperparameters", "SEARCH_SPACE", "demo_hybrid",
            "payload_table", "GRID_VARIANTS"]
 
