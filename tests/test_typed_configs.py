@@ -189,3 +189,13 @@ def test_dataset_log_rate_writes_recordings_at_that_rate(tmp_path):
     assert rec.meta["rate_hz"] == 200
     assert np.median(np.diff(rec.t)) == pytest.approx(5e-3, abs=2e-4)
     assert rec.t.size == pytest.approx(200 * (rec.t[-1] - rec.t[0]) + 1, abs=1)     # no sample lost, none extra
+
+
+def test_the_cli_reports_a_misspelt_key_in_one_line(tmp_path, capsys):
+    from proprio.cli import main
+
+    path = _rfma(tmp_path)
+    assert main(["trajectory", "rfma", "--config", str(path), "--out", str(tmp_path / "t.npz")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "scafolds: unknown key; did you mean 'scaffolds'?" in err, err
+    assert not (tmp_path / "t.npz").exists()

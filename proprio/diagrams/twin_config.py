@@ -21,8 +21,6 @@ from proprio.typed_yaml import load_typed, per_joint, read_yaml
 __all__ = ["TwinConfig", "TwinConfigError", "TwinYaml", "TwinPatchYaml", "ControllerBlock", "PatchFor",
            "load_twin_config", "merge_twin_patch", "PATCH_KEYS"]
 
-PATCH_KEYS = ("patch_for", "robot", "effects", "payload")
-
 PerJoint = float | list[float]
 """One number for every joint, or one per joint (the length is checked against the robot)."""
 
@@ -69,6 +67,10 @@ class TwinPatchYaml:
     robot: str | dict[str, Any] | None = None
     effects: dict[str, Any] | None = None
     payload: dict[str, Any] | None = None
+
+
+PATCH_KEYS = tuple(f.name for f in dataclasses.fields(TwinPatchYaml))
+"""The keys a twin patch may hold."""
 
 
 class TwinConfigError(ValueError):
