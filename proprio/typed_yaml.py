@@ -13,6 +13,9 @@ Supported field types: ``float``, ``int``, ``bool``, ``str``, ``Any``, nested da
 (first alternative that fits), ``list[X]``, ``tuple[X, ...]``, fixed ``tuple[X, Y]`` and ``dict[str, X]``. An int
 is accepted for a float; a bool is never a number. The physics checks (ranges, joint counts, limits) stay with each
 config's own validation step; this module checks only the shape of the file.
+
+Drake's ``pydrake.common.yaml.yaml_load_typed`` does the same for Drake's own structs; this loader adds what the
+app's messages need (the file, the whole key path, the nearest key, per-joint values) and needs no C++ binding.
 """
 from __future__ import annotations
 
@@ -90,6 +93,8 @@ def load_typed(schema: type[T], data: Any, where: str, error: type[Exception] = 
 
 def per_joint(value: Any, n: int, where: str, error: type[Exception] = ConfigError) -> list[float]:
     """A per-joint value (one number for every joint, or a list of ``n`` numbers) as a list of ``n`` floats."""
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
     if isinstance(value, (list, tuple)):
         out = _convert(list[float], value, where, error)
         if len(out) != n:
