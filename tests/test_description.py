@@ -319,10 +319,10 @@ def test_urdf_import_of_drakes_acrobot_matches_drake():
         np.testing.assert_allclose(tau[k], drake_tau, rtol=0, atol=1e-10)
 
 
-def test_urdf_needs_a_single_root(tmp_path):
+def test_urdf_needs_revolute_joints(tmp_path):
     p = tmp_path / "two_roots.urdf"
     p.write_text("<robot name='r'><link name='a'/><link name='b'/></robot>")
-    with pytest.raises(DescriptionError, match="expected one root link"):
+    with pytest.raises(DescriptionError, match="no revolute joints"):
         load_robot(p)
 
 
@@ -378,7 +378,7 @@ def test_readme_yaml_example_loads():
     ({"format": "proprio-mdh/v1", "mdh": {"alpha_deg": [0, 90], "a": [0, 0]}}, "mdh: missing field 'd'"),
     ({"format": "proprio-mdh/v1", "mdh": {"a": [0, 0], "d": [0, 0]}}, "missing field 'alpha_deg'"),
     ({"format": "proprio-mdh/v1", "mdh": {"alpha_deg": [0, 90], "a": [0, 0], "d": [0.1, 0]},
-      "limits": {"position_deg": [170]}}, "'lower' has 1 entries, expected 2"),
+      "limits": {"position_deg": [170]}}, "limits.position_deg: expected 2 numbers, got 1"),
     ({"base": [1, 2], "joints": [], "links": []}, "base: expected a mapping"),
 ])
 def test_malformed_sections_name_the_field(data, fragment):
