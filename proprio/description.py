@@ -14,7 +14,6 @@ The YAML layout (``format: proprio-robot/v1``) is documented in ``README.md`` an
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import math
 import warnings
 from dataclasses import dataclass
@@ -28,7 +27,7 @@ import yaml
 __all__ = [
     "CollisionShape", "Joint", "Link", "EndEffector", "RobotDescription", "DescriptionError", "DescriptionWarning",
     "load_robot", "robot_from_dict", "robot_from_mdh", "robot_from_urdf", "builtin_robots", "rpy_to_matrix",
-    "check_keys", "matrix_to_rpy",
+    "check_keys", "nearest_key", "matrix_to_rpy",
 ]
 
 INERTIA_KEYS = ("ixx", "iyy", "izz", "ixy", "ixz", "iyz")
@@ -246,9 +245,29 @@ def check_keys(d: dict, allowed: tuple[str, ...] | frozenset[str], where: str,
     for key in d:
         if key in allowed or key in ignored:
             continue
-        near = difflib.get_close_matches(str(key), [*allowed], n=1, cutoff=0.5)
-        hint = f"; did you mean '{near[0]}'?" if near else f" (valid: {', '.join(allowed)})"
+        near = nearest_key(str(key), allowed)
+        hint = f"; did you mean '{near}'?" if near else f" (valid: {', '.join(allowed)})"
         raise DescriptionError(f"{where}: unknown key '{key}'{hint}")
+
+
+def nearest_key(key: str, valid: tuple[str, ...] | frozenset[str]) -> str | None:
+    """The valid key closest to a misspelt one: fewest edits (insert, delete, substitute, swap two neighbours), then
+    the longest common prefix; None when every valid key needs more edits than a third of its length (at least 2)."""
+    def edits(a: str, b: str) -> int:
+        d = [[i + j if i * j == 0 else 0 for j in range(len(b) + 1)] for i in range(len(a) + 1)]
+        for i in range(1, len(a) + 1):
+            for j in range(1, len(b) + 1):
+                d[i][j] = min(d[i - 1][j] + 1, d[i][j - 1] + 1, d[i - 1][j - 1] + (a[i - 1] != b[j - 1]))
+                if i > 1 and j > 1 and a[i - 1] == b[j - 2] and a[i - 2] == b[j - 1]:
+                    d[i][j] = min(d[i][j], d[i - 2][j - 2] + 1)
+        return d[-1][-1]
+
+    def prefix(a: str, b: str) -> int:
+        return next((k for k, (x, y) in enumerate(zip(a, b)) if x != y), min(len(a), len(b)))
+
+    scored = [(edits(key, v), -prefix(key, v), v) for v in valid]
+    best = min(scored, default=None)
+    return best[2] if best is not None and best[0] <= max(2, len(best[2]) // 3) else None
 
 
 def _vec(d: dict, key: str, where: str, size: int = 3, default: Any = None) -> tuple[float, ...]:
