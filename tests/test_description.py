@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import re
 from importlib import resources
@@ -583,3 +584,38 @@ def test_mdh_yaml_keeps_asymmetric_limits_and_friction():
                      (dict(MDH_ARM, limits={"lower_deg": [-1, -1, -1, -1]}), "'lower' and 'upper' go together")):
         with pytest.raises(DescriptionError, match=msg):
             robot_from_dict(bad, "arm.yaml")
+
+
+@pytest.mark.slow
+def test_mdh_arm_with_noisy_published_inertia_runs_twin_identify_diagnose_from_the_cli(tmp_path, monkeypatch, capsys):
+    """No Python: an MDH YAML arm (asymmetric limits, friction, one link's inertia with a −1e-8 kg·m² eigenvalue)
+    goes through `trajectory rfma`, `simulate`, `identify` (one validation table per file) and `diagnose`."""
+    from proprio.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    arm = dict(MDH_ARM, limits=dict(MDH_ARM["limits"], acceleration=[5, 5, 6, 8]))
+    arm["links"] = [dict(lk) for lk in MDH_ARM["links"]]
+    arm["links"][3]["inertia_com"] = {"ixx": -1e-8, "iyy": 0.01, "izz": 0.01}      # a rod along x, rounded
+    Path("arm.yaml").write_text(yaml.safe_dump(arm))
+    Path("twin.yaml").write_text(yaml.safe_dump({
+        "name": "mdh_arm_twin", "robot": "arm.yaml", "time_step": 0.001, "seed": 0,
+        "logger": {"rate_hz": 200, "channels": ["q", "tau"]}, "controller": {"kp": 900, "ki": 0, "kd": 60},
+        "effects": {}}))
+    rfma = yaml.safe_load(resources.files("proprio.configs").joinpath("rfma.yaml").read_text())
+    Path("rfma.yaml").write_text(yaml.safe_dump(dict(rfma, robot="arm.yaml", home_deg=[0, 0, 0, 0], scaffolds=3)))
+    for seed in (1, 2):
+        with pytest.warns(UserWarning, match=r"links\[3\]\(l4\)\.inertia_com.*nearest consistent"):  # the repair
+            assert main(["trajectory", "rfma", "--config", "rfma.yaml", "--seed", str(seed),
+                         "--out", f"traj{seed}.npz"]) == 0
+    for name, traj, seed in (("train", 1, 0), ("val_a", 2, 5), ("val_b", 1, 6)):
+        assert main(["simulate", "--twin", "twin.yaml", "--trajectory", f"traj{traj}.npz", "--seconds", "6",
+                     "--seed", str(seed), "--quiet", "--out", f"{name}.npz"]) == 0
+    capsys.readouterr()
+    assert main(["identify", "--robot", "arm.yaml", "--train", "train.npz", "--validate", "val_a.npz", "val_b.npz",
+                 "--out", "model.npz"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("validation: val_a.npz") == 1 and out.count("validation: val_b.npz") == 1
+    assert main(["diagnose", "--model", "arm.yaml", "--train", "train.npz", "--holdout", "val_a.npz",
+                 "--candidates", "signal_lag", "--out", "diag"]) == 0
+    report = json.loads(Path("diag/diagnosis.json").read_text())
+    assert report["robot"] == "mdh_arm" and report["model_effects"] == ["viscous_coulomb"]   # its friction is kept
