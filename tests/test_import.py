@@ -11,7 +11,7 @@ import yaml
 from proprio.cli import main
 from proprio.description import DescriptionError
 from proprio.importer import LogImportError, import_recording, load_mapping, read_table
-from proprio.recording import load_recording
+from proprio.recording import Recording, load_recording, save_recording
 
 REPO = Path(__file__).resolve().parents[1]
 TX40_DIR = REPO.parent / "shared" / "data" / "staubli_tx40"
@@ -101,6 +101,21 @@ def test_stages_given_a_csv_point_to_import(tmp_path, capsys):
     assert "proprio import" in capsys.readouterr().err
     assert main(["inspect", str(tmp_path / "log.csv")]) == 2
     assert "proprio import" in capsys.readouterr().err
+    assert main(["diagnose", "--model", "iiwa14_nominal", "--train", str(tmp_path / "log.csv"),
+                 "--out", str(tmp_path / "d")]) == 2
+    assert "proprio import" in capsys.readouterr().err
+
+
+def test_estimate_on_another_robots_recording_says_what_to_pass(tmp_path, capsys):
+    t = np.arange(200) * 0.005
+    rec = Recording(t=t, q=np.zeros((200, 7)) + 0.1 * np.sin(t)[:, None], tau=np.zeros((200, 7)),
+                    meta={"robot": "ur_like_arm"})
+    save_recording(rec, tmp_path / "other.npz")
+    assert main(["estimate", "--model", "iiwa14_identified", "--recording", str(tmp_path / "other.npz"),
+                 "--out", str(tmp_path / "est")]) == 2
+    err = capsys.readouterr().err
+    assert "Pass --model for robot 'ur_like_arm'" in err and "--robot iiwa14_identified" in err
+    assert not (tmp_path / "est").exists()
 
 
 def test_tx40_logs_import(tmp_path, capsys):
