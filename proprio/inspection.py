@@ -139,4 +139,8 @@ def load_any(path: str | Path, robot: RobotDescription | None = None, angle_unit
     if n == 0:
         raise RecordingError(f"{path}: no 'q1', 'q2', ... columns in the CSV header; for another layout "
                              f"{IMPORT_HINT}")
-    return validate_recording(recording_from_csv(path, n, angle_unit=angle_unit), robot, source=str(path))
+    try:
+        rec = recording_from_csv(path, n, angle_unit=angle_unit)
+    except RecordingError as exc:   # e.g. ';'-separated or decimal-comma tables: `proprio import` reads those
+        raise RecordingError(f"{exc}; for another layout {IMPORT_HINT}") from exc
+    return validate_recording(rec, robot, source=str(path))
