@@ -95,10 +95,17 @@ def load_mapping(path: str | Path) -> ImportMapping:
     fmt = data.get("format", "proprio-import/v1")
     if fmt != "proprio-import/v1":
         raise _fail(f"{src}:format", f"expected 'proprio-import/v1', got {fmt!r}")
-    if not isinstance(data.get("joints"), int) or data["joints"] < 1:
-        raise _fail(f"{src}:joints", f"the number of joints (a positive integer) is required, got {data.get('joints')!r}")
+    if isinstance(data.get("joints"), bool) or not isinstance(data.get("joints"), int) or data["joints"] < 1:
+        raise _fail(f"{src}:joints", "the number of joints (a positive integer) is required, got "
+                                     f"{data.get('joints')!r}")
     n = int(data["joints"])
-    check_keys(data.get("read") or {}, _READ_KEYS, f"{src}:read")
+    read = data.get("read") or {}
+    if not isinstance(read, dict):
+        raise _fail(f"{src}:read", f"expected a mapping with {list(_READ_KEYS)}, got {read!r}")
+    check_keys(read, _READ_KEYS, f"{src}:read")
+    skip = read.get("skip_rows", 0)
+    if isinstance(skip, bool) or not isinstance(skip, int) or skip < 0:
+        raise _fail(f"{src}:read.skip_rows", f"must be an integer >= 0, got {skip!r}")
     for name, keys in _CHANNEL_KEYS.items():
         ch = data.get(name)
         if ch is None:

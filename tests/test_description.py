@@ -410,15 +410,17 @@ def ros_industrial_urdf(gripper: bool = False) -> str:
     """A UR-style arm: world weld (tilted mount), base_link with 'base' and 'base_link_inertia' frames (rotated by π
     like ROS-Industrial's), a massive sensor frame between two joints, flange and tool0 (with a tool's mass) at the
     tip; optionally a two-finger gripper (two more revolute joints: a branching tree)."""
-    links = ["<link name='world'/>", "<link name='base_link'/>", "<link name='base'/>",
-             f"<link name='base_link_inertia'>{_inertial(4.0, '0 0 0.05', '0 0 0', (0.01, 0.01, 0.008, 0, 0, 0))}</link>",
-             f"<link name='shoulder_link'>{_inertial(3.7, '0 0.01 0', '0 0 0', (0.015, 0.014, 0.01, 0, 0, 0.001))}</link>",
-             f"<link name='upper_arm_link'>{_inertial(8.4, '-0.2 0 0.14', '0 1.5707963 0', (0.13, 0.13, 0.015, 0, 0, 0))}</link>",
-             f"<link name='forearm_link'>{_inertial(2.3, '-0.19 0 0.03', '0.1 0.2 0.3', (0.05, 0.049, 0.004, 0.001, 0, 0))}</link>",
-             f"<link name='ft_sensor'>{_inertial(0.6, '0.01 0 0.02', '0 0 0', (0.0005, 0.0005, 0.0008, 0, 0, 0))}</link>",
-             f"<link name='wrist_1_link'>{_inertial(1.2, '0 0.01 0.02', '0 0 0', (0.002, 0.0018, 0.0015, 0, 0, 0))}</link>",
-             "<link name='flange'/>",
-             f"<link name='tool0'>{_inertial(0.4, '0 0 0.05', '0 0 0', (0.0006, 0.0006, 0.0003, 0, 0, 0))}</link>"]
+    bodies = [("base_link_inertia", 4.0, "0 0 0.05", "0 0 0", (0.01, 0.01, 0.008, 0, 0, 0)),
+              ("shoulder_link", 3.7, "0 0.01 0", "0 0 0", (0.015, 0.014, 0.01, 0, 0, 0.001)),
+              ("upper_arm_link", 8.4, "-0.2 0 0.14", "0 1.5707963 0", (0.13, 0.13, 0.015, 0, 0, 0)),
+              ("forearm_link", 2.3, "-0.19 0 0.03", "0.1 0.2 0.3", (0.05, 0.049, 0.004, 0.001, 0, 0)),
+              ("ft_sensor", 0.6, "0.01 0 0.02", "0 0 0", (0.0005, 0.0005, 0.0008, 0, 0, 0)),
+              ("wrist_1_link", 1.2, "0 0.01 0.02", "0 0 0", (0.002, 0.0018, 0.0015, 0, 0, 0)),
+              ("tool0", 0.4, "0 0 0.05", "0 0 0", (0.0006, 0.0006, 0.0003, 0, 0, 0))]
+    if gripper:
+        bodies += [(f"{side}_finger", 0.05, "0 0 0.02", "0 0 0", (1e-5, 1e-5, 1e-5, 0, 0, 0)) for side in ("l", "r")]
+    links = ["<link name='world'/>", "<link name='base_link'/>", "<link name='base'/>", "<link name='flange'/>"]
+    links += [f"<link name='{name}'>{_inertial(*rest)}</link>" for name, *rest in bodies]
     joints = [_joint("world_joint", "fixed", "world", "base_link", "0.1 -0.2 0.8", "0.05 -0.1 0.3"),
               _joint("base_link-base_fixed_joint", "fixed", "base_link", "base", "0 0 0", "0 0 3.14159265359"),
               _joint("base_link-base_link_inertia", "fixed", "base_link", "base_link_inertia", "0 0 0",
@@ -431,9 +433,7 @@ def ros_industrial_urdf(gripper: bool = False) -> str:
               _joint("wrist_1-flange", "fixed", "wrist_1_link", "flange", "0 0.1 0", "0 0 -1.5707963"),
               _joint("flange-tool0", "fixed", "flange", "tool0", "0 0 0.02", "1.5707963 0 1.5707963")]
     if gripper:
-        for side in ("left", "right"):
-            links.append(f"<link name='{side}_finger'>{_inertial(0.05, '0 0 0.02', '0 0 0', (1e-5, 1e-5, 1e-5, 0, 0, 0))}</link>")
-            joints.append(_joint(f"{side}_finger_joint", "revolute", "tool0", f"{side}_finger", "0 0 0.03"))
+        joints += [_joint(f"{side}_finger_joint", "revolute", "tool0", f"{side}_finger", "0 0 0.03") for side in "lr"]
     return "<?xml version='1.0'?><robot name='ur_like'>" + "".join(links + joints) + "</robot>"
 
 

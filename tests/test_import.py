@@ -128,7 +128,7 @@ def test_tx40_logs_import(tmp_path, capsys):
     assert rec.n_samples == 45000 and rec.rate_hz == pytest.approx(5000.0) and rec.meta["tau_kind"] == "drive"
     # at rest at the end: encoder zero mapped onto the URDF zero (q2 − π/2, q3 + π/2)
     np.testing.assert_allclose(rec.q[-1], 0.0, atol=1e-3)
-    # ranges: every joint moves (≥ 0.5 rad), inside ±4.71 rad; drive torques up to ≈95 N·m on joints 1–2 (README)
+    # ranges: every joint moves (≥ 0.5 rad) inside ±4.71 rad; drive torques up to ≈95 N·m on joints 1–2 (README)
     span = rec.q.max(axis=0) - rec.q.min(axis=0)
     assert np.all(span > 0.5) and np.all(np.abs(rec.q) < 4.72)
     peak = np.abs(rec.tau).max(axis=0)

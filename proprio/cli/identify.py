@@ -79,13 +79,14 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "identify", help="identify the rigid-body backbone (base parameters) from recordings",
         description="Identify base inertial + friction parameters (thesis §4.1) by OLS, weighted LS or a "
-                    "physically consistent SDP; print Table 4.4-style per-joint errors on the training data and on each "
-                    "validation file (one table per file) and save the model (.npz).")
+                    "physically consistent SDP; print Table 4.4-style per-joint errors on the training data and "
+                    "on each validation file (one table per file) and save the model (.npz).")
     p.add_argument("--robot", required=True, help="robot description: built-in name, YAML, URDF or directory "
                                                   "(kinematics + a-priori inertials)")
     p.add_argument("--train", nargs="+", required=True, metavar="REC", help="training recordings (.npz; FloBaRoID "
                                                                             "LWR files accepted)")
-    p.add_argument("--validate", nargs="*", default=[], metavar="REC", help="validation recordings (one error table per file)")
+    p.add_argument("--validate", nargs="*", default=[], metavar="REC",
+                   help="validation recordings (one error table per file)")
     p.add_argument("--method", choices=("ols", "wls", "sdp"), default="ols", help="estimator (default ols)")
     p.add_argument("--out", required=True, help="output model file (.npz)")
     p.add_argument("--trim", type=int, default=100, help="samples dropped at both ends of every recording "
