@@ -4,6 +4,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import re
 from importlib import resources
 from pathlib import Path
@@ -485,7 +486,8 @@ def test_branching_urdf_needs_a_tip_given_in_yaml(tmp_path):
 
 
 def test_tx40_urdf_loads():
-    path = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "staubli_tx40" / "tx40_mdh_modified.urdf"
+    shared = Path(os.environ.get("PROPRIO_SHARED", Path(__file__).resolve().parents[2] / "shared"))
+    path = shared / "data" / "staubli_tx40" / "tx40_mdh_modified.urdf"
     if not path.exists():
         pytest.skip(f"TX40 data not found at {path}")
     desc = load_robot(path)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +15,7 @@ from proprio.importer import LogImportError, import_recording, load_mapping, rea
 from proprio.recording import Recording, load_recording, save_recording
 
 REPO = Path(__file__).resolve().parents[1]
-TX40_DIR = REPO.parent / "shared" / "data" / "staubli_tx40"
+TX40_DIR = Path(os.environ.get("PROPRIO_SHARED", REPO.parent / "shared")) / "data" / "staubli_tx40"
 TX40_MAPPING = REPO / "proprio" / "configs" / "import_tx40.yaml"
 RNG = np.random.default_rng(3)
 Q = RNG.uniform(-1.0, 1.0, (50, 3))                  # joint-side truth [rad]
