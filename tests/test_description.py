@@ -589,6 +589,7 @@ def test_mdh_yaml_keeps_asymmetric_limits_and_friction():
 
 
 @pytest.mark.slow
+@pytest.mark.filterwarnings("ignore::proprio.description.DescriptionWarning")   # asserted once, below
 def test_mdh_arm_with_noisy_published_inertia_runs_twin_identify_diagnose_from_the_cli(tmp_path, monkeypatch, capsys):
     """No Python: an MDH YAML arm (asymmetric limits, friction, one link's inertia with a −1e-8 kg·m² eigenvalue)
     goes through `trajectory rfma`, `simulate`, `identify` (one validation table per file) and `diagnose`."""
