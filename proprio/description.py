@@ -24,10 +24,12 @@ from typing import Any
 import numpy as np
 import yaml
 
+from proprio import typed_yaml
+
 __all__ = [
     "CollisionShape", "Joint", "Link", "EndEffector", "RobotDescription", "DescriptionError", "DescriptionWarning",
     "load_robot", "robot_from_dict", "robot_from_mdh", "robot_from_urdf", "builtin_robots", "rpy_to_matrix",
-    "check_keys", "nearest_key", "matrix_to_rpy",
+    "check_keys", "matrix_to_rpy",
 ]
 
 INERTIA_KEYS = ("ixx", "iyy", "izz", "ixy", "ixz", "iyz")
@@ -241,33 +243,9 @@ def _shape_dict(s: CollisionShape) -> dict[str, Any]:
 def check_keys(d: dict, allowed: tuple[str, ...] | frozenset[str], where: str,
                ignored: tuple[str, ...] | frozenset[str] = ()) -> None:
     """Refuse a key of mapping ``d`` that is neither ``allowed`` nor in the explicit ``ignored`` list (documentation
-    keys a format carries, e.g. ``note``); the error names the key path and the nearest valid key."""
-    for key in d:
-        if key in allowed or key in ignored:
-            continue
-        near = nearest_key(str(key), allowed)
-        hint = f"; did you mean '{near}'?" if near else f" (valid: {', '.join(allowed)})"
-        raise DescriptionError(f"{where}: unknown key '{key}'{hint}")
-
-
-def nearest_key(key: str, valid: tuple[str, ...] | frozenset[str]) -> str | None:
-    """The valid key closest to a misspelt one: fewest edits (insert, delete, substitute, swap two neighbours), then
-    the longest common prefix; None when every valid key needs more edits than a third of its length (at least 2)."""
-    def edits(a: str, b: str) -> int:
-        d = [[i + j if i * j == 0 else 0 for j in range(len(b) + 1)] for i in range(len(a) + 1)]
-        for i in range(1, len(a) + 1):
-            for j in range(1, len(b) + 1):
-                d[i][j] = min(d[i - 1][j] + 1, d[i][j - 1] + 1, d[i - 1][j - 1] + (a[i - 1] != b[j - 1]))
-                if i > 1 and j > 1 and a[i - 1] == b[j - 2] and a[i - 2] == b[j - 1]:
-                    d[i][j] = min(d[i][j], d[i - 2][j - 2] + 1)
-        return d[-1][-1]
-
-    def prefix(a: str, b: str) -> int:
-        return next((k for k, (x, y) in enumerate(zip(a, b)) if x != y), min(len(a), len(b)))
-
-    scored = [(edits(key, v), -prefix(key, v), v) for v in valid]
-    best = min(scored, default=None)
-    return best[2] if best is not None and best[0] <= max(2, len(best[2]) // 3) else None
+    keys a format carries, e.g. ``note``); the error names the key path and the nearest valid key
+    (:func:`proprio.typed_yaml.check_keys`, the one strict-key rule of every YAML the app reads)."""
+    typed_yaml.check_keys({k: v for k, v in d.items() if k not in ignored}, allowed, where, DescriptionError)
 
 
 def _vec(d: dict, key: str, where: str, size: int = 3, default: Any = None) -> tuple[float, ...]:

@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import numbers
+import os
 import types
 import typing
 from pathlib import Path
@@ -41,18 +42,19 @@ class ConfigError(ValueError):
 
 
 def nearest_key(key: str, valid: Iterable[str]) -> str | None:
-    """The valid key nearest ``key``: the closest by :mod:`difflib` (ratio ≥ 0.6), else one that ``key`` abbreviates
-    or extends (``com`` → ``com_flange``), else the closest with ratio ≥ 0.4; ``None`` when nothing is near."""
+    """The valid key nearest ``key``: the closest by :mod:`difflib` ratio (≥ 0.6; a tie goes to the longer common
+    prefix, so ``ixzz`` → ``ixz``), else one that ``key`` abbreviates or extends (``com`` → ``com_flange``), else the
+    closest with ratio ≥ 0.4; ``None`` when nothing is near."""
     valid = sorted(str(v) for v in valid)
     key = str(key)
-    close = difflib.get_close_matches(key, valid, n=1, cutoff=0.6)
-    if close:
-        return close[0]
+    scored = sorted(((difflib.SequenceMatcher(None, key, v).ratio(), len(os.path.commonprefix([key, v])), v)
+                     for v in valid), key=lambda s: (-s[0], -s[1], s[2]))
+    if scored and scored[0][0] >= 0.6:
+        return scored[0][2]
     affix = [v for v in valid if key and (v.startswith(key) or key.startswith(v))]
     if affix:
         return min(affix, key=lambda v: abs(len(v) - len(key)))
-    close = difflib.get_close_matches(key, valid, n=1, cutoff=0.4)
-    return close[0] if close else None
+    return scored[0][2] if scored and scored[0][0] >= 0.4 else None
 
 
 def nearest_hint(key: str, valid: Iterable[str]) -> str:

@@ -174,6 +174,9 @@ def test_every_shipped_config_loads(name):
     elif name.endswith("_excitation.yaml"):
         traj, info = load_shipped_excitation(name[:-5])
         assert traj.a.shape == traj.b.shape and info["cond"] > 0
+    elif name.startswith("import_"):
+        from proprio.importer import load_mapping
+        assert load_mapping(CONFIGS / name).raw["tau_kind"] in ("link_sensor", "drive")
     else:
         pytest.fail(f"{name}: a shipped config no test loads")
 
