@@ -46,7 +46,7 @@ from proprio.recording import Recording, RecordingError
 from proprio.signals import MotionSignals
 
 __all__ = ["ConditioningConfig", "ConditionedSignals", "condition", "zero_phase_lowpass", "auto_cutoff",
-           "uniform_time_base", "clock_stamps", "processing_torque_sigma", "noise_floor_dof"]
+           "uniform_time_base", "gap_steps", "measured_segments", "clock_stamps", "processing_torque_sigma", "noise_floor_dof"]
 
 
 @dataclass(frozen=True)
@@ -206,14 +206,14 @@ def uniform_time_base(t: np.ndarray, max_gap_s: float) -> tuple[np.ndarray, np.n
     whose steps alternate (the twin's "150 Hz" log of 6 and 7 ms steps has a 6.67 ms period, not a median one)."""
     t = np.asarray(t, dtype=float) - float(t[0])
     dt = np.diff(t)
-    h = float(np.mean(dt[dt <= 1.5 * np.median(dt)]))
+    h = _nominal_step(dt)
     notes: list[str] = []
     jitter = float(np.max(np.abs(dt - h)))
     if jitter <= 1e-6 * h + 1e-12:
         return t, np.ones(t.size, dtype=bool), h, notes
     t_u = np.arange(int(np.floor(t[-1] / h + 1e-9)) + 1) * h
     valid = np.ones(t_u.size, dtype=bool)
-    gaps = np.flatnonzero(dt > max(max_gap_s, 1.5 * h))
+    gaps = gap_steps(t, max_gap_s)
     if gaps.size:
         lo = np.searchsorted(t_u, t[gaps], side="right")
         hi = np.searchsorted(t_u, t[gaps + 1], side="left")
@@ -224,6 +224,28 @@ def uniform_time_base(t: np.ndarray, max_gap_s: float) -> tuple[np.ndarray, np.n
         notes.append(f"{gaps.size} gap(s) > {1e3 * max_gap_s:.3g} ms, {int((~valid).sum())} samples flagged")
     notes.append(f"resampled from steps {1e3 * dt.min():.3g}–{1e3 * dt.max():.3g} ms")
     return t_u, valid, h, notes
+
+
+def _nominal_step(dt: np.ndarray) -> float:
+    return float(np.mean(dt[dt <= 1.5 * np.median(dt)]))
+
+
+def gap_steps(t: np.ndarray, max_gap_s: float) -> np.ndarray:
+    """Indices ``k`` of the steps ``t[k] → t[k+1]`` [s] that are gaps of the log (dropouts): longer than
+    ``max(max_gap_s, 1.5 × the nominal step)`` — the rule of :func:`uniform_time_base`."""
+    dt = np.diff(np.asarray(t, dtype=float))
+    if dt.size == 0:
+        return np.zeros(0, dtype=int)
+    return np.flatnonzero(dt > max(max_gap_s, 1.5 * _nominal_step(dt)))
+
+
+def measured_segments(rec: Recording, max_gap_s: float) -> list[tuple[int, int]]:
+    """``[(i0, i1), ...]``: the sample ranges ``rec.t[i0:i1]`` between the gaps of the log (:func:`gap_steps`), in
+    order; one range covering everything when there is no gap. A stage that must not bridge a gap (a replay through
+    the twin, which would otherwise move the arm through motion nobody measured) works on each range alone."""
+    cuts = gap_steps(rec.t, max_gap_s) + 1
+    bounds = np.r_[0, cuts, rec.n_samples]
+    return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
 
 
 def _resample(t: np.ndarray, x: np.ndarray, t_u: np.ndarray) -> np.ndarray:

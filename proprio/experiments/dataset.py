@@ -97,8 +97,8 @@ def dataset_tasks(spec: DatasetSpec) -> tuple[list[Task], dict[str, Any]]:
         raise ValueError(f"dataset: scaffolds must be >= 1, got {spec.scaffolds}")
     if spec.seconds is not None and not spec.seconds > 0:
         raise ValueError(f"dataset: seconds must be > 0, got {spec.seconds}")
-    if any(p < 0 for p in spec.payloads_kg):
-        raise ValueError(f"dataset: payloads must be >= 0 kg, got {list(spec.payloads_kg)}")
+    if not all(np.isfinite(p) and p >= 0 for p in spec.payloads_kg):
+        raise ValueError(f"dataset: payloads must be finite masses >= 0 kg, got {list(spec.payloads_kg)}")
     config = load_twin_config(spec.twin)            # validates here, before any task starts
     if spec.log_rate_hz is not None and not 0 < spec.log_rate_hz <= 1.0 / config.time_step:
         raise ValueError(f"dataset: log rate must be in (0, {1.0 / config.time_step:g}] Hz, got {spec.log_rate_hz}")
