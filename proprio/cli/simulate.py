@@ -86,6 +86,8 @@ def _simulate(args: argparse.Namespace) -> int:
             raise UserError(f"--replay replays the whole recording through the twin as configured (no noise, every "
                             f"step logged): {', '.join(extra)} do not apply")
         return _replay(args, config, base)
+    if args.payload_kg is not None and not (np.isfinite(args.payload_kg) and args.payload_kg >= 0):
+        raise UserError(f"--payload-kg must be a finite mass >= 0 kg, got {args.payload_kg}")
     if args.seed is not None:
         config.seed = args.seed
     if args.log_rate is not None:
@@ -100,8 +102,6 @@ def _simulate(args: argparse.Namespace) -> int:
         traj = truncate_trajectory(traj, args.seconds)
     payload = None
     if args.payload_kg is not None:
-        if not (np.isfinite(args.payload_kg) and args.payload_kg >= 0):
-            raise UserError(f"--payload-kg must be a finite mass >= 0 kg, got {args.payload_kg}")
         payload = Payload(args.payload_kg, tuple(args.payload_com)) if args.payload_kg > 0 else None
     wall0 = time.perf_counter()
     rec = simulate_twin(config, traj, payload=payload, progress=not args.quiet)
