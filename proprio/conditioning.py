@@ -12,8 +12,9 @@ Steps, all vectorised over samples and joints:
    the grid index nearest its stamp (a missing index is a lost sample, filled by the spline). ``auto`` (default)
    takes the one under which ``q`` is smoother: the white floor of ``Δ²q/h²`` (step 2) must drop by at least 20 %
    for ``clock`` (a wrong stamp adds ``q̇·δt`` of noise; a wrong snap does the same). A step longer
-   than ``max_gap_s`` is a *gap* (a dropout): the grid samples inside it are interpolated but flagged invalid
-   (``valid``), and every later stage drops them. Duplicate stamps cannot reach this point: a Recording's time is
+   than ``max_gap_s`` is a *gap* (a dropout): the grid samples inside it are interpolated (``gap``) and flagged
+   invalid (``valid``), and so are the samples within ``edge_cycles`` periods of the lowest cutoff on either side of
+   it — the zero-phase filters of step 3 carry the interpolated fill that far; every later stage drops them. Duplicate stamps cannot reach this point: a Recording's time is
    strictly increasing (:func:`proprio.recording.recording_from_csv` averages duplicated stamps at import).
 2. **Cutoff per joint.** From the config, or ``auto``: the Welch spectrum ``P_q(f)`` of each joint's ``q`` and its
    white-noise floor ``P_0`` (mean over the upper half of the band: encoder noise and quantisation) give the
@@ -105,7 +106,8 @@ class ConditionedSignals:
     """Uniformly sampled, zero-phase conditioned signals of one Recording.
 
     ``t [N]`` s (uniform, from 0), ``q, qd, qdd, tau [N,n]`` (rad, rad/s, rad/s², N·m), ``valid [N]`` (False inside
-    gaps of the original log), ``cutoff_hz [n]``, ``rate_hz``, the estimated white noise of ``q`` (``sigma_q [n]``,
+    gaps of the original log and within the filters' reach of them: the samples every later stage may use), ``gap [N]``
+    (True inside gaps of the log: nothing was measured there; default ``~valid``), ``cutoff_hz [n]``, ``rate_hz``, the estimated white noise of ``q`` (``sigma_q [n]``,
     rad; ``sigma_q_dof``: the χ² degrees of freedom of ``sigma_q²``, :func:`noise_floor_dof`) and the estimated
     errors of the derivatives (``sigma_qd``, ``sigma_qdd [n]``), ``velocity_source``,
     ``tau_gain [n]`` (the factor by which the τ low-pass scales the variance of white noise: compare a noise level
@@ -127,6 +129,11 @@ class ConditionedSignals:
     tau_gain: np.ndarray
     notes: list[str] = field(default_factory=list)
     source: Recording | None = None
+    gap: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.gap is None:
+            self.gap = ~np.asarray(self.valid, dtype=bool)
 
     @property
     def n_samples(self) -> int:
@@ -139,7 +146,8 @@ class ConditionedSignals:
         return ConditionedSignals(self.t[sl], self.q[sl], self.qd[sl], self.qdd[sl], self.tau[sl], self.valid[sl],
                                   self.rate_hz, self.cutoff_hz, self.sigma_q, self.sigma_q_dof, self.sigma_qd,
                                   self.sigma_qdd,
-                                  self.velocity_source, self.auto_cutoff, self.tau_gain, list(self.notes), None)
+                                  self.velocity_source, self.auto_cutoff, self.tau_gain, list(self.notes), None,
+                                  self.gap[sl])
 
     def motion(self, tau: np.ndarray | None = None) -> MotionSignals:
         """The conditioned motion as the effect library's :class:`MotionSignals` (``tau`` defaults to the conditioned
@@ -165,7 +173,7 @@ class ConditionedSignals:
         return {"rate_hz": self.rate_hz, "cutoff_hz": [float(x) for x in self.cutoff_hz],
                 "auto_cutoff": self.auto_cutoff, "velocity_source": self.velocity_source,
                 "sigma_qd": [float(x) for x in self.sigma_qd], "sigma_qdd": [float(x) for x in self.sigma_qdd],
-                "invalid_samples": int((~self.valid).sum()), "notes": list(self.notes), "line": self.describe()}
+                "invalid_samples": int((~self.valid).sum()), "gap_samples": int(self.gap.sum()), "notes": list(self.notes), "line": self.describe()}
 
     def describe(self) -> str:
         """One line for every output: time base, cutoffs (and whether chosen from the noise floor), q̇ source and the
@@ -454,6 +462,14 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
     gains = np.array([_chain_gains(rate, c, config.order, config.edge_cycles) for c in cutoff])     # [n, 3]
     lost_qd = _lost_power(rec.q, rate, cutoff, 1, t_src, config.order) if q.shape[0] >= 64 else np.zeros(n)
     lost_qdd = _lost_power(rec.q, rate, cutoff, 2, t_src, config.order) if q.shape[0] >= 64 else np.zeros(n)
+    gap = ~valid
+    if gap.any():                  # the zero-phase filters spread the gap's interpolated fill over their edge
+        reach = int(np.ceil(config.edge_cycles * rate / float(cutoff.min())))
+        c = np.r_[0, np.cumsum(gap)]                       # gap samples within ±reach of each sample: none
+        i = np.arange(gap.size)
+        valid = c[np.minimum(i + reach + 1, gap.size)] - c[np.maximum(i - reach, 0)] == 0
+        notes.append(f"{int((~valid).sum() - gap.sum())} samples beside the gaps flagged too (the filters' reach, "
+                     f"{reach / rate:.3g} s)")
     sigma_qd = np.sqrt(sigma_q ** 2 * gains[:, 1] + lost_qd ** 2)
     sigma_qdd = np.sqrt(sigma_q ** 2 * gains[:, 2] + lost_qdd ** 2)
     return ConditionedSignals(t=t_u, q=q_f, qd=qd, qdd=qdd, tau=lp(tau) if config.tau_filter else tau, valid=valid,
@@ -462,7 +478,8 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
                               sigma_qd=sigma_qd,
                               sigma_qdd=sigma_qdd, velocity_source=velocity_source,
                               auto_cutoff=config.cutoff_hz == "auto",
-                              tau_gain=gains[:, 0] if config.tau_filter else np.ones(n), notes=notes, source=rec)
+                              tau_gain=gains[:, 0] if config.tau_filter else np.ones(n), notes=notes, source=rec,
+                              gap=gap)
 
 
 def processing_torque_sigma(torque: Any, signals: Sequence[ConditionedSignals], samples: int = 2000,
