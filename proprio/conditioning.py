@@ -463,13 +463,8 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
     lost_qd = _lost_power(rec.q, rate, cutoff, 1, t_src, config.order) if q.shape[0] >= 64 else np.zeros(n)
     lost_qdd = _lost_power(rec.q, rate, cutoff, 2, t_src, config.order) if q.shape[0] >= 64 else np.zeros(n)
     gap = ~valid
-    if gap.any():                  # the zero-phase filters spread the gap's interpolated fill over their edge
-        reach = int(np.ceil(config.edge_cycles * rate / float(cutoff.min())))
-        c = np.r_[0, np.cumsum(gap)]                       # gap samples within ±reach of each sample: none
-        i = np.arange(gap.size)
-        valid = c[np.minimum(i + reach + 1, gap.size)] - c[np.maximum(i - reach, 0)] == 0
-        notes.append(f"{int((~valid).sum() - gap.sum())} samples beside the gaps flagged too (the filters' reach, "
-                     f"{reach / rate:.3g} s)")
+    valid = _settled(gap, rate / float(cutoff.min()), int(np.ceil(config.edge_cycles * rate / float(cutoff.min()))),
+                     notes)
     sigma_qd = np.sqrt(sigma_q ** 2 * gains[:, 1] + lost_qd ** 2)
     sigma_qdd = np.sqrt(sigma_q ** 2 * gains[:, 2] + lost_qdd ** 2)
     return ConditionedSignals(t=t_u, q=q_f, qd=qd, qdd=qdd, tau=lp(tau) if config.tau_filter else tau, valid=valid,
@@ -480,6 +475,27 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
                               auto_cutoff=config.cutoff_hz == "auto",
                               tau_gain=gains[:, 0] if config.tau_filter else np.ones(n), notes=notes, source=rec,
                               gap=gap)
+
+
+def _settled(gap: np.ndarray, period: float, reach: int, notes: list[str]) -> np.ndarray:
+    """``valid [N]``: not in a gap, nor within ``reach`` samples of a gap lasting at least ``period`` samples (one
+    period of the lowest cutoff). Inside a shorter gap the spline follows the band the filters pass, so its fill is
+    as good as a sample; across a longer one it is guesswork, which the zero-phase filters spread ``edge_cycles``
+    periods to either side (module docstring, step 1)."""
+    if not gap.any():
+        return ~gap
+    edges = np.flatnonzero(np.diff(np.r_[0, gap.astype(np.int8), 0]))
+    starts, ends = edges[::2], edges[1::2]                         # gap runs gap[starts[k]:ends[k]]
+    long_ = (ends - starts) >= period
+    if not long_.any():
+        return ~gap
+    mark = np.zeros(gap.size + 1, dtype=int)
+    np.add.at(mark, np.maximum(starts[long_] - reach, 0), 1)
+    np.add.at(mark, np.minimum(ends[long_] + reach, gap.size), -1)
+    valid = ~gap & (np.cumsum(mark[:-1]) == 0)
+    notes.append(f"{int((~valid).sum() - gap.sum())} samples beside {int(long_.sum())} gap(s) longer than a cutoff "
+                 f"period flagged too (the filters' reach, {reach} samples)")
+    return valid
 
 
 def processing_torque_sigma(torque: Any, signals: Sequence[ConditionedSignals], samples: int = 2000,
