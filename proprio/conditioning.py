@@ -13,8 +13,9 @@ Steps, all vectorised over samples and joints:
    takes the one under which ``q`` is smoother: the white floor of ``Δ²q/h²`` (step 2) must drop by at least 20 %
    for ``clock`` (a wrong stamp adds ``q̇·δt`` of noise; a wrong snap does the same). A step longer
    than ``max_gap_s`` is a *gap* (a dropout): the grid samples inside it are interpolated (``gap``) and flagged
-   invalid (``valid``), and so are the samples within ``edge_cycles`` periods of the lowest cutoff on either side of
-   it — the zero-phase filters of step 3 carry the interpolated fill that far; every later stage drops them. Duplicate stamps cannot reach this point: a Recording's time is
+   invalid (``valid``); so are, beside a gap lasting a cutoff period or more (where the fill is guesswork), the
+   samples within ``edge_cycles`` periods of the lowest cutoff — the zero-phase filters of step 3 carry the fill that
+   far. Every later stage drops the invalid samples. Duplicate stamps cannot reach this point: a Recording's time is
    strictly increasing (:func:`proprio.recording.recording_from_csv` averages duplicated stamps at import).
 2. **Cutoff per joint.** From the config, or ``auto``: the Welch spectrum ``P_q(f)`` of each joint's ``q`` and its
    white-noise floor ``P_0`` (mean over the upper half of the band: encoder noise and quantisation) give the
@@ -47,7 +48,8 @@ from proprio.recording import Recording, RecordingError
 from proprio.signals import MotionSignals
 
 __all__ = ["ConditioningConfig", "ConditionedSignals", "condition", "zero_phase_lowpass", "auto_cutoff",
-           "uniform_time_base", "gap_steps", "measured_segments", "clock_stamps", "processing_torque_sigma", "noise_floor_dof"]
+           "uniform_time_base", "gap_steps", "measured_segments", "clock_stamps", "processing_torque_sigma",
+           "noise_floor_dof"]
 
 
 @dataclass(frozen=True)
@@ -106,10 +108,11 @@ class ConditionedSignals:
     """Uniformly sampled, zero-phase conditioned signals of one Recording.
 
     ``t [N]`` s (uniform, from 0), ``q, qd, qdd, tau [N,n]`` (rad, rad/s, rad/s², N·m), ``valid [N]`` (False inside
-    gaps of the original log and within the filters' reach of them: the samples every later stage may use), ``gap [N]``
-    (True inside gaps of the log: nothing was measured there; default ``~valid``), ``cutoff_hz [n]``, ``rate_hz``, the estimated white noise of ``q`` (``sigma_q [n]``,
-    rad; ``sigma_q_dof``: the χ² degrees of freedom of ``sigma_q²``, :func:`noise_floor_dof`) and the estimated
-    errors of the derivatives (``sigma_qd``, ``sigma_qdd [n]``), ``velocity_source``,
+    gaps of the original log and within the filters' reach of a long one: the samples every later stage may use),
+    ``gap [N]`` (True inside gaps of the log: nothing was measured there; default ``~valid``), ``cutoff_hz [n]``,
+    ``rate_hz``, the estimated white noise of ``q`` (``sigma_q [n]``, rad; ``sigma_q_dof``: the χ² degrees of freedom
+    of ``sigma_q²``, :func:`noise_floor_dof`) and the estimated errors of the derivatives (``sigma_qd``,
+    ``sigma_qdd [n]``), ``velocity_source``,
     ``tau_gain [n]`` (the factor by which the τ low-pass scales the variance of white noise: compare a noise level
     with the conditioned τ through it) and ``notes`` (what was done to the time base)."""
     t: np.ndarray
@@ -173,7 +176,8 @@ class ConditionedSignals:
         return {"rate_hz": self.rate_hz, "cutoff_hz": [float(x) for x in self.cutoff_hz],
                 "auto_cutoff": self.auto_cutoff, "velocity_source": self.velocity_source,
                 "sigma_qd": [float(x) for x in self.sigma_qd], "sigma_qdd": [float(x) for x in self.sigma_qdd],
-                "invalid_samples": int((~self.valid).sum()), "gap_samples": int(self.gap.sum()), "notes": list(self.notes), "line": self.describe()}
+                "invalid_samples": int((~self.valid).sum()), "gap_samples": int(self.gap.sum()),
+                "notes": list(self.notes), "line": self.describe()}
 
     def describe(self) -> str:
         """One line for every output: time base, cutoffs (and whether chosen from the noise floor), q̇ source and the

@@ -275,7 +275,7 @@ def _run_locked(tasks: Sequence[Task], state: Path, store: Callable[[Task, Any],
 
 def _worker_init() -> None:
     """A pool worker leaves interrupts to the driver: Ctrl-C (sent to the whole process group) is ignored here, and
-    SIGTERM — from the driver stopping the pool — ends the worker at once (not the driver's handler it inherited)."""
+    SIGTERM — from the driver stopping the pool — ends the worker at once (not the handler it inherited)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
 

@@ -86,7 +86,8 @@ def test_gaps_are_flagged_and_dropouts_interpolated():
     cs = condition(_recording(t2), ConditioningConfig(cutoff_hz=10.0))
     bad, invalid = np.flatnonzero(cs.gap), np.flatnonzero(~cs.valid)
     reach = int(np.ceil(3.0 * cs.rate_hz / 10.0))
-    assert cs.t[bad[0]] == pytest.approx(3.0, abs=2e-3) and bad.size == pytest.approx(1e3 * (t2[3000] - t2[2999]), abs=2)
+    assert cs.t[bad[0]] == pytest.approx(3.0, abs=2e-3)
+    assert bad.size == pytest.approx(1e3 * (t2[3000] - t2[2999]), abs=2)
     assert invalid[0] == bad[0] - reach and invalid[-1] == bad[-1] + reach and invalid.size == bad.size + 2 * reach
 
 
