@@ -42,7 +42,7 @@ import time
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Iterator, Mapping, Sequence
 
 from proprio.io import LOCK_NAME, atomic_write_text, locked_dir
 
@@ -189,7 +189,7 @@ def run_tasks(tasks: Sequence[Task], state_dir: str | Path, store: Callable[[Tas
 
 
 @contextlib.contextmanager
-def sigterm_as_interrupt() -> Any:
+def sigterm_as_interrupt() -> Iterator[None]:
     """While the block runs in the main thread, SIGTERM raises ``KeyboardInterrupt`` (module docstring: shutdown)."""
     if threading.current_thread() is not threading.main_thread():
         yield
