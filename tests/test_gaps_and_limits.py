@@ -124,6 +124,22 @@ def test_replay_synthesises_no_motion_inside_the_hole(holed, tmp_path, capsys):
     assert np.max(np.abs(rep.q - q_meas)) < 0.02
 
 
+def test_identify_and_diagnose_use_no_sample_from_the_hole_or_its_filter_reach(holed):
+    from proprio.conditioning import ConditioningConfig, condition
+    from proprio.diagnosis.data import kept
+    from proprio.identification.recordings import stack_recordings
+
+    rec, _ = holed
+    config = ConditioningConfig(cutoff_hz=10.0)
+    cs = condition(rec, config)
+    reach = 3.0 / 10.0                                                 # edge_cycles periods of the cutoff [s]
+    near = (cs.t > HOLE[0] - reach - 1e-6) & (cs.t < HOLE[1] + reach - 1e-6)
+    (q, _, _, _), _ = stack_recordings([rec], trim=50, config=config)
+    assert q.shape[0] == cs.n_samples - 100 - near.sum()                # identify: every such sample dropped
+    assert not (kept(cs, 0.1) & near).any()                            # diagnose too
+    assert kept(cs, 0.1).sum() == pytest.approx((~near).sum() - 2 * 50, abs=2)
+
+
 def test_timeseries_plot_breaks_its_lines_at_the_hole(tmp_path):
     import shutil
 
