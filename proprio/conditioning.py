@@ -12,8 +12,10 @@ Steps, all vectorised over samples and joints:
    the grid index nearest its stamp (a missing index is a lost sample, filled by the spline). ``auto`` (default)
    takes the one under which ``q`` is smoother: the white floor of ``Δ²q/h²`` (step 2) must drop by at least 20 %
    for ``clock`` (a wrong stamp adds ``q̇·δt`` of noise; a wrong snap does the same). A step longer
-   than ``max_gap_s`` is a *gap* (a dropout): the grid samples inside it are interpolated but flagged invalid
-   (``valid``), and every later stage drops them. Duplicate stamps cannot reach this point: a Recording's time is
+   than ``max_gap_s`` is a *gap* (a dropout): the grid samples inside it are interpolated (``gap``) and flagged
+   invalid (``valid``); so are, beside a gap lasting a cutoff period or more (where the fill is guesswork), the
+   samples within ``edge_cycles`` periods of the lowest cutoff — the zero-phase filters of step 3 carry the fill that
+   far. Every later stage drops the invalid samples. Duplicate stamps cannot reach this point: a Recording's time is
    strictly increasing (:func:`proprio.recording.recording_from_csv` averages duplicated stamps at import).
 2. **Cutoff per joint.** From the config, or ``auto``: the Welch spectrum ``P_q(f)`` of each joint's ``q`` and its
    white-noise floor ``P_0`` (mean over the upper half of the band: encoder noise and quantisation) give the
@@ -46,7 +48,8 @@ from proprio.recording import Recording, RecordingError
 from proprio.signals import MotionSignals
 
 __all__ = ["ConditioningConfig", "ConditionedSignals", "condition", "zero_phase_lowpass", "auto_cutoff",
-           "uniform_time_base", "clock_stamps", "processing_torque_sigma", "noise_floor_dof"]
+           "uniform_time_base", "gap_steps", "measured_segments", "clock_stamps", "processing_torque_sigma",
+           "noise_floor_dof"]
 
 
 @dataclass(frozen=True)
@@ -105,9 +108,11 @@ class ConditionedSignals:
     """Uniformly sampled, zero-phase conditioned signals of one Recording.
 
     ``t [N]`` s (uniform, from 0), ``q, qd, qdd, tau [N,n]`` (rad, rad/s, rad/s², N·m), ``valid [N]`` (False inside
-    gaps of the original log), ``cutoff_hz [n]``, ``rate_hz``, the estimated white noise of ``q`` (``sigma_q [n]``,
-    rad; ``sigma_q_dof``: the χ² degrees of freedom of ``sigma_q²``, :func:`noise_floor_dof`) and the estimated
-    errors of the derivatives (``sigma_qd``, ``sigma_qdd [n]``), ``velocity_source``,
+    gaps of the original log and within the filters' reach of a long one: the samples every later stage may use),
+    ``gap [N]`` (True inside gaps of the log: nothing was measured there; default ``~valid``), ``cutoff_hz [n]``,
+    ``rate_hz``, the estimated white noise of ``q`` (``sigma_q [n]``, rad; ``sigma_q_dof``: the χ² degrees of freedom
+    of ``sigma_q²``, :func:`noise_floor_dof`) and the estimated errors of the derivatives (``sigma_qd``,
+    ``sigma_qdd [n]``), ``velocity_source``,
     ``tau_gain [n]`` (the factor by which the τ low-pass scales the variance of white noise: compare a noise level
     with the conditioned τ through it) and ``notes`` (what was done to the time base)."""
     t: np.ndarray
@@ -127,6 +132,11 @@ class ConditionedSignals:
     tau_gain: np.ndarray
     notes: list[str] = field(default_factory=list)
     source: Recording | None = None
+    gap: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.gap is None:
+            self.gap = ~np.asarray(self.valid, dtype=bool)
 
     @property
     def n_samples(self) -> int:
@@ -139,7 +149,8 @@ class ConditionedSignals:
         return ConditionedSignals(self.t[sl], self.q[sl], self.qd[sl], self.qdd[sl], self.tau[sl], self.valid[sl],
                                   self.rate_hz, self.cutoff_hz, self.sigma_q, self.sigma_q_dof, self.sigma_qd,
                                   self.sigma_qdd,
-                                  self.velocity_source, self.auto_cutoff, self.tau_gain, list(self.notes), None)
+                                  self.velocity_source, self.auto_cutoff, self.tau_gain, list(self.notes), None,
+                                  self.gap[sl])
 
     def motion(self, tau: np.ndarray | None = None) -> MotionSignals:
         """The conditioned motion as the effect library's :class:`MotionSignals` (``tau`` defaults to the conditioned
@@ -165,7 +176,8 @@ class ConditionedSignals:
         return {"rate_hz": self.rate_hz, "cutoff_hz": [float(x) for x in self.cutoff_hz],
                 "auto_cutoff": self.auto_cutoff, "velocity_source": self.velocity_source,
                 "sigma_qd": [float(x) for x in self.sigma_qd], "sigma_qdd": [float(x) for x in self.sigma_qdd],
-                "invalid_samples": int((~self.valid).sum()), "notes": list(self.notes), "line": self.describe()}
+                "invalid_samples": int((~self.valid).sum()), "gap_samples": int(self.gap.sum()),
+                "notes": list(self.notes), "line": self.describe()}
 
     def describe(self) -> str:
         """One line for every output: time base, cutoffs (and whether chosen from the noise floor), q̇ source and the
@@ -206,14 +218,14 @@ def uniform_time_base(t: np.ndarray, max_gap_s: float) -> tuple[np.ndarray, np.n
     whose steps alternate (the twin's "150 Hz" log of 6 and 7 ms steps has a 6.67 ms period, not a median one)."""
     t = np.asarray(t, dtype=float) - float(t[0])
     dt = np.diff(t)
-    h = float(np.mean(dt[dt <= 1.5 * np.median(dt)]))
+    h = _nominal_step(dt)
     notes: list[str] = []
     jitter = float(np.max(np.abs(dt - h)))
     if jitter <= 1e-6 * h + 1e-12:
         return t, np.ones(t.size, dtype=bool), h, notes
     t_u = np.arange(int(np.floor(t[-1] / h + 1e-9)) + 1) * h
     valid = np.ones(t_u.size, dtype=bool)
-    gaps = np.flatnonzero(dt > max(max_gap_s, 1.5 * h))
+    gaps = gap_steps(t, max_gap_s)
     if gaps.size:
         lo = np.searchsorted(t_u, t[gaps], side="right")
         hi = np.searchsorted(t_u, t[gaps + 1], side="left")
@@ -224,6 +236,28 @@ def uniform_time_base(t: np.ndarray, max_gap_s: float) -> tuple[np.ndarray, np.n
         notes.append(f"{gaps.size} gap(s) > {1e3 * max_gap_s:.3g} ms, {int((~valid).sum())} samples flagged")
     notes.append(f"resampled from steps {1e3 * dt.min():.3g}–{1e3 * dt.max():.3g} ms")
     return t_u, valid, h, notes
+
+
+def _nominal_step(dt: np.ndarray) -> float:
+    return float(np.mean(dt[dt <= 1.5 * np.median(dt)]))
+
+
+def gap_steps(t: np.ndarray, max_gap_s: float) -> np.ndarray:
+    """Indices ``k`` of the steps ``t[k] → t[k+1]`` [s] that are gaps of the log (dropouts): longer than
+    ``max(max_gap_s, 1.5 × the nominal step)`` — the rule of :func:`uniform_time_base`."""
+    dt = np.diff(np.asarray(t, dtype=float))
+    if dt.size == 0:
+        return np.zeros(0, dtype=int)
+    return np.flatnonzero(dt > max(max_gap_s, 1.5 * _nominal_step(dt)))
+
+
+def measured_segments(rec: Recording, max_gap_s: float) -> list[tuple[int, int]]:
+    """``[(i0, i1), ...]``: the sample ranges ``rec.t[i0:i1]`` between the gaps of the log (:func:`gap_steps`), in
+    order; one range covering everything when there is no gap. A stage that must not bridge a gap (a replay through
+    the twin, which would otherwise move the arm through motion nobody measured) works on each range alone."""
+    cuts = gap_steps(rec.t, max_gap_s) + 1
+    bounds = np.r_[0, cuts, rec.n_samples]
+    return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
 
 
 def _resample(t: np.ndarray, x: np.ndarray, t_u: np.ndarray) -> np.ndarray:
@@ -432,6 +466,9 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
     gains = np.array([_chain_gains(rate, c, config.order, config.edge_cycles) for c in cutoff])     # [n, 3]
     lost_qd = _lost_power(rec.q, rate, cutoff, 1, t_src, config.order) if q.shape[0] >= 64 else np.zeros(n)
     lost_qdd = _lost_power(rec.q, rate, cutoff, 2, t_src, config.order) if q.shape[0] >= 64 else np.zeros(n)
+    gap = ~valid
+    valid = _settled(gap, rate / float(cutoff.min()), int(np.ceil(config.edge_cycles * rate / float(cutoff.min()))),
+                     notes)
     sigma_qd = np.sqrt(sigma_q ** 2 * gains[:, 1] + lost_qd ** 2)
     sigma_qdd = np.sqrt(sigma_q ** 2 * gains[:, 2] + lost_qdd ** 2)
     return ConditionedSignals(t=t_u, q=q_f, qd=qd, qdd=qdd, tau=lp(tau) if config.tau_filter else tau, valid=valid,
@@ -440,7 +477,29 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
                               sigma_qd=sigma_qd,
                               sigma_qdd=sigma_qdd, velocity_source=velocity_source,
                               auto_cutoff=config.cutoff_hz == "auto",
-                              tau_gain=gains[:, 0] if config.tau_filter else np.ones(n), notes=notes, source=rec)
+                              tau_gain=gains[:, 0] if config.tau_filter else np.ones(n), notes=notes, source=rec,
+                              gap=gap)
+
+
+def _settled(gap: np.ndarray, period: float, reach: int, notes: list[str]) -> np.ndarray:
+    """``valid [N]``: not in a gap, nor within ``reach`` samples of a gap lasting at least ``period`` samples (one
+    period of the lowest cutoff). Inside a shorter gap the spline follows the band the filters pass, so its fill is
+    as good as a sample; across a longer one it is guesswork, which the zero-phase filters spread ``edge_cycles``
+    periods to either side (module docstring, step 1)."""
+    if not gap.any():
+        return ~gap
+    edges = np.flatnonzero(np.diff(np.r_[0, gap.astype(np.int8), 0]))
+    starts, ends = edges[::2], edges[1::2]                         # gap runs gap[starts[k]:ends[k]]
+    long_ = (ends - starts) >= period
+    if not long_.any():
+        return ~gap
+    mark = np.zeros(gap.size + 1, dtype=int)
+    np.add.at(mark, np.maximum(starts[long_] - reach, 0), 1)
+    np.add.at(mark, np.minimum(ends[long_] + reach, gap.size), -1)
+    valid = ~gap & (np.cumsum(mark[:-1]) == 0)
+    notes.append(f"{int((~valid).sum() - gap.sum())} samples beside {int(long_.sum())} gap(s) longer than a cutoff "
+                 f"period flagged too (the filters' reach, {reach} samples)")
+    return valid
 
 
 def processing_torque_sigma(torque: Any, signals: Sequence[ConditionedSignals], samples: int = 2000,

@@ -23,7 +23,12 @@ The checks and their thresholds (:class:`QualityThresholds`, units stated there)
     (:func:`proprio.recording.recording_from_csv`) averages the samples of a duplicated stamp and records the count in
     ``meta["duplicate_stamps"]``; this check reports it. *warning*.
 ``clipping`` (τ, needs a robot)
-    ``|τ| ≥ (1 − clip_margin) × effort limit`` (1 %) in runs of at least ``clip_min_run`` (3) samples. *problem*.
+    ``|τ|`` *at* the effort limit — within ``clip_margin`` (1 %) of it on either side — in runs of at least
+    ``clip_min_run`` (3) samples. *problem*.
+``over_limit`` (τ, needs a robot)
+    ``|τ|`` beyond ``(1 + clip_margin)`` × the effort limit: not clipping (a clipped signal sits at its limit) but a
+    torque the robot is not rated for — a wrong limit in the description, another robot's data or a sensor fault.
+    *warning*. (Beyond :data:`proprio.recording.PLAUSIBLE_LIMIT_FACTOR` × the limit the loader refuses the file.)
 ``flat_top`` (τ)
     Runs of at least ``flat_min_run`` (10) bit-identical samples at a joint's largest or smallest value, entered by a
     step larger than twice τ's quantisation step (a smooth quantised peak creeps in by one step; a saturated
@@ -250,7 +255,7 @@ def _time_base(rec: Recording, cfg: ConditioningConfig, th: QualityThresholds) -
             "problem" if share > th.gap_problem_fraction else "warning", "gap",
             f"t: {gaps.size} gap(s) > {1e3 * limit:.3g} ms (longest {1e3 * dt[gaps].max():.3g} ms, "
             f"{missing:.3g} s = {100 * share:.2g} % missing) at {_times(t, gaps)}; conditioning drops the samples "
-            "inside", "t",
+            "inside and within the filters' reach of them", "t",
             values={"gap_limit_s": limit, "gaps": int(gaps.size), "missing_s": missing, "missing_fraction": share,
                     "gap_start_s": t[gaps[:20]], "gap_length_s": dt[gaps[:20]]}))
     dup = rec.meta.get("duplicate_stamps")
@@ -268,7 +273,9 @@ def _clipping(rec: Recording, names: list[str], robot: RobotDescription | None,
     if robot is None or robot.n != rec.n_joints:
         return []
     lim = robot.effort_limits
-    at = np.abs(rec.tau) >= (1.0 - th.clip_margin) * lim[None, :]
+    mag = np.abs(rec.tau)
+    at = (mag >= (1.0 - th.clip_margin) * lim[None, :]) & (mag <= (1.0 + th.clip_margin) * lim[None, :])
+    out = _over_limit(rec, names, mag, lim, th)
     hit, n_runs, n_samples, first = [], [], [], []
     for j in np.flatnonzero(at.any(axis=0)):
         r = runs(at[:, j], th.clip_min_run)
@@ -278,13 +285,31 @@ def _clipping(rec: Recording, names: list[str], robot: RobotDescription | None,
             n_samples.append(int((r[:, 1] - r[:, 0]).sum()))
             first.append(float(rec.t[r[0, 0]]))
     if not hit:
-        return []
-    return [Finding(
+        return out
+    return out + [Finding(
         "problem", "clipping",
         f"τ {_which(names, hit)}: at the effort limit (±{', ±'.join(_g(lim[j]) for j in hit)} N·m, within "
         f"{100 * th.clip_margin:g} %) in {sum(n_runs)} run(s) of ≥ {th.clip_min_run} samples ({sum(n_samples)} "
         f"samples), first at t = {min(first):.3f} s", "tau", tuple(names[j] for j in hit),
         {"effort_limit_nm": [float(lim[j]) for j in hit], "runs": n_runs, "samples": n_samples, "first_t_s": first})]
+
+
+def _over_limit(rec: Recording, names: list[str], mag: np.ndarray, lim: np.ndarray,
+                th: QualityThresholds) -> list[Finding]:
+    over = mag > (1.0 + th.clip_margin) * lim[None, :]
+    hit = np.flatnonzero(over.any(axis=0))
+    if not hit.size:
+        return []
+    ratio = (mag / lim[None, :]).max(axis=0)
+    first = float(rec.t[int(np.argmax(over.any(axis=1)))])
+    return [Finding(
+        "warning", "over_limit",
+        f"τ {_which(names, hit)}: {int(over.sum())} sample(s) beyond the effort limit (up to "
+        f"{', '.join(f'{ratio[j]:.3g}×' for j in hit)} of ±{', ±'.join(_g(lim[j]) for j in hit)} N·m), first at "
+        f"t = {first:.3f} s — not clipping (a clipped signal sits at its limit): a wrong limit in the robot "
+        "description, another robot's data or a sensor fault?", "tau", tuple(names[j] for j in hit),
+        {"effort_limit_nm": [float(lim[j]) for j in hit], "max_ratio": [float(ratio[j]) for j in hit],
+         "samples": [int(over[:, j].sum()) for j in hit], "first_t_s": first})]
 
 
 def _flat_top(rec: Recording, names: list[str], th: QualityThresholds) -> list[Finding]:

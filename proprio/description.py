@@ -275,8 +275,8 @@ def _num(d: dict, key: str, where: str, default: float | None = None, positive: 
         x = float(d[key])
     except (TypeError, ValueError) as exc:
         raise DescriptionError(f"{where}.{key}: expected a number, got {d[key]!r}") from exc
-    if math.isnan(x):
-        raise DescriptionError(f"{where}.{key}: NaN")
+    if not math.isfinite(x):
+        raise DescriptionError(f"{where}.{key}: must be a finite number, got {x}")
     if positive and not x > 0:
         raise DescriptionError(f"{where}.{key}: must be > 0, got {x}")
     if nonneg and x < 0:

@@ -13,6 +13,11 @@ A Recording holds a joint-space time series of one arm:
 On disk it is an ``.npz`` (``allow_pickle=False``) with keys ``t, q, tau[, qd, qdd, f_ext]``, ``truth__<name>`` and
 ``meta`` (a JSON string). CSV import (:func:`recording_from_csv`) and the real KUKA LWR 4+ files
 (:func:`load_lwr4`) are converted at the boundary.
+
+Plausibility (with a robot): a measured ``|τ|`` or ``|q̇|`` beyond :data:`PLAUSIBLE_LIMIT_FACTOR` times the robot's
+effort or velocity limit is no reading of that robot (a wrong unit, a corrupt file, a sensor fault) and is refused by
+the loader, naming the channel, joint and sample, before any stage runs; between the limit and that factor the data
+are kept and ``proprio inspect`` reports them (``over_limit``), and values sitting *at* the limit are clipping.
 """
 from __future__ import annotations
 
@@ -30,7 +35,8 @@ from proprio.description import RobotDescription
 from proprio.io import atomic_path
 
 __all__ = ["Recording", "RecordingError", "save_recording", "load_recording", "validate_recording",
-           "recording_from_csv", "merge_duplicate_stamps", "load_lwr4", "is_lwr4_file", "LWR4_KEYS"]
+           "recording_from_csv", "merge_duplicate_stamps", "load_lwr4", "is_lwr4_file", "LWR4_KEYS",
+           "check_plausible", "PLAUSIBLE_LIMIT_FACTOR"]
 
 TRUTH_PREFIX = "truth__"
 LWR4_KEYS = frozenset({"times", "positions", "torques"})   # FloBaRoID's measurement layout
@@ -38,6 +44,9 @@ _OPTIONAL = ("qd", "qdd", "f_ext")
 TEXT_LOG_SUFFIXES = (".csv", ".txt", ".tsv", ".dat")
 IMPORT_HINT = ("convert it with `proprio import MAPPING.yaml --out REC.npz` (a mapping says which columns are q, τ, "
                "units, gear ratios; example: proprio/configs/import_tx40.yaml)")
+PLAUSIBLE_LIMIT_FACTOR = 3.0
+"""Measured ``|τ|`` / ``|q̇|`` above this multiple of the robot's effort / velocity limit are refused (module
+docstring): a drive's peak torque may exceed its rated limit, but not several times over."""
 
 
 class RecordingError(ValueError):
@@ -162,6 +171,7 @@ def validate_recording(rec: Recording, robot: RobotDescription | None = None, so
             i, j = (int(x) for x in np.argwhere(viol)[0])
             raise RecordingError(f"{source}: 'q' joint {j} ({robot.joint_names[j]}) = {q[i, j]:.4f} rad at sample {i} "
                                  f"is outside the limits [{robot.lower[j]:.4f}, {robot.upper[j]:.4f}] rad")
+        check_plausible(tau, opt["qd"], robot, source)
     if not isinstance(rec.meta, dict):
         raise RecordingError(f"{source}: 'meta' must be a dict")
     try:  # normalise to what JSON round-trips exactly (tuples -> lists); NaN/inf and odd keys are errors
@@ -171,6 +181,26 @@ def validate_recording(rec: Recording, robot: RobotDescription | None = None, so
     if any(not isinstance(k, str) for k in rec.meta):
         raise RecordingError(f"{source}: 'meta' keys must be strings")
     return Recording(t=t, q=q, tau=tau, truth=truth, meta=meta, **opt)
+
+
+def check_plausible(tau: np.ndarray, qd: np.ndarray | None, robot: RobotDescription,
+                    source: str = "recording") -> None:
+    """Refuse measured torques ``tau [N,n]`` N·m or velocities ``qd [N,n]`` rad/s beyond
+    :data:`PLAUSIBLE_LIMIT_FACTOR` × ``robot``'s effort / velocity limits (module docstring); raises
+    :class:`RecordingError` naming the channel, the joint, the first offending sample and the limit."""
+    for name, x, lim, unit, kind in (("tau", tau, robot.effort_limits, "N·m", "effort"),
+                                     ("qd", qd, robot.velocity_limits, "rad/s", "velocity")):
+        if x is None:
+            continue
+        ratio = np.abs(x) / lim[None, :]
+        bad = ratio > PLAUSIBLE_LIMIT_FACTOR
+        if bad.any():
+            i, j = (int(v) for v in np.argwhere(bad)[0])
+            raise RecordingError(
+                f"{source}: '{name}' joint {j} ({robot.joint_names[j]}) = {x[i, j]:.4g} {unit} at sample {i} is "
+                f"{ratio[i, j]:.3g}× its {kind} limit {lim[j]:.4g} {unit} ({int(bad.sum())} such value(s)); more "
+                f"than {PLAUSIBLE_LIMIT_FACTOR:g}× is no measurement of robot '{robot.name}' (wrong unit, corrupt "
+                "file or sensor fault?)")
 
 
 def save_recording(rec: Recording, path: str | Path) -> Path:

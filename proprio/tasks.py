@@ -18,23 +18,36 @@ Recording, a model file) and returns a JSON-able record, which goes atomically (
 same config (resume after a kill or a failure); a task that raises is reported with its config and traceback
 (``state_dir/<key>.failed.json``, :attr:`TaskRun.failures`) while the others' results are kept. One tqdm bar counts
 the tasks of the whole job. Ray is imported only when the ``ray`` backend is used (``pip install 'proprio[ray]'``).
+
+One run at a time per ``state_dir``: :func:`run_tasks` holds its lock (:func:`proprio.io.locked_dir`), so a second
+run into the same directory is refused (:class:`~proprio.io.DirectoryLocked`) instead of racing the first for the
+same files; under the lock it first deletes the temporary files a killed run left there.
+
+Shutdown: SIGTERM is handled like Ctrl-C (SIGINT) while :func:`run_tasks` runs in the main thread — it raises
+``KeyboardInterrupt`` in the driver, so every ``finally`` runs: a half-written file is deleted
+(:func:`proprio.io.atomic_path`), the local pool's worker processes are terminated (they ignore SIGINT themselves;
+the driver stops them, whatever task they are in) and a Ray instance started here is shut down. No worker process
+outlives the driver, and a rerun resumes from the tasks that were stored.
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
 import re
+import signal
+import threading
 import time
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Iterator, Mapping, Sequence
 
-from proprio.io import atomic_write_text
+from proprio.io import LOCK_NAME, atomic_write_text, locked_dir
 
 __all__ = ["Task", "Shared", "TaskFailure", "TaskRun", "run_tasks", "runtime_env", "import_ray", "init_ray", "BACKENDS",
-           "RayMissingError"]
+           "RayMissingError", "sigterm_as_interrupt"]
 
 BACKENDS = ("local", "ray")
 _FORMAT = "proprio-task/v1"
@@ -168,7 +181,34 @@ def run_tasks(tasks: Sequence[Task], state_dir: str | Path, store: Callable[[Tas
         raise ValueError(f"task keys must be unique; repeated: {dup}")
     store = store or (lambda task, result: result)
     state = Path(state_dir)
-    state.mkdir(parents=True, exist_ok=True)
+    with sigterm_as_interrupt(), locked_dir(state):
+        for stale in state.glob(".*"):                  # temporaries of a killed run (only ours live here)
+            if stale.name != LOCK_NAME and stale.is_file():
+                stale.unlink(missing_ok=True)
+        return _run_locked(tasks, state, store, backend, address, workers, progress, desc, env, kept)
+
+
+@contextlib.contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """While the block runs in the main thread, SIGTERM raises ``KeyboardInterrupt`` (module docstring: shutdown)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _run_locked(tasks: Sequence[Task], state: Path, store: Callable[[Task, Any], Any], backend: str,
+                address: str | None, workers: int | None, progress: bool, desc: str, env: Mapping[str, Any] | None,
+                kept: Callable[[Task, Any], bool] | None) -> TaskRun:
+    keys = [t.key for t in tasks]
     t0 = time.perf_counter()
     records: dict[str, Any] = {}
     configs = {t.key: _jsonable(t.config) for t in tasks}
@@ -233,14 +273,36 @@ def run_tasks(tasks: Sequence[Task], state_dir: str | Path, store: Callable[[Tas
     return TaskRun(records, executed, skipped, failures, time.perf_counter() - t0, backend, n)
 
 
+def _worker_init() -> None:
+    """A pool worker leaves interrupts to the driver: Ctrl-C (sent to the whole process group) is ignored here, and
+    SIGTERM — from the driver stopping the pool — ends the worker at once (not the handler it inherited)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
 def _run_pool(todo: list[Task], finish: Callable[..., None], workers: int) -> int:
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    with ProcessPoolExecutor(max_workers=workers) as pool:
+    pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_init)
+    try:
         futs = {pool.submit(_call, t.fn, **t.kwargs): t for t in todo}
         for fut in as_completed(futs):
             exc = fut.exception()
             finish(futs[fut], None if exc else fut.result(), exc)
+    except BaseException:
+        # interrupted (Ctrl-C, SIGTERM) or the driver failed: stop the workers in whatever task they are in.
+        # ProcessPoolExecutor has no public way to stop running tasks; its worker processes are ``_processes``.
+        procs = list((getattr(pool, "_processes", None) or {}).values())
+        pool.shutdown(wait=False, cancel_futures=True)
+        for p in procs:
+            p.terminate()
+        for p in procs:
+            p.join(5.0)
+            if p.is_alive():
+                p.kill()
+                p.join()
+        raise
+    pool.shutdown()
     return workers
 
 

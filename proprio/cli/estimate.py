@@ -70,8 +70,12 @@ def run_estimate(args: argparse.Namespace) -> int:
     written = res.save(out) + [res.plot(out / "wrench.png", title=title)]
     if "line" in res.meta.get("conditioning", {}):
         print(res.meta["conditioning"]["line"])
-    print(f"{res.t.size} samples, {res.unreliable.sum()} flagged unreliable (near a singularity)")
-    if res.f_true is not None:
+    gaps = f", {res.gap.sum()} inside gaps of the log (no estimate: NaN)" if res.gap.any() else ""
+    print(f"{res.t.size} samples{gaps}, {res.unreliable.sum()} flagged unreliable (near a singularity); statistics "
+          f"over the {res.valid().sum()} valid ones")
+    if res.f_true is not None and not res.valid().any():
+        print("no force statistics: no sample is clear of the transients at the ends and around the gaps")
+    elif res.f_true is not None:
         print(f"{'observer':<10} {'RMSE [fx fy fz] N':<28} {'σ [fx fy fz] N'}")
         for obs in OBSERVERS:
             rmse, std = res.force_stats(obs)

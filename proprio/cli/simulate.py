@@ -55,6 +55,10 @@ def _replay(args: argparse.Namespace, config: "TwinConfig", base: "TwinConfig | 
         raise UserError(f"--replay {path}: {exc}") from exc
     save_recording(gap.recordings[0], args.out)
     print(f"replayed {path} ({rec.duration:.1f} s) through {config.name} (no twin noise) -> {args.out}")
+    segments = gap.recordings[0].meta.get("segments_s", [])
+    if len(segments) > 1:
+        print(f"the log has gaps: {len(segments)} measured stretches replayed one by one, nothing in between ("
+              + ", ".join(f"{a:.3f}–{b:.3f} s" for a, b in segments) + ")")
     print(gap.text())
     print(gap.table())
     return 0
@@ -82,6 +86,8 @@ def _simulate(args: argparse.Namespace) -> int:
             raise UserError(f"--replay replays the whole recording through the twin as configured (no noise, every "
                             f"step logged): {', '.join(extra)} do not apply")
         return _replay(args, config, base)
+    if args.payload_kg is not None and not (np.isfinite(args.payload_kg) and args.payload_kg >= 0):
+        raise UserError(f"--payload-kg must be a finite mass >= 0 kg, got {args.payload_kg}")
     if args.seed is not None:
         config.seed = args.seed
     if args.log_rate is not None:
@@ -96,8 +102,6 @@ def _simulate(args: argparse.Namespace) -> int:
         traj = truncate_trajectory(traj, args.seconds)
     payload = None
     if args.payload_kg is not None:
-        if args.payload_kg < 0:
-            raise UserError(f"--payload-kg must be >= 0, got {args.payload_kg}")
         payload = Payload(args.payload_kg, tuple(args.payload_com)) if args.payload_kg > 0 else None
     wall0 = time.perf_counter()
     rec = simulate_twin(config, traj, payload=payload, progress=not args.quiet)

@@ -10,6 +10,13 @@ base twin with a diagnosis' patch), compared with the measured torque.
 * **Noise.** The twin's τ is compared without its noise: the replay drops the ``torque_noise`` and
   ``encoder_noise`` effects and logs at its own step, exact stamps, nothing lost. What remains of the gap is then the
   data's own noise plus whatever the twin still lacks.
+* **Log gaps.** A recording is replayed piece by piece: each stretch between two gaps of its log (dropouts longer
+  than the conditioning's ``max_gap_s``, :func:`proprio.conditioning.measured_segments`) is conditioned and replayed
+  on its own, the twin starting on that stretch's trajectory. A replay never bridges a gap — that would move the twin
+  through motion nobody measured and compare it with torques nobody measured. The replayed Recording holds the
+  stretches on the recording's clock with the gaps left empty (``meta.segments_s``). Splitting rather than refusing:
+  a dropout is common in a real log and the stretches around it are as good as any; only stretches no longer than
+  ``2 · trim_s`` (nothing left to score) are skipped, and a recording with none left is refused.
 * **Gap.** ``RMS(τ_meas − τ_twin)`` per joint on the same samples the diagnosis scores (the conditioned time base,
   ``trim_s`` dropped at both ends, no log gaps), τ_twin linearly interpolated onto those instants; ``τ_meas`` is the
   conditioned measured torque of the diagnosis' conditioning (raw τ on the uniform time base).
@@ -22,7 +29,7 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from proprio.conditioning import ConditionedSignals, ConditioningConfig
+from proprio.conditioning import ConditionedSignals, ConditioningConfig, measured_segments
 from proprio.description import RobotDescription
 from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, NOISE_EFFECTS, DiagnosisError, condition_all, kept,
                                     session_time)
@@ -166,13 +173,51 @@ def replay_gap(patched: TwinConfig, holdout: Sequence[Recording], base: TwinConf
         if r.n_joints != patched.robot.n:
             raise DiagnosisError(f"replay: held-out recording {k} has {r.n_joints} joints, the twin's robot "
                                  f"'{patched.robot.name}' has {patched.robot.n}")
-    cond = condition_all(holdout, conditioning, "holdout")
-    # each recording at its own session time, so a time-varying effect of the patch acts as when it was recorded
-    sessions = [session_time(r, f"held-out recording {k}") for k, r in enumerate(holdout)]
-    after_recs = [replay_recording(patched.with_session_time(t0), cs, progress) for cs, t0 in zip(cond, sessions)]
+    pieces, offsets, owner = [], [], []
+    for k, r in enumerate(holdout):
+        kept_ranges = [(a, b) for a, b in measured_segments(r, conditioning.max_gap_s)
+                       if r.t[b - 1] - r.t[a] > 2 * trim_s]
+        if not kept_ranges:
+            raise DiagnosisError(f"replay: held-out recording {k} has no stretch between the gaps of its log longer "
+                                 f"than 2 × trim = {2 * trim_s:g} s; nothing measured to replay")
+        for a, b in kept_ranges:
+            pieces.append(r.slice(a, b))
+            offsets.append(float(r.t[a] - r.t[0]))
+            owner.append(k)
+    cond = condition_all(pieces, conditioning, "holdout")
+    # each piece at its own session time, so a time-varying effect of the patch acts as when it was recorded
+    sessions = [session_time(holdout[k], f"held-out recording {k}") + off for k, off in zip(owner, offsets)]
+    after_pieces = [_shifted(replay_recording(patched.with_session_time(t0), cs, progress), off)
+                    for cs, t0, off in zip(cond, sessions, offsets)]
     before = None
     if base is not None:
-        before = twin_gap([replay_recording(base.with_session_time(t0), cs, progress)
-                           for cs, t0 in zip(cond, sessions)], cond, trim_s)
+        before = twin_gap([_shifted(replay_recording(base.with_session_time(t0), cs, progress), off)
+                           for cs, t0, off in zip(cond, sessions, offsets)], _shifted_signals(cond, offsets), trim_s)
     pb, pa = offline_prediction(att) if att is not None else (None, None)
-    return ReplayGap(patched.robot.joint_names, before, twin_gap(after_recs, cond, trim_s), pb, pa, after_recs)
+    after_recs = [_joined([p for p, o in zip(after_pieces, owner) if o == k]) for k in range(len(holdout))]
+    return ReplayGap(patched.robot.joint_names, before, twin_gap(after_pieces, _shifted_signals(cond, offsets), trim_s),
+                     pb, pa, after_recs)
+
+
+def _shifted(rec: Recording, offset_s: float) -> Recording:
+    """``rec`` with its time moved by ``offset_s`` [s] (a piece back onto its recording's clock)."""
+    return dataclasses.replace(rec, t=rec.t + offset_s)
+
+
+def _shifted_signals(cond: Sequence[ConditionedSignals], offsets: Sequence[float]) -> list[ConditionedSignals]:
+    return [dataclasses.replace(cs, t=cs.t + off) for cs, off in zip(cond, offsets)]
+
+
+def _joined(pieces: Sequence[Recording]) -> Recording:
+    """The replayed pieces of one recording as one Recording on its clock, the gaps between them left empty
+    (``meta.segments_s``: ``[start, end]`` [s] of each piece)."""
+    if len(pieces) == 1:
+        rec = pieces[0]
+        return dataclasses.replace(rec, meta={**rec.meta, "segments_s": [[float(rec.t[0]), float(rec.t[-1])]]})
+    cat = lambda name: None if getattr(pieces[0], name) is None else np.concatenate(  # noqa: E731
+        [getattr(p, name) for p in pieces])
+    truth = {k: np.concatenate([p.truth[k] for p in pieces]) for k in pieces[0].truth
+             if all(k in p.truth for p in pieces)}
+    meta = {**pieces[0].meta, "segments_s": [[float(p.t[0]), float(p.t[-1])] for p in pieces]}
+    return Recording(t=cat("t"), q=cat("q"), tau=cat("tau"), qd=cat("qd"), qdd=cat("qdd"), f_ext=cat("f_ext"),
+                     truth=truth, meta=meta)

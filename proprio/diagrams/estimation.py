@@ -381,6 +381,11 @@ class EstimationResult:
     ``manipulability [N]`` and ``unreliable [N]`` (bool) of the Jacobian mapping; ``f_true`` the Recording's true
     wrench or None. :meth:`force_stats` skips ``skip_start_s`` at the start (the momentum observer's transient 5/K_O
     and the filters' edge) and ``skip_end_s`` at the end (the zero-phase filters' edge).
+
+    ``gap [N]`` (bool): grid samples inside a gap of the log (a dropout longer than the conditioning's ``max_gap_s``,
+    :func:`proprio.conditioning.uniform_time_base`). Nothing was measured there, so every per-sample value at those
+    samples (``q``, wrenches, ``tau_ext``, ``manipulability``, ``f_true``) is NaN — never an estimate from
+    interpolated signals — and :meth:`valid` also drops the transients around each gap, as at the ends.
     """
     t: np.ndarray
     q: np.ndarray
@@ -392,11 +397,30 @@ class EstimationResult:
     skip_start_s: float
     skip_end_s: float
     meta: dict[str, Any] = field(default_factory=dict)
+    gap: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        self.gap = np.zeros(self.t.shape, dtype=bool) if self.gap is None else np.asarray(self.gap, dtype=bool)
+        if self.gap.shape != self.t.shape:
+            raise ValueError(f"EstimationResult: 'gap' has shape {list(self.gap.shape)}, expected [{self.t.size}]")
+        if self.gap.any():                       # nothing was measured there: no value (module rule, no invention)
+            blank = lambda a: None if a is None else np.where(  # noqa: E731
+                self.gap.reshape((-1,) + (1,) * (np.ndim(a) - 1)), np.nan, a)
+            self.q, self.manipulability, self.f_true = blank(self.q), blank(self.manipulability), blank(self.f_true)
+            self.wrench = {k: blank(v) for k, v in self.wrench.items()}
+            self.tau_ext = {k: blank(v) for k, v in self.tau_ext.items()}
+            self.unreliable = np.asarray(self.unreliable, dtype=bool) & ~self.gap
 
     def valid(self) -> np.ndarray:
-        """Samples used for statistics: away from the start-up and edge transients and not flagged unreliable."""
-        return ((self.t >= self.t[0] + self.skip_start_s) & (self.t <= self.t[-1] - self.skip_end_s)
-                & ~self.unreliable)
+        """Samples used for statistics: measured (not in a gap of the log), away from the start-up and edge
+        transients — at both ends and on both sides of every gap — and not flagged unreliable."""
+        t = self.t
+        ok = (t >= t[0] + self.skip_start_s) & (t <= t[-1] - self.skip_end_s) & ~self.unreliable & ~self.gap
+        if self.gap.any():
+            last_gap = np.maximum.accumulate(np.where(self.gap, t, -np.inf))          # latest gap sample ≤ t
+            next_gap = np.minimum.accumulate(np.where(self.gap, t, np.inf)[::-1])[::-1]  # earliest gap sample ≥ t
+            ok &= (t - last_gap >= self.skip_start_s) & (next_gap - t >= self.skip_end_s)
+        return ok
 
     def force_stats(self, observer: str) -> tuple[np.ndarray, np.ndarray]:
         """RMSE ``[3]`` and standard deviation ``[3]`` [N] of the force error f̂ − f_true per axis (Table 5.4)."""
@@ -404,14 +428,16 @@ class EstimationResult:
             raise ValueError("force_stats: the recording has no true wrench 'f_ext'")
         mask = self.valid()
         if not mask.any():
-            raise ValueError("force_stats: no valid samples (all within the start-up transient or unreliable)")
+            raise ValueError("force_stats: no valid samples (all within the start-up transient, a gap of the log or "
+                             "unreliable)")
         err = self.wrench[observer][mask, :3] - self.f_true[mask, :3]
         return np.sqrt(np.mean(err ** 2, axis=0)), np.std(err, axis=0)
 
     def arrays(self) -> dict[str, np.ndarray]:
         """Flat ``name → array`` view for npz export (read back by :meth:`load`)."""
         out = {"t": self.t, "q": self.q, "manipulability": self.manipulability,
-               "unreliable": self.unreliable.astype(float), "skip_s": np.array([self.skip_start_s, self.skip_end_s])}
+               "unreliable": self.unreliable.astype(float), "skip_s": np.array([self.skip_start_s, self.skip_end_s]),
+               "gap": self.gap, "valid": self.valid()}
         for obs in OBSERVERS:
             out[f"wrench_{obs}"] = self.wrench[obs]
             out[f"tau_ext_{obs}"] = self.tau_ext[obs]
@@ -420,7 +446,8 @@ class EstimationResult:
         return out
 
     def save(self, out_dir: str | Path, stem: str = "estimates") -> list[Path]:
-        """Write ``<stem>.npz`` (all arrays + ``meta`` JSON) and ``<stem>.csv`` (t, wrenches, flags) atomically."""
+        """Write ``<stem>.npz`` (all arrays + ``meta`` JSON) and ``<stem>.csv`` (t, wrenches, flags) atomically; rows
+        inside a gap of the log hold NaN, and the ``valid`` channel (1/0) marks the samples statistics use."""
         out_dir = Path(out_dir)
         npz, csv = out_dir / f"{stem}.npz", out_dir / f"{stem}.csv"
         with atomic_path(npz) as tmp:
@@ -430,7 +457,8 @@ class EstimationResult:
         sources = [(obs, self.wrench[obs]) for obs in OBSERVERS] + ([("true", self.f_true)] if self.f_true is not
                                                                     None else [])
         columns += [(f"{a}_{name}", w[:, i]) for name, w in sources for i, a in enumerate(axes)]
-        columns += [("manipulability", self.manipulability), ("unreliable", self.unreliable.astype(float))]
+        columns += [("manipulability", self.manipulability), ("unreliable", self.unreliable.astype(float)),
+                    ("valid", self.valid().astype(float))]
         table = np.column_stack([c for _, c in columns])
         with atomic_path(csv) as tmp:
             np.savetxt(tmp, table, delimiter=",", header=",".join(n for n, _ in columns), comments="", fmt="%.9g")
@@ -456,7 +484,7 @@ class EstimationResult:
                    tau_ext={o: data[f"tau_ext_{o}"] for o in OBSERVERS}, manipulability=data["manipulability"],
                    unreliable=data["unreliable"] > 0.5, f_true=data.get("f_true"),
                    skip_start_s=float(data["skip_s"][0]), skip_end_s=float(data["skip_s"][1]),
-                   meta=json.loads(str(data["meta"])))
+                   meta=json.loads(str(data["meta"])), gap=data.get("gap"))
 
     def plot(self, path: str | Path, title: str = "") -> Path:
         """PNG of f̂ (both observers) against the true force per axis over time, flagged samples shaded."""
@@ -470,6 +498,9 @@ class EstimationResult:
                 ax.plot(self.t, self.f_true[:, i], "k", lw=1.5, label="true")
             for obs, style in zip(OBSERVERS, ("C0", "C1")):
                 ax.plot(self.t, self.wrench[obs][:, i], style, lw=0.8, label=obs)
+            if self.gap.any():
+                ax.fill_between(self.t, 0, 1, where=self.gap, transform=ax.get_xaxis_transform(),
+                                color="k", alpha=0.12, label="gap in the log (no data)")
             if self.unreliable.any():
                 ax.fill_between(self.t, 0, 1, where=self.unreliable, transform=ax.get_xaxis_transform(),
                                 color="r", alpha=0.15, label="unreliable")
@@ -486,10 +517,12 @@ class EstimationResult:
 
 def conditioned_signals(rec: Recording, conditioning: ConditioningConfig = ConditioningConfig()
                         ) -> tuple[Recording, dict[str, np.ndarray], float]:
-    """The Recording on its uniform grid, the replayed signals ``t, q, qd, qdd, tau`` (+ ``time_step``) of the one
-    conditioning path (:func:`proprio.conditioning.condition`) and the filters' edge transient [s]."""
+    """The Recording on its uniform grid, the replayed signals ``t, q, qd, qdd, tau`` (+ ``time_step``, and ``gap``:
+    the grid samples inside gaps of the log) of the one conditioning path (:func:`proprio.conditioning.condition`)
+    and the filters' edge transient [s]."""
     cs = condition(rec, conditioning)
-    sig = {"t": cs.t, "q": cs.q, "qd": cs.qd, "qdd": cs.qdd, "tau": cs.tau, "time_step": 1.0 / cs.rate_hz}
+    sig = {"t": cs.t, "q": cs.q, "qd": cs.qd, "qdd": cs.qdd, "tau": cs.tau, "time_step": 1.0 / cs.rate_hz,
+           "gap": cs.gap}
     return cs.as_recording(), sig, conditioning.edge_cycles / float(cs.cutoff_hz.min())
 
 
@@ -537,7 +570,7 @@ def estimate_wrench(model: TorqueModel | RobotDescription, rec: Recording, gain:
         tau_ext={o: logs[f"{o}.tau_ext"] for o in OBSERVERS},
         manipulability=logs["manipulability"], unreliable=logs["unreliable"] > 0.5,
         f_true=None if rec.f_ext is None else rec.f_ext.copy(), **_skips(gain, edge_s),
-        meta=_meta(model, rec, gain, mapping, conditioning, "diagram"))
+        meta=_meta(model, rec, gain, mapping, conditioning, "diagram"), gap=sig.get("gap"))
 
 
 def estimate_wrench_offline(model: TorqueModel | RobotDescription, rec: Recording,
@@ -560,4 +593,4 @@ def estimate_wrench_offline(model: TorqueModel | RobotDescription, rec: Recordin
         t=rec.t.copy(), q=q, wrench={"jacobian": w_jac, "momentum": w_mom}, tau_ext={"jacobian": tau_dyn - tau,
                                                                                  "momentum": r},
         manipulability=manip, unreliable=flag, f_true=None if rec.f_ext is None else rec.f_ext.copy(),
-        **_skips(gain, edge_s), meta=_meta(model, rec, gain, mapping, conditioning, "offline"))
+        **_skips(gain, edge_s), meta=_meta(model, rec, gain, mapping, conditioning, "offline"), gap=sig.get("gap"))

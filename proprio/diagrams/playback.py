@@ -23,6 +23,11 @@ Frames (the subsampling rule, :func:`frame_groups`): frames are ``h`` seconds of
 (default 30 fps, 1800 frames: one minute), longer runs play faster (by ``h·fps``). Every sample belongs to exactly one
 frame's group (the samples within ±h/2 of the frame time): the arm is drawn at the group's sample nearest the frame
 time; the arrows and tints are the group means (a box filter against aliasing the noisy 1 kHz torques).
+
+Gaps: the samples inside a gap of the log (:attr:`EstimationResult.gap`, a dropout the conditioning flags) are not
+played — nothing was measured there. A frame whose time lies inside a gap shows nothing: the arm and the arrows are
+hidden (Meshcat's ``visible`` property in the animation), so neither motion nor force is animated across the hole,
+and the tint scale comes from the measured frames only; the legend lists the gaps.
 """
 from __future__ import annotations
 
@@ -65,7 +70,9 @@ MIN_RESIDUAL_SCALE = 0.1                                       # [N·m] floor of
 @dataclass(frozen=True)
 class Playback:
     """A run to play: ``t [N]`` s, ``q [N,n]`` rad, optional ``f_est``, ``f_true [N,3]`` N (world frame, on the
-    robot at the flange) and ``residual [N,n]`` N·m (module docstring); ``title`` and ``f_est_label`` for the legend."""
+    robot at the flange) and ``residual [N,n]`` N·m (module docstring); ``title`` and ``f_est_label`` for the legend;
+    ``gaps``: ``(start, end)`` [s, the clock of ``t``] of each gap of the log between two played samples, where nothing
+    was measured (module docstring)."""
     description: RobotDescription
     t: np.ndarray
     q: np.ndarray
@@ -74,6 +81,7 @@ class Playback:
     residual: np.ndarray | None = None
     title: str = ""
     f_est_label: str = "estimated"
+    gaps: tuple[tuple[float, float], ...] = ()
 
     def __post_init__(self) -> None:
         n_s, n = self.t.shape[0], self.description.n
@@ -89,8 +97,17 @@ class Playback:
         """The samples with ``start_s ≤ t − t[0] ≤ end_s`` [s] (None: from the start / to the end)."""
         keep = _window_mask(self.t, start_s, end_s)
         cut = lambda a: None if a is None else a[keep]  # noqa: E731
-        return Playback(self.description, self.t[keep], self.q[keep], cut(self.f_est), cut(self.f_true),
-                        cut(self.residual), self.title, self.f_est_label)
+        t = self.t[keep]
+        gaps = tuple((a, b) for a, b in self.gaps if a >= t[0] and b <= t[-1])
+        return Playback(self.description, t, self.q[keep], cut(self.f_est), cut(self.f_true),
+                        cut(self.residual), self.title, self.f_est_label, gaps)
+
+    def hidden(self, times: np.ndarray) -> np.ndarray:
+        """``bool [K]``: which of ``times`` [s] lie strictly inside a gap (nothing to show there)."""
+        out = np.zeros(np.shape(times), dtype=bool)
+        for a, b in self.gaps:
+            out |= (times > a) & (times < b)
+        return out
 
 
 def _window_mask(t: np.ndarray, start_s: float | None, end_s: float | None) -> np.ndarray:
@@ -184,13 +201,25 @@ def playback_from_estimate(res: EstimationResult, desc: RobotDescription, observ
                            title: str = "") -> Playback:
     """The playback of an estimation result (``proprio estimate``'s ``estimates.npz``, :meth:`EstimationResult.load`):
     the arm at the filtered q the observers used, ``observer``'s force estimate, the true force and
-    :func:`torque_residual`."""
+    :func:`torque_residual` — at the measured samples only: the samples inside gaps of the log are left out and
+    become :attr:`Playback.gaps`."""
     if observer not in res.wrench:
         raise ValueError(f"observer must be one of {sorted(res.wrench)}, got {observer!r}")
-    return Playback(desc, res.t - res.t[0], res.q, f_est=res.wrench[observer][:, :3],
-                    f_true=None if res.f_true is None else res.f_true[:, :3],
-                    residual=torque_residual(res, desc, observer), title=title,
-                    f_est_label=f"estimated ({observer} observer, model {res.meta.get('model', '?')})")
+    keep = ~res.gap
+    if keep.sum() < 1:
+        raise RecordingError("playback: every sample lies inside a gap of the log; nothing to show")
+    t = res.t - res.t[0]
+    edges = np.flatnonzero(np.diff(keep.astype(np.int8)))     # keep[k] != keep[k + 1]
+    before, after = edges[keep[edges]], edges[~keep[edges]] + 1  # the samples around each gap
+    if not keep[0]:
+        after = after[1:]                                        # a gap at the start has no sample before it,
+    before = before[:after.size]                                 # one at the end none after it
+    gaps = tuple((float(t[a]), float(t[b])) for a, b in zip(before, after))
+    cut = lambda a: None if a is None else np.asarray(a)[keep]  # noqa: E731
+    return Playback(desc, t[keep], res.q[keep], f_est=res.wrench[observer][keep, :3],
+                    f_true=None if res.f_true is None else res.f_true[keep, :3],
+                    residual=cut(torque_residual(res, desc, observer)), title=title,
+                    f_est_label=f"estimated ({observer} observer, model {res.meta.get('model', '?')})", gaps=gaps)
 
 
 def playback_from_recording(rec: Recording, model: TorqueModel | RobotDescription, observer: str = "jacobian",
@@ -248,13 +277,15 @@ def load_playback(source: str | Path, model: str | Path | None = None, observer:
 @dataclass(frozen=True)
 class PlaybackInfo:
     """What :func:`record_playback` recorded: the frames, the animation rate [1/s], the arrow scale [m/N], the tint
-    scale [N·m] and the Meshcat paths of the arrows and of each link's geometries."""
+    scale [N·m], the Meshcat paths of the arrows and of each link's geometries, and ``hidden [K]``: the frames inside
+    a gap of the log, which show nothing."""
     frames: FrameGroups
     fps: float
     force_scale: float
     residual_scale: float | None
     arrow_paths: dict[str, str]
     link_paths: dict[str, list[str]]
+    hidden: np.ndarray
 
 
 def start_meshcat(port: int | None = None, quiet: bool = False) -> Meshcat:
@@ -339,6 +370,7 @@ def record_playback(pb: Playback, meshcat: Meshcat, settings: PlaybackSettings =
     frames = frame_groups(pb.t, settings.fps, settings.max_frames)
     arm = ArmView(desc, meshcat)
     q_frames = pb.q[frames.nearest]
+    hidden = pb.hidden(frames.times)
     meshcat.Delete(ROOT)
     meshcat.DeleteRecording()
     meshcat.StartRecording(settings.fps, set_visualizations_while_recording=False)
@@ -363,9 +395,16 @@ def record_playback(pb: Playback, meshcat: Meshcat, settings: PlaybackSettings =
     tints = None
     if pb.residual is not None:
         ek = frames.mean(pb.residual)                                           # [K,n]
-        residual_scale = settings.residual_scale or max(float(np.percentile(np.abs(ek), 95)), MIN_RESIDUAL_SCALE)
+        shown = ek[~hidden] if (~hidden).any() else ek
+        residual_scale = settings.residual_scale or max(float(np.percentile(np.abs(shown), 95)), MIN_RESIDUAL_SCALE)
         tints = _tints(ek, residual_scale)                                      # [K,n,3]
+    arm_path = f"/drake/{VISUALIZER_PREFIX}"
     for k in range(frames.count):
+        if pb.gaps:                                        # hide everything inside a gap, show it again after
+            for path in [arm_path, *arrow_paths.values()]:
+                anim.SetProperty(k, path, "visible", not hidden[k])
+        if hidden[k]:
+            continue
         arm.show(q_frames[k], (k + 0.25) / settings.fps)   # recorded at frame ⌊time · fps⌋ (or its rounding) = k
         for name, path in arrow_paths.items():
             quat, shaft, head = arrow_frames[name]
@@ -379,7 +418,7 @@ def record_playback(pb: Playback, meshcat: Meshcat, settings: PlaybackSettings =
                     anim.SetProperty(k, f"{path}/<object>", "material.color", tints[k, j].tolist())
     meshcat.StopRecording()
     meshcat.PublishRecording()
-    return PlaybackInfo(frames, settings.fps, settings.force_scale, residual_scale, arrow_paths, link_paths)
+    return PlaybackInfo(frames, settings.fps, settings.force_scale, residual_scale, arrow_paths, link_paths, hidden)
 
 
 def _swatch(rgb) -> str:
@@ -402,11 +441,15 @@ def _legend(pb: Playback, info: PlaybackInfo) -> str:
         lines.append(f"link i tinted by joint i's torque residual e = τ_J − τ_model + Jᵀf_true: "
                      f"{_swatch(NEGATIVE_RGB)} −{s:.3g} N·m {_swatch(NEUTRAL_RGB)} 0 {_swatch(POSITIVE_RGB)} "
                      f"+{s:.3g} N·m")
+    if pb.gaps:
+        lines.append(f"{len(pb.gaps)} gap(s) in the log, nothing shown (no data): " + ", ".join(
+            f"{a:.3f}–{b:.3f} s" for a, b in pb.gaps))
     summary = {"title": pb.title, "robot": pb.description.name, "frames": fr.count, "fps": info.fps,
                "frame_period_s": fr.period, "speedup": fr.speedup, "duration_s": float(pb.t[-1] - pb.t[0]),
                "samples": int(pb.t.size), "force_scale_m_per_N": info.force_scale,
                "residual_scale_Nm": info.residual_scale, "arrows": info.arrow_paths,
-               "links": info.link_paths}
+               "links": info.link_paths, "gaps_s": [list(g) for g in pb.gaps],
+               "hidden_frames": int(info.hidden.sum())}
     return ("<div id='proprio-legend' style='position:fixed;left:8px;bottom:8px;max-width:46em;padding:6px 9px;"
             "background:rgba(255,255,255,0.85);font:12px sans-serif;border-radius:4px'>" + "<br>".join(lines)
             + "</div>\n<script type='application/json' id='proprio-playback'>"

@@ -21,9 +21,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from proprio.io import atomic_write_text
+from proprio.io import atomic_write_text, locked_dir, remove_stale_temps
 from proprio.recording import Recording, load_recording, save_recording
-from proprio.tasks import Task, TaskRun, run_tasks
+from proprio.tasks import Task, TaskRun, run_tasks, sigterm_as_interrupt
 
 __all__ = ["DatasetSpec", "dataset_tasks", "simulate_dataset_item", "build_dataset", "recording_digest",
            "MANIFEST_FORMAT"]
@@ -97,8 +97,8 @@ def dataset_tasks(spec: DatasetSpec) -> tuple[list[Task], dict[str, Any]]:
         raise ValueError(f"dataset: scaffolds must be >= 1, got {spec.scaffolds}")
     if spec.seconds is not None and not spec.seconds > 0:
         raise ValueError(f"dataset: seconds must be > 0, got {spec.seconds}")
-    if any(p < 0 for p in spec.payloads_kg):
-        raise ValueError(f"dataset: payloads must be >= 0 kg, got {list(spec.payloads_kg)}")
+    if not all(np.isfinite(p) and p >= 0 for p in spec.payloads_kg):
+        raise ValueError(f"dataset: payloads must be finite masses >= 0 kg, got {list(spec.payloads_kg)}")
     config = load_twin_config(spec.twin)            # validates here, before any task starts
     if spec.log_rate_hz is not None:
         config.with_logger(rate_hz=float(spec.log_rate_hz))       # the logger's checks, before any task starts
@@ -122,9 +122,21 @@ def build_dataset(spec: DatasetSpec, out_dir: str | Path, backend: str = "local"
                   workers: int | None = None, progress: bool = True) -> tuple[dict[str, Any], TaskRun]:
     """Simulate every (seed, payload) of ``spec`` not yet in ``out_dir`` and write the Recordings and
     ``manifest.json`` (module docstring). Returns ``(manifest, TaskRun)``; failed items are listed in the manifest
-    under ``failed`` with their config."""
+    under ``failed`` with their config.
+
+    One run per directory: the run holds ``out_dir``'s lock (:func:`proprio.io.locked_dir`) from the first file to
+    the manifest, so a second run into it is refused (:class:`proprio.io.DirectoryLocked`) rather than writing a
+    manifest whose digests describe the other run's files; under the lock it deletes the temporary files a killed
+    run left behind. SIGTERM or Ctrl-C stop the workers and leave no temporary file (:mod:`proprio.tasks`)."""
     out = Path(out_dir)
     tasks, twin = dataset_tasks(spec)
+    with sigterm_as_interrupt(), locked_dir(out):
+        remove_stale_temps(out, [t.key for t in tasks] + ["manifest.json"])
+        return _build_locked(tasks, twin, spec, out, backend, address, workers, progress)
+
+
+def _build_locked(tasks: list[Task], twin: dict[str, Any], spec: DatasetSpec, out: Path, backend: str,
+                  address: str | None, workers: int | None, progress: bool) -> tuple[dict[str, Any], TaskRun]:
 
     def store(task: Task, rec: Recording) -> dict[str, Any]:
         path = save_recording(rec, out / task.key)
