@@ -41,13 +41,12 @@ def smoothing(smooth_velocity: float | np.ndarray | None = None) -> float | np.n
 
 def smooth_sign(qd: np.ndarray, smooth_velocity: float | np.ndarray | None = None) -> np.ndarray:
     """``tanh(q̇ / v_s)`` [-] for joint velocities ``qd`` [rad/s] of any shape (``[n]`` per step, ``[N, n]`` batch);
-    ``v_s`` [rad/s] a scalar or per-joint ``[n]`` (``None``: the library default). ``v_s = 0`` (scalar) gives the
-    exact ``sign(q̇)``, the law's limit."""
-    qd = np.asarray(qd, dtype=float)
-    v = smoothing(smooth_velocity)
-    if np.ndim(v) == 0 and v == 0.0:
+    ``v_s`` [rad/s] a scalar or per-joint ``[n]`` > 0 (``None``: the library default). A scalar ``v_s = 0`` gives
+    the exact ``sign(q̇)``, the law's limit."""
+    v = SMOOTH_VELOCITY if smooth_velocity is None else smooth_velocity       # (inlined: a per-step hot path)
+    if not isinstance(v, np.ndarray) and v == 0.0:
         return np.sign(qd)
-    return np.tanh(qd / v)
+    return np.tanh(np.divide(qd, v))
 
 
 def viscous_coulomb(qd: np.ndarray, viscous: float | np.ndarray, coulomb: float | np.ndarray,

@@ -114,10 +114,13 @@ class JointDrive(LeafSystem):
         self.elasticity = elasticity
         self.time_step = time_step
         self.session_time_s = float(session_time_s)
-        # per-step fast path: every friction acting on q̇ through its own law (proprio.friction_law), the same code
-        # as the effects' batch form
+        # per-step fast path: the viscous + Coulomb frictions acting on q̇ (link side, and the motor's for a rigid
+        # drive) stacked as rows [k, n] of ONE call of the law (proprio.friction_law, the effects' batch code)
         on_qd = self.link_effects + ([motor] if motor is not None and elasticity is None else [])
-        self._friction = [e for e in on_qd if isinstance(e, (ViscousCoulomb, Stribeck, Motor))]
+        rows = [(e.viscous, e.coulomb, e.smooth_velocity) for e in on_qd if isinstance(e, ViscousCoulomb)]
+        rows += [(e.motor_viscous, e.motor_coulomb, e.smooth_velocity) for e in on_qd if isinstance(e, Motor)]
+        self._vc = tuple(np.array(col) for col in zip(*rows)) if rows else None      # (F_v, F_c, v_s), each [k, n]
+        self._stribeck = [e for e in on_qd if isinstance(e, Stribeck)]
         self._general = [e for e in self.link_effects if not isinstance(e, (ViscousCoulomb, Stribeck))]
         self._u_motor = self.DeclareVectorInputPort("motor_torque", n)
         self._u_link = self.DeclareVectorInputPort("link_state", 2 * n)
@@ -155,8 +158,8 @@ class JointDrive(LeafSystem):
         drive) and the other link-side effects on (t, q, q̇)."""
         x = self._u_link.Eval(context)
         q, qd = x[:self.n], x[self.n:]
-        tau = np.zeros(self.n)
-        for eff in self._friction:
+        tau = np.zeros(self.n) if self._vc is None else friction_law.viscous_coulomb(qd, *self._vc).sum(axis=0)
+        for eff in self._stribeck:
             tau = tau + eff.friction(qd)
         if self._general:
             s = MotionSignals(np.array([context.get_time() + self.session_time_s]), q[None], qd[None],
