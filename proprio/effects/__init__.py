@@ -11,7 +11,7 @@ Effects, their place, and where their twin magnitudes come from (``proprio/confi
 ============================ ======= =============================================================================
 effect (YAML key)             place   model / calibration source
 ============================ ======= =============================================================================
-``viscous_coulomb``           link    ``F_v q̇ + F_c tanh(q̇/v_s)`` (:mod:`proprio.friction_law`); identified iiwa14 set (Coulomb 0.03–0.32 N·m,
+``viscous_coulomb``           link    ``F_v q̇ + F_c tanh(q̇/v_s)``; identified iiwa14 set (Coulomb 0.03–0.32 N·m,
                                       viscous 0.10–0.37 N·m·s/rad, ``proprio/robots/iiwa14_identified.yaml``)
 ``stribeck``                  link    extra static friction ``F_s exp(−(q̇/v_st)²) tanh(q̇/v_s)``; low-speed
                                       friction of harmonic drives (not in the thesis; off in the calibrated twin)
