@@ -23,6 +23,7 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from proprio import friction_law  # noqa: E402
 from proprio.description import load_robot  # noqa: E402
 from proprio.dynamics import inverse_dynamics  # noqa: E402
 from proprio.identification.base_parameters import base_parameters  # noqa: E402
@@ -52,8 +53,8 @@ def main() -> None:
     traj = FourierTrajectory(rng.uniform(-0.4, 0.4, (7, 5)), rng.uniform(-0.4, 0.4, (7, 5)), 0.1 * np.pi)
     t = np.linspace(0.0, 426.0, args.samples, endpoint=False)
     q, qd, qdd = traj.evaluate(t)
-    tau = inverse_dynamics(robot, q, qd, qdd) + np.array(robot.friction_viscous) * qd \
-        + np.array(robot.friction_coulomb) * np.sign(qd) + rng.normal(scale=0.05, size=q.shape)
+    tau = inverse_dynamics(robot, q, qd, qdd) + friction_law.viscous_coulomb(
+        qd, np.array(robot.friction_viscous), np.array(robot.friction_coulomb)) + rng.normal(scale=0.05, size=q.shape)
 
     t_reg = best_of(lambda: regressor(robot, q, qd, qdd), args.repeats)
     print(f"regressor           : {args.samples} samples in {t_reg:.3f} s = {args.samples / t_reg:,.0f} samples/s "

@@ -145,7 +145,7 @@ def bench_streaming(steps: int) -> None:
 
     # (c) the estimation diagram of `proprio estimate --model hybrid.pt`: C++ inverse dynamics + friction System, the
     # residual, both observers (the momentum one evaluates M(q) three times) and one logger
-    hybrid = HybridTorqueModel(RigidBodyTorqueModel(desc, coulomb_velocity=0.0), model, DataConfig())
+    hybrid = HybridTorqueModel(RigidBodyTorqueModel(desc), model, DataConfig())
     signals = {"t": t, "q": q, "qd": qd, "qdd": qdd, "tau": values[:, 21:], "time_step": 1 / RATE}
     estimation = _timed(build_estimation_diagram(hybrid, signals)[0], steps)   # (stages not started: timing only)
 

@@ -158,7 +158,7 @@ def main() -> None:
     net = HybridModel(ModelConfig(arch="lstm2_fcl", rate_hz=RATE))
     net.set_normalisation(feature_matrix(sig["tau"], sig["q"], sig["qd"], sig["qdd"], rotational_displacement(sig["q"])),
                           0.1 * sig["tau"])
-    hybrid = HybridTorqueModel(RigidBodyTorqueModel(desc, coulomb_velocity=0.0), net, DataConfig(), "lstm2_fcl")
+    hybrid = HybridTorqueModel(RigidBodyTorqueModel(desc), net, DataConfig(), "lstm2_fcl")
     design = causal_conditioning(RATE, CUTOFF_HZ, desc.n)
 
     ref = _time_diagram(lambda: _reference(sig), steps, repeats)

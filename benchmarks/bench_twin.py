@@ -66,7 +66,7 @@ def main() -> None:
     q_true, qd, qdd, batch = rec.truth["q_true"], rec.truth["qd"], rec.truth["qdd"], 100_000   # exact motion (truth)
     tau_rbd = np.concatenate([inverse_dynamics(desc, q_true[i:i + batch], qd[i:i + batch], qdd[i:i + batch])
                               for i in range(0, rec.n_samples, batch)])
-    tau_model = tau_rbd + fric.viscous * qd + fric.coulomb * np.sign(qd)
+    tau_model = tau_rbd + fric.friction(qd)                     # the twin's own law (proprio.friction_law)
     mse_raw = np.mean((rec.tau - tau_model) ** 2, axis=0)
     mse_clean = np.mean((rec.tau - rec.truth["tau_torque_noise"] - tau_model) ** 2, axis=0)
     print("\nper-joint MSE [N·m²] of the identified-style RBD model (true inertials + viscous/Coulomb) on twin data")

@@ -6,6 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from proprio import friction_law
 from proprio.description import load_robot
 from proprio.dynamics import inverse_dynamics
 from proprio.identification.base_parameters import base_parameters
@@ -32,12 +33,13 @@ def prior(robot):
 
 @pytest.fixture(scope="module")
 def data(robot):
-    """One 20 s period of a random Fourier trajectory; τ from proprio.dynamics + viscous/Coulomb friction."""
+    """One 20 s period of a random Fourier trajectory; τ from proprio.dynamics + viscous/Coulomb friction (the one
+    law, at the library's smoothing, which the identification uses by default)."""
     rng = np.random.default_rng(1)
     traj = FourierTrajectory(rng.uniform(-0.4, 0.4, (7, 5)), rng.uniform(-0.4, 0.4, (7, 5)), 0.1 * np.pi)
     q, qd, qdd = traj.evaluate(np.linspace(0.0, 20.0, 2000, endpoint=False))
-    tau = inverse_dynamics(robot, q, qd, qdd) + np.array(robot.friction_viscous) * qd \
-        + np.array(robot.friction_coulomb) * np.sign(qd)
+    tau = inverse_dynamics(robot, q, qd, qdd) + friction_law.viscous_coulomb(qd, np.array(robot.friction_viscous),
+                                                                             np.array(robot.friction_coulomb))
     return q, qd, qdd, tau
 
 
@@ -91,8 +93,8 @@ def test_sdp_is_physically_valid_and_rebuilds_a_plant(robot, base, prior, data):
             lk.mass, np.asarray(lk.com_xyz), RotationalInertia(i[0, 0], i[1, 1], i[2, 2], i[0, 1], i[0, 2], i[1, 2]))
         assert si.IsPhysicallyValid(), lk.name
     drake = DrakeRobot(desc.without_friction())
-    ours = model.torque(q[:3], qd[:3], qdd[:3]) - np.array(desc.friction_viscous) * qd[:3] \
-        - np.array(desc.friction_coulomb) * np.sign(qd[:3])
+    ours = model.torque(q[:3], qd[:3], qdd[:3]) - friction_law.viscous_coulomb(
+        qd[:3], np.array(desc.friction_viscous), np.array(desc.friction_coulomb), model.coulomb_velocity_scale)
     ref = np.array([drake.inverse_dynamics(*x) for x in zip(q[:3], qd[:3], qdd[:3])])
     np.testing.assert_allclose(ours, ref, atol=1e-8)
 
@@ -211,7 +213,7 @@ def test_identify_recordings(robot, prior, data):
     # what a robot logs: q and τ only; q̇, q̈ come from the conditioning path
     train = Recording(t=t[:1500], q=q[:1500], tau=tau[:1500])
     val = Recording(t=t[1500:], q=q[1500:], tau=tau[1500:])
-    model, text = identify_recordings([train], [val], prior, coulomb_velocity_scale=0.0)
+    model, text = identify_recordings([train], [val], prior)
     assert "validation" in text and "mean ||e||_2" in text and "conditioning:" in text
     err = model.torque(q[1500:], qd[1500:], qdd[1500:]) - tau[1500:]     # scored against the exact motion
     rms = np.sqrt(np.mean(err ** 2, axis=0))

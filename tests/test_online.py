@@ -41,7 +41,7 @@ def _hybrid(desc, t, q, qd, qdd, tau):
     torch.manual_seed(0)
     net = HybridModel(ModelConfig(arch="lstm2_fcl", lstm_hidden=12, rate_hz=RATE))
     net.set_normalisation(feature_matrix(tau, q, qd, qdd, rotational_displacement(q)), 0.1 * tau)
-    return HybridTorqueModel(RigidBodyTorqueModel(desc, coulomb_velocity=0.0), net, DataConfig(), "lstm2_fcl")
+    return HybridTorqueModel(RigidBodyTorqueModel(desc), net, DataConfig(), "lstm2_fcl")
 
 
 def _diagram(model, design, t, q, tau, qd=None):

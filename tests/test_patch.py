@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
+from proprio import friction_law
 from proprio.cli import main
 from proprio.description import load_robot
 from proprio.diagnosis.benchmark_cases import BenchmarkCase, generate_case_data
@@ -122,7 +123,7 @@ def test_effect_patch_clips_a_linear_fit_to_the_effect_bounds():
     cand = EffectCandidate("viscous_coulomb", 3)
     frag = cand.patch(np.array([0.2, -0.1, 0.3, 0.5, 0.4, 0.0]))
     assert frag["effects"]["viscous_coulomb"]["viscous"] == [0.2, 0.0, 0.3]
-    assert frag["effects"]["viscous_coulomb"]["smooth_velocity"] == [0.02] * 3
+    assert frag["effects"]["viscous_coulomb"]["smooth_velocity"] == [friction_law.SMOOTH_VELOCITY] * 3
     assert "viscous[2] = -0.1" in cand.patch_note
     EFFECTS["viscous_coulomb"].from_config(frag["effects"]["viscous_coulomb"], 3)       # valid for the twin
 

@@ -6,6 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from proprio import friction_law
 from proprio.description import Link, load_robot
 from proprio.dynamics import inverse_dynamics
 from proprio.identification.regressor import (
@@ -41,8 +42,8 @@ def test_matches_rnea_with_friction(iiwa):
     y = regressor(desc, q, qd, qdd)
     assert y.shape == (300, 7, 84)
     phi = standard_parameters(desc)
-    ref = inverse_dynamics(desc, q, qd, qdd) + np.array(desc.friction_viscous) * qd \
-        + np.array(desc.friction_coulomb) * np.sign(qd)
+    ref = inverse_dynamics(desc, q, qd, qdd) + friction_law.viscous_coulomb(qd, np.array(desc.friction_viscous),
+                                                                            np.array(desc.friction_coulomb))
     np.testing.assert_allclose(np.einsum("snp,p->sn", y, phi), ref, atol=1e-10, rtol=0)
     np.testing.assert_allclose(predict(y.base, phi), ref, atol=1e-10, rtol=0)
 
@@ -98,7 +99,10 @@ def test_upper_block_triangular_and_friction_columns(iiwa):
     for i in range(iiwa.n):
         assert not buf[i, :12 * i].any()                 # joint i never sees links before it
         np.testing.assert_array_equal(buf[i, 12 * i + 10], qd[:, i])
-        np.testing.assert_array_equal(buf[i, 12 * i + 11], np.sign(qd[:, i]))
+        np.testing.assert_array_equal(buf[i, 12 * i + 11], friction_law.smooth_sign(qd[:, i]))
+    exact = regressor_buffer(iiwa, q, qd, qdd, coulomb_velocity_scale=0.0)        # the law's limit: sign(q̇)
+    for i in range(iiwa.n):
+        np.testing.assert_array_equal(exact[i, 12 * i + 11], np.sign(qd[:, i]))
 
 
 def test_parameters_round_trip(iiwa):

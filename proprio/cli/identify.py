@@ -92,8 +92,9 @@ def register(subparsers) -> None:
     p.add_argument("--trim", type=int, default=100, help="samples dropped at both ends of every recording "
                                                          "(filter start-up; default 100)")
     p.add_argument("--offsets", action="store_true", help="also fit a constant torque offset per joint")
-    p.add_argument("--coulomb-velocity-scale", type=float, default=0.02,
-                   help="[rad/s] Coulomb friction as tanh(qd/scale); 0 = sign(qd) (default 0.02)")
+    p.add_argument("--coulomb-velocity-scale", type=float, default=None,
+                   help="[rad/s] Coulomb friction as tanh(qd/scale); 0 = sign(qd) (default: the library's smoothing, "
+                        "proprio.friction_law.SMOOTH_VELOCITY = 0.05)")
     p.add_argument("--show-parameters", action="store_true", help="print the base-parameter table (Table 4.6)")
     p.set_defaults(func=_identify)
 

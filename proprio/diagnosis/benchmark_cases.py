@@ -76,7 +76,6 @@ EFFECT_TYPES = STATIC_EFFECTS + EXTRA_TYPES
 # twin mode: every effect of the shipped iiwa14_twin.yaml, plus the payload (TwinConfig.with_payload)
 TWIN_EFFECT_TYPES = ("viscous_coulomb", "hysteresis", "lost_motion", "ripple", "sensor_offset_gain", "torque_noise",
                      "encoder_noise", "payload")
-TWIN_SMOOTH_VELOCITY = 0.05      # rad/s, tanh width of the twin's Coulomb friction (explicit-friction stability)
 # out-of-library effects, reached only through their plugin paths: short name → (plugin path, joints (0-based) the
 # effect may act on, the hint signal of joint j as a function of j: "tau_<k>", "q_<k>", "qd_<k>" with 1-based k)
 _OW = "proprio.effects.open_world"
@@ -196,11 +195,11 @@ def _draw_open(kind: str, n: int, mag: float, joint: int, rng: np.random.Generat
     if name == "PositionFriction":                  # 0.3–0.6 N·m, a pattern of 4–6 rad⁻¹ along the stroke
         amp, ph = mag * rng.uniform(0.3, 0.6), rng.uniform(0, 2 * np.pi)
         return {"cos_amplitude": one(amp * np.cos(ph)), "sin_amplitude": one(amp * np.sin(ph)),
-                "order": rng.uniform(4.0, 6.0, n), "smooth_velocity": np.full(n, TWIN_SMOOTH_VELOCITY)}
+                "order": rng.uniform(4.0, 6.0, n)}
     if name == "CableSpring":                       # 0.5–1 N·m/rad: ≈1 N·m over a reach of a radian of joint j+1
         return {"stiffness": one(mag * rng.uniform(0.5, 1.0)), "reference": rng.uniform(-0.3, 0.3, n)}
     if name == "NeighbourDrag":                     # 0.3–0.6 N·m when the next joint turns
-        return {"drag": one(sign * mag * rng.uniform(0.3, 0.6)), "smooth_velocity": np.full(n, TWIN_SMOOTH_VELOCITY)}
+        return {"drag": one(sign * mag * rng.uniform(0.3, 0.6))}
     raise ValueError(f"unknown out-of-library benchmark effect {kind!r}")
 
 
@@ -442,10 +441,6 @@ def twin_case_config(case: BenchmarkCase, omit_withheld: bool = False, recording
     modelled = {k: _draw(k, n, 1.0, rng) for k in case.modelled}
     if omit_withheld:
         params = {k: v for k, v in params.items() if k == "torque_noise"}
-    for block in (params, modelled):
-        for k in ("viscous_coulomb", "friction_warmup"):
-            if k in block:
-                block[k]["smooth_velocity"] = np.full(n, TWIN_SMOOTH_VELOCITY)
     present = {**modelled, **{k: v for k, v in params.items() if k in EFFECTS or is_plugin_path(k)}}
     present.setdefault("torque_noise", {"std": np.full(n, NOISE_STD)})
     present["encoder_noise"] = {**{k: np.full(n, v) for k, v in ENCODER.items()}, **present.get("encoder_noise", {})}

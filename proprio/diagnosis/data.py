@@ -17,7 +17,7 @@ import numpy as np
 
 from proprio.description import RobotDescription
 from proprio.dynamics import inverse_dynamics
-from proprio.effects import JointEffect, resolve_effect
+from proprio.effects import JointEffect, ViscousCoulomb, resolve_effect, robot_friction
 from proprio.conditioning import ConditionedSignals, ConditioningConfig, condition
 from proprio.recording import Recording
 from proprio.signals import MotionSignals
@@ -74,6 +74,12 @@ class SimModel:
         return cls(robot, tuple(c(robot.n) for c in classes))
 
     @property
+    def robot_friction(self) -> ViscousCoulomb | None:
+        """The description's link friction as the ``viscous_coulomb`` effect (the one law of
+        :mod:`proprio.friction_law`), or ``None`` when the description has none."""
+        return robot_friction(self.robot)
+
+    @property
     def effect_names(self) -> set[str]:
         names = {e.name for e in self.effects}
         if self.robot.has_friction:
@@ -87,10 +93,7 @@ class SimModel:
 
     def predict_parts(self, s: MotionSignals) -> tuple[np.ndarray, np.ndarray]:
         """``(link-side torque, sensor output)`` the model predicts, each ``[N,n]`` N·m."""
-        tau = inverse_dynamics(self.robot, s.q, s.qd, s.qdd)
-        if self.robot.has_friction:
-            tau = tau + np.asarray(self.robot.friction_viscous) * s.qd \
-                + np.asarray(self.robot.friction_coulomb) * np.sign(s.qd)
+        tau = self.rigid_torque(s.q, s.qd, s.qdd)
         for eff in self.effects:
             if eff.place != "sensor":
                 tau = tau + eff.torque(s)
@@ -104,10 +107,8 @@ class SimModel:
     def rigid_torque(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """Rigid body + the description's link friction [N·m] (what the processing error propagates through)."""
         tau = inverse_dynamics(self.robot, q, qd, qdd)
-        if self.robot.has_friction:
-            tau = tau + np.asarray(self.robot.friction_viscous) * qd \
-                + np.asarray(self.robot.friction_coulomb) * np.sign(qd)
-        return tau
+        friction = self.robot_friction
+        return tau if friction is None else tau + friction.friction(qd)
 
     def noise_variance(self, s: MotionSignals, seed: int = 0) -> np.ndarray:
         """Variance per joint [(N·m)²] of the torque the model's noise effects add (0 without noise effects)."""

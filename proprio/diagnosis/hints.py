@@ -10,7 +10,8 @@ as a library effect.
   joint under test is never a feature: its residual is ``τ_meas − τ_sim``, so regressing it on its own ``τ_meas``
   would explain the residual by itself (circular). The modelled τ carries the same load information without the
   measurement's own error, so it is used for every joint, including the one under test (a gain error);
-* ``q_k``, ``q̇_k``, ``q̈_k`` (conditioned), ``tanh(q̇_k / v₀)`` (a smooth sign, ``v₀`` = 0.02 rad/s), ``|q̇_k| q̇_k``;
+* ``q_k``, ``q̇_k``, ``q̈_k`` (conditioned), ``tanh(q̇_k / v₀)`` (the smooth sign of
+  :mod:`proprio.friction_law`, ``v₀`` its library default), ``|q̇_k| q̇_k``;
 * ``sin(m q_k)``, ``cos(m q_k)``, ``m`` = 1..3 (position-dependent terms, e.g. an unmodelled ripple or cogging);
 * products ``q̇_k |τ_k|`` and ``tanh(q̇_k / v₀) |τ_k|`` (load-dependent viscous / Coulomb friction);
 * ``time`` — the session clock ``t + meta["session_time_s"]`` [s] (:class:`~proprio.diagnosis.data.GapData`; the
@@ -42,6 +43,7 @@ from scipy import stats
 from sklearn.linear_model import orthogonal_mp_gram
 from sklearn.model_selection import GroupKFold
 
+from proprio import friction_law
 from proprio.diagnosis.data import GapData
 
 __all__ = ["Hint", "Term", "dictionary", "find_hints", "shifted_joints", "MAX_TERMS", "HINT_MIN_GAIN"]
@@ -50,7 +52,6 @@ MAX_TERMS = 3
 HINT_MIN_GAIN = 0.05
 CV_FOLDS = 5
 CV_BLOCKS = 40                # contiguous training time blocks the folds are drawn from
-SIGN_VELOCITY = 0.02          # rad/s, width of the smooth sign tanh(q̇ / v₀)
 HARMONICS = (1, 2, 3)
 _SUB = str.maketrans("0123456789", "₀₁₂₃₄₅₆₇₈₉")
 
@@ -119,7 +120,7 @@ def dictionary(q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, tau: np.ndarray, 
     ``tau [N,n]`` the modelled link-side torque [N·m], ``t [N]`` the (session) time [s]. Returns ``F [N,P]`` and its
     ``P`` terms in column order."""
     n = q.shape[1]
-    sgn = np.tanh(qd / SIGN_VELOCITY)
+    sgn = friction_law.smooth_sign(qd)
     per = [tau, q, qd, qdd, sgn, np.abs(qd) * qd]
     for m in HARMONICS:
         per += [np.sin(m * q), np.cos(m * q)]

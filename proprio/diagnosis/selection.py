@@ -61,6 +61,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from scipy import stats
 
+from proprio import friction_law
 from proprio.description import RobotDescription
 from proprio.diagnosis.candidates import Candidate, candidate_set
 from proprio.conditioning import ConditionedSignals, ConditioningConfig, processing_torque_sigma
@@ -252,7 +253,7 @@ def _residual_structure(r_h: np.ndarray, r_tr: np.ndarray, train: GapData, hold:
         lb[j] = min(ps) if ps else 1.0
 
     def feats(data: GapData) -> np.ndarray:
-        f = [np.concatenate([s.q, s.qd, np.sign(s.qd), s.qdd, np.sin(s.q), np.cos(s.q)], axis=1)
+        f = [np.concatenate([s.q, s.qd, friction_law.smooth_sign(s.qd), s.qdd, np.sin(s.q), np.cos(s.q)], axis=1)
              for s in data.signals]
         f = data.stack(f)
         return np.concatenate([np.ones((len(f), 1)), f], axis=1)

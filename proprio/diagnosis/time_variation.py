@@ -53,6 +53,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
+from proprio import friction_law
 from proprio.diagnosis.candidates import Candidate, EffectCandidate, RigidBodyCandidate
 from proprio.diagnosis.data import GapData, SimModel
 
@@ -131,7 +132,7 @@ def _pool(model: SimModel, train: GapData, hold: GapData) -> _Pooled:
             rec_of.setdefault(k, len(rec_of))
     parts = []
     for data, role, x in zip((train, hold), ("training", "holdout"), _static_design(model, train, hold)):
-        sign = data.stack([np.sign(s.qd) for s in data.signals])
+        sign = data.stack([friction_law.smooth_sign(s.qd) for s in data.signals])
         rec = np.concatenate([np.full(len(i), rec_of[k]) for k, i in zip(keys[role], data.fit_index)])
         ts = np.concatenate([t + data.session_s[i] for i, t in enumerate(data.times)])
         parts.append((data.residual, x, sign, rec, ts, np.concatenate(data.times)))
@@ -291,7 +292,7 @@ class TimeTrendNuisance(Candidate):
             rec_of.setdefault(k, len(rec_of))
         rec = np.concatenate([np.full(len(i), rec_of[k]) for k, i in zip(keys, train.fit_index)])
         basis = time_basis(_normalised_time(np.concatenate(train.times), rec, len(rec_of)), rec, len(rec_of))
-        sign = train.stack([np.sign(s.qd) for s in train.signals])
+        sign = train.stack([friction_law.smooth_sign(s.qd) for s in train.signals])
         self.train = train
         self._m, self._n = basis.shape[1], sign.shape[1]
         self._basis, self._sign = basis, sign

@@ -36,6 +36,7 @@ from pydrake.systems.primitives import (Adder, Demultiplexer, LogVectorOutput, M
                                         VectorLogSink)
 from pydrake.trajectories import PiecewisePolynomial
 
+from proprio import friction_law
 from proprio.conditioning import CausalConditioning, ConditioningConfig, condition
 from proprio.description import RobotDescription, load_robot
 from proprio.dynamics import inverse_dynamics
@@ -77,11 +78,11 @@ class TorqueModel(Protocol):
 @dataclass(frozen=True)
 class RigidBodyTorqueModel:
     """The RBD model of a description plus its link-side viscous + Coulomb friction, if it has any, and constant
-    torque offsets: ``τ_int = F_v q̇ + F_c sgn(q̇) + τ_offset`` [N·m] with ``sgn = tanh(q̇ / coulomb_velocity)``
-    (``np.sign`` when 0). The default 0.02 rad/s smooths the sign over the band where filtered velocities are
-    unreliable."""
+    torque offsets: ``τ_int = F_v q̇ + F_c sgn(q̇) + τ_offset`` [N·m], the one law of :mod:`proprio.friction_law` with
+    ``sgn = tanh(q̇ / coulomb_velocity)`` (``np.sign`` when 0; ``None``: the library's smoothing, read when
+    evaluated)."""
     description: RobotDescription
-    coulomb_velocity: float = 0.02
+    coulomb_velocity: float | None = None
     offset: tuple[float, ...] | None = None
 
     def tau_int(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
@@ -89,8 +90,8 @@ class RigidBodyTorqueModel:
         qd = np.asarray(qd, dtype=float)
         tau = np.zeros_like(qd) if self.offset is None else np.broadcast_to(self.offset, qd.shape).copy()
         if d.has_friction:
-            sgn = np.sign(qd) if self.coulomb_velocity == 0 else np.tanh(qd / self.coulomb_velocity)
-            tau += np.asarray(d.friction_viscous) * qd + np.asarray(d.friction_coulomb) * sgn
+            tau += friction_law.viscous_coulomb(qd, np.asarray(d.friction_viscous), np.asarray(d.friction_coulomb),
+                                                self.coulomb_velocity)
         return tau
 
     def tau_int_step(self) -> Callable[[np.ndarray], np.ndarray]:
@@ -100,14 +101,8 @@ class RigidBodyTorqueModel:
         if not d.has_friction:
             return lambda qd: offset.copy()
         fv, fc = np.asarray(d.friction_viscous, dtype=float), np.asarray(d.friction_coulomb, dtype=float)
-        inv_v = 1.0 / self.coulomb_velocity if self.coulomb_velocity != 0 else 0.0
-        if self.offset is None:                   # (one operation fewer per step)
-            if inv_v == 0.0:
-                return lambda qd: fv * qd + fc * np.sign(qd)
-            return lambda qd: fv * qd + fc * np.tanh(qd * inv_v)
-        if inv_v == 0.0:
-            return lambda qd: offset + fv * qd + fc * np.sign(qd)
-        return lambda qd: offset + fv * qd + fc * np.tanh(qd * inv_v)
+        v_s = friction_law.smoothing(self.coulomb_velocity)
+        return lambda qd: offset + friction_law.viscous_coulomb(qd, fv, fc, v_s)
 
 
 def load_torque_model(spec: str | Path) -> TorqueModel:

@@ -14,7 +14,8 @@ Offline (``tau_int``), the same model over one contiguous sequence at the model 
 (:func:`~proprio.learning.evaluation.predict_streaming`); the diagram matches it to rounding (tests).
 
 The backbone is the τ_RBD the network was trained with (the ``backbone`` spec stored in the model file): a robot's
-RNEA + viscous/Coulomb friction with ``sign(q̇)`` (:func:`~proprio.learning.features.rbd_provider`), or an identified
+RNEA + viscous/Coulomb friction with the law of :mod:`proprio.friction_law`
+(:func:`~proprio.learning.features.rbd_provider`), or an identified
 ``.npz`` (its inertials, friction law and offsets, as :func:`~proprio.diagrams.estimation.load_torque_model` reads it).
 :meth:`HybridTorqueModel.signals` prepares a Recording exactly as the training data were (the §4.4 pipeline of
 :mod:`proprio.learning.datasets`: the one conditioning path with the training cutoff, optional τ low-pass, decimation
@@ -215,7 +216,7 @@ def load_hybrid_torque_model(path: str | Path) -> HybridTorqueModel:
         raise ValueError(f"{path}: the model file names no backbone; train it with `proprio train`")
     if Path(spec).suffix == ".npz":
         backbone = load_torque_model(spec)
-    else:   # the training backbone rbd_provider(): RNEA + f_v q̇ + f_c sign(q̇)
-        backbone = RigidBodyTorqueModel(load_robot(spec), coulomb_velocity=0.0)
+    else:   # the training backbone rbd_provider(): RNEA + the friction law at the library's smoothing
+        backbone = RigidBodyTorqueModel(load_robot(spec))
     return HybridTorqueModel(backbone, network, DataConfig.from_dict(extra.get("data")), Path(path).name)
 

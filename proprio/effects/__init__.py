@@ -34,6 +34,10 @@ effect (YAML key)             place   model / calibration source
                                       fading as the joint warms up (off in the calibrated twin)
 ============================ ======= =============================================================================
 
+Every friction (``viscous_coulomb``, ``stribeck``, ``friction_warmup``, the motor's, a robot description's
+``friction`` block via :func:`robot_friction`) is the one law of :mod:`proprio.friction_law`, with its one default
+smoothing ``v_s`` (:data:`proprio.friction_law.SMOOTH_VELOCITY`, overridable per effect by ``smooth_velocity``).
+
 Time-varying effects (class attribute ``time_varying = True``) read the *session clock* ``MotionSignals.t``: the
 twin adds its config's ``session_time_s`` to the run's time, the diagnosis each recording's
 ``meta["session_time_s"]`` (:mod:`proprio.effects.time_varying`).
@@ -55,13 +59,14 @@ from __future__ import annotations
 
 from proprio.effects.base import EffectConfigError, JointEffect, affine_scan
 from proprio.effects.drive import Elasticity, Motor
-from proprio.effects.friction import Stribeck, ViscousCoulomb
+from proprio.effects.friction import SmoothFriction, Stribeck, ViscousCoulomb, robot_friction
 from proprio.effects.hysteresis import Hysteresis, LostMotion
 from proprio.effects.plugins import effect_key, resolve_effect
 from proprio.effects.registry import EFFECTS, make_effects
 from proprio.effects.sensor import EncoderNoise, Ripple, SensorOffsetGain, TorqueNoise
 from proprio.effects.time_varying import FrictionWarmup, OffsetDrift
 
-__all__ = ["JointEffect", "EffectConfigError", "affine_scan", "ViscousCoulomb", "Stribeck", "Hysteresis",
+__all__ = ["JointEffect", "EffectConfigError", "affine_scan", "SmoothFriction", "ViscousCoulomb", "Stribeck",
+           "robot_friction", "Hysteresis",
            "LostMotion", "Ripple", "SensorOffsetGain", "TorqueNoise", "EncoderNoise", "Motor", "Elasticity",
            "OffsetDrift", "FrictionWarmup", "EFFECTS", "make_effects", "resolve_effect", "effect_key"]

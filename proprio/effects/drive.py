@@ -3,13 +3,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from proprio import friction_law
 from proprio.effects.base import INF, TINY, JointEffect
+from proprio.effects.friction import SmoothFriction
 from proprio.signals import MotionSignals
 
 __all__ = ["Motor", "Elasticity"]
 
 
-class Motor(JointEffect):
+class Motor(SmoothFriction):
     """The motor side of the drive, hidden behind the torque sensor: reflected motor inertia B and motor friction.
     Configured by the twin's top-level ``drive`` block; not in :data:`EFFECTS`, because it adds nothing to τ_J that
     a fit on torque data could find.
@@ -20,23 +22,22 @@ class Motor(JointEffect):
     through the motion (tracking error, inertia the controller must move).
 
     Parameters ``motor_inertia`` B [kg·m²] (link-side reflected, ``ρ² I_rotor``), ``motor_viscous`` [N·m·s/rad],
-    ``motor_coulomb`` [N·m]; setting ``smooth_velocity`` [rad/s].
+    ``motor_coulomb`` [N·m]; setting ``smooth_velocity`` [rad/s] (the law of :mod:`proprio.friction_law`).
     """
     name = "motor"
     place = "motor"
     linear = False
     parameters = {"motor_inertia": (0.0, 0.0, INF), "motor_viscous": (0.0, 0.0, INF),
                   "motor_coulomb": (0.0, 0.0, INF)}
-    settings = {"smooth_velocity": (0.02, TINY, INF)}
 
     def torque(self, s: MotionSignals, rng: np.random.Generator | None = None) -> np.ndarray:
         self._check_n(s)
         return np.zeros_like(s.q)
 
     def friction(self, theta_dot: np.ndarray) -> np.ndarray:
-        """Motor-side friction [N·m] (hidden from τ_J), dissipative."""
+        """Motor-side friction [N·m] (hidden from τ_J), dissipative, for motor velocities ``theta_dot`` [rad/s]."""
         v = self._values
-        return v["motor_viscous"] * theta_dot + v["motor_coulomb"] * np.tanh(theta_dot / v["smooth_velocity"])
+        return friction_law.viscous_coulomb(theta_dot, v["motor_viscous"], v["motor_coulomb"], v["smooth_velocity"])
 
 
 class Elasticity(JointEffect):

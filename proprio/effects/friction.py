@@ -1,18 +1,37 @@
 """Link-side friction, visible in τ_J and dissipative: viscous + Coulomb and Stribeck."""
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
+from proprio import friction_law
+from proprio.description import RobotDescription
 from proprio.effects.base import INF, TINY, JointEffect, diagonal_regressor
 from proprio.signals import MotionSignals
 
-__all__ = ["ViscousCoulomb", "Stribeck"]
+__all__ = ["SmoothFriction", "ViscousCoulomb", "Stribeck", "robot_friction"]
 
 
+class SmoothFriction(JointEffect):
+    """A friction effect whose Coulomb sign is the law of :mod:`proprio.friction_law`: its ``smooth_velocity``
+    setting [rad/s] defaults to the library default :data:`proprio.friction_law.SMOOTH_VELOCITY` read when the effect
+    is built (the class table shows the default at import)."""
+    settings = {"smooth_velocity": (friction_law.SMOOTH_VELOCITY, TINY, INF)}
+
+    def __init__(self, n: int, **params: Any) -> None:
+        params.setdefault("smooth_velocity", friction_law.SMOOTH_VELOCITY)
+        super().__init__(n, **params)
+
+    def sign(self, qd: np.ndarray) -> np.ndarray:
+        """The smooth sign ``tanh(q̇ / v_s)`` [-] of velocities ``qd`` [rad/s] (``[n]`` or ``[N,n]``)."""
+        return friction_law.smooth_sign(qd, self._values["smooth_velocity"])
 
 
-class ViscousCoulomb(JointEffect):
-    """Link-side friction ``τ_f = F_v q̇ + F_c tanh(q̇ / v_s)`` [N·m] (smooth sign, so ``τ_f q̇ ≥ 0`` always).
+class ViscousCoulomb(SmoothFriction):
+    """Link-side friction ``τ_f = F_v q̇ + F_c tanh(q̇ / v_s)`` [N·m] (:func:`proprio.friction_law.viscous_coulomb`;
+    smooth sign, so ``τ_f q̇ ≥ 0`` always). A robot description's ``friction`` block is this effect
+    (:func:`robot_friction`).
 
     Parameters ``viscous`` F_v [N·m·s/rad], ``coulomb`` F_c [N·m]; setting ``smooth_velocity`` v_s [rad/s].
     """
@@ -20,12 +39,11 @@ class ViscousCoulomb(JointEffect):
     place = "link"
     linear = True
     parameters = {"viscous": (0.0, 0.0, INF), "coulomb": (0.0, 0.0, INF)}
-    settings = {"smooth_velocity": (0.02, TINY, INF)}
 
     def friction(self, qd: np.ndarray) -> np.ndarray:
-        """τ_f [N·m] for joint velocities ``qd`` (``[n]`` or ``[N,n]``)."""
+        """τ_f [N·m] for joint velocities ``qd`` [rad/s] (``[n]`` per step or ``[N,n]``)."""
         v = self._values
-        return v["viscous"] * qd + v["coulomb"] * np.tanh(qd / v["smooth_velocity"])
+        return friction_law.viscous_coulomb(qd, v["viscous"], v["coulomb"], v["smooth_velocity"])
 
     def torque(self, s: MotionSignals, rng: np.random.Generator | None = None) -> np.ndarray:
         self._check_n(s)
@@ -33,10 +51,18 @@ class ViscousCoulomb(JointEffect):
 
     def regressor(self, s: MotionSignals) -> np.ndarray:
         self._check_n(s)
-        return diagonal_regressor([s.qd, np.tanh(s.qd / self.smooth_velocity)])
+        return diagonal_regressor([s.qd, self.sign(s.qd)])
 
 
-class Stribeck(JointEffect):
+def robot_friction(robot: RobotDescription) -> ViscousCoulomb | None:
+    """The ``viscous_coulomb`` effect of a robot description's link friction (``friction.viscous`` /
+    ``friction.coulomb``) at the library's smoothing, or ``None`` when the description has no friction."""
+    if not robot.has_friction:
+        return None
+    return ViscousCoulomb(robot.n, viscous=list(robot.friction_viscous), coulomb=list(robot.friction_coulomb))
+
+
+class Stribeck(SmoothFriction):
     """Extra static friction that fades with speed: ``F_s exp(−(q̇/v_st)²) tanh(q̇/v_s)`` [N·m] (dissipative).
 
     Parameters ``static`` F_s [N·m] (breakaway minus Coulomb level), ``stribeck_velocity`` v_st [rad/s]; setting
@@ -46,12 +72,11 @@ class Stribeck(JointEffect):
     place = "link"
     linear = False
     parameters = {"static": (0.0, 0.0, INF), "stribeck_velocity": (0.05, TINY, INF)}
-    settings = {"smooth_velocity": (0.02, TINY, INF)}
 
     def friction(self, qd: np.ndarray) -> np.ndarray:
         """τ_f [N·m] for joint velocities ``qd`` (``[n]`` or ``[N,n]``)."""
         v = self._values
-        return v["static"] * np.exp(-(qd / v["stribeck_velocity"]) ** 2) * np.tanh(qd / v["smooth_velocity"])
+        return v["static"] * np.exp(-(qd / v["stribeck_velocity"]) ** 2) * self.sign(qd)
 
     def torque(self, s: MotionSignals, rng: np.random.Generator | None = None) -> np.ndarray:
         self._check_n(s)

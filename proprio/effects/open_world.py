@@ -26,7 +26,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from proprio import friction_law
 from proprio.effects.base import INF, TINY, JointEffect, diagonal_regressor
+from proprio.effects.friction import SmoothFriction
 from proprio.signals import MotionSignals
 
 __all__ = ["TorqueCrossTalk", "PositionFriction", "CableSpring", "NeighbourDrag"]
@@ -61,7 +63,7 @@ class TorqueCrossTalk(JointEffect):
         return diagonal_regressor([self._neighbour(s)])
 
 
-class PositionFriction(JointEffect):
+class PositionFriction(SmoothFriction):
     """Position-dependent Coulomb friction ``(a cos(k q) + b sin(k q)) tanh(q̇ / v_s)`` [N·m] (a friction level that
     varies along the stroke, with zero mean over a period: a library Coulomb term cannot take it).
 
@@ -71,10 +73,10 @@ class PositionFriction(JointEffect):
     place = "link"
     linear = True
     parameters = {"cos_amplitude": (0.0, -INF, INF), "sin_amplitude": (0.0, -INF, INF)}
-    settings = {"order": (3.0, TINY, INF), "smooth_velocity": (0.05, TINY, INF)}
+    settings = {"order": (3.0, TINY, INF), "smooth_velocity": (friction_law.SMOOTH_VELOCITY, TINY, INF)}
 
     def _columns(self, s: MotionSignals) -> list[np.ndarray]:
-        sign = np.tanh(s.qd / self.smooth_velocity)
+        sign = self.sign(s.qd)
         return [np.cos(self.order * s.q) * sign, np.sin(self.order * s.q) * sign]
 
     def torque(self, s: MotionSignals, rng: np.random.Generator | None = None) -> np.ndarray:
@@ -111,7 +113,7 @@ class CableSpring(JointEffect):
         return diagonal_regressor([self._column(s)])
 
 
-class NeighbourDrag(JointEffect):
+class NeighbourDrag(SmoothFriction):
     """Drag of the cables crossing the next joint: ``c_j tanh(q̇_j+1 / v_s)`` [N·m] on joint j.
 
     Parameter ``drag`` c_j [N·m] (the last joint has no next joint); setting ``smooth_velocity`` v_s [rad/s]."""
@@ -119,10 +121,9 @@ class NeighbourDrag(JointEffect):
     place = "link"
     linear = True
     parameters = {"drag": (0.0, -INF, INF)}
-    settings = {"smooth_velocity": (0.05, TINY, INF)}
 
     def _column(self, s: MotionSignals) -> np.ndarray:
-        return np.tanh(_next_joint(s.qd) / self.smooth_velocity) * (np.arange(self.n) < self.n - 1)
+        return self.sign(_next_joint(s.qd)) * (np.arange(self.n) < self.n - 1)
 
     def torque(self, s: MotionSignals, rng: np.random.Generator | None = None) -> np.ndarray:
         self._check_n(s)

@@ -14,7 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from proprio.effects.base import INF, TINY, JointEffect
+from proprio import friction_law
+from proprio.effects.base import INF, JointEffect
+from proprio.effects.friction import SmoothFriction
 from proprio.signals import MotionSignals
 
 __all__ = ["OffsetDrift", "FrictionWarmup"]
@@ -41,7 +43,7 @@ class OffsetDrift(JointEffect):
         return self.offset_at(s.t)
 
 
-class FrictionWarmup(JointEffect):
+class FrictionWarmup(SmoothFriction):
     """Cold-gearbox friction that fades as the joint warms up: ``exp(−t/T)·(F_v q̇ + F_c tanh(q̇/v_s))`` [N·m] on
     the session clock ``t`` [s], on top of the warm friction (``viscous_coulomb``), link side (dissipative).
 
@@ -53,14 +55,13 @@ class FrictionWarmup(JointEffect):
     linear = False
     time_varying = True
     parameters = {"viscous": (0.0, 0.0, INF), "coulomb": (0.0, 0.0, INF), "time_constant": (120.0, 1.0, 1e5)}
-    settings = {"smooth_velocity": (0.02, TINY, INF)}
 
     def friction(self, qd: np.ndarray, t: np.ndarray | float) -> np.ndarray:
         """τ_f [N·m] for velocities ``qd`` (``[n]`` or ``[N,n]``) at session time(s) ``t`` (scalar or ``[N]``) s."""
         t = np.asarray(t, dtype=float)
         cold = np.exp(-(t[..., None] if t.ndim else t) / self.time_constant)
         v = self._values
-        return cold * (v["viscous"] * qd + v["coulomb"] * np.tanh(qd / v["smooth_velocity"]))
+        return cold * friction_law.viscous_coulomb(qd, v["viscous"], v["coulomb"], v["smooth_velocity"])
 
     def torque(self, s: MotionSignals, rng: np.random.Generator | None = None) -> np.ndarray:
         self._check_n(s)

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
+from proprio import friction_law
 from proprio.description import RobotDescription
 from proprio.identification.base_parameters import BaseParameters, base_parameters
 from proprio.identification.model_io import IdentifiedModel, data_digest
@@ -51,7 +52,7 @@ def _base_columns(base: BaseParameters, i: int) -> tuple[np.ndarray, np.ndarray]
 
 
 def normal_equations(desc: RobotDescription, base: BaseParameters, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
-                     tau: np.ndarray, coulomb_velocity_scale: float, weights: np.ndarray | None = None,
+                     tau: np.ndarray, coulomb_velocity_scale: float | None, weights: np.ndarray | None = None,
                      offsets: bool = False) -> NormalEquations:
     """Accumulate the (weighted, per-joint ``weights [n]``) normal equations of ``τ = K_b φ_b (+ τ_0)``."""
     buf = regressor_buffer(desc, q, qd, qdd, coulomb_velocity_scale)
@@ -175,12 +176,13 @@ def _prepare(desc, q, qd, qdd, tau, base, coulomb_velocity_scale, offsets):
 
 
 def _model(desc, base, phi_b, pct, phi, method, scale, data, consistent):
+    scale = float(friction_law.smoothing(scale))          # the model records the smoothing it was fitted with
     return IdentifiedModel(desc, base, phi_b, pct, phi, method, scale, data_digest(*data), data[0].shape[0],
                            consistent)
 
 
 def ols(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, tau: np.ndarray,
-        base: BaseParameters | None = None, coulomb_velocity_scale: float = 0.0,
+        base: BaseParameters | None = None, coulomb_velocity_scale: float | None = None,
         offsets: bool = False) -> IdentifiedModel:
     """Ordinary least squares ``φ_b = (K_bᵀK_b)⁻¹K_bᵀτ`` (eq. 4.22) with σ% (eq. 4.24–4.27).
 
@@ -196,7 +198,7 @@ def ols(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, 
 
 
 def wls(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, tau: np.ndarray,
-        base: BaseParameters | None = None, coulomb_velocity_scale: float = 0.0,
+        base: BaseParameters | None = None, coulomb_velocity_scale: float | None = None,
         offsets: bool = False) -> IdentifiedModel:
     """Weighted least squares (Gautier): each joint's equations weighted by ``1/σ_i²``, ``σ_i`` the joint's OLS
     residual standard deviation; σ% from the weighted covariance. Arguments as :func:`ols`."""
@@ -224,7 +226,7 @@ def _pseudo_inertia(phi_link):
 
 
 def sdp(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, tau: np.ndarray,
-        base: BaseParameters | None = None, coulomb_velocity_scale: float = 0.0, offsets: bool = False,
+        base: BaseParameters | None = None, coulomb_velocity_scale: float | None = None, offsets: bool = False,
         regularization: float = 1e-4, min_mass: float = 1e-3) -> IdentifiedModel:
     """Physically consistent least squares as an SDP (pseudo-inertia LMI of Wensing et al. 2018; cf. Stürz 2017).
 
@@ -299,7 +301,7 @@ def _consistent(phi: np.ndarray, n: int, min_mass: float) -> bool:
 
 
 def identify(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, tau: np.ndarray,
-             method: str = "ols", base: BaseParameters | None = None, coulomb_velocity_scale: float = 0.0,
+             method: str = "ols", base: BaseParameters | None = None, coulomb_velocity_scale: float | None = None,
              offsets: bool = False) -> IdentifiedModel:
     """Dispatch to :func:`ols`, :func:`wls` or :func:`sdp`."""
     fns = {"ols": ols, "wls": wls, "sdp": sdp}

@@ -37,10 +37,12 @@ def stack_recordings(recs: Sequence[Recording], trim: int, config: ConditioningC
 
 def identify_recordings(train_recs: Sequence[Recording], validate_recs: Sequence[Recording], robot,
                         method: str = "ols", trim: int = 100, offsets: bool = True,
-                        coulomb_velocity_scale: float = 0.02, conditioning: ConditioningConfig = ConditioningConfig()):
+                        coulomb_velocity_scale: float | None = None,
+                        conditioning: ConditioningConfig = ConditioningConfig()):
     """Identify ``robot`` (a RobotDescription: kinematics + a-priori inertials) on Recordings and validate on
     others. Returns ``(model, table_text)`` with the Table 4.4-style per-joint MSE/σ on training and validation,
-    headed by each recording's conditioning line."""
+    headed by each recording's conditioning line. ``coulomb_velocity_scale`` [rad/s]: the Coulomb smoothing
+    (``None``: the library's, :mod:`proprio.friction_law`)."""
     train, cond_tr = stack_recordings(train_recs, trim, conditioning)
     model = identify(robot, *train, method, coulomb_velocity_scale=coulomb_velocity_scale, offsets=offsets)
     lines = sorted({f"{cs.describe()}" for cs in cond_tr})

@@ -8,8 +8,9 @@ Standard parameter vector ``φ ∈ ℝ^{12n}``: per joint/link ``j`` a block of 
   the joint frame rotated by ``q_j``);
 * ``I`` [kg·m²] the rotational inertia **about the link-frame origin** (not the CoM), link-frame axes, tensor entries
   (``Ixy`` is the matrix element, i.e. ``−∫xy dm``);
-* ``Fv`` [N·m·s/rad] viscous and ``Fc`` [N·m] Coulomb friction of joint ``j``: ``τ_f = Fv q̇ + Fc sgn(q̇)``, where
-  ``sgn`` is ``np.sign`` (``coulomb_velocity_scale = 0``, the default) or the smooth ``tanh(q̇ / scale)``.
+* ``Fv`` [N·m·s/rad] viscous and ``Fc`` [N·m] Coulomb friction of joint ``j``: ``τ_f = Fv q̇ + Fc sgn(q̇)``, the
+  one law of :mod:`proprio.friction_law`: ``sgn`` is the smooth ``tanh(q̇ / scale)`` with ``scale =
+  coulomb_velocity_scale`` [rad/s] (``None``, the default: the library's smoothing; ``0``: the exact ``sign``).
 
 The recursion is the thesis' Algorithm 4.7 in link frames: motion (ω, ω̇, linear acceleration of the origin with
 ``−g`` folded in) is propagated outwards, and instead of propagating wrenches inwards, every joint ``i ≤ j`` is
@@ -32,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from proprio import friction_law
 from proprio.description import Link, RobotDescription, rpy_to_matrix
 
 __all__ = ["PARAMS_PER_JOINT", "PARAMETER_KEYS", "parameter_names", "standard_parameters", "parameters_to_links",
@@ -205,7 +207,7 @@ CHUNK = 8192  # samples per pass: long enough to amortise the per-call overhead,
 
 
 def regressor_buffer(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
-                     coulomb_velocity_scale: float = 0.0,
+                     coulomb_velocity_scale: float | None = None,
                      geometry: RegressorGeometry | None = None) -> np.ndarray:
     """The regressor in its native layout ``B [n, 12n, N]``: ``τ_i(s) = Σ_c B[i, c, s] φ_c``.
 
@@ -228,8 +230,7 @@ def regressor_buffer(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd:
         _rigid_body_block(geo, q[:, sl], qd[:, sl], qdd[:, sl], out[:, :, sl], work)
     for j in range(n):
         out[j, 12 * j + 10] = qd[j]
-        out[j, 12 * j + 11] = (np.sign(qd[j]) if coulomb_velocity_scale == 0.0
-                               else np.tanh(qd[j] / coulomb_velocity_scale))
+        out[j, 12 * j + 11] = friction_law.smooth_sign(qd[j], coulomb_velocity_scale)
     return out
 
 
@@ -354,7 +355,7 @@ def _rigid_body_block(geo: RegressorGeometry, q: np.ndarray, qd: np.ndarray, qdd
 
 
 def regressor(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
-              coulomb_velocity_scale: float = 0.0, geometry: RegressorGeometry | None = None) -> np.ndarray:
+              coulomb_velocity_scale: float | None = None, geometry: RegressorGeometry | None = None) -> np.ndarray:
     """``Y [N, n, 12n]`` with ``τ = Y φ`` (rigid body + friction) for samples ``q, qd, qdd [N, n]``.
 
     Returns a strided view of :func:`regressor_buffer` (see the module docstring for the layout and the parameter

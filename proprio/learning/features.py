@@ -32,6 +32,8 @@ from typing import Callable
 
 import numpy as np
 
+from proprio import friction_law
+
 __all__ = ["R_MAX_DEG", "DEFAULT_DEADBAND_DEG", "TauRbdProvider", "rotational_displacement", "ReversalEncoder",
            "feature_matrix", "feature_names", "feature_columns", "rbd_provider"]
 
@@ -171,7 +173,8 @@ def feature_matrix(tau_rbd: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.n
 
 def rbd_provider(desc) -> TauRbdProvider:
     """The default backbone τ_RBD = RNEA of ``desc`` (:func:`proprio.dynamics.inverse_dynamics`) plus its viscous and
-    Coulomb friction ``f_v q̇ + f_c sign(q̇)`` when the description has friction."""
+    Coulomb friction ``f_v q̇ + f_c tanh(q̇/v_s)`` (the law and smoothing of :mod:`proprio.friction_law`) when the
+    description has friction."""
     from proprio.dynamics import inverse_dynamics
     from proprio.kinematics import chain_geometry
 
@@ -182,7 +185,7 @@ def rbd_provider(desc) -> TauRbdProvider:
     def tau_rbd(q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         tau = inverse_dynamics(desc, q, qd, qdd, geometry=geo)
         if fv is not None:
-            tau = tau + fv * qd + fc * np.sign(qd)
+            tau = tau + friction_law.viscous_coulomb(qd, fv, fc)
         return tau
 
     return tau_rbd

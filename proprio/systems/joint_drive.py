@@ -36,6 +36,7 @@ from __future__ import annotations
 import numpy as np
 from pydrake.systems.framework import BasicVector, Context, DiagramBuilder, DiscreteValues, LeafSystem
 
+from proprio import friction_law
 from proprio.effects import Elasticity, JointEffect, Motor, Stribeck, ViscousCoulomb
 from proprio.signals import MotionSignals
 
@@ -48,13 +49,13 @@ def friction_slope(link_effects: list[JointEffect], motor: Motor | None = None) 
     slope = 0.0
     for eff in link_effects:
         if isinstance(eff, ViscousCoulomb):
-            slope = slope + eff.viscous + eff.coulomb / eff.smooth_velocity
+            slope = slope + friction_law.slope_at_rest(eff.viscous, eff.coulomb, eff.smooth_velocity)
         elif isinstance(eff, Stribeck):
-            slope = slope + eff.static / eff.smooth_velocity
+            slope = slope + friction_law.slope_at_rest(0.0, eff.static, eff.smooth_velocity)
         else:
             slope = slope + _numeric_slope(eff)
     if motor is not None:
-        slope = slope + motor.motor_viscous + motor.motor_coulomb / motor.smooth_velocity
+        slope = slope + friction_law.slope_at_rest(motor.motor_viscous, motor.motor_coulomb, motor.smooth_velocity)
     return np.asarray(slope, dtype=float)
 
 
@@ -113,18 +114,14 @@ class JointDrive(LeafSystem):
         self.elasticity = elasticity
         self.time_step = time_step
         self.session_time_s = float(session_time_s)
-        # per-step fast path: every friction acting on q̇ as one viscous sum + stacked smooth-sign terms
+        # per-step fast path: the viscous + Coulomb frictions acting on q̇ (link side, and the motor's for a rigid
+        # drive) stacked as rows [k, n] of ONE call of the law (proprio.friction_law, the effects' batch code)
         on_qd = self.link_effects + ([motor] if motor is not None and elasticity is None else [])
-        self._viscous, self._smooth_sign = np.zeros(n), []          # F_v sum; (F_c, 1/v_s) pairs
+        rows = [(e.viscous, e.coulomb, e.smooth_velocity) for e in on_qd if isinstance(e, ViscousCoulomb)]
+        rows += [(e.motor_viscous, e.motor_coulomb, e.smooth_velocity) for e in on_qd if isinstance(e, Motor)]
+        self._vc = tuple(np.array(col) for col in zip(*rows)) if rows else None      # (F_v, F_c, v_s), each [k, n]
         self._stribeck = [e for e in on_qd if isinstance(e, Stribeck)]
         self._general = [e for e in self.link_effects if not isinstance(e, (ViscousCoulomb, Stribeck))]
-        for eff in on_qd:
-            if isinstance(eff, ViscousCoulomb):
-                self._viscous = self._viscous + eff.viscous
-                self._smooth_sign.append((eff.coulomb, 1.0 / eff.smooth_velocity))
-            elif isinstance(eff, Motor):
-                self._viscous = self._viscous + eff.motor_viscous
-                self._smooth_sign.append((eff.motor_coulomb, 1.0 / eff.smooth_velocity))
         self._u_motor = self.DeclareVectorInputPort("motor_torque", n)
         self._u_link = self.DeclareVectorInputPort("link_state", 2 * n)
         uses = {self._u_link.ticket()} | ({self.time_ticket()} if self._general else set())
@@ -161,9 +158,7 @@ class JointDrive(LeafSystem):
         drive) and the other link-side effects on (t, q, q̇)."""
         x = self._u_link.Eval(context)
         q, qd = x[:self.n], x[self.n:]
-        tau = self._viscous * qd
-        for coulomb, inv_vs in self._smooth_sign:
-            tau += coulomb * np.tanh(qd * inv_vs)
+        tau = np.zeros(self.n) if self._vc is None else friction_law.viscous_coulomb(qd, *self._vc).sum(axis=0)
         for eff in self._stribeck:
             tau = tau + eff.friction(qd)
         if self._general:
