@@ -1,8 +1,13 @@
-"""User-defined effects (plugins, README "Your own effect"): resolved by dotted path, simulated by the twin (link side
-in the joint drive, sensor side in the torque sensor), named by the diagnosis when the model lacks them."""
+"""User-defined effects (plugins, README "Your own effect"): resolved by dotted path once the user consented (an
+entry point, --allow-plugin, register_plugin), simulated by the twin (link side in the joint drive, sensor side in
+the torque sensor), named by the diagnosis when the model lacks them; a config alone never imports code."""
 from __future__ import annotations
 
+import os
 import re
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,7 +20,8 @@ from proprio.diagnosis.benchmark_cases import rfma_like_motion
 from proprio.diagnosis.data import SimModel
 from proprio.diagnosis.selection import attribute
 from proprio.diagrams.twin import TwinConfig, TwinConfigError, simulate_twin
-from proprio.effects import EffectConfigError, JointEffect, effect_key, make_effects, resolve_effect
+from proprio.effects import EffectConfigError, JointEffect, effect_key, make_effects, register_plugin, resolve_effect
+from proprio.effects.plugins import ALLOW_ENV
 from proprio.effects.base import INF, diagonal_regressor
 from proprio.recording import Recording
 from proprio.signals import MotionSignals
@@ -60,7 +66,8 @@ class NotAnEffect:
     name = "nothing"
 
 
-SPRING = f"{__name__}:HoseSpring"
+SPRING = register_plugin(HoseSpring)
+CROSS_TALK = register_plugin(GaugeCrossTalk)
 K1 = 3.0                                                      # N·m/rad on joint 1
 
 
@@ -71,10 +78,16 @@ def twin_config(effects: dict) -> TwinConfig:
     return TwinConfig.from_dict(data, "test")
 
 
-def test_resolve_effect_and_its_errors():
+def test_resolve_effect_and_its_errors(monkeypatch):
     assert resolve_effect("hysteresis").name == "hysteresis"
-    assert resolve_effect(SPRING) is HoseSpring and effect_key(HoseSpring) == SPRING
-    assert resolve_effect("proprio.effects.open_world:CableSpring").place == "link"
+    assert resolve_effect(SPRING) is HoseSpring and effect_key(HoseSpring) == SPRING == f"{__name__}:HoseSpring"
+    assert resolve_effect("proprio.effects.open_world:CableSpring").place == "link"     # shipped: no consent needed
+    with pytest.raises(EffectConfigError, match="not registered.*--allow-plugin"):
+        resolve_effect(f"{__name__}:Missing")                  # the module is even imported already: still refused
+    with pytest.raises(EffectConfigError, match="absolute path"):
+        resolve_effect(".relative:Spring")
+    monkeypatch.setenv(ALLOW_ENV, ",".join(f"{__name__}:{c}" for c in ("Missing", "NotAnEffect", "MotorSidePlugin"))
+                       + ",no_such_package_xyz.effects:Spring")
     with pytest.raises(EffectConfigError, match="cannot be imported"):
         resolve_effect("no_such_package_xyz.effects:Spring")
     with pytest.raises(EffectConfigError, match="no attribute 'Missing'"):
@@ -86,7 +99,7 @@ def test_resolve_effect_and_its_errors():
     with pytest.raises(EffectConfigError, match="unknown joint effect"):
         make_effects({"hose_spring": {}}, 7)
     with pytest.raises(TwinConfigError, match="cannot be imported"):
-        twin_config({"no_such_package_xyz:Spring": {}})
+        twin_config({"no_such_package_xyz.effects:Spring": {}})
 
 
 def test_plugins_act_in_the_twin_and_are_logged_as_truth():
@@ -94,7 +107,7 @@ def test_plugins_act_in_the_twin_and_are_logged_as_truth():
     k[0] = K1
     c = np.zeros(7)
     c[2] = 0.05
-    cfg = twin_config({SPRING: {"stiffness": k.tolist()}, f"{__name__}:GaugeCrossTalk": {"coupling": c.tolist()}})
+    cfg = twin_config({SPRING: {"stiffness": k.tolist()}, CROSS_TALK: {"coupling": c.tolist()}})
     t = np.linspace(0.0, 2.0, 5)
     q = np.array([0.1, 0.5, -0.2, -1.2, 0.3, 0.7, 0.2]) + np.outer([0, 0.4, -0.3, 0.2, 0], np.ones(7))
     rec = simulate_twin(cfg, PiecewisePolynomial.CubicShapePreserving(t, q.T, True), progress=False)
@@ -106,7 +119,7 @@ def test_plugins_act_in_the_twin_and_are_logged_as_truth():
     # sensor side: the measured τ = τ_J + cross-talk of the next joint's τ_J (no noise effect configured)
     np.testing.assert_allclose(tr["tau_gauge_cross_talk"][:, 2], 0.05 * tr["tau_J_true"][:, 3], atol=1e-12)
     np.testing.assert_allclose(rec.tau, tr["tau_J_true"] + tr["tau_gauge_cross_talk"], atol=1e-9)
-    assert set(rec.meta["effects"]) == {SPRING, f"{__name__}:GaugeCrossTalk"}
+    assert set(rec.meta["effects"]) == {SPRING, CROSS_TALK}
     assert [e.name for e in make_effects(rec.meta["effects"], 7)] == ["hose_spring", "gauge_cross_talk"]
 
 

@@ -6,7 +6,7 @@ import argparse
 import shutil
 from pathlib import Path
 
-from proprio.cli import UserError
+from proprio.cli import UserError, positive_int
 
 __all__ = ["add_backend_args", "check_backend_args", "clear_state"]
 
@@ -20,7 +20,7 @@ def add_backend_args(p: argparse.ArgumentParser, workers_default: str) -> None:
                    help="Ray cluster to run on with --backend ray: 'auto' (the cluster this machine joined with "
                         "'ray start'), HOST:6379, or ray://HOST:10001 (Ray Client); default: start a local Ray "
                         "instance")
-    p.add_argument("--workers", type=int, default=None,
+    p.add_argument("--workers", type=positive_int, default=None,
                    help=f"parallel workers: processes (local) or CPUs of the local Ray instance (default "
                         f"{workers_default})")
     p.add_argument("--restart", action="store_true",
@@ -29,8 +29,6 @@ def add_backend_args(p: argparse.ArgumentParser, workers_default: str) -> None:
 
 
 def check_backend_args(args: argparse.Namespace) -> None:
-    if args.workers is not None and args.workers < 1:
-        raise UserError(f"--workers must be >= 1, got {args.workers}")
     if args.address and args.backend != "ray":
         raise UserError("--address needs --backend ray")
     if args.backend == "ray":
