@@ -167,3 +167,98 @@ def test_cli_names_a_bad_plugin_in_one_line(tmp_path, capsys):
         assert main(base + extra) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and re.search(expected, err[0]), err
+
+
+# --------------------------------------------------------------------------------------------------------------------
+# consent: a config names a plugin, it never imports one (issue 26)
+# --------------------------------------------------------------------------------------------------------------------
+ROOT = Path(__file__).resolve().parents[1]
+EVIL = '''
+from pathlib import Path
+Path({marker!r}).write_text("imported")
+from proprio.effects import JointEffect
+class Boom(JointEffect):
+    name = "boom"
+    place = "link"
+    linear = False
+    parameters = {{}}
+    def torque(self, s, rng=None):
+        return 0 * s.q
+'''
+
+
+@pytest.fixture(autouse=True)
+def _no_leaked_consent(monkeypatch):
+    """``--allow-plugin`` writes the allow-list into the environment: each test starts (and ends) without one."""
+    monkeypatch.delenv(ALLOW_ENV, raising=False)
+
+
+def _hostile_files(tmp_path: Path, module: str) -> tuple[Path, Path, Path, Path]:
+    """A module that writes a marker at import, a twin YAML and a twin_patch.yaml naming it, beside it."""
+    marker = tmp_path / "marker.txt"
+    (tmp_path / f"{module}.py").write_text(EVIL.format(marker=str(marker)))
+    twin = tmp_path / "twin.yaml"
+    twin.write_text(yaml.safe_dump({"name": "evil", "robot": "iiwa14_identified", "effects": {f"{module}:Boom": {}}}))
+    patch = tmp_path / "twin_patch.yaml"
+    patch.write_text(yaml.safe_dump({"patch_for": {"robot": "iiwa14_identified", "joints": 7},
+                                     "effects": {f"{module}:Boom": {}}}))
+    return marker, twin, patch, tmp_path / "out.npz"
+
+
+@pytest.mark.parametrize("which", ["twin", "patch"])
+def test_a_config_cannot_import_code_in_process(tmp_path, monkeypatch, capsys, which):
+    from proprio.cli import main
+
+    module = f"evil_{which}_inproc"
+    marker, twin, patch, out = _hostile_files(tmp_path, module)
+    monkeypatch.syspath_prepend(str(tmp_path))                     # importable: only consent stands in the way
+    monkeypatch.chdir(tmp_path)
+    args = ["simulate", "--trajectory", "none.npz", "--out", str(out)]
+    args += ["--twin", str(twin)] if which == "twin" else ["--patch", str(patch)]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not registered" in err[0] and f"--allow-plugin {module}:Boom" in err[0], err
+    assert not marker.exists() and not out.exists() and module not in sys.modules
+    # the same file with the user's consent: the module is imported (the marker proves this test can fail)
+    assert main(args + ["--allow-plugin", f"{module}:Boom"]) == 2          # then --trajectory none.npz is missing
+    assert "--trajectory" in capsys.readouterr().err and marker.exists()
+
+
+@pytest.mark.parametrize("which", ["twin", "patch"])
+def test_a_config_cannot_import_code_with_python_m(tmp_path, which):
+    """``python -m proprio`` from the folder holding the .py: the working directory is not a plugin source."""
+    marker, twin, patch, out = _hostile_files(tmp_path, "evil_mod")
+    args = ["--twin", twin.name] if which == "twin" else ["--patch", patch.name]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env.pop(ALLOW_ENV, None)
+    for extra in ([], ["--allow-plugin", "evil_mod:Boom"]):      # even allowed, the cwd's module is not importable
+        proc = subprocess.run([sys.executable, "-m", "proprio", "simulate", *args, "--trajectory", "none.npz",
+                               "--out", out.name, *extra], cwd=tmp_path, env=env, capture_output=True, text=True,
+                              timeout=120)
+        assert proc.returncode == 2, proc.stderr
+        lines = proc.stderr.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("proprio: error:") and "evil_mod:Boom" in lines[0], lines
+        assert "Traceback" not in proc.stderr and not marker.exists() and not out.exists()
+
+
+def test_an_entry_point_registers_a_plugin(tmp_path, monkeypatch):
+    """A package that declares ``[project.entry-points."proprio.effects"]`` (here: its installed dist-info) is usable
+    by name in a config without any flag."""
+    (tmp_path / "hose_pkg.py").write_text(
+        "import numpy as np\nfrom proprio.effects import JointEffect\n"
+        "class Hose(JointEffect):\n    name = 'hose'\n    place = 'link'\n    linear = False\n"
+        "    parameters = {'stiffness': (0.0, -1e9, 1e9)}\n"
+        "    def torque(self, s, rng=None):\n        return self.stiffness * s.q\n")
+    info = tmp_path / "hose_pkg-1.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: hose-pkg\nVersion: 1.0\n")
+    (info / "entry_points.txt").write_text("[proprio.effects]\nhose = hose_pkg:Hose\n")
+    with pytest.raises(EffectConfigError, match="not registered"):
+        make_effects({"hose_pkg:Hose": {}}, 7)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    (effect,) = make_effects({"hose_pkg:Hose": {"stiffness": [2.0] * 7}}, 7)
+    assert effect.name == "hose" and effect_key(effect) == "hose_pkg:Hose"
+    q = np.full((3, 7), 0.5)
+    np.testing.assert_allclose(effect.torque(MotionSignals(t=np.arange(3.0), q=q, qd=0 * q, qdd=0 * q)), 1.0)
+    cfg = twin_config({"hose_pkg:Hose": {"stiffness": [2.0] * 7}})
+    assert [e.name for e in cfg.effects] == ["hose"]

@@ -192,10 +192,18 @@ def make_effects(config: dict | None, n: int) -> list[JointEffect]:
     paths = [str(k) for k in config if is_plugin_path(str(k))]
     for p in paths:
         _check_consent(p)
-    library = [cls.from_config(config[name], n) for name, cls in EFFECTS.items() if name in config]
+    library = [_build(name, cls, config[name], n) for name, cls in EFFECTS.items() if name in config]
     plugins = {p: resolve_effect(p) for p in paths}
     names = [cls.name for cls in plugins.values()]
     twice = sorted({k for k in names if names.count(k) > 1})
     if twice:
         raise EffectConfigError(f"plugins {sorted(plugins)}: effect name(s) {twice} given more than once")
-    return library + [cls.from_config(config[p], n) for p, cls in plugins.items()]
+    return library + [_build(p, cls, config[p], n) for p, cls in plugins.items()]
+
+
+def _build(key: str, cls: type[JointEffect], block: Any, n: int) -> JointEffect:
+    """``cls.from_config(block, n)``; a block or a plugin class that cannot make an instance names ``key``."""
+    try:
+        return cls.from_config(block, n)
+    except TypeError as exc:        # e.g. a plugin that does not implement torque(), a field the class lacks
+        raise EffectConfigError(f"{key}: {exc}") from None
