@@ -99,6 +99,9 @@ class Recording:
 
 
 def _check_array(name: str, a: Any, shape: tuple[int | None, ...], source: str) -> np.ndarray:
+    kind = np.asarray(a).dtype.kind
+    if kind not in "biuf":          # text, complex, objects, dates: never converted silently
+        raise RecordingError(f"{source}: '{name}' is not real numbers (dtype {np.asarray(a).dtype})")
     try:
         arr = np.asarray(a, dtype=float)
     except (TypeError, ValueError) as exc:

@@ -5,7 +5,7 @@ import argparse
 from pathlib import Path
 
 from proprio.cli._backend import add_backend_args, check_backend_args, clear_state
-from proprio.cli import add_plugin_args, check_output, nonnegative, nonnegative_int, positive, positive_int
+from proprio.cli import UserError, add_plugin_args, check_output, nonnegative, nonnegative_int, positive, positive_int
 
 __all__ = ["register"]
 
@@ -42,7 +42,10 @@ def _dataset(args: argparse.Namespace) -> int:
 
     check_output(args.out, "--out", "dir")
     check_backend_args(args)
-    spec = DatasetSpec(twin=args.twin, seeds=seeds_from(args.seeds), payloads_kg=tuple(args.payload_kg),
+    seeds = seeds_from(args.seeds)
+    if any(s < 0 for s in seeds):
+        raise UserError(f"--seeds: seeds are integers >= 0, got {min(seeds)}")
+    spec = DatasetSpec(twin=args.twin, seeds=seeds, payloads_kg=tuple(args.payload_kg),
                        scaffolds=args.scaffolds, seconds=args.seconds, log_rate_hz=args.log_rate,
                        twin_seed=args.twin_seed)
     clear_state(args.out / ".tasks", args.restart)

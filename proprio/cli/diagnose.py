@@ -85,10 +85,21 @@ def _model(args: argparse.Namespace):
         raise UserError(f"--model: cannot load robot {args.model!r} ({exc})") from exc
     config = {}
     if args.effects_config:
-        if not args.effects_config.exists():
-            raise UserError(f"--effects-config: no such file {args.effects_config}")
-        data = yaml.safe_load(args.effects_config.read_text()) or {}
-        config = data.get("effects", data) if isinstance(data, dict) else {}
+        where = f"--effects-config {args.effects_config}"
+        if not args.effects_config.is_file():
+            raise UserError(f"{where}: no such file")
+        try:
+            data = yaml.safe_load(args.effects_config.read_text()) or {}
+        except yaml.YAMLError as exc:
+            raise UserError(f"{where}: not valid YAML ({exc})") from None
+        config = data.get("effects", data) if isinstance(data, dict) else data
+        if not isinstance(config, dict):
+            raise UserError(f"{where}: expected a mapping {{effect: parameters}} (or one under 'effects:'), got a "
+                            f"{type(config).__name__}")
+        try:
+            make_effects(config, robot.n)               # the whole file is checked, whatever --effects picks
+        except ValueError as exc:
+            raise UserError(f"{where}: {exc}") from None
     chosen = {k: config.get(k) for k in args.effects}
     if robot.has_friction and "viscous_coulomb" in chosen:
         raise UserError(f"friction given twice: the robot file of --model {args.model!r} already has link friction "
@@ -99,17 +110,26 @@ def _model(args: argparse.Namespace):
         raise UserError(f"--effects: {exc}") from exc
 
 
+# candidates of the diagnosis that are not joint effects (proprio.diagnosis.candidates.candidate_set)
+_NON_EFFECT_CANDIDATES = ("rigid_body", "payload", "signal_lag", "sensor_offset", "sensor_gain")
+
+
 def _diagnose(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from proprio.conditioning import ConditioningConfig
     from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING
     from proprio.diagnosis.report import diagnose
-    from proprio.effects import allow_plugins, resolve_effect
+    from proprio.effects import EFFECTS, allow_plugins, resolve_effect
     from proprio.effects.plugins import is_plugin_path
     from proprio.recording import load_recording
 
     check_output(args.out, "--out", "dir")
+    unknown = [k for k in args.candidates or () if k not in EFFECTS and k not in _NON_EFFECT_CANDIDATES
+               and not is_plugin_path(k)]
+    if unknown:                                     # before any data are read (the diagnosis checks them again)
+        raise UserError(f"--candidates: unknown {unknown}; valid: {sorted([*EFFECTS, *_NON_EFFECT_CANDIDATES])} or "
+                        "a plugin 'package.module:Class'")
     # plugins named on the command line itself are the user's consent; a config's are not (--allow-plugin)
     allow_plugins([name for name in args.candidate + args.effects if is_plugin_path(name)])
     cutoff = args.cutoff if args.cutoff == "auto" else _positive_float(args.cutoff, "--cutoff")

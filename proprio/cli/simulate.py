@@ -4,6 +4,7 @@ Fig. 2.5)."""
 from __future__ import annotations
 
 import argparse
+import zipfile
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -29,8 +30,8 @@ def load_any_trajectory(path: str | Path):
     try:
         with np.load(path, allow_pickle=False) as z:
             keys = set(z.files)
-    except (OSError, ValueError) as exc:
-        raise UserError(f"--trajectory: {path} is not a readable .npz ({exc})") from exc
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise UserError(f"--trajectory: {path} is not a readable .npz, truncated or corrupted ({exc})") from None
     if {"breaks", "q", "qd"} <= keys:
         return load_trajectory(path)[0]
     if {"t", "q"} <= keys or LWR4_KEYS <= keys:

@@ -5,6 +5,8 @@ import argparse
 import time
 from pathlib import Path
 
+import yaml
+
 from proprio.cli import UserError, check_output, nonnegative_int, positive, positive_int
 
 __all__ = ["register", "plot_trajectory"]
@@ -47,7 +49,10 @@ def _cmd_rfma(args: argparse.Namespace) -> int:
     check_output(args.out, "--out", "file")
     overrides = {k: v for k, v in (("scaffolds", args.scaffolds), ("seed", args.seed), ("robot", args.robot))
                  if v is not None}
-    cfg = load_rfma_config(args.config, **overrides)
+    try:
+        cfg = load_rfma_config(args.config, **overrides)
+    except yaml.YAMLError as exc:
+        raise UserError(f"--config {args.config}: not valid YAML ({exc})") from None
     desc = load_robot(cfg.robot)
     t0 = time.perf_counter()
     path, timed = generate_rfma(cfg, desc, progress=True)
