@@ -308,6 +308,9 @@ NUMBERS = [   # (command line, flag named)
     ("gap-benchmark --out {o}/b --seed -1", "--seed"),
     ("gap-benchmark --out {o}/b --workers 0", "--workers"),
     ("gap-benchmark --out {o}/b --address 10.0.0.1:6379", "--address"),
+    ("gap-benchmark --out {o}/b --backend ray --address 127.0.0.1:1", "--address"),
+    ("gap-benchmark --out {o}/b --backend ray --address nowhere", "--address"),
+    ("dataset --seeds 1 --out {o}/ds --backend ray --address ray://127.0.0.1:1", "--address"),
     ("gap-benchmark --out {o}/b --cases no_such_case", "no_such_case"),
 ]
 for _line, _flag in NUMBERS:
@@ -448,11 +451,7 @@ def _no_leaked_consent(monkeypatch):
 
 
 def _run(line: str, d: Path, o: Path, capsys) -> tuple[int, str, str]:
-    argv = line.format(d=d, o=o).split()
-    try:
-        code = main(argv)
-    except SystemExit as exc:                # argparse exits itself
-        code = exc.code
+    code = main(line.format(d=d, o=o).split())
     cap = capsys.readouterr()
     return code, cap.out, cap.err
 

@@ -31,11 +31,15 @@ __all__ = ["main", "build_parser", "UserError", "check_output", "add_plugin_args
            "positive_int", "nonnegative_int"]
 
 
+class _CommandLineError(Exception):
+    """A bad command line (raised by the parser, reported by :func:`main` like every user error)."""
+
+
 class _Parser(argparse.ArgumentParser):
     """An ``ArgumentParser`` whose errors are the command line's one line (not argparse's usage + error)."""
 
     def error(self, message: str) -> NoReturn:
-        self.exit(2, f"proprio: error: {self.prog}: {message} (see '{self.prog} --help')\n")
+        raise _CommandLineError(f"{self.prog}: {message} (see '{self.prog} --help')")
 
 
 def _number(kind: type, ok: Callable[[float], bool], what: str) -> Callable[[str], float]:
@@ -127,7 +131,11 @@ def _one_line(exc: BaseException) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except _CommandLineError as exc:
+        print(f"proprio: error: {exc}", file=sys.stderr)
+        return 2
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
