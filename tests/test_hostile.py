@@ -90,8 +90,9 @@ def _csvs(d: Path, g: dict) -> None:
     body = "\n".join(",".join(f"{x:.6g}" for x in r) for r in rows)
     (d / "good.csv").write_text(",".join(header) + "\n" + body + "\n")
     lines = body.split("\n")
-    lines[100] = lines[100].replace(lines[100].split(",")[3], "abc", 1)
-    (d / "text_cell.csv").write_text(",".join(header) + "\n" + "\n".join(lines) + "\n")
+    cells = lines[100].split(",")
+    (d / "text_cell.csv").write_text(",".join(header) + "\n" + "\n".join(
+        lines[:100] + [",".join(cells[:3] + ["abc"] + cells[4:])] + lines[101:]) + "\n")
     (d / "semicolon.csv").write_text(";".join(header) + "\n" + "\n".join(
         ";".join(f"{x:.6g}".replace(".", ",") for x in r) for r in rows) + "\n")
     (d / "no_tau.csv").write_text(",".join(header[:8]) + "\n" + "\n".join(
@@ -232,9 +233,8 @@ for _bad, _word in BAD_RECORDINGS.items():
         _named = _word if _bad == "six_joints" else f"{_bad}\\.npz.*({_word})|({_word}).*{_bad}\\.npz"
         CASES.append((f"{_cmd}-{_bad}", _line, _named))
 
-for _bad, _word in {"text_cell": "abc|text|number", "semicolon": "delimiter|separat|;|column", "no_tau": "tau",
-                    "header_only": "sample|empty|no data", "empty": "empty|header", "reversed": "increasing",
-                    "missing": "no such file|not found"}.items():
+for _bad, _word in {"text_cell": "'abc' is not a number", "no_tau": "tau1", "header_only": "0 sample",
+                    "reversed": "increasing", "missing": "no such file"}.items():
     CASES.append((f"inspect-csv-{_bad}", f"inspect {{d}}/{_bad}.csv", _word))
 
 NUMBERS = [   # (command line, flag named)
