@@ -221,8 +221,9 @@ BAD_RECORDINGS = {      # file → words its message must name (besides the file
     "nan_q": "NaN|nan", "inf_tau": "inf", "nan_t": "NaN|nan", "reversed_t": "increasing", "backward_t": "increasing",
     "degrees_q": "degree", "six_joints": "6 joints", "short_tau": "tau", "flat_q": "q", "no_samples": "sample",
     "no_tau": "tau", "no_q": "q", "text_q": "q", "complex_tau": "tau", "bad_meta": "meta", "tau_3d": "tau",
-    "qd_wrong_shape": "qd", "f_ext_wrong_shape": "f_ext", "pickled": "pickle|object", "truncated": "truncated|corrupt",
-    "empty": "truncated|corrupt|empty", "text": "truncated|corrupt|npz", "raw_pickle": "truncated|corrupt|npz",
+    "qd_wrong_shape": "qd", "f_ext_wrong_shape": "f_ext", "pickled": "pickled Python objects",
+    "truncated": "truncated|corrupt", "empty": "truncated|corrupt|empty", "text": "truncated|corrupt|npz",
+    "raw_pickle": "pickled Python objects",
     "folder": "directory|folder|file", "missing": "no such file|not found",
 }
 
@@ -343,7 +344,7 @@ for _line, _flag, _kind in OUTPUTS:
 
 MODEL_FILES = {"model_wrong_keys.npz": "model_wrong_keys", "model_pickled.npz": "model_pickled",
                "model_truncated.npz": "model_truncated", "model_garbage.pt": "model_garbage",
-               "model_wrong_state.pt": "model_wrong_state", "model_exploit.pt": "model_exploit",
+               "model_wrong_state.pt": "model_wrong_state", "model_exploit.pt": "model_exploit.*pickled Python",
                "model_truncated.pt": "model_truncated", "model_empty.pt": "model_empty",
                "no_such_model.npz": "no_such_model", "no_such_robot_xyz": "no_such_robot_xyz",
                "robot_syntax.yaml": "robot_syntax"}
@@ -472,3 +473,27 @@ def test_hostile_input_is_one_line_naming_it(files, tmp_path, capsys, line, word
     assert not "allow_pickle" in stderr and "weights_only" not in stderr
     assert not out.exists() or not any(out.rglob("*")), "partial output written"
 
+
+
+def test_a_bug_keeps_its_traceback(monkeypatch):
+    """Only user errors are one line: an exception that is not one (a bug) propagates with its traceback."""
+    import proprio.cli.inspect as command
+
+    def bug(args):
+        raise KeyError("a bug in proprio")
+
+    monkeypatch.setattr(command, "run", bug)
+    with pytest.raises(KeyError, match="a bug in proprio"):
+        main(["inspect", "whatever.npz"])
+
+
+def test_a_loaders_pickle_advice_is_never_passed_on():
+    from proprio.cli import _one_line
+
+    numpy = ValueError("x.npz: not readable (Object arrays cannot be loaded when allow_pickle=False)")
+    torch = ValueError("m.pt: not a readable model file (Weights only load failed. Re-running `torch.load` with "
+                       "`weights_only` set to `False` will likely succeed)")
+    for exc in (numpy, torch):
+        line = _one_line(exc)
+        assert "pickled Python objects, which proprio never loads" in line and line.count("(") == line.count(")")
+        assert not re.search("allow_pickle|weights_only|Re-running", line), line

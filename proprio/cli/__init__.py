@@ -17,7 +17,6 @@ import argparse
 import importlib
 import math
 import pkgutil
-import re
 import sys
 import tempfile
 from pathlib import Path
@@ -112,21 +111,23 @@ def check_output(path: str | Path | None, flag: str, kind: str = "file") -> None
         raise UserError(f"{flag} {path}: cannot write in {folder} ({exc.strerror or exc})") from None
 
 
-# advice of the loaders that proprio never follows (loading pickles runs code): dropped from the messages
-_UNSAFE_ADVICE = re.compile(r"[^.]*\b(allow_pickle|weights_only|pickle\.load|unsafely|trusted source)\b[^.]*\.?",
-                            re.IGNORECASE)
+# where a loader starts its advice to load pickles anyway (loading pickles runs code): never passed on
+_PICKLE_ADVICE = ("Weights only load failed", "This file contains pickled", "Object arrays cannot be loaded",
+                  "allow_pickle", "weights_only", "pickle.load", "unsafely")
 
 
 def _one_line(exc: BaseException) -> str:
-    """The message of ``exc`` on one line, without a loader's advice to load pickles."""
+    """The message of ``exc`` on one line; a loader's text about pickles is replaced by proprio's own word."""
     if isinstance(exc, OSError) and exc.strerror and exc.filename:
         text = f"{exc.filename}: {exc.strerror}"
     else:
         text = " ".join(line.strip() for line in str(exc).splitlines() if line.strip())
-    cleaned = _UNSAFE_ADVICE.sub("", text).strip(" ;:,(")
-    if cleaned != text:
-        cleaned = f"{cleaned} (the file holds pickled Python objects, which proprio never loads)".lstrip()
-    return re.sub(r"\s+", " ", cleaned) or type(exc).__name__
+    cut = min((i for i in (text.find(k) for k in _PICKLE_ADVICE) if i >= 0), default=-1)
+    if cut >= 0:
+        head = text[:cut].rstrip(" (:;,-")
+        text = f"{head}: the file holds pickled Python objects, which proprio never loads" + \
+            ")" * max(head.count("(") - head.count(")"), 0)
+    return text.strip() or type(exc).__name__
 
 
 def main(argv: list[str] | None = None) -> int:

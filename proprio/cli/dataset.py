@@ -25,7 +25,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="RFMA trajectory seeds: integers or inclusive ranges A-B (e.g. 11 12 13 or 20-29)")
     p.add_argument("--payload-kg", nargs="+", type=nonnegative, default=[0.0], metavar="M",
                    help="payload masses at the flange [kg], each simulated on every seed (default 0)")
-    p.add_argument("--scaffolds", type=positive_int, default=150, help="RFMA scaffolds per trajectory (default 150, ≈1 h)")
+    p.add_argument("--scaffolds", type=positive_int, default=150,
+                   help="RFMA scaffolds per trajectory (default 150, ≈1 h)")
     p.add_argument("--seconds", type=positive, default=None, help="simulate only the first SECONDS of each trajectory")
     p.add_argument("--log-rate", type=positive, default=None, help="log rate [Hz] (default: the twin config's)")
     p.add_argument("--twin-seed", type=nonnegative_int, default=None,

@@ -25,7 +25,8 @@ def _add_observer_options(p: argparse.ArgumentParser) -> None:
                    "signal conditioning for q and τ [Hz], or 'auto' (per joint from the data's noise floor; default)")
     p.add_argument("--force-only", action="store_true", help="estimate the 3-D force only (moment reported as 0); "
                    "right for a payload whose CoM is the contact point")
-    p.add_argument("--sigma-threshold", type=nonnegative, default=0.02, help="flag samples whose smallest Jacobian singular "
+    p.add_argument("--sigma-threshold", type=nonnegative, default=0.02,
+                   help="flag samples whose smallest Jacobian singular "
                    "value is below this as unreliable and damp them (default 0.02)")
 
 

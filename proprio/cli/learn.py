@@ -114,7 +114,8 @@ def _common(p: argparse.ArgumentParser) -> None:
                         "--test-data is given")
     p.add_argument("--test-data", nargs="+", metavar="REC", help="held-out Recordings used as the whole test split")
     p.add_argument("--backbone", metavar="SPEC", help=_BACKBONE_HELP)
-    p.add_argument("--threads", type=positive_int, default=1, help="torch CPU threads (default 1; per task in train-grid)")
+    p.add_argument("--threads", type=positive_int, default=1,
+                   help="torch CPU threads (default 1; per task in train-grid)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default=None,
                    help="where torch trains and evaluates: auto (CUDA when torch sees a GPU, else CPU), cpu, cuda "
                         "(an error without one); default: the config's train.device (auto)")

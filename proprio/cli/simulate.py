@@ -137,8 +137,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "RMS(tau_meas - tau_twin) per joint (with --patch: for the base twin and the patched one)")
     p.add_argument("--trim", type=nonnegative, default=0.5,
                    help="with --replay: seconds left out of the gap at both ends (default 0.5, as diagnose)")
-    p.add_argument("--payload-kg", type=nonnegative, default=None, help="payload mass at the flange [kg] (overrides the "
-                                                                  "config's payload)")
+    p.add_argument("--payload-kg", type=nonnegative, default=None,
+                   help="payload mass at the flange [kg] (overrides the config's payload)")
     p.add_argument("--payload-com", type=finite, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),
                    help="payload centre of mass in the flange frame [m] (default 0 0 0)")
     p.add_argument("--seconds", type=positive, default=None, help="simulate only the first SECONDS of the trajectory")

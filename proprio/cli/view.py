@@ -97,6 +97,7 @@ def register(subparsers) -> None:
     p.add_argument("--cutoff-hz", default="auto", metavar="HZ|auto", help="the conditioning's zero-phase cutoff for a "
                    "Recording [Hz], or 'auto' (from the data's noise floor; default, as `proprio estimate`)")
     p.add_argument("--port", type=int, help="Meshcat port on localhost (default: the first free one from 7000)")
-    p.add_argument("--serve-seconds", type=nonnegative, metavar="S", help="without --html: stop serving after S seconds "
+    p.add_argument("--serve-seconds", type=nonnegative, metavar="S",
+                   help="without --html: stop serving after S seconds "
                    "(default: until Ctrl-C)")
     p.set_defaults(func=run_view)

@@ -72,7 +72,7 @@ def _check_path(name: Any) -> tuple[str, str]:
 
 
 def _entry_points() -> dict[str, EntryPoint]:
-    """The installed packages' ``proprio.effects`` entry points by plugin path (read from metadata, nothing imported)."""
+    """The installed packages' ``proprio.effects`` entry points by plugin path (from metadata: nothing imported)."""
     return {f"{ep.module}:{ep.attr}": ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
 
 
