@@ -153,6 +153,9 @@ def _configs(d: Path) -> None:
         "twin_logger_channel": {**base, "logger": {"channels": ["q", "torque"]}},
         "twin_payload_negative": {**base, "payload": {"mass": -2}},
         "twin_elastic_no_drive": {**base, "effects": {"elasticity": {}}},
+        "twin_effect_word": {**base, "effects": {"torque_noise": {"std": "abc"}}},
+        "twin_effect_short": {**base, "effects": {"hysteresis": {"saturation": [1, 2]}}},
+        "twin_effect_field_typo": {**base, "effects": {"torque_noise": {"sdt": 0.1}}},
     }
     for name, data in twins.items():
         _yaml(d, f"{name}.yaml", data)
@@ -371,7 +374,8 @@ TWIN_WORDS = {
     "twin_plugin_unregistered": "os:system", "twin_plugin_relative": ".evil:Boom", "twin_plugin_bad_syntax": "a b:C",
     "twin_kp_short": "kp", "twin_kp_negative": "kp", "twin_controller_unknown": "kpp", "twin_time_step": "time_step",
     "twin_session_word": "session_time_s", "twin_logger_rate": "rate_hz", "twin_logger_channel": "torque",
-    "twin_payload_negative": "payload", "twin_elastic_no_drive": "drive",
+    "twin_payload_negative": "payload", "twin_elastic_no_drive": "drive", "twin_effect_word": "torque_noise.std",
+    "twin_effect_short": "hysteresis.saturation", "twin_effect_field_typo": "sdt",
 }
 for _twin, _word in TWIN_WORDS.items():
     _t = f"{{d}}/{_twin}.yaml"
