@@ -111,6 +111,9 @@ class Recording:
 
 
 def _check_array(name: str, a: Any, shape: tuple[int | None, ...], source: str) -> np.ndarray:
+    kind = np.asarray(a).dtype.kind
+    if kind not in "biuf":          # text, complex, objects, dates: never converted silently
+        raise RecordingError(f"{source}: '{name}' is not real numbers (dtype {np.asarray(a).dtype})")
     try:
         arr = np.asarray(a, dtype=float)
     except (TypeError, ValueError) as exc:
@@ -308,6 +311,7 @@ def recording_from_csv(path: str | Path, n_joints: int, angle_unit: str = "rad",
     names = table.dtype.names or ()
     if table.ndim == 0:
         table = table.reshape(1)
+    _check_csv_cells(path, table, delimiter)
 
     def cols(prefix: str, required: bool) -> np.ndarray | None:
         keys = [f"{prefix}{i + 1}" for i in range(n_joints)]
@@ -328,6 +332,26 @@ def recording_from_csv(path: str | Path, n_joints: int, angle_unit: str = "rad",
                     qdd=None if qdd is None else qdd * scale, f_ext=f_ext,
                     meta={"source": f"csv:{path.name}", **(meta or {})})
     return validate_recording(merge_duplicate_stamps(rec), source=str(path))
+
+
+def _check_csv_cells(path: Path, table: np.ndarray, delimiter: str) -> None:
+    """A cell that is not a number (a word, a decimal comma) is an error naming it, never a NaN in the data."""
+    if not table.dtype.names or table.size == 0:
+        return
+    values = np.column_stack([table[k] for k in table.dtype.names])
+    if not np.isnan(values).any():
+        return
+    try:
+        text = np.loadtxt(path, delimiter=delimiter, dtype=str, skiprows=1, ndmin=2, encoding="utf-8")
+    except ValueError:                 # ragged rows: the NaN check of the data names the sample
+        return
+    if text.shape != values.shape:
+        return
+    bad = np.isnan(values) & ~np.isin(np.char.lower(np.char.strip(text)), ("nan", ""))
+    if bad.any():
+        row, col = np.argwhere(bad)[0]
+        raise RecordingError(f"{path}: row {row + 1} column '{table.dtype.names[col]}': '{text[row, col]}' is not "
+                             f"a number ({int(bad.sum())} such cell(s); '{delimiter}'-separated, '.' decimals)")
 
 
 def merge_duplicate_stamps(rec: Recording) -> Recording:

@@ -3,26 +3,70 @@ function elsewhere in the library.
 
 Every module ``proprio/cli/<name>.py`` that defines ``register(subparsers)`` is discovered automatically; its
 ``register`` adds one or more sub-parsers with ``set_defaults(func=...)``. A ``func(args) -> int`` returns the
-exit code. User errors (bad input files, bad configs) raise :class:`UserError` or ``ValueError`` subclasses and are
-printed as one line ``proprio: error: ...`` with exit code 2.
+exit code.
+
+**Errors.** Every user error is one line ``proprio: error: …`` on stderr with exit code 2 and nothing written:
+a bad command line (argparse), the project's bad-input family (:class:`proprio.errors.UserError` and the library's
+``ValueError`` subclasses, whose messages name the field or file), an OS error on a user's path, a YAML syntax
+error. Output paths are checked (:func:`check_output`) before any long work. Anything else is a bug and keeps its
+traceback.
 """
 from __future__ import annotations
 
 import argparse
 import importlib
+import math
 import pkgutil
 import sys
 import warnings
 
-__all__ = ["main", "build_parser", "UserError"]
+
+import tempfile
+from pathlib import Path
+from typing import Callable, NoReturn
+
+import yaml
+
+from proprio.errors import UserError
+
+__all__ = ["main", "build_parser", "UserError", "check_output", "add_plugin_args", "finite", "nonnegative", "positive",
+           "positive_int", "nonnegative_int"]
 
 
-class UserError(Exception):
-    """An error caused by the user's input; printed without a traceback, exit code 2."""
+class _CommandLineError(Exception):
+    """A bad command line (raised by the parser, reported by :func:`main` like every user error)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """An ``ArgumentParser`` whose errors are the command line's one line (not argparse's usage + error)."""
+
+    def error(self, message: str) -> NoReturn:
+        raise _CommandLineError(f"{self.prog}: {message} (see '{self.prog} --help')")
+
+
+def _number(kind: type, ok: Callable[[float], bool], what: str) -> Callable[[str], float]:
+    """An argparse ``type``: ``kind(text)``, finite and ``ok``, else argparse's error naming the flag and ``what``."""
+    def convert(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+        if not (math.isfinite(value) and ok(value)):
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+        return value
+    convert.__name__ = what
+    return convert
+
+
+finite = _number(float, lambda v: True, "a finite number")
+nonnegative = _number(float, lambda v: v >= 0, "a finite number >= 0")
+positive = _number(float, lambda v: v > 0, "a finite number > 0")
+positive_int = _number(int, lambda v: v >= 1, "an integer >= 1")
+nonnegative_int = _number(int, lambda v: v >= 0, "an integer >= 0")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="proprio",
         description="Torque-sensing arm twin, identification, wrench estimation and sim-to-real gap diagnosis.")
     parser.add_argument("--version", action="version", version=f"proprio {_version()}")
@@ -43,23 +87,80 @@ def _warning_line(message, category, filename, lineno, line=None) -> str:
     return f"proprio: warning: {message}\n"
 
 
+def add_plugin_args(p: argparse.ArgumentParser) -> None:
+    """``--allow-plugin MODULE:CLASS`` (repeatable): the user's consent to import a plugin effect that a config
+    names (:mod:`proprio.effects.plugins`); a config alone never imports code."""
+    p.add_argument("--allow-plugin", action="append", default=[], metavar="MODULE:CLASS",
+                   help="allow a config (twin YAML, twin_patch.yaml, --effects-config) to use this plugin effect, "
+                        "importing its module; repeatable (plugins installed as 'proprio.effects' entry points need "
+                        "no flag)")
+
+
+def check_output(path: str | Path | None, flag: str, kind: str = "file") -> None:
+    """Refuse, before any work, an output ``path`` (``kind`` ``"file"`` or ``"dir"``) that cannot be written: a
+    directory where a file goes (or the reverse), a parent that is a file, a folder without write permission."""
+    if path is None:
+        return
+    path = Path(path)
+    if kind == "file" and path.is_dir():
+        raise UserError(f"{flag} {path}: is a directory; give a file name")
+    if kind == "dir" and path.exists() and not path.is_dir():
+        raise UserError(f"{flag} {path}: exists and is not a directory")
+    folder = path if kind == "dir" else path.parent
+    while not folder.exists():
+        folder = folder.parent
+    if not folder.is_dir():
+        raise UserError(f"{flag} {path}: {folder} is not a directory")
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as exc:
+        raise UserError(f"{flag} {path}: cannot write in {folder} ({exc.strerror or exc})") from None
+
+
+# where a loader starts its advice to load pickles anyway (loading pickles runs code): never passed on
+_PICKLE_ADVICE = ("Weights only load failed", "This file contains pickled", "Object arrays cannot be loaded",
+                  "allow_pickle", "weights_only", "pickle.load", "unsafely")
+
+
+def _one_line(exc: BaseException) -> str:
+    """The message of ``exc`` on one line; a loader's text about pickles is replaced by proprio's own word."""
+    if isinstance(exc, OSError) and exc.strerror and exc.filename:
+        text = f"{exc.filename}: {exc.strerror}"
+    else:
+        text = " ".join(line.strip() for line in str(exc).splitlines() if line.strip())
+    cut = min((i for i in (text.find(k) for k in _PICKLE_ADVICE) if i >= 0), default=-1)
+    if cut >= 0:
+        head = text[:cut].rstrip(" (:;,-")
+        text = f"{head}: the file holds pickled Python objects, which proprio never loads" + \
+            ")" * max(head.count("(") - head.count(")"), 0)
+    return text.strip() or type(exc).__name__
+
+
 def main(argv: list[str] | None = None) -> int:
     warnings.formatwarning = _warning_line   # a library warning (e.g. a repaired inertia) is one line, no source
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except _CommandLineError as exc:
+        print(f"proprio: error: {exc}", file=sys.stderr)
+        return 2
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
     try:
+        if getattr(args, "allow_plugin", None):
+            from proprio.effects.plugins import allow_plugins
+            allow_plugins(args.allow_plugin)
         return int(args.func(args) or 0)
-    except (UserError, ValueError, FileNotFoundError) as exc:
-        # one line, even when the message carries a parser's multi-line report (e.g. a YAML syntax error)
-        message = " ".join(line.strip() for line in str(exc).splitlines() if line.strip())
-        print(f"proprio: error: {message}", file=sys.stderr)
-        return 2
     except BrokenPipeError:  # e.g. `proprio inspect FILE | head`
         sys.stderr.close()
         return 0
+    except (ValueError, OSError, yaml.YAMLError) as exc:
+        # the project's bad-input family (UserError and the library's ValueErrors), OS errors on the user's paths,
+        # YAML syntax errors: one line, even when the message carries a parser's multi-line report
+        print(f"proprio: error: {_one_line(exc)}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("proprio: interrupted", file=sys.stderr)
         return 130

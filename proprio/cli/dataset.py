@@ -5,6 +5,7 @@ import argparse
 from pathlib import Path
 
 from proprio.cli._backend import add_backend_args, check_backend_args, clear_state
+from proprio.cli import UserError, add_plugin_args, check_output, nonnegative, nonnegative_int, positive, positive_int
 
 __all__ = ["register"]
 
@@ -22,24 +23,30 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "(default iiwa14_twin)")
     p.add_argument("--seeds", nargs="+", required=True, metavar="SEED",
                    help="RFMA trajectory seeds: integers or inclusive ranges A-B (e.g. 11 12 13 or 20-29)")
-    p.add_argument("--payload-kg", nargs="+", type=float, default=[0.0], metavar="M",
+    p.add_argument("--payload-kg", nargs="+", type=nonnegative, default=[0.0], metavar="M",
                    help="payload masses at the flange [kg], each simulated on every seed (default 0)")
-    p.add_argument("--scaffolds", type=int, default=150, help="RFMA scaffolds per trajectory (default 150, ≈1 h)")
-    p.add_argument("--seconds", type=float, default=None, help="simulate only the first SECONDS of each trajectory")
-    p.add_argument("--log-rate", type=float, default=None, help="log rate [Hz] (default: the twin config's)")
-    p.add_argument("--twin-seed", type=int, default=None,
+    p.add_argument("--scaffolds", type=positive_int, default=150,
+                   help="RFMA scaffolds per trajectory (default 150, ≈1 h)")
+    p.add_argument("--seconds", type=positive, default=None, help="simulate only the first SECONDS of each trajectory")
+    p.add_argument("--log-rate", type=positive, default=None, help="log rate [Hz] (default: the twin config's)")
+    p.add_argument("--twin-seed", type=nonnegative_int, default=None,
                    help="noise seed of the twin for every recording (default: each trajectory's seed)")
     p.add_argument("--out", required=True, type=Path, help="dataset directory")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_backend_args(p, "1 for local, os.cpu_count() for a local Ray instance")
+    add_plugin_args(p)
     p.set_defaults(func=_dataset)
 
 
 def _dataset(args: argparse.Namespace) -> int:
     from proprio.experiments.dataset import DatasetSpec, build_dataset, seeds_from
 
+    check_output(args.out, "--out", "dir")
     check_backend_args(args)
-    spec = DatasetSpec(twin=args.twin, seeds=seeds_from(args.seeds), payloads_kg=tuple(args.payload_kg),
+    seeds = seeds_from(args.seeds)
+    if any(s < 0 for s in seeds):
+        raise UserError(f"--seeds: seeds are integers >= 0, got {min(seeds)}")
+    spec = DatasetSpec(twin=args.twin, seeds=seeds, payloads_kg=tuple(args.payload_kg),
                        scaffolds=args.scaffolds, seconds=args.seconds, log_rate_hz=args.log_rate,
                        twin_seed=args.twin_seed)
     clear_state(args.out / ".tasks", args.restart)

@@ -4,10 +4,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from proprio.cli import check_output
 from proprio.demo import DEFAULT_OUT, run_demo
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output(args.out, "--out", "dir")
     run_demo(args.out)
     return 0
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from proprio.cli import UserError
+from proprio.cli import UserError, add_plugin_args, check_output, nonnegative, nonnegative_int
 from proprio.cli._backend import add_backend_args, check_backend_args, clear_state
 
 
@@ -35,13 +35,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--candidate", action="append", default=[], metavar="MODULE:CLASS",
                    help="your own effect (a proprio.effects.JointEffect subclass, README 'Your own effect') tested "
                    "alongside the library candidates; repeatable")
-    p.add_argument("--trim", type=float, default=0.5, help="seconds dropped at both ends of every recording "
+    p.add_argument("--trim", type=nonnegative, default=0.5, help="seconds dropped at both ends of every recording "
                    "(filter start-up; default 0.5)")
     p.add_argument("--twin", metavar="BASE",
                    help="base twin config of the --model robot (a shipped name such as kuka_lwr4_twin, or a YAML "
                    "path): replay the held-out recordings through it and through it + twin_patch.yaml, and report the "
                    "gap through the twin next to the offline prediction (needs --holdout)")
     p.add_argument("--out", required=True, type=Path, help="output directory for the report and twin_patch.yaml")
+    add_plugin_args(p)
     p.set_defaults(func=_diagnose)
 
     b = sub.add_parser(
@@ -65,8 +66,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--out", required=True, type=Path,
                    help="directory for benchmark.txt / benchmark.json; OUT/cases/ keeps one result file per finished "
                    "case, so a rerun (after a kill) runs only the missing cases")
-    b.add_argument("--seed", type=int, default=0, help="seed of the case list (default 0)")
+    b.add_argument("--seed", type=nonnegative_int, default=0, help="seed of the case list (default 0)")
     add_backend_args(b, "os.cpu_count() for local, the Ray cluster's CPUs for ray")
+    add_plugin_args(b)
     b.set_defaults(func=_benchmark)
 
 
@@ -110,15 +112,28 @@ def _model(args: argparse.Namespace):
         raise UserError(f"--effects: {exc}") from exc
 
 
+# candidates of the diagnosis that are not joint effects (proprio.diagnosis.candidates.candidate_set)
+_NON_EFFECT_CANDIDATES = ("rigid_body", "payload", "signal_lag", "sensor_offset", "sensor_gain")
+
+
 def _diagnose(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from proprio.conditioning import ConditioningConfig
     from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING
     from proprio.diagnosis.report import diagnose
-    from proprio.effects import resolve_effect
+    from proprio.effects import EFFECTS, allow_plugins, resolve_effect
+    from proprio.effects.plugins import is_plugin_path
     from proprio.recording import load_recording
 
+    check_output(args.out, "--out", "dir")
+    unknown = [k for k in args.candidates or () if k not in EFFECTS and k not in _NON_EFFECT_CANDIDATES
+               and not is_plugin_path(k)]
+    if unknown:                                     # before any data are read (the diagnosis checks them again)
+        raise UserError(f"--candidates: unknown {unknown}; valid: {sorted([*EFFECTS, *_NON_EFFECT_CANDIDATES])} or "
+                        "a plugin 'package.module:Class'")
+    # plugins named on the command line itself are the user's consent; a config's are not (--allow-plugin)
+    allow_plugins([name for name in args.candidate + args.effects if is_plugin_path(name)])
     cutoff = args.cutoff if args.cutoff == "auto" else _positive_float(args.cutoff, "--cutoff")
     conditioning = ConditioningConfig(**{**DIAGNOSIS_CONDITIONING.__dict__, "cutoff_hz": cutoff})
     model = _model(args)
@@ -173,6 +188,7 @@ def _benchmark(args: argparse.Namespace) -> int:
     from proprio.diagnosis.benchmark import run_benchmark, write_results
     from proprio.diagnosis.benchmark_cases import make_cases, select_cases
 
+    check_output(args.out, "--out", "dir")
     check_backend_args(args)
     cases = select_cases(make_cases(quick=args.quick, seed=args.seed, twin=args.twin), args.cases)
     results = run_benchmark(cases, workers=args.workers, backend=args.backend, address=args.address,

@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from proprio.cli import UserError
+from proprio.cli import UserError, check_output, nonnegative, nonnegative_int, positive
 
 __all__ = ["register", "run_estimate", "run_payload_experiment"]
 
@@ -19,13 +19,14 @@ MODEL_HELP = ("a shipped robot name or robot YAML/URDF (its rigid-body model + f
 
 
 def _add_observer_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--gain", type=float, default=100.0, help="momentum observer gain K_O [1/s] (default 100: time "
+    p.add_argument("--gain", type=positive, default=100.0, help="momentum observer gain K_O [1/s] (default 100: time "
                    "constant 10 ms)")
     p.add_argument("--cutoff-hz", default="auto", metavar="HZ|auto", help="zero-phase Butterworth cutoff of the "
                    "signal conditioning for q and τ [Hz], or 'auto' (per joint from the data's noise floor; default)")
     p.add_argument("--force-only", action="store_true", help="estimate the 3-D force only (moment reported as 0); "
                    "right for a payload whose CoM is the contact point")
-    p.add_argument("--sigma-threshold", type=float, default=0.02, help="flag samples whose smallest Jacobian singular "
+    p.add_argument("--sigma-threshold", type=nonnegative, default=0.02,
+                   help="flag samples whose smallest Jacobian singular "
                    "value is below this as unreliable and damp them (default 0.02)")
 
 
@@ -50,6 +51,7 @@ def run_estimate(args: argparse.Namespace) -> int:
     from proprio.diagrams.estimation import OBSERVERS, check_recording_matches, estimate_wrench, load_torque_model
     from proprio.recording import RecordingError, load_recording
 
+    check_output(args.out, "--out", "dir")
     model = load_torque_model(args.model)
     rec = load_recording(args.recording)
     try:
@@ -92,10 +94,7 @@ def _vec(v) -> str:
 def run_payload_experiment(args: argparse.Namespace) -> int:
     from proprio.experiments.payload import payload_experiment
 
-    if not args.seconds > 0:
-        raise UserError(f"--seconds must be > 0, got {args.seconds}")
-    if any(not m >= 0 for m in args.masses):
-        raise UserError(f"--masses must be >= 0 kg, got {args.masses}")
+    check_output(args.out, "--out", "dir")
     mapping, conditioning = _options(args)
     result = payload_experiment(args.model, args.out, seconds=args.seconds, masses=tuple(args.masses),
                                 seed=args.seed, gain=args.gain, mapping=mapping, conditioning=conditioning,
@@ -126,11 +125,11 @@ def register(subparsers) -> None:
                     "figures and an error budget per twin effect.")
     p.add_argument("--model", default="iiwa14_identified", help=MODEL_HELP + " (default iiwa14_identified)")
     p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--seconds", type=float, default=30.0, help="duration of the validation trajectory [s] "
+    p.add_argument("--seconds", type=positive, default=30.0, help="duration of the validation trajectory [s] "
                    "(default 30)")
-    p.add_argument("--masses", type=float, nargs="+", default=[0.0, 0.5, 1.0], help="payload masses [kg] "
+    p.add_argument("--masses", type=nonnegative, nargs="+", default=[0.0, 0.5, 1.0], help="payload masses [kg] "
                    "(default 0 0.5 1)")
-    p.add_argument("--seed", type=int, default=7, help="seed of the RFMA trajectory and the twin's noise")
+    p.add_argument("--seed", type=nonnegative_int, default=7, help="seed of the RFMA trajectory and the twin's noise")
     p.add_argument("--twin-config", default="iiwa14_twin", help="twin config name or YAML (default iiwa14_twin, "
                    "the calibrated twin)")
     _add_observer_options(p)

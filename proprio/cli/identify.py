@@ -5,6 +5,7 @@ import argparse
 import json
 
 import numpy as np
+from proprio.cli import check_output, nonnegative, nonnegative_int, positive_int
 
 
 __all__ = ["register"]
@@ -18,6 +19,7 @@ def _identify(args: argparse.Namespace) -> int:
     from proprio.identification.recordings import identify_recordings, stack_recordings
     from proprio.recording import load_recording
 
+    check_output(args.out, "--out", "file")
     robot = load_robot(args.robot)
     train = [load_recording(p, robot) for p in args.train]
     validate = [load_recording(p, robot) for p in args.validate]
@@ -45,6 +47,7 @@ def _excite(args: argparse.Namespace) -> int:
         check_collisions, load_excitation_config, optimise_excitation, protocol_trajectory)
     from proprio.io import atomic_path
 
+    check_output(args.out, "--out", "file")
     robot = load_robot(args.robot)
     overrides: dict = {}
     if args.starts is not None:
@@ -89,10 +92,10 @@ def register(subparsers) -> None:
                    help="validation recordings (one error table per file)")
     p.add_argument("--method", choices=("ols", "wls", "sdp"), default="ols", help="estimator (default ols)")
     p.add_argument("--out", required=True, help="output model file (.npz)")
-    p.add_argument("--trim", type=int, default=100, help="samples dropped at both ends of every recording "
+    p.add_argument("--trim", type=nonnegative_int, default=100, help="samples dropped at both ends of every recording "
                                                          "(filter start-up; default 100)")
     p.add_argument("--offsets", action="store_true", help="also fit a constant torque offset per joint")
-    p.add_argument("--coulomb-velocity-scale", type=float, default=None,
+    p.add_argument("--coulomb-velocity-scale", type=nonnegative, default=None,
                    help="[rad/s] Coulomb friction as tanh(qd/scale); 0 = sign(qd) (default: the library's smoothing, "
                         "proprio.friction_law.SMOOTH_VELOCITY = 0.05)")
     p.add_argument("--show-parameters", action="store_true", help="print the base-parameter table (Table 4.6)")
@@ -105,6 +108,6 @@ def register(subparsers) -> None:
                     "§4.1 protocol (period concatenated at decreasing speed) as an .npz with t, q, qd, qdd.")
     e.add_argument("--robot", default="iiwa14_nominal", help="robot description (default iiwa14_nominal)")
     e.add_argument("--out", required=True, help="output trajectory file (.npz)")
-    e.add_argument("--starts", type=int, default=None, help="number of random starts (config default 4)")
-    e.add_argument("--seed", type=int, default=None, help="random seed of the starts (config default 0)")
+    e.add_argument("--starts", type=positive_int, default=None, help="number of random starts (config default 4)")
+    e.add_argument("--seed", type=nonnegative_int, default=None, help="random seed of the starts (config default 0)")
     e.set_defaults(func=_excite)

@@ -8,11 +8,13 @@ from pathlib import Path
 from proprio.data_quality import assess, format_findings
 from proprio.description import load_robot
 from proprio.inspection import DEFAULT_DEADBAND, format_summary, load_any, plot_recording, summarize_recording
+from proprio.cli import check_output, nonnegative
 
 __all__ = ["register"]
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output(args.plot, "--plot", "file")
     robot = load_robot(args.robot) if args.robot else None
     rec = load_any(args.file, robot=robot, angle_unit=args.angle_unit)
     summary = summarize_recording(rec, robot, deadband=args.deadband)
@@ -40,6 +42,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                    "(iiwa14_identified, iiwa14_nominal), a YAML/URDF file or a directory with "
                                    "robot.yaml")
     p.add_argument("--plot", type=Path, metavar="PNG", help="write a PNG of q and τ over time to this path")
-    p.add_argument("--deadband", type=float, default=DEFAULT_DEADBAND,
+    p.add_argument("--deadband", type=nonnegative, default=DEFAULT_DEADBAND,
                    help=f"q̇ deadband for reversal counting [rad/s] (default {DEFAULT_DEADBAND})")
     p.set_defaults(func=run)

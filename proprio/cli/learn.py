@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from proprio.cli import UserError
+from proprio.cli import UserError, check_output, nonnegative_int, positive_int
 from proprio.cli._backend import add_backend_args, check_backend_args, clear_state
 from proprio.recording import Recording, load_recording
 
@@ -53,6 +53,7 @@ def _train(args: argparse.Namespace) -> int:
     from proprio.learning.evaluation import format_table
     from proprio.experiments.hybrid import load_config, prepare_split, train_from_config
     from proprio.learning.datasets import DataConfig
+    check_output(args.out, "--out", "file")
     torch.set_num_threads(args.threads)
     cfg = _with_device(load_config(args.config), args.device)
     recs, names = _load(args.data)
@@ -84,9 +85,8 @@ def _train_grid(args: argparse.Namespace) -> int:
     import torch
 
     from proprio.experiments.hybrid import load_config, train_grid
+    check_output(args.out, "--out", "dir")
     check_backend_args(args)
-    if args.search < 0:
-        raise UserError(f"--search must be >= 0, got {args.search}")
     if args.search and args.backend != "ray":
         raise UserError("--search runs Ray Tune: add --backend ray")
     torch.set_num_threads(args.threads)
@@ -114,7 +114,8 @@ def _common(p: argparse.ArgumentParser) -> None:
                         "--test-data is given")
     p.add_argument("--test-data", nargs="+", metavar="REC", help="held-out Recordings used as the whole test split")
     p.add_argument("--backbone", metavar="SPEC", help=_BACKBONE_HELP)
-    p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1; per task in train-grid)")
+    p.add_argument("--threads", type=positive_int, default=1,
+                   help="torch CPU threads (default 1; per task in train-grid)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default=None,
                    help="where torch trains and evaluates: auto (CUDA when torch sees a GPU, else CPU), cpu, cuda "
                         "(an error without one); default: the config's train.device (auto)")
@@ -152,9 +153,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--config", default="train_grid",
                    help="grid config path or built-in name (train_grid, train_grid_lwr4; default train_grid)")
     _common(p)
-    p.add_argument("--epochs", type=int, help="override train.max_epochs")
+    p.add_argument("--epochs", type=positive_int, help="override train.max_epochs")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
-    p.add_argument("--search", type=int, default=0, metavar="N",
+    p.add_argument("--search", type=nonnegative_int, default=0, metavar="N",
                    help="before training each model, a Ray Tune search of N trials over lr, weight_decay and "
                         "batch_size (the config's search: section changes the space) with ASHA early stopping; the "
                         "model is then trained with the best settings (OUT/search_<model>.json). Needs --backend ray")

@@ -4,12 +4,13 @@ Fig. 2.5)."""
 from __future__ import annotations
 
 import argparse
+import zipfile
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from proprio.cli import UserError
+from proprio.cli import UserError, add_plugin_args, check_output, finite, nonnegative, nonnegative_int, positive
 
 if TYPE_CHECKING:
     from proprio.diagrams.twin import TwinConfig
@@ -29,8 +30,8 @@ def load_any_trajectory(path: str | Path):
     try:
         with np.load(path, allow_pickle=False) as z:
             keys = set(z.files)
-    except (OSError, ValueError) as exc:
-        raise UserError(f"--trajectory: {path} is not a readable .npz ({exc})") from exc
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise UserError(f"--trajectory: {path} is not a readable .npz, truncated or corrupted ({exc})") from None
     if {"breaks", "q", "qd"} <= keys:
         return load_trajectory(path)[0]
     if {"t", "q"} <= keys or LWR4_KEYS <= keys:
@@ -72,6 +73,7 @@ def _simulate(args: argparse.Namespace) -> int:
     from proprio.payload import Payload
     from proprio.recording import save_recording
 
+    check_output(args.out, "--out", "file")
     if (args.trajectory is None) == (args.replay is None):
         raise UserError("give exactly one of --trajectory (a motion to simulate) and --replay (a recording to replay)")
     try:
@@ -97,8 +99,6 @@ def _simulate(args: argparse.Namespace) -> int:
             raise UserError(f"--log-rate {args.log_rate:g}: {exc}") from exc
     traj = load_any_trajectory(args.trajectory)
     if args.seconds is not None:
-        if args.seconds <= 0:
-            raise UserError(f"--seconds must be > 0, got {args.seconds}")
         traj = truncate_trajectory(traj, args.seconds)
     payload = None
     if args.payload_kg is not None:
@@ -117,6 +117,7 @@ def _simulate(args: argparse.Namespace) -> int:
 def _hysteresis_test(args: argparse.Namespace) -> int:
     from proprio.diagrams.twin import load_twin_config, run_hysteresis_test
 
+    check_output(args.out, "--out", "dir")
     config = load_twin_config(args.twin)
     png, rec = run_hysteresis_test(config, args.out, progress=not args.quiet)
     print(f"Fig. 2.5 experiment: {rec.duration:.0f} s simulated -> {png} and {Path(args.out) / 'hysteresis_test.npz'}")
@@ -140,17 +141,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="instead of --trajectory: a measured (held-out) recording whose conditioned q is replayed "
                         "through the twin without its noise; writes the twin's Recording and prints the gap "
                         "RMS(tau_meas - tau_twin) per joint (with --patch: for the base twin and the patched one)")
-    p.add_argument("--trim", type=float, default=0.5,
+    p.add_argument("--trim", type=nonnegative, default=0.5,
                    help="with --replay: seconds left out of the gap at both ends (default 0.5, as diagnose)")
-    p.add_argument("--payload-kg", type=float, default=None, help="payload mass at the flange [kg] (overrides the "
-                                                                  "config's payload)")
-    p.add_argument("--payload-com", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),
+    p.add_argument("--payload-kg", type=nonnegative, default=None,
+                   help="payload mass at the flange [kg] (overrides the config's payload)")
+    p.add_argument("--payload-com", type=finite, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),
                    help="payload centre of mass in the flange frame [m] (default 0 0 0)")
-    p.add_argument("--seconds", type=float, default=None, help="simulate only the first SECONDS of the trajectory")
-    p.add_argument("--log-rate", type=float, default=None, help="log rate [Hz] (default: the config's)")
-    p.add_argument("--seed", type=int, default=None, help="noise seed (default: the config's)")
+    p.add_argument("--seconds", type=positive, default=None, help="simulate only the first SECONDS of the trajectory")
+    p.add_argument("--log-rate", type=positive, default=None, help="log rate [Hz] (default: the config's)")
+    p.add_argument("--seed", type=nonnegative_int, default=None, help="noise seed (default: the config's)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--out", required=True, help="output Recording (.npz)")
+    add_plugin_args(p)
     p.set_defaults(func=_simulate)
 
     twin = subparsers.add_parser("twin", help="experiments on the twin (hysteresis-test)",
@@ -164,4 +166,5 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     h.add_argument("--twin", default="iiwa14_twin", help="twin config name or YAML path")
     h.add_argument("--quiet", action="store_true", help="no progress bar")
     h.add_argument("--out", required=True, help="output directory")
+    add_plugin_args(h)
     h.set_defaults(func=_hysteresis_test)

@@ -5,7 +5,9 @@ import argparse
 import time
 from pathlib import Path
 
-from proprio.cli import UserError
+import yaml
+
+from proprio.cli import UserError, check_output, nonnegative_int, positive, positive_int
 
 __all__ = ["register", "plot_trajectory"]
 
@@ -21,8 +23,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                    "exploration; time-parameterised within the robot's velocity/acceleration "
                                    "limits and saved as a piecewise-cubic .npz (load with "
                                    "proprio.systems.trajectories.load_trajectory).")
-    r.add_argument("--scaffolds", type=int, default=None, help="number of scaffolds L (default: config, 150)")
-    r.add_argument("--seed", type=int, default=None, help="random seed (default: config)")
+    r.add_argument("--scaffolds", type=positive_int, default=None, help="number of scaffolds L (default: config, 150)")
+    r.add_argument("--seed", type=nonnegative_int, default=None, help="random seed (default: config)")
     r.add_argument("--config", type=Path, default=None, help="RFMA YAML config (default: proprio/configs/rfma.yaml)")
     r.add_argument("--robot", default=None, help="robot name or description file (default: config)")
     r.add_argument("--out", type=Path, required=True, help="output trajectory file (.npz)")
@@ -34,7 +36,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     pl.add_argument("file", type=Path, help="trajectory .npz written by 'proprio trajectory rfma'")
     pl.add_argument("--out", type=Path, default=None, help="output PNG (default: FILE with .png)")
     pl.add_argument("--robot", default=None, help="robot for the forward kinematics (default: the file's robot)")
-    pl.add_argument("--rate", type=float, default=50.0, help="plot sample rate [Hz] (default 50)")
+    pl.add_argument("--rate", type=positive, default=50.0, help="plot sample rate [Hz] (default 50)")
     pl.set_defaults(func=_cmd_plot)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
@@ -44,9 +46,13 @@ def _cmd_rfma(args: argparse.Namespace) -> int:
     from proprio.systems.rfma import generate_rfma, load_rfma_config, trajectory_meta
     from proprio.systems.trajectories import save_trajectory
 
+    check_output(args.out, "--out", "file")
     overrides = {k: v for k, v in (("scaffolds", args.scaffolds), ("seed", args.seed), ("robot", args.robot))
                  if v is not None}
-    cfg = load_rfma_config(args.config, **overrides)
+    try:
+        cfg = load_rfma_config(args.config, **overrides)
+    except yaml.YAMLError as exc:
+        raise UserError(f"--config {args.config}: not valid YAML ({exc})") from None
     desc = load_robot(cfg.robot)
     t0 = time.perf_counter()
     path, timed = generate_rfma(cfg, desc, progress=True)
@@ -73,6 +79,7 @@ def _cmd_plot(args: argparse.Namespace) -> int:
     from proprio.description import load_robot
     from proprio.systems.trajectories import load_trajectory
 
+    check_output(args.out, "--out", "file")
     traj, meta = load_trajectory(args.file)
     robot = args.robot or meta.get("robot")
     if robot is None:

@@ -11,7 +11,7 @@ import argparse
 import time
 from pathlib import Path
 
-from proprio.cli import UserError
+from proprio.cli import UserError, check_output, finite, nonnegative
 
 __all__ = ["register", "run_view"]
 
@@ -39,8 +39,7 @@ def run_view(args: argparse.Namespace) -> int:
     from proprio.diagrams.playback import load_playback, record_playback, start_meshcat, write_playback_html
 
     settings = _settings(args)
-    if args.serve_seconds is not None and args.serve_seconds < 0:
-        raise UserError(f"--serve-seconds must be >= 0, got {args.serve_seconds}")
+    check_output(args.html, "--html", "file")
     try:
         cutoff = args.cutoff_hz if args.cutoff_hz == "auto" else float(args.cutoff_hz)
         conditioning = ConditioningConfig.from_dict({"cutoff_hz": cutoff}, "--cutoff-hz")
@@ -87,8 +86,8 @@ def register(subparsers) -> None:
     p.add_argument("--observer", choices=("jacobian", "momentum"), default="jacobian",
                    help="whose force estimate to draw (default jacobian)")
     p.add_argument("--html", type=Path, metavar="FILE", help="write a self-contained HTML animation and exit")
-    p.add_argument("--start", type=float, metavar="S", help="start of the window to play [s from the start]")
-    p.add_argument("--end", type=float, metavar="S", help="end of the window to play [s from the start]")
+    p.add_argument("--start", type=finite, metavar="S", help="start of the window to play [s from the start]")
+    p.add_argument("--end", type=finite, metavar="S", help="end of the window to play [s from the start]")
     p.add_argument("--fps", type=float, default=30.0, help="animation frames per second (default 30)")
     p.add_argument("--max-frames", type=int, default=1800, help="at most this many frames (default 1800 = 1 min "
                    "at 30 fps); a longer run plays faster than real time")
@@ -98,6 +97,7 @@ def register(subparsers) -> None:
     p.add_argument("--cutoff-hz", default="auto", metavar="HZ|auto", help="the conditioning's zero-phase cutoff for a "
                    "Recording [Hz], or 'auto' (from the data's noise floor; default, as `proprio estimate`)")
     p.add_argument("--port", type=int, help="Meshcat port on localhost (default: the first free one from 7000)")
-    p.add_argument("--serve-seconds", type=float, metavar="S", help="without --html: stop serving after S seconds "
+    p.add_argument("--serve-seconds", type=nonnegative, metavar="S",
+                   help="without --html: stop serving after S seconds "
                    "(default: until Ctrl-C)")
     p.set_defaults(func=run_view)

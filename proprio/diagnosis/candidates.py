@@ -13,7 +13,7 @@ from proprio.description import RobotDescription
 from proprio.diagnosis.data import DiagnosisError, GapData, SimModel
 from proprio.diagnosis.localisation import peak_orders
 from proprio.dynamics import inverse_dynamics
-from proprio.effects import EFFECTS, JointEffect, effect_key, resolve_effect
+from proprio.effects import EFFECTS, JointEffect, effect_key, register_plugin, resolve_effect
 from proprio.identification.regressor import PARAMS_PER_JOINT, parameter_names, regressor
 from proprio.signals import MotionSignals
 
@@ -79,6 +79,8 @@ class EffectCandidate(Candidate):
         cls = resolve_effect(effect) if isinstance(effect, str) else effect
         if not (isinstance(cls, type) and issubclass(cls, JointEffect)):
             raise DiagnosisError(f"candidate {effect!r} is neither an effect name nor a JointEffect subclass")
+        if EFFECTS.get(cls.name) is not cls:
+            register_plugin(cls)        # a class handed over by Python code: its path resolves from now on
         self.name = label or cls.name
         self.effect = effect_key(cls)
         self.proto: JointEffect = cls(n, **settings)

@@ -34,6 +34,7 @@ from __future__ import annotations
 import html
 import json
 import logging
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -260,8 +261,8 @@ def load_playback(source: str | Path, model: str | Path | None = None, observer:
     try:
         with np.load(path, allow_pickle=False) as z:
             is_estimate = "wrench_jacobian" in z.files
-    except (OSError, ValueError) as exc:
-        raise RecordingError(f"{path}: not a readable .npz ({exc})") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise RecordingError(f"{path}: not a readable .npz, truncated or corrupted ({exc})") from None
     if is_estimate:
         res = EstimationResult.load(path)
         desc = _torque_model(model, [res.meta.get("recording", {}).get("robot"), res.meta.get("model")],

@@ -43,8 +43,10 @@ twin adds its config's ``session_time_s`` to the run's time, the diagnosis each 
 ``meta["session_time_s"]`` (:mod:`proprio.effects.time_varying`).
 
 Effects beyond this library are *plugins*: a :class:`JointEffect` subclass in any module, named by its dotted path
-``"package.module:Class"`` in an ``effects:`` mapping or a diagnosis candidate list (:mod:`proprio.effects.plugins`,
-:func:`resolve_effect`); :mod:`proprio.effects.open_world` ships four, which the gap benchmark reaches only that way.
+``"package.module:Class"`` in an ``effects:`` mapping or a diagnosis candidate list once the user consented to it
+(an entry point of the group ``proprio.effects``, ``--allow-plugin``, :func:`register_plugin`; a name alone never
+imports anything: :mod:`proprio.effects.plugins`, :func:`resolve_effect`); :mod:`proprio.effects.open_world` ships
+four, which the gap benchmark reaches only that way.
 
 Hysteresis and lost motion share one state, the *reversal travel* ``r`` (signed joint travel since the last
 direction reversal, :func:`reversal_travel`) — the quantity behind the thesis' feature ``r`` (§4.2), which the learning
@@ -61,12 +63,13 @@ from proprio.effects.base import EffectConfigError, JointEffect, affine_scan
 from proprio.effects.drive import Elasticity, Motor
 from proprio.effects.friction import SmoothFriction, Stribeck, ViscousCoulomb, robot_friction
 from proprio.effects.hysteresis import Hysteresis, LostMotion
-from proprio.effects.plugins import effect_key, resolve_effect
-from proprio.effects.registry import EFFECTS, make_effects
+from proprio.effects.plugins import allow_plugins, effect_key, make_effects, register_plugin, resolve_effect
+from proprio.effects.registry import EFFECTS
 from proprio.effects.sensor import EncoderNoise, Ripple, SensorOffsetGain, TorqueNoise
 from proprio.effects.time_varying import FrictionWarmup, OffsetDrift
 
 __all__ = ["JointEffect", "EffectConfigError", "affine_scan", "SmoothFriction", "ViscousCoulomb", "Stribeck",
            "robot_friction", "Hysteresis",
            "LostMotion", "Ripple", "SensorOffsetGain", "TorqueNoise", "EncoderNoise", "Motor", "Elasticity",
-           "OffsetDrift", "FrictionWarmup", "EFFECTS", "make_effects", "resolve_effect", "effect_key"]
+           "OffsetDrift", "FrictionWarmup", "EFFECTS", "make_effects", "resolve_effect", "effect_key", "register_plugin",
+           "allow_plugins"]

@@ -1,6 +1,23 @@
-"""User-defined joint effects (plugins): a :class:`~proprio.effects.base.JointEffect` subclass in any importable
-module, named by its dotted path ``"package.module:Class"`` wherever a library effect name is accepted — a key of
-the twin YAML ``effects:`` mapping, ``proprio diagnose --candidate`` and ``--effects``.
+"""Effect names beyond the library (plugins), the consent that lets one be imported, and the builder of an
+``effects:`` block.
+
+A plugin is a :class:`~proprio.effects.base.JointEffect` subclass outside the library, named by its path
+``"package.module:Class"`` wherever a library effect name is accepted — a key of the twin YAML ``effects:`` mapping
+or of a ``twin_patch.yaml``, ``proprio diagnose --candidate`` and ``--effects``. **A name never imports anything by
+itself**: a plugin path resolves only when the user consented to it, in one of four ways —
+
+* an installed package declares it as an entry point of the group ``proprio.effects`` (the ecosystem's plugin
+  convention; in its ``pyproject.toml``: ``[project.entry-points."proprio.effects"]``
+  ``hose_spring = "my_effects:HoseSpring"``), read with :func:`importlib.metadata.entry_points`;
+* the user lists it on the command line, ``--allow-plugin package.module:Class`` (:func:`allow_plugins`; the list
+  is passed on to worker processes in the environment variable ``PROPRIO_ALLOW_PLUGINS``, comma-separated, which a
+  user may also set), or names it in ``proprio diagnose --candidate`` / ``--effects``;
+* Python code registers the class object it already imported, :func:`register_plugin`;
+* it is one of the plugins proprio ships itself (:data:`BUILTIN_PLUGINS`, :mod:`proprio.effects.open_world`).
+
+Anything else is refused with an :class:`EffectConfigError` that says how to consent, before any import; a path must
+be absolute (``a.b:C``, never ``.b:C``). :func:`make_effects` checks a whole ``effects:`` mapping (its type, every
+name, every library block) before it imports the first plugin.
 
 A plugin declares, like the library classes:
 
@@ -15,19 +32,30 @@ Link-side plugins are evaluated by the twin every time step with the current sta
 ``tau = None``: **a link-side effect may depend on t, q and q̇ only** (not on q̈ or on the torque, which the step
 has not computed yet). Sensor-side plugins see the whole logged motion and ``s.tau`` = the true transmitted τ_J;
 their contribution is added after the library's strain-gauge effects and before the offset/gain error and the
-noise, so they may couple joints
-(e.g. cross-talk ``τ_meas,j += c_j τ_J,j+1``). Motor-side plugins are refused: nothing of them reaches τ_J.
+noise, so they may couple joints (e.g. cross-talk ``τ_meas,j += c_j τ_J,j+1``). Motor-side plugins are refused:
+nothing of them reaches τ_J.
 """
 from __future__ import annotations
 
 import importlib
+import os
+from collections.abc import Iterable
+from importlib.metadata import EntryPoint, entry_points
+from typing import Any
 
 from proprio.effects.base import EffectConfigError, JointEffect
 from proprio.effects.registry import EFFECTS
 
-__all__ = ["PLUGIN_PLACES", "is_plugin_path", "resolve_effect", "effect_key"]
+__all__ = ["PLUGIN_PLACES", "ENTRY_POINT_GROUP", "ALLOW_ENV", "BUILTIN_PLUGINS", "is_plugin_path", "allow_plugins",
+           "register_plugin", "registered_plugins", "resolve_effect", "effect_key", "make_effects"]
 
 PLUGIN_PLACES = ("link", "sensor")
+ENTRY_POINT_GROUP = "proprio.effects"
+ALLOW_ENV = "PROPRIO_ALLOW_PLUGINS"
+BUILTIN_PLUGINS = tuple(f"proprio.effects.open_world:{c}" for c in (
+    "TorqueCrossTalk", "PositionFriction", "CableSpring", "NeighbourDrag"))
+
+_CLASSES: dict[str, type[JointEffect]] = {}      # plugin path → class, once resolved or registered
 
 
 def is_plugin_path(name: str) -> bool:
@@ -35,47 +63,147 @@ def is_plugin_path(name: str) -> bool:
     return ":" in name
 
 
-def resolve_effect(name: str) -> type[JointEffect]:
-    """The effect class of a library name (``"hysteresis"``) or a plugin path (``"package.module:Class"``).
+def _check_path(name: Any) -> tuple[str, str]:
+    """``(module, attribute path)`` of a syntactically valid, absolute plugin path, else :class:`EffectConfigError`."""
+    module, _, attr = str(name).partition(":")
+    if not all(p.isidentifier() for p in module.split(".")) or not all(p.isidentifier() for p in attr.split(".")):
+        raise EffectConfigError(f"plugin {name!r}: expected an absolute path 'package.module:Class'")
+    return module, attr
 
-    Raises :class:`EffectConfigError` naming the problem: an unknown library name, a module that cannot be
-    imported, a missing class, a class that is not a ``JointEffect`` subclass, a place other than link/sensor, or a
-    plugin ``name`` that shadows a library effect."""
+
+def _entry_points() -> dict[str, EntryPoint]:
+    """The installed packages' ``proprio.effects`` entry points by plugin path (from metadata: nothing imported)."""
+    return {f"{ep.module}:{ep.attr}": ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
+
+
+def _allowed() -> set[str]:
+    return {p.strip() for p in os.environ.get(ALLOW_ENV, "").split(",") if p.strip()}
+
+
+def allow_plugins(paths: Iterable[str]) -> None:
+    """Consent to import the plugins ``paths`` (``--allow-plugin``) when a config names them; nothing is imported
+    here. The list goes into ``PROPRIO_ALLOW_PLUGINS`` so that worker processes inherit it."""
+    paths = [str(p).strip() for p in paths]
+    for p in paths:
+        _check_path(p)
+    os.environ[ALLOW_ENV] = ",".join(sorted(_allowed() | set(paths)))
+
+
+def registered_plugins() -> list[str]:
+    """Every plugin path a config may name now: shipped, entry points, allowed and registered ones."""
+    return sorted(set(BUILTIN_PLUGINS) | set(_entry_points()) | _allowed() | set(_CLASSES))
+
+
+def _validate(cls: Any, name: str) -> type[JointEffect]:
+    if not (isinstance(cls, type) and issubclass(cls, JointEffect)):
+        raise EffectConfigError(f"plugin {name!r}: {cls!r} is not a subclass of proprio.effects.JointEffect")
+    missing = [k for k in ("name", "place", "linear") if not hasattr(cls, k)]
+    if missing:
+        raise EffectConfigError(f"plugin {name!r}: class attribute(s) {missing} are not set")
+    if cls.place not in PLUGIN_PLACES:
+        raise EffectConfigError(f"plugin {name!r}: place = {cls.place!r}; a plugin acts 'link'-side (in the joint "
+                                "drive) or 'sensor'-side (in the torque sensor)")
+    if cls.name in EFFECTS:
+        raise EffectConfigError(f"plugin {name!r}: name = {cls.name!r} is a library effect's name; choose another")
+    return cls
+
+
+def register_plugin(cls: type[JointEffect]) -> str:
+    """Register a plugin class that Python code already imported (consent by the code itself); returns its path
+    ``"module:Class"``, the name configs and :func:`resolve_effect` then accept."""
+    key = f"{cls.__module__}:{cls.__qualname__}" if isinstance(cls, type) else repr(cls)
+    _CLASSES[key] = _validate(cls, key)
+    return key
+
+
+def _check_consent(name: str) -> None:
+    _check_path(name)
+    if name not in _CLASSES and name not in BUILTIN_PLUGINS and name not in _allowed() and \
+            name not in _entry_points():
+        raise EffectConfigError(
+            f"plugin {name!r} is not registered: a config may only name a plugin, never import one; install it as a "
+            f"'{ENTRY_POINT_GROUP}' entry point of its package or allow it with --allow-plugin {name}")
+
+
+def _load(name: str) -> Any:
+    """Import the consented plugin ``name``; any failure of the module's own code is one :class:`EffectConfigError`."""
+    module_name, attr = _check_path(name)
+    ep = _entry_points().get(name)
+    try:
+        if ep is not None:
+            return ep.load()
+        obj: Any = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        raise EffectConfigError(f"plugin {name!r}: module {module_name!r} cannot be imported ({exc})") from exc
+    except Exception as exc:      # the plugin's own top-level code failed: the user's, reported in one line
+        raise EffectConfigError(f"plugin {name!r}: module {module_name!r} cannot be imported "
+                                f"({type(exc).__name__}: {exc})") from exc
+    for part in attr.split("."):
+        if not hasattr(obj, part):
+            raise EffectConfigError(f"plugin {name!r}: module {module_name!r} has no attribute {attr!r}")
+        obj = getattr(obj, part)
+    return obj
+
+
+def resolve_effect(name: str) -> type[JointEffect]:
+    """The effect class of a library name (``"hysteresis"``) or a consented plugin path (module docstring).
+
+    Raises :class:`EffectConfigError` naming the problem: an unknown library name, a plugin nobody consented to
+    (before any import), a module that cannot be imported, a missing class, a class that is not a ``JointEffect``
+    subclass, a place other than link/sensor, or a plugin ``name`` that shadows a library effect."""
     if not isinstance(name, str) or not name:
         raise EffectConfigError(f"effect name must be a library name or 'package.module:Class', got {name!r}")
     if not is_plugin_path(name):
         if name not in EFFECTS:
-            raise EffectConfigError(f"unknown effect {name!r}; valid effects: {sorted(EFFECTS)} or a plugin "
-                                    "'package.module:Class'")
+            raise EffectConfigError(f"unknown effect {name!r}; valid effects: {sorted(EFFECTS)} or a registered "
+                                    "plugin 'package.module:Class'")
         return EFFECTS[name]
-    module_name, _, class_name = name.partition(":")
-    if not module_name or not class_name:
-        raise EffectConfigError(f"plugin {name!r}: expected 'package.module:Class'")
-    try:
-        module = importlib.import_module(module_name)
-    except ImportError as exc:
-        raise EffectConfigError(f"plugin {name!r}: module {module_name!r} cannot be imported ({exc})") from exc
-    obj = module
-    for part in class_name.split("."):
-        if not hasattr(obj, part):
-            raise EffectConfigError(f"plugin {name!r}: module {module_name!r} has no attribute {class_name!r}")
-        obj = getattr(obj, part)
-    if not (isinstance(obj, type) and issubclass(obj, JointEffect)):
-        raise EffectConfigError(f"plugin {name!r}: {class_name} is not a subclass of proprio.effects.JointEffect")
-    missing = [k for k in ("name", "place", "linear") if not hasattr(obj, k)]
-    if missing:
-        raise EffectConfigError(f"plugin {name!r}: class attribute(s) {missing} are not set")
-    if obj.place not in PLUGIN_PLACES:
-        raise EffectConfigError(f"plugin {name!r}: place = {obj.place!r}; a plugin acts 'link'-side (in the joint "
-                                "drive) or 'sensor'-side (in the torque sensor)")
-    if obj.name in EFFECTS:
-        raise EffectConfigError(f"plugin {name!r}: name = {obj.name!r} is a library effect's name; choose another")
-    return obj
+    if name in _CLASSES:
+        return _CLASSES[name]
+    _check_consent(name)
+    _CLASSES[name] = _validate(_load(name), name)
+    return _CLASSES[name]
 
 
 def effect_key(effect: JointEffect | type[JointEffect]) -> str:
-    """The key that names an effect in a YAML ``effects:`` mapping: its library name, or its plugin path."""
+    """The key that names an effect in a YAML ``effects:`` mapping: its library name, or its plugin path (the path
+    it was registered or resolved under)."""
     cls = effect if isinstance(effect, type) else type(effect)
     if EFFECTS.get(cls.name) is cls:
         return cls.name
-    return f"{cls.__module__}:{cls.__qualname__}"
+    return next((k for k, c in _CLASSES.items() if c is cls), f"{cls.__module__}:{cls.__qualname__}")
+
+
+def make_effects(config: dict | None, n: int) -> list[JointEffect]:
+    """Build the effects of a YAML ``effects:`` mapping ``{name: block}``: library effects in registry order, then
+    plugins in the mapping's order.
+
+    The mapping is checked whole before the first plugin is imported: its type, unknown names (an
+    :class:`EffectConfigError` listing the valid ones; the payload and the motor side have the twin's own
+    ``payload`` and ``drive`` blocks), plugins nobody consented to, and every library block."""
+    config = config or {}
+    if not isinstance(config, dict):
+        raise EffectConfigError(f"effects must be a mapping {{name: parameters}}, got {config!r}")
+    unknown = sorted(str(k) for k in config if k not in EFFECTS and not is_plugin_path(str(k)))
+    if unknown:
+        hint = " (the payload has its own top-level 'payload' block)" if "payload" in unknown else ""
+        raise EffectConfigError(f"unknown joint effect(s) {unknown}{hint}; valid effects: {sorted(EFFECTS)} or a "
+                                "registered plugin 'package.module:Class'")
+    paths = [str(k) for k in config if is_plugin_path(str(k))]
+    for p in paths:
+        _check_consent(p)
+    library = [_build(name, cls, config[name], n) for name, cls in EFFECTS.items() if name in config]
+    plugins = {p: resolve_effect(p) for p in paths}
+    names = [cls.name for cls in plugins.values()]
+    twice = sorted({k for k in names if names.count(k) > 1})
+    if twice:
+        raise EffectConfigError(f"plugins {sorted(plugins)}: effect name(s) {twice} given more than once")
+    return library + [_build(p, cls, config[p], n) for p, cls in plugins.items()]
+
+
+def _build(key: str, cls: type[JointEffect], block: Any, n: int) -> JointEffect:
+    """``cls.from_config(block, n)``; a block or a plugin class that cannot make an instance names ``key``."""
+    try:
+        return cls.from_config(block, n)
+    except TypeError as exc:        # e.g. a plugin that does not implement torque(), a field the class lacks
+        raise EffectConfigError(f"{key}: {exc}") from None

@@ -381,6 +381,11 @@ def search_hyperparameters(cfg: dict[str, Any], split: Split, backbone: Backbone
                                                      storage_path=str((Path(out_dir) / "tune").resolve()),
                                                      verbose=0))
         results = tuner.fit()
+        errors = [r.error for r in results if r.error]
+        if len(errors) == len(results):
+            first = str(errors[0]).strip().splitlines()[-1] if errors else "no trial ran"
+            raise ValueError(f"--search: all {len(results)} trial(s) of {tag} failed; the last line of the first "
+                             f"error: {first}")
         best = results.get_best_result(metric="val", mode="min", scope="all")
         trials = [{"config": r.config, "val": (r.metrics or {}).get("val"),
                    "epochs": (r.metrics or {}).get("training_iteration"),

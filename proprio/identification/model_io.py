@@ -11,6 +11,8 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -129,12 +131,19 @@ def load_model(path: str | Path) -> IdentifiedModel:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"identified model not found: {path}")
-    with np.load(path, allow_pickle=False) as z:
-        missing = [k for k in ("phi_b", "sigma_pct", "phi", "independent", "dependent", "beta", "meta")
-                   if k not in z.files]
-        if missing:
-            raise ModelFileError(f"{path}: not an identified model, missing {', '.join(missing)}")
-        arrays = {k: z[k] for k in z.files}
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            missing = [k for k in ("phi_b", "sigma_pct", "phi", "independent", "dependent", "beta", "meta")
+                       if k not in z.files]
+            if missing:
+                raise ModelFileError(f"{path}: not an identified model, missing {', '.join(missing)}")
+            arrays = {k: z[k] for k in z.files}
+    except (OSError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+        raise ModelFileError(f"{path}: not a readable .npz, truncated or corrupted ({exc})") from None
+    except ValueError as exc:           # e.g. an object array: a pickle, never loaded
+        if isinstance(exc, ModelFileError):
+            raise
+        raise ModelFileError(f"{path}: not an identified model ({exc})") from None
     try:
         meta = json.loads(str(arrays["meta"]))
     except json.JSONDecodeError as exc:

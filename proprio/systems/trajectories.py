@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import json
 import math
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
@@ -334,10 +335,10 @@ def load_trajectory(path: str | Path) -> tuple[PiecewisePolynomial, dict[str, An
             if missing:
                 raise TrajectoryFileError(f"{path}: not a proprio trajectory (missing {', '.join(missing)})")
             breaks, q, qd, meta_s = z["breaks"], z["q"], z["qd"], str(z["meta"])
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         if isinstance(exc, TrajectoryFileError):
             raise
-        raise TrajectoryFileError(f"{path}: cannot read as .npz ({exc})") from exc
+        raise TrajectoryFileError(f"{path}: cannot read as .npz, truncated or corrupted ({exc})") from exc
     try:
         meta = json.loads(meta_s)
     except json.JSONDecodeError as exc:
