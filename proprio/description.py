@@ -24,6 +24,9 @@ from typing import Any
 import numpy as np
 import yaml
 
+from proprio.drive_description import (DriveDescription, DriveDescriptionError, drive_from_dict,
+                                      drive_from_urdf_element)
+
 __all__ = [
     "CollisionShape", "Joint", "Link", "EndEffector", "RobotDescription", "DescriptionError",
     "load_robot", "robot_from_dict", "robot_from_mdh", "robot_from_urdf", "builtin_robots", "rpy_to_matrix",
@@ -117,6 +120,7 @@ class RobotDescription:
     friction_viscous: tuple[float, ...] | None = None
     friction_coulomb: tuple[float, ...] | None = None
     provenance: str = ""
+    drive: DriveDescription | None = None         # motors, gears, coupling, what τ is (proprio.drive_description)
 
     # ---- convenient array views -------------------------------------------------------------------------
     @property
@@ -194,6 +198,8 @@ class RobotDescription:
         }
         if self.has_friction:
             out["friction"] = {"viscous": list(self.friction_viscous), "coulomb": list(self.friction_coulomb)}
+        if self.drive is not None:
+            out["drive"] = self.drive.to_dict()
         return out
 
 
@@ -402,7 +408,17 @@ def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescri
         world_to_base_xyz=_vec(pose, "xyz", f"{source}:base.world_to_base_link", default=(0, 0, 0)),
         world_to_base_rpy=_vec(pose, "rpy", f"{source}:base.world_to_base_link", default=(0, 0, 0)),
         gravity=gravity, friction_viscous=fv, friction_coulomb=fc,
-        provenance=str(data.get("provenance", "")).strip())
+        provenance=str(data.get("provenance", "")).strip(), drive=_parse_drive(data, len(joints), source))
+
+
+def _parse_drive(data: dict, n: int, source: str) -> DriveDescription | None:
+    """The optional ``drive`` block (:mod:`proprio.drive_description`), errors as :class:`DescriptionError`."""
+    if data.get("drive") is None:
+        return None
+    try:
+        return drive_from_dict(data["drive"], n, f"{source}:drive")
+    except DriveDescriptionError as exc:
+        raise DescriptionError(str(exc)) from None
 
 
 def robot_from_mdh(alpha: list[float], a: list[float], d: list[float], links: list[Link] | None = None,
@@ -489,7 +505,7 @@ def _robot_from_mdh_dict(data: dict, source: str) -> RobotDescription:
                           name=str(data.get("name", "mdh_robot")))
     if len(desc.joints) != n:
         raise DescriptionError(f"{source}: MDH table length mismatch")
-    return desc
+    return dataclasses.replace(desc, drive=_parse_drive(data, n, source))
 
 
 def robot_from_urdf(path: str | Path, base_link: str | None = None, tip_link: str | None = None,
@@ -590,6 +606,9 @@ def robot_from_urdf(path: str | Path, base_link: str | None = None, tip_link: st
                          "rpy": list(_rpy_of(flange))},
         "provenance": f"imported from URDF {path.name}",
     }
+    drive = drive_from_urdf_element(root, [j.name for j in joints], str(path))   # <transmission>, armature
+    if drive is not None:
+        data["drive"] = drive.to_dict()
     return robot_from_dict(data, str(path))
 
 
