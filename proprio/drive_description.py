@@ -86,17 +86,19 @@ class DriveDescription:
         return bool(np.any(np.abs(c - np.diag(np.diag(c))) > 0.0))
 
     def parameters(self) -> np.ndarray:
-        """The drive parameter vector ``[I_a (n), F_v,m (n), F_c,m (n), τ_0 (n)]`` in the order of
-        :func:`proprio.identification.regressor.drive_columns`."""
-        return np.concatenate([self.rotor_inertia, self.motor_viscous, self.motor_coulomb, self.offset])
+        """The identified drive parameters ``[I_a (n), F_v,m (n), F_c,m (n)]`` in the order of
+        :func:`proprio.identification.regressor.drive_columns` (offsets are separate)."""
+        return np.concatenate([self.rotor_inertia, self.motor_viscous, self.motor_coulomb])
 
-    def with_parameters(self, p: np.ndarray) -> "DriveDescription":
-        """A copy with the four per-motor/joint vectors taken from ``p [4n]`` (order of :meth:`parameters`)."""
-        p = np.asarray(p, dtype=float)
-        if p.shape != (4 * self.n,):
-            raise DriveDescriptionError(f"drive parameters: expected {4 * self.n} values, got {p.shape}")
-        ia, fv, fc, off = (tuple(float(x) for x in p[k * self.n:(k + 1) * self.n]) for k in range(4))
-        return DriveDescription(self.tau_kind, self.gear_ratio, self.coupling, ia, self.torque_constant, fv, fc, off)
+    def with_parameters(self, p: np.ndarray, offset: np.ndarray | tuple[float, ...]) -> "DriveDescription":
+        """A copy with ``I_a, F_v,m, F_c,m`` from ``p [3n]`` (order of :meth:`parameters`) and ``offset [n]`` [N·m]."""
+        p, offset = np.asarray(p, dtype=float), np.asarray(offset, dtype=float)
+        if p.shape != (3 * self.n,) or offset.shape != (self.n,):
+            raise DriveDescriptionError(f"drive parameters: expected {3 * self.n} values and {self.n} offsets, got "
+                                        f"{p.shape} and {offset.shape}")
+        ia, fv, fc = (tuple(float(x) for x in p[k * self.n:(k + 1) * self.n]) for k in range(3))
+        return DriveDescription(self.tau_kind, self.gear_ratio, self.coupling, ia, self.torque_constant, fv, fc,
+                                tuple(float(x) for x in offset))
 
     def to_dict(self) -> dict[str, Any]:
         """The YAML mapping (inverse of :func:`drive_from_dict`)."""
