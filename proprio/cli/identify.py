@@ -11,22 +11,32 @@ __all__ = ["register"]
 
 
 def _identify(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from proprio.conditioning import ConditioningConfig
     from proprio.data_quality import assess, format_findings
     from proprio.description import load_robot
     from proprio.identification.model_io import save_model
-    from proprio.identification.recordings import identify_recordings
+    from proprio.identification.recordings import check_tau_kind, identify_recordings
+    from proprio.identification.regressor import drive_identified
     from proprio.recording import load_recording
 
     robot = load_robot(args.robot)
     train = [load_recording(p, robot) for p in args.train]
     validate = [load_recording(p, robot) for p in args.validate]
+    check_tau_kind(train + validate, args.train + args.validate, robot)
+    if args.no_drive and robot.drive is not None:
+        robot = dataclasses.replace(robot, drive=None)
+    conditioning = ConditioningConfig() if args.cutoff_hz is None else ConditioningConfig(cutoff_hz=args.cutoff_hz)
+    offsets = args.offsets or drive_identified(robot)
     for role, paths, recs in (("train", args.train, train), ("validate", args.validate, validate)):
         for path, rec in zip(paths, recs):          # warnings and problems only, and the conditioning line
             print(format_findings(assess(rec, robot), "warning", title=f"data quality of {path} ({role}):"))
-    model, text = identify_recordings(train, validate, robot, args.method, args.trim, args.offsets,
-                                      args.coulomb_velocity_scale)
+    model, text = identify_recordings(train, validate, robot, args.method, args.trim, offsets,
+                                      args.coulomb_velocity_scale, conditioning)
     print(f"{args.method.upper()} on {model.n_train_samples} samples: {model.phi_b.size} parameters "
-          f"({model.base.n_base} base{' + offsets' if args.offsets else ''})")
+          f"({model.base.n_base} base{' incl. drive terms' if drive_identified(robot) else ''}"
+          f"{' + offsets' if offsets else ''})")
     if args.show_parameters:
         print(model.parameter_table())
     print(text)
@@ -86,7 +96,13 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, help="output model file (.npz)")
     p.add_argument("--trim", type=int, default=100, help="samples dropped at both ends of every recording "
                                                          "(filter start-up; default 100)")
-    p.add_argument("--offsets", action="store_true", help="also fit a constant torque offset per joint")
+    p.add_argument("--offsets", action="store_true", help="also fit a constant torque offset per joint (always on "
+                                                          "for a drive-torque arm)")
+    p.add_argument("--no-drive", action="store_true",
+                   help="leave out the drive columns (rotor inertia, coupled motor friction) of a robot whose "
+                        "description has drive.tau_kind: drive — the ablation of the same identification")
+    p.add_argument("--cutoff-hz", type=float, default=None,
+                   help="[Hz] low-pass cutoff of the conditioning (default: auto from the noise floor)")
     p.add_argument("--coulomb-velocity-scale", type=float, default=0.02,
                    help="[rad/s] Coulomb friction as tanh(qd/scale); 0 = sign(qd) (default 0.02)")
     p.add_argument("--show-parameters", action="store_true", help="print the base-parameter table (Table 4.6)")
