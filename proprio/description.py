@@ -14,6 +14,7 @@ The YAML layout (``format: proprio-robot/v1``) is documented in ``README.md`` an
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
@@ -30,6 +31,7 @@ from proprio.drive_description import (DriveDescription, DriveDescriptionError, 
 __all__ = [
     "CollisionShape", "Joint", "Link", "EndEffector", "RobotDescription", "DescriptionError",
     "load_robot", "robot_from_dict", "robot_from_mdh", "robot_from_urdf", "builtin_robots", "rpy_to_matrix",
+    "check_keys",
 ]
 
 INERTIA_KEYS = ("ixx", "iyy", "izz", "ixy", "ixz", "iyz")
@@ -215,6 +217,18 @@ def _shape_dict(s: CollisionShape) -> dict[str, Any]:
 
 
 # ---- validation helpers ---------------------------------------------------------------------------------
+
+def check_keys(d: dict, allowed: tuple[str, ...] | frozenset[str], where: str,
+               ignored: tuple[str, ...] | frozenset[str] = ()) -> None:
+    """Refuse a key of mapping ``d`` that is neither ``allowed`` nor in the explicit ``ignored`` list (documentation
+    keys a format carries, e.g. ``note``); the error names the key path and the nearest valid key."""
+    for key in d:
+        if key in allowed or key in ignored:
+            continue
+        near = difflib.get_close_matches(str(key), [*allowed], n=1, cutoff=0.5)
+        hint = f"; did you mean '{near[0]}'?" if near else f" (valid: {', '.join(allowed)})"
+        raise DescriptionError(f"{where}: unknown key '{key}'{hint}")
+
 
 def _vec(d: dict, key: str, where: str, size: int = 3, default: Any = None) -> tuple[float, ...]:
     if key not in d:

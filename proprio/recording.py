@@ -35,6 +35,9 @@ __all__ = ["Recording", "RecordingError", "save_recording", "load_recording", "v
 TRUTH_PREFIX = "truth__"
 LWR4_KEYS = frozenset({"times", "positions", "torques"})   # FloBaRoID's measurement layout
 _OPTIONAL = ("qd", "qdd", "f_ext")
+TEXT_LOG_SUFFIXES = (".csv", ".txt", ".tsv", ".dat")
+IMPORT_HINT = ("convert it with `proprio import MAPPING.yaml --out REC.npz` (a mapping says which columns are q, τ, "
+               "units, gear ratios; example: proprio/configs/import_tx40.yaml)")
 
 
 class RecordingError(ValueError):
@@ -206,6 +209,8 @@ def load_recording(path: str | Path, robot: RobotDescription | None = None) -> R
     path = Path(path)
     if not path.exists():
         raise RecordingError(f"{path}: no such file")
+    if path.suffix.lower() in TEXT_LOG_SUFFIXES:
+        raise RecordingError(f"{path}: a text log, not a Recording (.npz); {IMPORT_HINT}")
     try:
         with np.load(path, allow_pickle=False) as z:
             files = set(z.files)
