@@ -25,6 +25,14 @@ def _identify(args: argparse.Namespace) -> int:
     train = [load_recording(p, robot) for p in args.train]
     validate = [load_recording(p, robot) for p in args.validate]
     check_tau_kind(train + validate, args.train + args.validate, robot)
+    if args.split_at is not None:                   # held-out tail of every training recording
+        cuts = [int(np.searchsorted(rec.t, rec.t[0] + args.split_at)) for rec in train]
+        bad = [p for p, c, rec in zip(args.train, cuts, train) if not 0 < c < rec.n_samples]
+        if bad:
+            raise ValueError(f"--split-at {args.split_at} s is outside the time span of {', '.join(bad)}")
+        validate += [rec.slice(c, rec.n_samples) for c, rec in zip(cuts, train)]
+        train = [rec.slice(0, c) for c, rec in zip(cuts, train)]
+        print(f"split: train on the first {args.split_at:g} s of each --train recording, validate on the rest")
     if args.no_drive and robot.drive is not None:
         robot = dataclasses.replace(robot, drive=None)
     conditioning = ConditioningConfig() if args.cutoff_hz is None else ConditioningConfig(cutoff_hz=args.cutoff_hz)
@@ -101,6 +109,9 @@ def register(subparsers) -> None:
     p.add_argument("--no-drive", action="store_true",
                    help="leave out the drive columns (rotor inertia, coupled motor friction) of a robot whose "
                         "description has drive.tau_kind: drive — the ablation of the same identification")
+    p.add_argument("--split-at", type=float, default=None, metavar="SECONDS",
+                   help="train on the first SECONDS of every --train recording and validate on the rest (added "
+                        "to --validate)")
     p.add_argument("--cutoff-hz", type=float, default=None,
                    help="[Hz] low-pass cutoff of the conditioning (default: auto from the noise floor)")
     p.add_argument("--coulomb-velocity-scale", type=float, default=0.02,
