@@ -172,9 +172,11 @@ def drive_from_dict(d: Any, n: int, where: str = "drive") -> DriveDescription:
 
 def drive_from_urdf_element(root: Any, joint_names: list[str], where: str) -> DriveDescription | None:
     """A drive block from a URDF's ``<transmission>`` elements (``<joint name>``, ``<actuator>`` with
-    ``<mechanicalReduction>``) and ``<joint><dynamics armature=…>`` (Drake's reflected rotor inertia); ``None`` when
-    the URDF has neither. ``tau_kind`` is ``drive`` (a URDF that names actuators describes motor-side sensing);
-    coupled transmissions are not expressed by URDF and need the YAML ``coupling`` field."""
+    ``<mechanicalReduction>``) and ``<joint><dynamics armature=…>`` (reflected rotor inertia [kg·m²]); ``None``
+    when every reduction is 1 and no armature is given (proprio's own URDF export writes unit transmissions). A
+    URDF does not say what the τ channel is: ``tau_kind`` is ``link_sensor`` (the drive terms simulated, not
+    identified); a drive-torque arm says ``tau_kind: drive`` in its YAML, and coupled transmissions need the YAML
+    ``coupling`` field too."""
     n = len(joint_names)
     gear, arm, found = [1.0] * n, [0.0] * n, False
     index = {name: k for k, name in enumerate(joint_names)}
@@ -192,12 +194,12 @@ def drive_from_urdf_element(root: Any, joint_names: list[str], where: str) -> Dr
             except ValueError:
                 raise DriveDescriptionError(f"{where}: transmission of joint '{name}': mechanicalReduction "
                                             f"{red.text!r} is not a number") from None
-            found = True
+            found = found or gear[index[name]] != 1.0
     for el in root.findall("joint"):
         dyn = el.find("dynamics")
         if el.get("name") in index and dyn is not None and dyn.get("armature") is not None:
             arm[index[el.get("name")]] = float(dyn.get("armature"))
-            found = True
+            found = found or arm[index[el.get("name")]] != 0.0
     if not found:
         return None
-    return drive_from_dict({"tau_kind": "drive", "gear_ratio": gear, "rotor_inertia": arm}, n, where)
+    return drive_from_dict({"tau_kind": "link_sensor", "gear_ratio": gear, "rotor_inertia": arm}, n, where)
