@@ -163,8 +163,9 @@ def tx40_fits():
     robot = load_robot("staubli_tx40")
     val = stack_recordings([held], 100, cfg)[0]
     out = {}
-    for key, desc in (("drive", robot), ("link", dataclasses.replace(robot, drive=None))):
-        model, _ = identify_recordings([train], [], desc, "ols", 100, True, 0.02, cfg)
+    for key, desc, method in (("drive", robot, "ols"), ("link", dataclasses.replace(robot, drive=None), "ols"),
+                              ("sdp", robot, "sdp")):
+        model, _ = identify_recordings([train], [], desc, method, 100, True, 0.02, cfg)
         out[key] = (model, torque_error_table(val[3], model.torque(*val[:3]))[1]["rmse"])
     return out
 
@@ -175,19 +176,23 @@ def test_tx40_drive_columns_lower_joint5_held_out_rmse(tx40_fits):
     assert rmse_drive[5] < rmse_link[5]
 
 
-def _upstream() -> dict[str, float]:
+def _upstream() -> dict[str, tuple[float, float]]:
+    """``name → (value, σ %)`` of the upstream base parameters."""
     rows = [ln.rsplit(",", 4) for ln in (TX40 / "TX40_bp_5.csv").read_text().splitlines() if ln.strip()]
-    return {r[0]: float(r[1]) for r in rows}
+    return {r[0]: (float(r[1]), float(r[2])) for r in rows}
 
 
 def test_tx40_friction_and_armature_match_upstream(tx40_fits):
-    """Combinations comparable with the upstream base parameters (README table), within 25 %."""
-    model = tx40_fits["drive"][0]
+    """Every friction and armature combination that maps onto an upstream base parameter (README table) is within
+    25 % of it, wherever upstream determined it (σ < 15 %: leaves out fs6 at 56 % and Iam6 at 48 %). Upstream
+    ``fv5``/``fv6`` hold the coupled motor's viscous friction, ``Ia5`` its rotor (its columns q̈₆ on joint 5 and q̈₅
+    on joint 6 are ours minus the uncoupled parts)."""
+    model = tx40_fits["sdp"][0]
     v = dict(zip(model.names, model.phi_b))
-    up = _upstream()
     pairs = {f"fv{j}": v[f"Fv{j} + Fvm{j}"] for j in range(1, 5)}
     pairs |= {f"fs{j}": v[f"Fc{j} + Fcm{j}"] for j in range(1, 6)}
-    pairs |= {"fv5": v["Fv5 + Fvm5"] + v["Fvm6"], "fv6": v["Fv6"] + v["Fvm6"], "fvm6": v["Fvm6"],
-              "fsm6": v["Fcm6"], "Ia4": v["Ia4"]}
-    rel = {k: abs(x / up[k] - 1.0) for k, x in pairs.items()}
-    assert max(rel.values()) < 0.25, rel
+    pairs |= {"fv5": v["Fv5 + Fvm5"] + v["Fvm6"], "fv6": v["Fv6"] + v["Fvm6"], "fvm6": v["Fvm6"], "fs6": v["Fc6"],
+              "fsm6": v["Fcm6"], "Ia3": v["Ia3"], "Ia4": v["Ia4"], "Ia5": v["Ia5"] + v["Ia6"], "Iam6": v["Ia6"]}
+    up = _upstream()
+    rel = {k: abs(x / up[k][0] - 1.0) for k, x in pairs.items() if up[k][1] < 15.0}
+    assert len(rel) == len(pairs) - 2 and max(rel.values()) < 0.25, rel
