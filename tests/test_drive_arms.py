@@ -196,3 +196,71 @@ def test_tx40_friction_and_armature_match_upstream(tx40_fits):
     up = _upstream()
     rel = {k: abs(x / up[k][0] - 1.0) for k, x in pairs.items() if up[k][1] < 15.0}
     assert len(rel) == len(pairs) - 2 and max(rel.values()) < 0.25, rel
+
+
+# ---- the twin and the observers ---------------------------------------------------------------------------------
+
+def _iiwa_drive_arm():
+    """The nominal iiwa as a drive-torque arm: rotor inertia, motor friction and offsets, uncoupled."""
+    desc = load_robot("iiwa14_nominal")
+    drive = drive_from_dict({"tau_kind": "drive", "gear_ratio": [100.0] * 7,
+                             "rotor_inertia": [0.4, 0.4, 0.2, 0.2, 0.1, 0.05, 0.05],
+                             "motor_friction": {"viscous": [0.5, 0.5, 0.3, 0.3, 0.2, 0.1, 0.1],
+                                                "coulomb": [0.8, 0.8, 0.5, 0.5, 0.3, 0.2, 0.2]},
+                             "offset": [0.3, -0.5, 0.2, 0.1, -0.1, 0.05, 0.0]}, 7)
+    return dataclasses.replace(desc, drive=drive)
+
+
+def test_twin_of_a_drive_arm_logs_the_drive_torque_of_the_regressor_law():
+    """The twin takes the description's drive block (Drake rotor inertia + the joint drive's motor friction) and
+    logs the drive torque: τ = τ_rbd + drive terms (the regressor's law, smooth Coulomb at the motor's 0.02 rad/s)
+    + offsets, to solver precision."""
+    from pydrake.trajectories import PiecewisePolynomial
+    from proprio.diagrams.twin import TwinConfig, simulate_twin
+    from proprio.identification.regressor import drive_torque
+
+    desc = _iiwa_drive_arm()
+    cfg = TwinConfig.from_dict({"robot": desc.to_dict(), "logger": {"rate_hz": 1000, "channels": ["q", "tau"],
+                                                                    "stamp_jitter_ms": 0.0, "dropout_prob": 0.0}})
+    assert cfg.motor is not None
+    q0 = np.array([0.1, 0.5, -0.2, -1.2, 0.3, 0.7, 0.2])
+    rng = np.random.default_rng(0)
+    knots = q0 + rng.uniform(-0.25, 0.25, (4, 7))
+    knots[0] = q0
+    traj = PiecewisePolynomial.CubicShapePreserving(np.linspace(0.0, 1.0, 4), knots.T, True)
+    rec = simulate_twin(cfg, traj, progress=False)
+    tr = rec.truth
+    expected = tr["tau_rbd"] + drive_torque(desc, tr["qd"], tr["qdd"], 0.02) + np.array(desc.drive.offset)
+    assert np.max(np.abs(rec.tau - expected)) < 1e-6
+    assert np.max(np.abs(drive_torque(desc, tr["qd"], tr["qdd"], 0.02))) > 0.5     # the drive terms are there
+
+
+def test_twin_refuses_a_coupled_drive_with_a_clear_message():
+    from proprio.diagrams.twin import TwinConfig, TwinConfigError
+    with pytest.raises(TwinConfigError, match="motor 6 with joints 5, 6"):
+        TwinConfig.from_dict({"robot": "staubli_tx40"})
+
+
+def test_observers_subtract_the_drive_terms():
+    """A drive arm moving freely: with the drive terms in the torque model (τ_int) both observers see no external
+    torque; without them, the rotor inertia, motor friction and offsets look like contact."""
+    from proprio.diagrams.estimation import RigidBodyTorqueModel
+    from proprio.dynamics import inverse_dynamics
+    from proprio.systems.observers import momentum_observer
+
+    desc = _iiwa_drive_arm()
+    dt = 1e-3
+    t = np.arange(0.0, 2.0, dt)[:, None]
+    w = np.linspace(1.0, 2.0, 7)
+    q, qd, qdd = 0.5 * np.sin(w * t), 0.5 * w * np.cos(w * t), -0.5 * w ** 2 * np.sin(w * t)
+    model = RigidBodyTorqueModel(desc)
+    tau = inverse_dynamics(desc, q, qd, qdd) + model.tau_int(q, qd, qdd)      # what the drive arm measures
+    bare = RigidBodyTorqueModel(dataclasses.replace(desc, drive=None))
+    for m, small in ((model, True), (bare, False)):
+        tau_int = m.tau_int(q, qd, qdd)
+        direct = inverse_dynamics(desc, q, qd, qdd) + tau_int - tau
+        mom = momentum_observer(desc, dt, q, qd, tau, tau_int, gain=50.0)[200:]
+        if small:
+            assert np.max(np.abs(direct)) < 1e-9 and np.max(np.abs(mom)) < 1e-2
+        else:
+            assert np.max(np.abs(direct)) > 1.0 and np.max(np.abs(mom)) > 1.0

@@ -78,8 +78,9 @@ from proprio.plant import DrakeRobot
 from proprio.recording import Recording
 from proprio.urdf import to_urdf
 from proprio.systems.joint_drive import (
-    AddJointDrive, JointDrive, check_elastic_stability, check_explicit_friction, friction_slope,
+    AddJointDrive, JointDrive, check_elastic_stability, check_explicit_friction, friction_slope, motor_from_description,
 )
+from proprio.identification.regressor import drive_identified
 from proprio.effects import Elasticity, EncoderNoise, JointEffect, Motor, effect_key, make_effects
 from proprio.signals import MotionSignals
 from proprio.systems.robot_logger import LoggerConfig, RobotLogger
@@ -164,7 +165,8 @@ class TwinConfig:
         except ValueError as exc:
             raise TwinConfigError(str(exc)) from exc
         try:
-            motor = Motor.from_config(data["drive"], n) if data.get("drive") is not None else None
+            motor = Motor.from_config(data["drive"], n) if data.get("drive") is not None else \
+                motor_from_description(desc)
         except ValueError as exc:
             raise TwinConfigError(f"{source}: drive: {exc}") from exc
         if any(isinstance(e, Elasticity) for e in effects) and (motor is None or np.any(motor.motor_inertia <= 0)):
@@ -390,7 +392,8 @@ def build_twin_diagram(config: TwinConfig, trajectory: Trajectory) -> TwinDiagra
     control_plant = _robot_plant(desc, config.payload if config.payload_model else None, 0.0, rotor)
     ctrl = builder.AddSystem(InverseDynamicsController(control_plant, config.kp, config.ki, config.kd, True))
     ctrl.set_name("controller")
-    drive = AddJointDrive(builder, n, link, motor, elastic, dt, session_time_s=config.session_time_s)
+    drive = AddJointDrive(builder, n, link, motor, elastic, dt, session_time_s=config.session_time_s,
+                          drive_offset=np.array(desc.drive.offset) if drive_identified(desc) else None)
     source = AddTrajectorySource(builder, trajectory)
 
     state = plant.get_state_output_port(instance)

@@ -45,7 +45,7 @@ from proprio.drive_description import DriveDescription
 __all__ = ["PARAMS_PER_JOINT", "PARAMETER_KEYS", "DRIVE_KEYS", "parameter_names", "standard_parameters",
            "parameters_to_links", "friction_from_parameters", "drive_from_parameters", "regressor", "regressor_buffer",
            "predict", "RegressorGeometry", "regressor_geometry", "coulomb_sign", "drive_columns",
-           "drive_identified", "n_parameters"]
+           "drive_identified", "n_parameters", "drive_torque"]
 
 PARAMETER_KEYS = ("m", "mcx", "mcy", "mcz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz", "Fv", "Fc")
 PARAMS_PER_JOINT = len(PARAMETER_KEYS)
@@ -94,6 +94,21 @@ def drive_columns(drive: DriveDescription, qd: np.ndarray, qdd: np.ndarray, coul
 
 def _skew(v: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def drive_torque(desc: RobotDescription, qd: np.ndarray, qdd: np.ndarray, coulomb_velocity_scale: float
+                 ) -> np.ndarray:
+    """The drive terms in a drive-torque arm's τ ``[N, n]`` [N·m] (rotor inertia, motor friction on the coupled
+    motor velocity; not the constant offsets) for ``qd, qdd [N, n]`` (or ``[n]``): :func:`drive_columns` times the
+    description's drive parameters. Zeros when ``desc``'s τ is not a drive torque."""
+    single = np.ndim(qd) == 1
+    qd, qdd = np.atleast_2d(np.asarray(qd, dtype=float)), np.atleast_2d(np.asarray(qdd, dtype=float))
+    if not drive_identified(desc):
+        tau = np.zeros_like(qd)
+    else:
+        cols = drive_columns(desc.drive, qd.T, qdd.T, coulomb_velocity_scale)
+        tau = np.einsum("ics,c->si", cols, desc.drive.parameters())
+    return tau[0] if single else tau
 
 
 def standard_parameters(desc: RobotDescription) -> np.ndarray:
