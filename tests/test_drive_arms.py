@@ -264,3 +264,19 @@ def test_observers_subtract_the_drive_terms():
             assert np.max(np.abs(direct)) < 1e-9 and np.max(np.abs(mom)) < 1e-2
         else:
             assert np.max(np.abs(direct)) > 1.0 and np.max(np.abs(mom)) > 1.0
+
+
+def test_tx40_model_file_keeps_the_drive_terms(tx40_fits, tmp_path):
+    from proprio.identification.model_io import load_model, save_model
+    model = tx40_fits["sdp"][0]
+    back = load_model(save_model(model, tmp_path / "tx40.npz"))
+    rng = np.random.default_rng(6)
+    q, qd, qdd = (rng.uniform(-1, 1, (10, 6)) for _ in range(3))
+    np.testing.assert_allclose(back.torque(q, qd, qdd), model.torque(q, qd, qdd), rtol=0, atol=1e-12)
+    ident = back.description_identified()
+    assert ident.drive.in_tau and ident.drive.coupled
+    np.testing.assert_allclose(ident.drive.offset, model.offsets, rtol=0, atol=0)
+    assert ident.drive.rotor_inertia[5] == pytest.approx(model.phi[PARAMS_PER_JOINT * 6 + 5])
+    # the identified description predicts what the model does (standard set reproduces K_b φ_b)
+    tau = np.einsum("sip,p->si", regressor(ident, q, qd, qdd, 0.02), standard_parameters(ident)) + model.offsets
+    np.testing.assert_allclose(tau, model.torque(q, qd, qdd), rtol=0, atol=1e-8)
