@@ -280,3 +280,25 @@ def test_tx40_model_file_keeps_the_drive_terms(tx40_fits, tmp_path):
     # the identified description predicts what the model does (standard set reproduces K_b φ_b)
     tau = np.einsum("sip,p->si", regressor(ident, q, qd, qdd, 0.02), standard_parameters(ident)) + model.offsets
     np.testing.assert_allclose(tau, model.torque(q, qd, qdd), rtol=0, atol=1e-8)
+
+
+def test_tx40_identify_cli_split_and_tau_kind_check(tmp_path, capsys):
+    if not TX40.is_dir():
+        pytest.skip("../shared/data/staubli_tx40 not present")
+    from proprio.cli import main
+    from proprio.importer import import_recording
+    from proprio.recording import save_recording
+
+    mapping = Path(__file__).resolve().parents[1] / "proprio" / "configs" / "import_tx40.yaml"
+    rec = save_recording(import_recording(mapping, data_dir=TX40), tmp_path / "tx40.npz")
+    args = ["identify", "--train", str(rec), "--split-at", "6", "--cutoff-hz", "100", "--out",
+            str(tmp_path / "m.npz")]
+    assert main([*args, "--robot", "staubli_tx40"]) == 0
+    out = capsys.readouterr().out
+    assert "split: train on the first 6 s" in out and "incl. drive terms + offsets" in out and "validation" in out
+    plain = load_robot("staubli_tx40").to_dict()
+    del plain["drive"]
+    (tmp_path / "tx40_link.yaml").write_text(yaml.safe_dump(plain))
+    assert main([*args, "--robot", str(tmp_path / "tx40_link.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert "meta.tau_kind is 'drive'" in err and "add a 'drive:' block" in err
