@@ -16,8 +16,9 @@ def _identify(args: argparse.Namespace) -> int:
     from proprio.conditioning import ConditioningConfig
     from proprio.data_quality import assess, format_findings
     from proprio.description import load_robot
+    from proprio.identification.estimators import torque_error_table
     from proprio.identification.model_io import save_model
-    from proprio.identification.recordings import check_tau_kind, identify_recordings
+    from proprio.identification.recordings import check_tau_kind, identify_recordings, stack_recordings
     from proprio.identification.regressor import drive_identified
     from proprio.recording import load_recording
 
@@ -25,22 +26,24 @@ def _identify(args: argparse.Namespace) -> int:
     train = [load_recording(p, robot) for p in args.train]
     validate = [load_recording(p, robot) for p in args.validate]
     check_tau_kind(train + validate, args.train + args.validate, robot)
+    val_names = list(args.validate)
     if args.split_at is not None:                   # held-out tail of every training recording
         cuts = [int(np.searchsorted(rec.t, rec.t[0] + args.split_at)) for rec in train]
         bad = [p for p, c, rec in zip(args.train, cuts, train) if not 0 < c < rec.n_samples]
         if bad:
             raise ValueError(f"--split-at {args.split_at} s is outside the time span of {', '.join(bad)}")
         validate += [rec.slice(c, rec.n_samples) for c, rec in zip(cuts, train)]
+        val_names += [f"{p} after {args.split_at:g} s" for p in args.train]
         train = [rec.slice(0, c) for c, rec in zip(cuts, train)]
         print(f"split: train on the first {args.split_at:g} s of each --train recording, validate on the rest")
     if args.no_drive and robot.drive is not None:
         robot = dataclasses.replace(robot, drive=None)
     conditioning = ConditioningConfig() if args.cutoff_hz is None else ConditioningConfig(cutoff_hz=args.cutoff_hz)
     offsets = args.offsets or drive_identified(robot)
-    for role, paths, recs in (("train", args.train, train), ("validate", args.validate, validate)):
+    for role, paths, recs in (("train", args.train, train), ("validate", val_names, validate)):
         for path, rec in zip(paths, recs):          # warnings and problems only, and the conditioning line
             print(format_findings(assess(rec, robot), "warning", title=f"data quality of {path} ({role}):"))
-    model, text = identify_recordings(train, validate, robot, args.method, args.trim, offsets,
+    model, text = identify_recordings(train, [], robot, args.method, args.trim, offsets,
                                       args.coulomb_velocity_scale, conditioning)
     print(f"{args.method.upper()} on {model.n_train_samples} samples: {model.phi_b.size} parameters "
           f"({model.base.n_base} base{' incl. drive terms' if drive_identified(robot) else ''}"
@@ -48,6 +51,9 @@ def _identify(args: argparse.Namespace) -> int:
     if args.show_parameters:
         print(model.parameter_table())
     print(text)
+    for path, rec in zip(val_names, validate):      # one table per held-out file: runs are not pooled
+        (q, qd, qdd, tau), (cs,) = stack_recordings([rec], args.trim, conditioning)
+        print(f"\n{cs.describe()}\n" + torque_error_table(tau, model.torque(q, qd, qdd), f"validation: {path}")[0])
     save_model(model, args.out)
     print(f"wrote {args.out}")
     return 0
@@ -93,13 +99,13 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "identify", help="identify the rigid-body backbone (base parameters) from recordings",
         description="Identify base inertial + friction parameters (thesis §4.1) by OLS, weighted LS or a "
-                    "physically consistent SDP; print Table 4.4-style per-joint errors on training and validation "
-                    "data and save the model (.npz).")
+                    "physically consistent SDP; print Table 4.4-style per-joint errors on the training data and on each "
+                    "validation file (one table per file) and save the model (.npz).")
     p.add_argument("--robot", required=True, help="robot description: built-in name, YAML, URDF or directory "
                                                   "(kinematics + a-priori inertials)")
     p.add_argument("--train", nargs="+", required=True, metavar="REC", help="training recordings (.npz; FloBaRoID "
                                                                             "LWR files accepted)")
-    p.add_argument("--validate", nargs="*", default=[], metavar="REC", help="validation recordings")
+    p.add_argument("--validate", nargs="*", default=[], metavar="REC", help="validation recordings (one error table per file)")
     p.add_argument("--method", choices=("ols", "wls", "sdp"), default="ols", help="estimator (default ols)")
     p.add_argument("--out", required=True, help="output model file (.npz)")
     p.add_argument("--trim", type=int, default=100, help="samples dropped at both ends of every recording "
