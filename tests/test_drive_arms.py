@@ -4,6 +4,7 @@ without ``../shared``)."""
 from __future__ import annotations
 
 import dataclasses
+import os
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,7 @@ from proprio.identification.base_parameters import base_parameters
 from proprio.identification.regressor import (PARAMS_PER_JOINT, drive_columns, n_parameters, regressor,
                                               standard_parameters)
 
-TX40 = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "staubli_tx40"
+TX40 = Path(os.environ.get("PROPRIO_SHARED", Path(__file__).resolve().parents[2] / "shared")) / "data" / "staubli_tx40"
 N_TX40 = [32.0, 32.0, 45.0, -48.0, 45.0, 32.0]
 
 
