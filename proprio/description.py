@@ -25,6 +25,7 @@ import numpy as np
 import yaml
 
 from proprio import typed_yaml
+from proprio.drive_description import DriveDescription, DriveDescriptionError, drive_from_dict
 
 __all__ = [
     "CollisionShape", "Joint", "Link", "EndEffector", "RobotDescription", "DescriptionError", "DescriptionWarning",
@@ -46,7 +47,8 @@ class DescriptionWarning(UserWarning):
 # relative tolerance of the physical-consistency checks, × the link's largest principal moment of inertia
 INERTIA_RTOL = 1e-4
 # the keys each mapping of the robot YAML may hold (anything else is an error naming the nearest valid key) ...
-TOP_KEYS = ("format", "name", "provenance", "gravity_world", "base", "joints", "links", "end_effector", "friction")
+TOP_KEYS = ("format", "name", "provenance", "gravity_world", "base", "joints", "links", "end_effector", "friction",
+            "drive")
 BASE_KEYS = ("world_to_base_link", "base_link")
 POSE_KEYS = ("xyz", "rpy")
 LINK_KEYS = ("name", "mass", "com_xyz", "com", "com_rpy", "inertia_com", "inertia", "collision")
@@ -55,7 +57,7 @@ JOINT_KEYS = ("name", "parent", "child", "origin_xyz", "origin_rpy", "axis", "li
 LIMIT_KEYS = ("lower", "upper", "lower_deg", "upper_deg", "velocity", "velocity_deg", "effort", "acceleration")
 EE_KEYS = ("name", "parent", "xyz", "rpy")
 FRICTION_KEYS = ("viscous", "coulomb")
-MDH_TOP_KEYS = ("format", "name", "provenance", "gravity_world", "mdh", "limits", "links", "friction")
+MDH_TOP_KEYS = ("format", "name", "provenance", "gravity_world", "mdh", "limits", "links", "friction", "drive")
 MDH_TABLE_KEYS = ("alpha", "alpha_deg", "a", "d", "theta_offset", "theta_offset_deg", "flange_d")
 MDH_LIMIT_KEYS = ("position", "position_deg", "lower", "lower_deg", "upper", "upper_deg", "velocity",
                   "velocity_deg_s", "effort", "acceleration")
@@ -147,6 +149,7 @@ class RobotDescription:
     friction_viscous: tuple[float, ...] | None = None
     friction_coulomb: tuple[float, ...] | None = None
     provenance: str = ""
+    drive: DriveDescription | None = None         # motors, gears, coupling, what τ is (proprio.drive_description)
 
     # ---- convenient array views -------------------------------------------------------------------------
     @property
@@ -224,6 +227,8 @@ class RobotDescription:
         }
         if self.has_friction:
             out["friction"] = {"viscous": list(self.friction_viscous), "coulomb": list(self.friction_coulomb)}
+        if self.drive is not None:
+            out["drive"] = self.drive.to_dict()
         return out
 
 
@@ -467,7 +472,17 @@ def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescri
         world_to_base_xyz=_vec(pose, "xyz", f"{source}:base.world_to_base_link", default=(0, 0, 0)),
         world_to_base_rpy=_vec(pose, "rpy", f"{source}:base.world_to_base_link", default=(0, 0, 0)),
         gravity=gravity, friction_viscous=fv, friction_coulomb=fc,
-        provenance=str(data.get("provenance", "")).strip())
+        provenance=str(data.get("provenance", "")).strip(), drive=_parse_drive(data, len(joints), source))
+
+
+def _parse_drive(data: dict, n: int, source: str) -> DriveDescription | None:
+    """The optional ``drive`` block (:mod:`proprio.drive_description`), errors as :class:`DescriptionError`."""
+    if data.get("drive") is None:
+        return None
+    try:
+        return drive_from_dict(data["drive"], n, f"{source}:drive")
+    except DriveDescriptionError as exc:
+        raise DescriptionError(str(exc)) from None
 
 
 def _parse_friction(data: dict, n: int, source: str) -> tuple[tuple[float, ...] | None, tuple[float, ...] | None]:
@@ -606,7 +621,8 @@ def _robot_from_mdh_dict(data: dict, source: str) -> RobotDescription:
     fv, fc = _parse_friction(data, n, source)
     desc = dataclasses.replace(desc, friction_viscous=fv, friction_coulomb=fc,
                                gravity=_vec(data, "gravity_world", source, default=(0.0, 0.0, -9.81)),
-                               provenance=str(data.get("provenance", desc.provenance)).strip())
+                               provenance=str(data.get("provenance", desc.provenance)).strip(),
+                               drive=_parse_drive(data, n, source))
     return robot_from_dict(desc.to_dict(), source)          # the same checks as every robot YAML
 
 

@@ -17,6 +17,7 @@ import numpy as np
 
 from proprio.description import (INERTIA_KEYS, CollisionShape, DescriptionError, Link, RobotDescription,
                                  matrix_to_rpy, robot_from_dict, rpy_to_matrix)
+from proprio.drive_description import drive_from_urdf_element
 from proprio.payload import Payload
 
 __all__ = ["to_urdf", "visual_shapes", "robot_from_urdf", "LINK_RGBA", "BASE_RGBA"]
@@ -248,7 +249,9 @@ def robot_from_urdf(path: str | Path, base_link: str | None = None, tip_link: st
       are several: ``tool0``, ``flange``, ``ee_link``, ``tcp``, ``tool`` in that order), else the last body's frame;
       ``flange_xyz`` [m] adds a tool offset in that frame.
 
-    Meshes, ``<dynamics>`` damping/friction and moving side branches off the chain are not imported."""
+    A ``<transmission>`` reduction ≠ 1 or a ``<dynamics armature>`` becomes the description's ``drive`` block
+    (:func:`proprio.drive_description.drive_from_urdf_element`). Meshes, ``<dynamics>`` damping/friction and moving
+    side branches off the chain are not imported."""
     path = Path(path)
     name, links, joints = _read_urdf(path)
     by_child: dict[str, _UrdfJoint] = {}
@@ -358,6 +361,9 @@ def robot_from_urdf(path: str | Path, base_link: str | None = None, tip_link: st
                          "rpy": list(matrix_to_rpy(flange[:3, :3]))},
         "provenance": f"imported from URDF {path.name}",
     }
+    drive = drive_from_urdf_element(ET.parse(path).getroot(), [j.name for j in chain], str(path))
+    if drive is not None:                              # <transmission> reductions, <dynamics armature>
+        data["drive"] = drive.to_dict()
     return robot_from_dict(data, str(path))
 
 

@@ -5,36 +5,56 @@ import argparse
 import json
 
 import numpy as np
-from proprio.cli import check_output, nonnegative, nonnegative_int, positive_int
+from proprio.cli import check_output, nonnegative, nonnegative_int, positive, positive_int
 
 
 __all__ = ["register"]
 
 
 def _identify(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from proprio.conditioning import ConditioningConfig
     from proprio.data_quality import assess, format_findings
     from proprio.description import load_robot
-    from proprio.identification.model_io import save_model
     from proprio.identification.estimators import torque_error_table
-    from proprio.identification.recordings import identify_recordings, stack_recordings
+    from proprio.identification.model_io import save_model
+    from proprio.identification.recordings import check_tau_kind, identify_recordings, stack_recordings
+    from proprio.identification.regressor import drive_identified
     from proprio.recording import load_recording
 
     check_output(args.out, "--out", "file")
     robot = load_robot(args.robot)
     train = [load_recording(p, robot) for p in args.train]
     validate = [load_recording(p, robot) for p in args.validate]
-    for role, paths, recs in (("train", args.train, train), ("validate", args.validate, validate)):
+    check_tau_kind(train + validate, args.train + args.validate, robot)
+    val_names = list(args.validate)
+    if args.split_at is not None:                   # held-out tail of every training recording
+        cuts = [int(np.searchsorted(rec.t, rec.t[0] + args.split_at)) for rec in train]
+        bad = [p for p, c, rec in zip(args.train, cuts, train) if not 0 < c < rec.n_samples]
+        if bad:
+            raise ValueError(f"--split-at {args.split_at} s is outside the time span of {', '.join(bad)}")
+        validate += [rec.slice(c, rec.n_samples) for c, rec in zip(cuts, train)]
+        val_names += [f"{p} after {args.split_at:g} s" for p in args.train]
+        train = [rec.slice(0, c) for c, rec in zip(cuts, train)]
+        print(f"split: train on the first {args.split_at:g} s of each --train recording, validate on the rest")
+    if args.no_drive and robot.drive is not None:
+        robot = dataclasses.replace(robot, drive=None)
+    conditioning = ConditioningConfig() if args.cutoff_hz is None else ConditioningConfig(cutoff_hz=args.cutoff_hz)
+    offsets = args.offsets or drive_identified(robot)
+    for role, paths, recs in (("train", args.train, train), ("validate", val_names, validate)):
         for path, rec in zip(paths, recs):          # warnings and problems only, and the conditioning line
             print(format_findings(assess(rec, robot), "warning", title=f"data quality of {path} ({role}):"))
-    model, text = identify_recordings(train, [], robot, args.method, args.trim, args.offsets,
-                                      args.coulomb_velocity_scale)
+    model, text = identify_recordings(train, [], robot, args.method, args.trim, offsets,
+                                      args.coulomb_velocity_scale, conditioning)
     print(f"{args.method.upper()} on {model.n_train_samples} samples: {model.phi_b.size} parameters "
-          f"({model.base.n_base} base{' + offsets' if args.offsets else ''})")
+          f"({model.base.n_base} base{' incl. drive terms' if drive_identified(robot) else ''}"
+          f"{' + offsets' if offsets else ''})")
     if args.show_parameters:
         print(model.parameter_table())
     print(text)
-    for path, rec in zip(args.validate, validate):   # one table per held-out file: runs are not pooled
-        (q, qd, qdd, tau), (cs,) = stack_recordings([rec], args.trim)
+    for path, rec in zip(val_names, validate):      # one table per held-out file: runs are not pooled
+        (q, qd, qdd, tau), (cs,) = stack_recordings([rec], args.trim, conditioning)
         print(f"\n{cs.describe()}\n" + torque_error_table(tau, model.torque(q, qd, qdd), f"validation: {path}")[0])
     save_model(model, args.out)
     print(f"wrote {args.out}")
@@ -94,7 +114,16 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, help="output model file (.npz)")
     p.add_argument("--trim", type=nonnegative_int, default=100, help="samples dropped at both ends of every recording "
                                                          "(filter start-up; default 100)")
-    p.add_argument("--offsets", action="store_true", help="also fit a constant torque offset per joint")
+    p.add_argument("--offsets", action="store_true", help="also fit a constant torque offset per joint (always on "
+                                                          "for a drive-torque arm)")
+    p.add_argument("--no-drive", action="store_true",
+                   help="leave out the drive columns (rotor inertia, coupled motor friction) of a robot whose "
+                        "description has drive.tau_kind: drive — the ablation of the same identification")
+    p.add_argument("--split-at", type=positive, default=None, metavar="SECONDS",
+                   help="train on the first SECONDS of every --train recording and validate on the rest (added "
+                        "to --validate)")
+    p.add_argument("--cutoff-hz", type=positive, default=None,
+                   help="[Hz] low-pass cutoff of the conditioning (default: auto from the noise floor)")
     p.add_argument("--coulomb-velocity-scale", type=nonnegative, default=None,
                    help="[rad/s] Coulomb friction as tanh(qd/scale); 0 = sign(qd) (default: the library's smoothing, "
                         "proprio.friction_law.SMOOTH_VELOCITY = 0.05)")

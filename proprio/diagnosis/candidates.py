@@ -14,7 +14,7 @@ from proprio.diagnosis.data import DiagnosisError, GapData, SimModel
 from proprio.diagnosis.localisation import peak_orders
 from proprio.dynamics import inverse_dynamics
 from proprio.effects import EFFECTS, JointEffect, effect_key, register_plugin, resolve_effect
-from proprio.identification.regressor import PARAMS_PER_JOINT, parameter_names, regressor
+from proprio.identification.regressor import PARAMS_PER_JOINT, n_parameters, parameter_names, regressor
 from proprio.signals import MotionSignals
 
 __all__ = ["Candidate", "EffectCandidate", "RigidBodyCandidate", "PayloadCandidate", "SignalLagCandidate",
@@ -226,6 +226,13 @@ class ElasticityCandidate(Candidate):
         return -np.ones(n, dtype=int)
 
 
+def _inertial_columns(robot: RobotDescription) -> np.ndarray:
+    """Mask of the link-inertial columns of ``robot``'s regressor (not its friction, nor a drive arm's drive
+    columns)."""
+    k = np.arange(n_parameters(robot))
+    return (k < PARAMS_PER_JOINT * robot.n) & (k % PARAMS_PER_JOINT < 10)
+
+
 class RigidBodyCandidate(Candidate):
     """Error of the rigid-body (inertial) parameters: the identifiable combinations kept by a rank-revealing QR of
     the training regressor (friction columns excluded: friction is its own candidate)."""
@@ -257,7 +264,7 @@ class RigidBodyCandidate(Candidate):
         return train.cache[key]
 
     def _inertial(self, data: GapData) -> np.ndarray:
-        keep = np.array([k % PARAMS_PER_JOINT < 10 for k in range(PARAMS_PER_JOINT * self.robot.n)])
+        keep = _inertial_columns(self.robot)
         return data.stack([regressor(self.robot, s.q, s.qd, s.qdd)[..., keep] for s in data.signals])
 
     def param_names(self) -> list[str]:
@@ -275,7 +282,7 @@ class RigidBodyCandidate(Candidate):
         from proprio.identification.regressor import parameters_to_links, standard_parameters
 
         robot = self.robot.without_friction()
-        keep = np.array([k % PARAMS_PER_JOINT < 10 for k in range(PARAMS_PER_JOINT * robot.n)])
+        keep = _inertial_columns(robot)
         phi = standard_parameters(robot)[keep]
         phi[self.columns] += np.asarray(theta, dtype=float)
         q, qd, qdd = self._motion

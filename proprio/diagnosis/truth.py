@@ -148,7 +148,7 @@ def _present(effects: dict[str, dict[str, np.ndarray]], true_robot: RobotDescrip
 
 
 def _inertials(robot: RobotDescription) -> np.ndarray:
-    phi = standard_parameters(robot).reshape(robot.n, PARAMS_PER_JOINT)
+    phi = standard_parameters(robot)[:PARAMS_PER_JOINT * robot.n].reshape(robot.n, PARAMS_PER_JOINT)
     return phi[:, :10].reshape(-1)
 
 
@@ -159,7 +159,7 @@ def _rigid_correction(names: list[str], theta: np.ndarray, robot: RobotDescripti
     delta = np.zeros(len(full))
     for nm, v in zip(names, theta):
         delta[full.index(nm[1:])] = v
-    return regressor(robot, q, qd, qdd) @ delta
+    return regressor(robot, q, qd, qdd)[..., :len(full)] @ delta             # link columns (not a drive's)
 
 
 def compare_to_truth(att: Attribution, model: SimModel, holdout: Sequence[Recording]) -> TruthComparison | None:

@@ -40,6 +40,7 @@ from proprio import friction_law
 from proprio.conditioning import CausalConditioning, ConditioningConfig, condition
 from proprio.description import RobotDescription, load_robot
 from proprio.dynamics import inverse_dynamics
+from proprio.identification.regressor import drive_identified, drive_torque
 from proprio.io import atomic_path, save_figure
 from proprio.kinematics import chain_geometry, flange_jacobian, flange_pose, point_jacobian
 from proprio.plant import DrakeRobot
@@ -80,7 +81,9 @@ class RigidBodyTorqueModel:
     """The RBD model of a description plus its link-side viscous + Coulomb friction, if it has any, and constant
     torque offsets: ``τ_int = F_v q̇ + F_c sgn(q̇) + τ_offset`` [N·m], the one law of :mod:`proprio.friction_law` with
     ``sgn = tanh(q̇ / coulomb_velocity)`` (``np.sign`` when 0; ``None``: the library's smoothing, read when
-    evaluated)."""
+    evaluated). A drive-torque arm (``drive.tau_kind: drive``) adds its drive terms, rotor inertia on q̈ and motor
+    friction on the coupled motor velocity (:func:`~proprio.identification.regressor.drive_torque`), and takes the
+    drive block's offsets when none are given: the observers then see the link-side torque in τ − τ_int."""
     description: RobotDescription
     coulomb_velocity: float | None = None
     offset: tuple[float, ...] | None = None
@@ -88,15 +91,21 @@ class RigidBodyTorqueModel:
     def tau_int(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         d = self.description
         qd = np.asarray(qd, dtype=float)
-        tau = np.zeros_like(qd) if self.offset is None else np.broadcast_to(self.offset, qd.shape).copy()
+        offset = d.drive.offset if self.offset is None and drive_identified(d) else self.offset
+        tau = np.zeros_like(qd) if offset is None else np.broadcast_to(offset, qd.shape).copy()
+        if drive_identified(d):
+            tau += drive_torque(d, qd, qdd, self.coulomb_velocity)
         if d.has_friction:
             tau += friction_law.viscous_coulomb(qd, np.asarray(d.friction_viscous), np.asarray(d.friction_coulomb),
                                                 self.coulomb_velocity)
         return tau
 
-    def tau_int_step(self) -> Callable[[np.ndarray], np.ndarray]:
-        """The same ``τ_int(q̇)`` [N·m] for ONE sample ``q̇ [n]``, constants folded (for the per-step Systems)."""
+    def tau_int_step(self) -> Callable[[np.ndarray], np.ndarray] | None:
+        """The same ``τ_int(q̇)`` [N·m] for ONE sample ``q̇ [n]``, constants folded (for the per-step Systems);
+        ``None`` for a drive-torque arm, whose τ_int also depends on q̈ (the Systems then call :meth:`tau_int`)."""
         d = self.description
+        if drive_identified(d):
+            return None
         offset = np.zeros(d.n) if self.offset is None else np.asarray(self.offset, dtype=float)
         if not d.has_friction:
             return lambda qd: offset.copy()

@@ -75,8 +75,9 @@ from proprio.plant import DrakeRobot
 from proprio.recording import Recording
 from proprio.urdf import to_urdf
 from proprio.systems.joint_drive import (
-    AddJointDrive, JointDrive, check_elastic_stability, check_explicit_friction, friction_slope,
+    AddJointDrive, JointDrive, check_elastic_stability, check_explicit_friction, friction_slope, motor_from_description,
 )
+from proprio.identification.regressor import drive_identified
 from proprio.effects import Elasticity, EncoderNoise
 from proprio.signals import MotionSignals
 from proprio.systems.robot_logger import RobotLogger
@@ -167,7 +168,8 @@ def build_twin_diagram(config: TwinConfig, trajectory: Trajectory) -> TwinDiagra
     control_plant = _robot_plant(desc, config.payload if config.payload_model else None, 0.0, rotor)
     ctrl = builder.AddSystem(InverseDynamicsController(control_plant, config.kp, config.ki, config.kd, True))
     ctrl.set_name("controller")
-    drive = AddJointDrive(builder, n, link, motor, elastic, dt, session_time_s=config.session_time_s)
+    drive = AddJointDrive(builder, n, link, motor, elastic, dt, session_time_s=config.session_time_s,
+                          drive_offset=np.array(desc.drive.offset) if drive_identified(desc) else None)
     source = AddTrajectorySource(builder, trajectory)
 
     state = plant.get_state_output_port(instance)

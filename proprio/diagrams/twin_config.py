@@ -15,6 +15,7 @@ from proprio.description import DescriptionError, RobotDescription, load_robot, 
 from proprio.effects import Elasticity, JointEffect, Motor, effect_key, make_effects
 from proprio.effects.schema import check_effect_block, check_effects_block
 from proprio.payload import Payload, PayloadBlock
+from proprio.systems.joint_drive import motor_from_description
 from proprio.systems.robot_logger import LoggerConfig
 from proprio.typed_yaml import load_typed, per_joint, read_yaml
 
@@ -135,7 +136,7 @@ class TwinConfig:
         if spec.drive is not None:
             check_effect_block(Motor, spec.drive, n, f"{source}: drive", TwinConfigError)
         try:
-            motor = Motor.from_config(spec.drive, n) if spec.drive is not None else None
+            motor = Motor.from_config(spec.drive, n) if spec.drive is not None else motor_from_description(desc)
         except ValueError as exc:
             raise TwinConfigError(f"{source}: drive: {exc}") from exc
         if any(isinstance(e, Elasticity) for e in effects) and (motor is None or np.any(motor.motor_inertia <= 0)):

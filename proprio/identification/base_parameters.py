@@ -18,7 +18,7 @@ import numpy as np
 import scipy.linalg
 
 from proprio.description import RobotDescription
-from proprio.identification.regressor import PARAMS_PER_JOINT, parameter_names, regressor
+from proprio.identification.regressor import PARAMS_PER_JOINT, drive_identified, parameter_names, regressor
 
 __all__ = ["BaseParameters", "base_parameters", "RANK_TOL", "NAME_TOL"]
 
@@ -82,15 +82,18 @@ def base_parameters(desc: RobotDescription, n_samples: int = 400, seed: int = 0,
     """Base parameters of ``desc`` from the QR of the regressor at ``n_samples`` random states (positions uniform
     in the joint limits, velocities and accelerations standard normal in rad/s, rad/s²).
 
-    ``with_friction=False`` drops the friction columns (they are then never identifiable)."""
+    ``with_friction=False`` drops the joint friction columns (they are then never identifiable). A drive-torque arm
+    (``desc.drive.tau_kind == 'drive'``) has the drive columns too (rotor inertia, motor friction on the coupled
+    motor velocity): those that duplicate a link's column merge with it (``Izz1 + Ia1``, ``Fv2 + Fvm2``), the coupled
+    motor's stay on their own (the TX40's ``Fvm6``)."""
     rng = np.random.default_rng(seed)
     n = desc.n
     q = rng.uniform(desc.lower, desc.upper, size=(n_samples, n))
     qd, qdd = rng.normal(size=(n_samples, n)), rng.normal(size=(n_samples, n))
     y = np.ascontiguousarray(regressor(desc, q, qd, qdd)).reshape(n_samples * n, -1)
     if not with_friction:
-        y[:, 10::PARAMS_PER_JOINT] = 0.0
-        y[:, 11::PARAMS_PER_JOINT] = 0.0
+        y[:, 10:PARAMS_PER_JOINT * n:PARAMS_PER_JOINT] = 0.0
+        y[:, 11:PARAMS_PER_JOINT * n:PARAMS_PER_JOINT] = 0.0
     norms = np.linalg.norm(y, axis=0)
     y[:, norms < ZERO_TOL * norms.max()] = 0.0            # round-off columns (e.g. 1e-14) are structural zeros
     scale = np.where(norms >= ZERO_TOL * norms.max(), norms, 1.0)
@@ -104,6 +107,6 @@ def base_parameters(desc: RobotDescription, n_samples: int = 400, seed: int = 0,
     beta[np.abs(beta) < 1e-12] = 0.0
     order = np.argsort(independent)                      # keep the natural (link-by-link) order
     independent, beta = independent[order], beta[order]
-    std = tuple(parameter_names(n))
+    std = tuple(parameter_names(n, drive_identified(desc)))
     names = tuple(_name(std, i, row, dependent) for i, row in zip(independent, beta))
     return BaseParameters(desc.name, independent, dependent, beta, std, names)

@@ -21,7 +21,7 @@ from proprio import friction_law
 from proprio.description import RobotDescription
 from proprio.identification.base_parameters import BaseParameters, base_parameters
 from proprio.identification.model_io import IdentifiedModel, data_digest
-from proprio.identification.regressor import PARAMS_PER_JOINT, regressor_buffer, standard_parameters
+from proprio.identification.regressor import PARAMS_PER_JOINT, n_parameters, regressor_buffer, standard_parameters
 
 __all__ = ["IdentificationError", "NormalEquations", "normal_equations", "check_data", "ols", "wls", "sdp",
            "identify", "torque_error_table", "METHODS", "MOTION_THRESHOLD", "CONDITION_LIMIT"]
@@ -167,7 +167,7 @@ def _full_set(base: BaseParameters, phi_b: np.ndarray, prior: np.ndarray) -> np.
 def _prepare(desc, q, qd, qdd, tau, base, coulomb_velocity_scale, offsets):
     q, qd, qdd, tau = (np.asarray(a, dtype=float) for a in (q, qd, qdd, tau))
     base = base or base_parameters(desc)
-    if base.robot != desc.name or base.n_standard != PARAMS_PER_JOINT * desc.n:
+    if base.robot != desc.name or base.n_standard != n_parameters(desc):
         raise ValueError(f"base parameters were computed for {base.robot!r}, not for {desc.name!r}")
     check_data(desc, base, q, qd, qdd, tau)
     ne = normal_equations(desc, base, q, qd, qdd, tau, coulomb_velocity_scale, offsets=offsets)
@@ -258,6 +258,8 @@ def sdp(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, 
         prog.AddPositiveSemidefiniteConstraint(_pseudo_inertia(blk))
         prog.AddLinearConstraint(blk[0] >= min_mass)
         prog.AddBoundingBoxConstraint(0.0, np.inf, x[PARAMS_PER_JOINT * j + 10:PARAMS_PER_JOINT * j + 12])
+    if p > PARAMS_PER_JOINT * desc.n:                                 # drive: I_a, F_v,m, F_c,m ≥ 0
+        prog.AddBoundingBoxConstraint(0.0, np.inf, x[PARAMS_PER_JOINT * desc.n:p])
     result = ClarabelSolver().Solve(prog)
     if not result.is_success():
         raise IdentificationError(f"SDP failed ({result.get_solution_result()}); the data may be inconsistent with "
@@ -295,8 +297,8 @@ def _clip_second_moments(phi: np.ndarray, n: int, floor: float = 1e-9) -> np.nda
 
 
 def _consistent(phi: np.ndarray, n: int, min_mass: float) -> bool:
-    p = phi.reshape(n, PARAMS_PER_JOINT)
-    return bool(all(np.linalg.eigvalsh(_pseudo_inertia(row[:10]))[0] >= 0.0 and row[0] >= min_mass
+    p = phi[:PARAMS_PER_JOINT * n].reshape(n, PARAMS_PER_JOINT)
+    return bool(np.all(phi[PARAMS_PER_JOINT * n:] >= 0.0) and all(np.linalg.eigvalsh(_pseudo_inertia(row[:10]))[0] >= 0.0 and row[0] >= min_mass
                     and row[10] >= 0.0 and row[11] >= 0.0 for row in p))
 
 

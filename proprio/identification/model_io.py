@@ -1,6 +1,6 @@
 """The identified rigid-body model: base parameters + a full standard parameter set, saved as one ``.npz``.
 
-File layout (``np.savez``, ``allow_pickle=False``): arrays ``phi_b [r (+n offsets)]``, ``sigma_pct [r]``, ``phi [12n]``,
+File layout (``np.savez``, ``allow_pickle=False``): arrays ``phi_b [r (+n offsets)]``, ``sigma_pct [r]``, ``phi [12n (+3n drive)]``,
 ``independent [r]``, ``dependent [p−r]``, ``beta [r, p−r]`` and ``meta`` — a JSON string with ``format``,
 ``robot`` (the description's name), ``robot_description`` (its ``proprio-robot/v1`` mapping, so the file rebuilds a
 ``MultibodyPlant`` on its own), ``method``, ``base_names``, ``standard_names``, ``coulomb_velocity_scale``,
@@ -23,7 +23,8 @@ from proprio.description import RobotDescription, robot_from_dict
 from proprio.io import atomic_path
 from proprio.identification.base_parameters import BaseParameters
 from proprio.identification.regressor import (
-    RegressorGeometry, friction_from_parameters, parameters_to_links, regressor_buffer, regressor_geometry)
+    PARAMS_PER_JOINT, RegressorGeometry, drive_from_parameters, friction_from_parameters, parameters_to_links,
+    regressor_buffer, regressor_geometry)
 
 __all__ = ["IdentifiedModel", "save_model", "load_model", "data_digest", "ModelFileError", "FORMAT"]
 
@@ -87,16 +88,19 @@ class IdentifiedModel:
         buf = regressor_buffer(self.description, q, qd, qdd, self.coulomb_velocity_scale, self._geometry)
         full = np.zeros(self.base.n_standard)
         full[self.base.independent] = self.phi_b[:self.base.n_base]  # K_b φ_b = Y φ with φ_b in the base slots
-        per = buf.shape[1] // self.n
+        per = PARAMS_PER_JOINT
         tau = np.stack([buf[i, per * i:].T @ full[per * i:] for i in range(self.n)], axis=1) + self.offsets
         return tau[0] if single else tau
 
     def description_identified(self) -> RobotDescription:
         """The robot description with the identified link inertials and friction (rebuilds a MultibodyPlant when
-        ``physically_consistent``). Torque offsets are a sensor property and are not part of it."""
+        ``physically_consistent``). Torque offsets of a link-side sensor are a sensor property and are not part of
+        it; a drive-torque arm's drive block takes the identified rotor inertias, motor friction and offsets."""
         links = parameters_to_links(self.phi, self.description)
         fv, fc = friction_from_parameters(self.phi, self.n)
-        return dataclasses.replace(self.description.with_inertials(links), friction_viscous=fv, friction_coulomb=fc)
+        drive = drive_from_parameters(self.phi, self.description, self.offsets)
+        return dataclasses.replace(self.description.with_inertials(links), friction_viscous=fv, friction_coulomb=fc,
+                                   drive=drive)
 
     def parameter_table(self) -> str:
         """Base parameters with relative standard deviations, thesis Table 4.6 layout (one row per parameter)."""

@@ -10,9 +10,24 @@ import numpy as np
 
 from proprio.conditioning import ConditionedSignals, ConditioningConfig, condition
 from proprio.identification.estimators import identify, torque_error_table
+from proprio.identification.regressor import drive_identified
 from proprio.recording import Recording
 
-__all__ = ["identify_recordings", "stack_recordings"]
+__all__ = ["identify_recordings", "stack_recordings", "check_tau_kind"]
+
+
+def check_tau_kind(recs: Sequence[Recording], names: Sequence[str], robot) -> None:
+    """Raise ``ValueError`` when a Recording's ``meta.tau_kind`` (``link_sensor`` | ``drive``, written by
+    ``proprio import``) contradicts the robot description's ``drive.tau_kind`` (``link_sensor`` without a drive
+    block): the regressor's drive columns follow the description, so the two must agree."""
+    want = robot.drive.tau_kind if robot.drive is not None else "link_sensor"
+    for name, rec in zip(names, recs):
+        got = rec.meta.get("tau_kind")
+        if got is not None and got != want:
+            fix = ("add a 'drive:' block with tau_kind: drive (gear_ratio, coupling) to the robot description"
+                   if got == "drive" else "set the description's drive.tau_kind to link_sensor")
+            raise ValueError(f"{name}: meta.tau_kind is {got!r} but the robot description {robot.name!r} says "
+                             f"{want!r}; {fix}")
 
 
 def stack_recordings(recs: Sequence[Recording], trim: int, config: ConditioningConfig = ConditioningConfig()
@@ -42,7 +57,9 @@ def identify_recordings(train_recs: Sequence[Recording], validate_recs: Sequence
     """Identify ``robot`` (a RobotDescription: kinematics + a-priori inertials) on Recordings and validate on
     others. Returns ``(model, table_text)`` with the Table 4.4-style per-joint MSE/σ on training and validation,
     headed by each recording's conditioning line. ``coulomb_velocity_scale`` [rad/s]: the Coulomb smoothing
-    (``None``: the library's, :mod:`proprio.friction_law`)."""
+    (``None``: the library's, :mod:`proprio.friction_law`). A drive-torque arm (``robot.drive.tau_kind == 'drive'``) always
+    fits the constant drive offsets with its drive columns."""
+    offsets = offsets or drive_identified(robot)
     train, cond_tr = stack_recordings(train_recs, trim, conditioning)
     model = identify(robot, *train, method, coulomb_velocity_scale=coulomb_velocity_scale, offsets=offsets)
     lines = sorted({f"{cs.describe()}" for cs in cond_tr})

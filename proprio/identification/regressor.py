@@ -12,6 +12,12 @@ Standard parameter vector ``φ ∈ ℝ^{12n}``: per joint/link ``j`` a block of 
   one law of :mod:`proprio.friction_law`: ``sgn`` is the smooth ``tanh(q̇ / scale)`` with ``scale =
   coulomb_velocity_scale`` [rad/s] (``None``, the default: the library's smoothing; ``0``: the exact ``sign``).
 
+Drive-torque arms (``desc.drive`` with ``tau_kind: drive``, :mod:`proprio.drive_description`) append ``3n`` drive
+parameters after the ``12n``: per motor ``k`` the reflected rotor inertia ``Ia<k>`` [kg·m²], motor viscous ``Fvm<k>``
+[N·m·s/rad] and Coulomb ``Fcm<k>`` [N·m] friction, with the columns of ``τ = Cᵀ(I_a ⊙ C q̈ + F_v,m ⊙ C q̇ +
+F_c,m ⊙ sgn(C q̇))`` (:func:`drive_columns`; ``C`` the normalised coupling). Constant drive offsets are the
+estimators' ``offsets`` unknowns.
+
 The recursion is the thesis' Algorithm 4.7 in link frames: motion (ω, ω̇, linear acceleration of the origin with
 ``−g`` folded in) is propagated outwards, and instead of propagating wrenches inwards, every joint ``i ≤ j`` is
 projected onto link ``j``'s wrench through joint ``i``'s unit screw expressed in frame ``j`` (axis ``u_ij``, moment
@@ -35,28 +41,77 @@ import numpy as np
 
 from proprio import friction_law
 from proprio.description import Link, RobotDescription, rpy_to_matrix
+from proprio.drive_description import DriveDescription
 
-__all__ = ["PARAMS_PER_JOINT", "PARAMETER_KEYS", "parameter_names", "standard_parameters", "parameters_to_links",
-           "friction_from_parameters", "regressor", "regressor_buffer", "predict", "RegressorGeometry",
-           "regressor_geometry"]
+__all__ = ["PARAMS_PER_JOINT", "PARAMETER_KEYS", "DRIVE_KEYS", "parameter_names", "standard_parameters",
+           "parameters_to_links", "friction_from_parameters", "drive_from_parameters", "regressor", "regressor_buffer",
+           "predict", "RegressorGeometry", "regressor_geometry", "drive_columns",
+           "drive_identified", "n_parameters", "drive_torque"]
 
 PARAMETER_KEYS = ("m", "mcx", "mcy", "mcz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz", "Fv", "Fc")
 PARAMS_PER_JOINT = len(PARAMETER_KEYS)
+DRIVE_KEYS = ("Ia", "Fvm", "Fcm")   # per motor: reflected rotor inertia, motor viscous and Coulomb friction
 
 
-def parameter_names(n: int) -> list[str]:
-    """Names of the standard parameters, e.g. ``"Izz3"`` (1-based joint/link index, as in the thesis)."""
-    return [f"{k}{j + 1}" for j in range(n) for k in PARAMETER_KEYS]
+def drive_identified(desc: RobotDescription) -> bool:
+    """True when ``desc``'s τ is a drive torque, so that its drive terms are columns of the regressor."""
+    return desc.drive is not None and desc.drive.in_tau
+
+
+def n_parameters(desc: RobotDescription) -> int:
+    """Length of the standard parameter vector of ``desc``: ``12n`` (+ ``3n`` drive parameters)."""
+    return (PARAMS_PER_JOINT + (len(DRIVE_KEYS) if drive_identified(desc) else 0)) * desc.n
+
+
+def parameter_names(n: int, drive: bool = False) -> list[str]:
+    """Names of the standard parameters, e.g. ``"Izz3"`` (1-based joint/link index, as in the thesis), then with
+    ``drive`` the drive parameters ``Ia1..Ian, Fvm1.., Fcm1..`` (1-based motor index)."""
+    names = [f"{k}{j + 1}" for j in range(n) for k in PARAMETER_KEYS]
+    return names + ([f"{k}{j + 1}" for k in DRIVE_KEYS for j in range(n)] if drive else [])
+
+
+def drive_columns(drive: DriveDescription, qd: np.ndarray, qdd: np.ndarray, coulomb_velocity_scale: float | None,
+                  out: np.ndarray | None = None) -> np.ndarray:
+    """Regressor columns of the drive terms ``D [n, 3n, N]``: ``τ_i = Σ_c D[i, c] p_c`` with
+    ``p = [I_a, F_v,m, F_c,m]`` (:meth:`~proprio.drive_description.DriveDescription.parameters`), i.e.
+    ``τ_drive = Cᵀ(I_a ⊙ C q̈ + F_v,m ⊙ C q̇ + F_c,m ⊙ sgn(C q̇))`` [N·m] for ``qd, qdd [n, N]`` (joint-major) in
+    rad/s, rad/s²; ``C`` the normalised coupling (motor ``k`` moves with joint ``i`` when ``C[k, i] ≠ 0``)."""
+    c = drive.normalized_coupling
+    n = c.shape[0]
+    v, a = c @ qd, c @ qdd                                      # motor velocity, acceleration in joint units
+    out = np.zeros((n, 3 * n, qd.shape[1])) if out is None else out
+    for g, f in enumerate((a, v, friction_law.smooth_sign(v, coulomb_velocity_scale))):
+        for k in range(n):
+            for i in np.flatnonzero(c[k]):
+                np.multiply(f[k], c[k, i], out=out[i, g * n + k])
+    return out
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
+def drive_torque(desc: RobotDescription, qd: np.ndarray, qdd: np.ndarray, coulomb_velocity_scale: float | None
+                 ) -> np.ndarray:
+    """The drive terms in a drive-torque arm's τ ``[N, n]`` [N·m] (rotor inertia, motor friction on the coupled
+    motor velocity; not the constant offsets) for ``qd, qdd [N, n]`` (or ``[n]``): :func:`drive_columns` times the
+    description's drive parameters. Zeros when ``desc``'s τ is not a drive torque."""
+    single = np.ndim(qd) == 1
+    qd, qdd = np.atleast_2d(np.asarray(qd, dtype=float)), np.atleast_2d(np.asarray(qdd, dtype=float))
+    if not drive_identified(desc):
+        tau = np.zeros_like(qd)
+    else:
+        cols = drive_columns(desc.drive, qd.T, qdd.T, coulomb_velocity_scale)
+        tau = np.einsum("ics,c->si", cols, desc.drive.parameters())
+    return tau[0] if single else tau
+
+
 def standard_parameters(desc: RobotDescription) -> np.ndarray:
-    """The standard parameter vector ``φ [12n]`` of ``desc`` (order in the module docstring). Missing friction
+    """The standard parameter vector ``φ [12n (+3n)]`` of ``desc`` (order in the module docstring). Missing friction
     counts as zero."""
-    out = np.zeros(PARAMS_PER_JOINT * desc.n)
+    out = np.zeros(n_parameters(desc))
+    if drive_identified(desc):
+        out[PARAMS_PER_JOINT * desc.n:] = desc.drive.parameters()
     for j, link in enumerate(desc.links):
         m, c = link.mass, np.asarray(link.com_xyz, dtype=float)
         i_o = link.inertia_matrix_link() + m * (c @ c * np.eye(3) - np.outer(c, c))   # parallel axes: CoM → origin
@@ -71,9 +126,8 @@ def parameters_to_links(phi: np.ndarray, template: RobotDescription) -> list[Lin
     """Links (mass, CoM, inertia about the CoM with ``com_rpy = 0``) from a standard parameter vector; names and
     collision geometry are taken from ``template``. A link with ``m ≤ 0`` cannot have a CoM: :class:`ValueError`."""
     phi = np.asarray(phi, dtype=float)
-    if phi.shape != (PARAMS_PER_JOINT * template.n,):
-        raise ValueError(f"parameters_to_links: phi must have {PARAMS_PER_JOINT * template.n} entries, "
-                         f"got {phi.shape}")
+    if phi.shape != (n_parameters(template),):
+        raise ValueError(f"parameters_to_links: phi must have {n_parameters(template)} entries, got {phi.shape}")
     links = []
     for j, old in enumerate(template.links):
         b = phi[12 * j:12 * j + 10]
@@ -93,8 +147,18 @@ def parameters_to_links(phi: np.ndarray, template: RobotDescription) -> list[Lin
 
 def friction_from_parameters(phi: np.ndarray, n: int) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """``(viscous, coulomb)`` per joint from a standard parameter vector."""
-    p = np.asarray(phi, dtype=float).reshape(n, PARAMS_PER_JOINT)
+    p = np.asarray(phi, dtype=float)[:PARAMS_PER_JOINT * n].reshape(n, PARAMS_PER_JOINT)
     return tuple(float(x) for x in p[:, 10]), tuple(float(x) for x in p[:, 11])
+
+
+def drive_from_parameters(phi: np.ndarray, desc: RobotDescription, offsets: np.ndarray | None = None
+                          ) -> DriveDescription | None:
+    """``desc``'s drive block with the drive parameters of ``φ`` (and the offsets ``[n]`` [N·m] when given);
+    ``desc.drive`` unchanged when its τ is not a drive torque."""
+    if not drive_identified(desc):
+        return desc.drive
+    p = np.asarray(phi, dtype=float)[PARAMS_PER_JOINT * desc.n:]
+    return desc.drive.with_parameters(p, desc.drive.offset if offsets is None else offsets)
 
 
 _Terms = tuple[tuple[float, int], ...]     # sparse row of a constant 3×3 matrix: ((coefficient, column), ...)
@@ -211,8 +275,9 @@ def regressor_buffer(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd:
                      geometry: RegressorGeometry | None = None) -> np.ndarray:
     """The regressor in its native layout ``B [n, 12n, N]``: ``τ_i(s) = Σ_c B[i, c, s] φ_c``.
 
-    Row ``i`` is nonzero only in columns ``12i:`` (joint ``i`` carries links ``i..n−1``), so ``B[i, 12i:]`` is the
-    contiguous block estimators multiply with. Inputs ``q, qd, qdd [N, n]`` in rad, rad/s, rad/s².
+    Row ``i`` is nonzero only in columns ``12i:`` (joint ``i`` carries links ``i..n−1``, and the drive columns
+    ``12n:`` of a drive-torque arm follow), so ``B[i, 12i:]`` is the contiguous block estimators multiply with.
+    Inputs ``q, qd, qdd [N, n]`` in rad, rad/s, rad/s².
     """
     geo = geometry or regressor_geometry(desc)
     n = desc.n
@@ -221,7 +286,7 @@ def regressor_buffer(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd:
         raise ValueError(f"regressor: q, qd, qdd must have the same shape, got {q.shape}, {qd.shape}, {qdd.shape}")
     n_s = q.shape[1]
     # zero-filled by the OS on first touch: the blocks below the diagonal are never written (and cost nothing)
-    out = np.zeros((n, PARAMS_PER_JOINT * n, n_s))
+    out = np.zeros((n, n_parameters(desc), n_s))
     work = None
     for s0 in range(0, n_s, CHUNK):
         sl = slice(s0, min(s0 + CHUNK, n_s))
@@ -231,6 +296,8 @@ def regressor_buffer(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd:
     for j in range(n):
         out[j, 12 * j + 10] = qd[j]
         out[j, 12 * j + 11] = friction_law.smooth_sign(qd[j], coulomb_velocity_scale)
+    if drive_identified(desc):
+        drive_columns(desc.drive, qd, qdd, coulomb_velocity_scale, out[:, PARAMS_PER_JOINT * n:])
     return out
 
 
@@ -367,5 +434,5 @@ def regressor(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.nda
 def predict(buffer: np.ndarray, phi: np.ndarray) -> np.ndarray:
     """``τ [N, n] = Y φ`` from a regressor buffer ``[n, p, N]`` (a GEMV per joint on its nonzero block)."""
     n = buffer.shape[0]
-    per = buffer.shape[1] // n
+    per = PARAMS_PER_JOINT
     return np.stack([phi[per * i:] @ buffer[i, per * i:] for i in range(n)], axis=1)

@@ -25,6 +25,12 @@ Either way the plant's net actuation ``u`` satisfies ``τ_J = u + τ_f,link [−
 dynamics give ``τ_J = τ_rbd(q, q̇, q̈) + τ_f,link − Jᵀ f_ext``; the twin recovers the true τ_J from the logged net
 actuation and the motion (:meth:`JointDrive.sensed_torque`).
 
+A robot description with a ``drive`` block (:mod:`proprio.drive_description`) gives the twin its motor side when the
+twin config has no ``drive`` block (:func:`motor_from_description`: rotor inertia → ``motor_inertia``, motor friction;
+uncoupled drives only). When its τ is a drive torque (``tau_kind: drive``), the rigid drive senses what the motor
+delivers instead of τ_J: ``τ = τ_m + τ_0 = u + τ_f,link + τ_f,m(q̇) + τ_0`` (rotor inertia and motor friction
+included, constant drive offsets ``τ_0``).
+
 Friction acts explicitly (from the state at the start of the step): stable while ``(c_j / m)·dt < 2`` with ``c_j`` the
 friction slope ``F_v + F_c/v_s (+ F_s/v_s)`` (minus the spring's implicit damping D when elastic) and ``m`` the
 smallest inertia the joint's torque sees along the trajectory; the motor side of the elastic drive while
@@ -37,10 +43,29 @@ import numpy as np
 from pydrake.systems.framework import BasicVector, Context, DiagramBuilder, DiscreteValues, LeafSystem
 
 from proprio import friction_law
+from proprio.description import RobotDescription
 from proprio.effects import Elasticity, JointEffect, Motor, Stribeck, ViscousCoulomb
 from proprio.signals import MotionSignals
 
-__all__ = ["JointDrive", "AddJointDrive", "check_explicit_friction", "check_elastic_stability", "friction_slope"]
+__all__ = ["JointDrive", "AddJointDrive", "check_explicit_friction", "check_elastic_stability", "friction_slope",
+           "motor_from_description"]
+
+
+def motor_from_description(desc: RobotDescription) -> Motor | None:
+    """The twin's motor side from ``desc.drive`` (reflected rotor inertia and motor friction per joint), ``None``
+    without a drive block. A coupled drive (a motor turning with several joints, e.g. a wrist) is refused: Drake's
+    rotor inertia is per actuator, and the coupled inertia ``CᵀI_aC`` has off-diagonal terms."""
+    drive = desc.drive
+    if drive is None:
+        return None
+    if drive.coupled:
+        pairs = [f"motor {k + 1} with joints {', '.join(str(i + 1) for i in np.flatnonzero(row))}"
+                 for k, row in enumerate(drive.normalized_coupling) if np.count_nonzero(row) > 1]
+        raise ValueError(f"robot {desc.name!r}: drive.coupling couples {'; '.join(pairs)}; the twin simulates "
+                         "uncoupled drives only (identify and the observers take the coupling) — give the twin "
+                         "config its own uncoupled 'drive' block")
+    return Motor(desc.n, motor_inertia=np.array(drive.rotor_inertia), motor_viscous=np.array(drive.motor_viscous),
+                 motor_coulomb=np.array(drive.motor_coulomb))
 
 
 def friction_slope(link_effects: list[JointEffect], motor: Motor | None = None) -> np.ndarray:
@@ -101,13 +126,17 @@ class JointDrive(LeafSystem):
     """
 
     def __init__(self, n: int, link_effects: list[JointEffect], motor: Motor | None = None,
-                 elasticity: Elasticity | None = None, time_step: float = 1e-3, session_time_s: float = 0.0):
+                 elasticity: Elasticity | None = None, time_step: float = 1e-3, session_time_s: float = 0.0,
+                 drive_offset: np.ndarray | None = None):
         super().__init__()
         for eff in link_effects:
             if eff.place != "link":
                 raise ValueError(f"JointDrive: {eff.name} is not a link-side effect (place {eff.place!r})")
         if elasticity is not None and (motor is None or np.any(motor.motor_inertia <= 0)):
             raise ValueError("JointDrive: an elastic drive needs a motor with motor_inertia > 0")
+        if drive_offset is not None and elasticity is not None:
+            raise ValueError("JointDrive: drive-torque sensing (drive_offset) needs a rigid drive")
+        self.drive_offset = None if drive_offset is None else np.asarray(drive_offset, dtype=float)
         self.n = n
         self.link_effects = list(link_effects)
         self.motor = motor
@@ -147,8 +176,11 @@ class JointDrive(LeafSystem):
     def sensed_torque(self, net_actuation: np.ndarray, t: np.ndarray, q: np.ndarray, qd: np.ndarray,
                       qdd: np.ndarray) -> np.ndarray:
         """True τ_J ``[N,n]`` from the plant's logged net actuation and link motion (``u + τ_link``, minus
-        ``B q̈`` for the rigid drive whose motor inertia the plant carries as rotor inertia)."""
+        ``B q̈`` for the rigid drive whose motor inertia the plant carries as rotor inertia); with ``drive_offset``
+        (a drive-torque arm) the motor's torque ``u + τ_link + τ_f,m(q̇) + τ_0`` instead."""
         tau = net_actuation + self.link_torque(t, q, qd)
+        if self.drive_offset is not None:
+            return tau + self.drive_offset + (0.0 if self.motor is None else self.motor.friction(qd))
         if self.elasticity is None and self.motor is not None:
             tau = tau - self.motor.motor_inertia * qdd
         return tau
@@ -191,9 +223,10 @@ class JointDrive(LeafSystem):
 
 def AddJointDrive(builder: DiagramBuilder, n: int, link_effects: list[JointEffect], motor: Motor | None = None,
                   elasticity: Elasticity | None = None, time_step: float = 1e-3,
-                  name: str = "joint_drive", session_time_s: float = 0.0) -> JointDrive:
+                  name: str = "joint_drive", session_time_s: float = 0.0,
+                  drive_offset: np.ndarray | None = None) -> JointDrive:
     """Add a :class:`JointDrive` to ``builder`` (ports ``motor_torque``, ``link_state`` → ``actuation``;
     ``session_time_s`` [s]: the session clock at context time 0, for time-varying link effects)."""
-    drive = builder.AddSystem(JointDrive(n, link_effects, motor, elasticity, time_step, session_time_s))
+    drive = builder.AddSystem(JointDrive(n, link_effects, motor, elasticity, time_step, session_time_s, drive_offset))
     drive.set_name(name)
     return drive
