@@ -135,7 +135,7 @@ def test_regressor_and_base_parameters_of_a_drive_arm():
     y = regressor(desc, q, qd, qdd)
     y_link = regressor(dataclasses.replace(desc, drive=None), q, qd, qdd)
     phi = standard_parameters(desc)
-    drive_tau = np.einsum("ics,c->si", drive_columns(desc.drive, qd.T, qdd.T, 0.0), desc.drive.parameters())
+    drive_tau = np.einsum("ics,c->si", drive_columns(desc.drive, qd.T, qdd.T, None), desc.drive.parameters())
     np.testing.assert_allclose(np.einsum("sip,p->si", y, phi),
                                np.einsum("sip,p->si", y_link, phi[:72]) + drive_tau, rtol=0, atol=1e-10)
     names = base_parameters(desc).names
@@ -166,7 +166,7 @@ def tx40_fits():
     out = {}
     for key, desc, method in (("drive", robot, "ols"), ("link", dataclasses.replace(robot, drive=None), "ols"),
                               ("sdp", robot, "sdp")):
-        model, _ = identify_recordings([train], [], desc, method, 100, True, 0.02, cfg)
+        model, _ = identify_recordings([train], [], desc, method, 100, True, None, cfg)
         out[key] = (model, torque_error_table(val[3], model.torque(*val[:3]))[1]["rmse"])
     return out
 
@@ -189,7 +189,9 @@ def test_tx40_friction_and_armature_match_upstream(tx40_fits):
     ``fv5``/``fv6`` hold the coupled motor's viscous friction, ``Ia5`` its rotor (its columns q̈₆ on joint 5 and q̈₅
     on joint 6 are ours minus the uncoupled parts)."""
     model = tx40_fits["sdp"][0]
-    v = dict(zip(model.names, model.phi_b))
+    by_terms = {frozenset(t.strip() for t in nm.split(" + ")): x for nm, x in zip(model.names, model.phi_b)}
+    v = {" + ".join(sorted(k)): x for k, x in by_terms.items()}          # a merged name, its terms sorted
+    v |= {next(iter(k)): x for k, x in by_terms.items() if len(k) == 1}
     pairs = {f"fv{j}": v[f"Fv{j} + Fvm{j}"] for j in range(1, 5)}
     pairs |= {f"fs{j}": v[f"Fc{j} + Fcm{j}"] for j in range(1, 6)}
     pairs |= {"fv5": v["Fv5 + Fvm5"] + v["Fvm6"], "fv6": v["Fv6"] + v["Fvm6"], "fvm6": v["Fvm6"], "fs6": v["Fc6"],
@@ -214,7 +216,7 @@ def _iiwa_drive_arm():
 
 def test_twin_of_a_drive_arm_logs_the_drive_torque_of_the_regressor_law():
     """The twin takes the description's drive block (Drake rotor inertia + the joint drive's motor friction) and
-    logs the drive torque: τ = τ_rbd + drive terms (the regressor's law, smooth Coulomb at the motor's 0.02 rad/s)
+    logs the drive torque: τ = τ_rbd + drive terms (the regressor's law, smooth Coulomb at the library's smoothing, proprio.friction_law)
     + offsets, to solver precision."""
     from pydrake.trajectories import PiecewisePolynomial
     from proprio.diagrams.twin import TwinConfig, simulate_twin
@@ -231,9 +233,9 @@ def test_twin_of_a_drive_arm_logs_the_drive_torque_of_the_regressor_law():
     traj = PiecewisePolynomial.CubicShapePreserving(np.linspace(0.0, 1.0, 4), knots.T, True)
     rec = simulate_twin(cfg, traj, progress=False)
     tr = rec.truth
-    expected = tr["tau_rbd"] + drive_torque(desc, tr["qd"], tr["qdd"], 0.02) + np.array(desc.drive.offset)
+    expected = tr["tau_rbd"] + drive_torque(desc, tr["qd"], tr["qdd"], None) + np.array(desc.drive.offset)
     assert np.max(np.abs(rec.tau - expected)) < 1e-6
-    assert np.max(np.abs(drive_torque(desc, tr["qd"], tr["qdd"], 0.02))) > 0.5     # the drive terms are there
+    assert np.max(np.abs(drive_torque(desc, tr["qd"], tr["qdd"], None))) > 0.5     # the drive terms are there
 
 
 def test_twin_refuses_a_coupled_drive_with_a_clear_message():
@@ -279,7 +281,8 @@ def test_tx40_model_file_keeps_the_drive_terms(tx40_fits, tmp_path):
     np.testing.assert_allclose(ident.drive.offset, model.offsets, rtol=0, atol=0)
     assert ident.drive.rotor_inertia[5] == pytest.approx(model.phi[PARAMS_PER_JOINT * 6 + 5])
     # the identified description predicts what the model does (standard set reproduces K_b φ_b)
-    tau = np.einsum("sip,p->si", regressor(ident, q, qd, qdd, 0.02), standard_parameters(ident)) + model.offsets
+    tau = np.einsum("sip,p->si", regressor(ident, q, qd, qdd, back.coulomb_velocity_scale),
+                    standard_parameters(ident)) + model.offsets
     np.testing.assert_allclose(tau, model.torque(q, qd, qdd), rtol=0, atol=1e-8)
 
 
