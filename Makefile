@@ -1,6 +1,6 @@
 # The two set-up commands: `make demo` and `make test`. Both create/reuse .venv and install what they need.
 # `make test` runs every module, command, demo stage and notebook on reduced sizes (≈ 6 min on 2 idle cores);
-# `make test-all` adds the full-size runs (tests marked slow, notebooks at their own sizes).
+# `make test-all` adds the full-size runs (pytest --full: the tests marked slow, the demo at its own sizes).
 # `make lab` (extra): JupyterLab in the same environment with the notebooks open (LAB_ARGS, e.g. --no-browser).
 PYTHON ?= python3
 VENV   := .venv

@@ -59,7 +59,7 @@ class DemoSize:
 
 
 FULL = DemoSize()
-QUICK = DemoSize(rfma_scaffolds=3, twin_seconds=15.0, excitation_speeds=(1.0,), payload_seconds=6.0,
+QUICK = DemoSize(rfma_scaffolds=3, twin_seconds=15.0, excitation_speeds=(1.0, 0.8), payload_seconds=6.0,
                  hybrid_epochs=3, hybrid_payload_seconds=6.0)
 
 
@@ -140,7 +140,8 @@ def _stage_identification(ctx: dict[str, Any], out: Path) -> list[Path]:
 def _stage_payload(ctx: dict[str, Any], out: Path) -> list[Path]:
     from proprio.experiments.payload import demo_payload_experiment
 
-    exp = demo_payload_experiment(ctx["identified_model_path"], out / "payload_rbd", seconds=ctx["size"].payload_seconds)
+    exp = demo_payload_experiment(ctx["identified_model_path"], out / "payload_rbd",
+                                  seconds=ctx["size"].payload_seconds)
     ctx["payload_rbd"], ctx["payload_table_rbd"] = exp, exp.table_text
     print(_indent(exp.table_text))
     return [out / "payload_rbd" / "table.txt"]
@@ -185,8 +186,8 @@ def _stage_hybrid(ctx: dict[str, Any], out: Path) -> list[Path]:
     train = [ctx["twin_rfma"].downsample(step), ctx["twin_excitation"].downsample(step)]
     model, text = demo_hybrid(train, [payload_recs["0 g"]], str(ctx["identified_model_path"]), out,
                               epochs=size.hybrid_epochs, payload_recs=payload_recs)
-    print(f"  hybrid {model.cfg.label()} on the identified RBD backbone, {size.hybrid_epochs} epochs; test = a separate "
-          "RFMA run; payload forces from the Jacobian observer (force-only)")
+    print(f"  hybrid {model.cfg.label()} on the identified RBD backbone, {size.hybrid_epochs} epochs; test = a "
+          "separate RFMA run; payload forces from the Jacobian observer (force-only)")
     # the same model online: its network stepped inside the estimation diagram, state carried sample to sample
     res = estimate_wrench(load_torque_model(out / "hybrid_lstm.pt"), payload_recs["1000 g"],
                           mapping=WrenchMapping(force_only=True))

@@ -2,8 +2,7 @@
 
 Sizes: ``make test`` (plain ``pytest``) runs every module, command and demo stage on reduced sizes; tests marked
 ``slow`` are the full-size runs and are deselected unless ``--full`` is given (``make test-all``). The ``full``
-fixture tells a test which size it runs at; notebooks executed by nbmake read ``PROPRIO_QUICK=1``, set here
-without ``--full``."""
+fixture tells a test which size it runs at."""
 from __future__ import annotations
 
 import os
@@ -20,12 +19,8 @@ LWR_DIR = SHARED / "data" / "kuka_lwr4"
 
 def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption("--full", action="store_true", default=False,
-                     help="full sizes: run the tests marked slow and the notebooks at their own sizes (make test-all)")
-
-
-def pytest_configure(config: pytest.Config) -> None:
-    if not config.getoption("--full"):
-        os.environ["PROPRIO_QUICK"] = "1"          # read by the notebooks (nbmake runs them in child kernels)
+                     help="full sizes (make test-all): also run the tests marked slow, and size-parametrised "
+                          "tests at their full size")
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
