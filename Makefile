@@ -1,5 +1,5 @@
 # The two set-up commands: `make demo` and `make test`. Both create/reuse .venv and install what they need.
-# `make test` runs every module, command, demo stage and notebook on reduced sizes (≈ 6 min on 2 idle cores);
+# `make test` runs every module, command and demo stage on reduced sizes and every notebook (est. 5–7 min, 2 cores);
 # `make test-all` adds the full-size runs (pytest --full: the tests marked slow, the demo at its own sizes).
 # `make lab` (extra): JupyterLab in the same environment with the notebooks open (LAB_ARGS, e.g. --no-browser).
 PYTHON ?= python3
