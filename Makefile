@@ -1,4 +1,6 @@
 # The two set-up commands: `make demo` and `make test`. Both create/reuse .venv and install what they need.
+# `make test` runs every module, command and demo stage on reduced sizes and every notebook (est. 5–7 min, 2 cores);
+# `make test-all` adds the full-size runs (pytest --full: the tests marked slow, the demo at its own sizes).
 # `make lab` (extra): JupyterLab in the same environment with the notebooks open (LAB_ARGS, e.g. --no-browser).
 PYTHON ?= python3
 VENV   := .venv
@@ -9,7 +11,7 @@ LAB_STAMP := $(VENV)/.lab-installed-$(CKSUM)
 LAB_ARGS ?=
 LAB_ROOT  := $(if $(filter 0,$(shell id -u)),--allow-root,)   # containers often run as root
 
-.PHONY: demo test venv clean benchmarks lab cuda-torch
+.PHONY: demo test test-all venv clean benchmarks lab cuda-torch
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -36,6 +38,10 @@ lab: $(LAB_STAMP)
 test: $(STAMP)
 	$(VENV)/bin/lint-imports
 	MPLBACKEND=Agg $(PY) -m pytest -q tests --nbmake notebooks
+
+test-all: $(STAMP)
+	$(VENV)/bin/lint-imports
+	MPLBACKEND=Agg $(PY) -m pytest -q tests --nbmake notebooks --full
 
 benchmarks: $(STAMP)
 	for f in benchmarks/bench_*.py; do echo "== $$f"; OPENBLAS_NUM_THREADS=1 $(PY) $$f || exit 1; done

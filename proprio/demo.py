@@ -19,6 +19,9 @@ Stages (the built-in default is the calibrated iiwa 14 twin, ``proprio/configs/i
 7. ``hybrid`` — a small hybrid LSTM residual (§4.2) on the twin data, and the payload table with it.
 8. ``view`` — Meshcat playbacks (:mod:`proprio.diagrams.playback`) of the twin run and of the heaviest payload run
    as self-contained HTML animations: the arm, estimated and true flange force, links tinted by the torque residual.
+
+The sizes (seconds of motion, scaffolds, epochs) are a :class:`DemoSize`: :data:`FULL` is ``proprio demo``'s,
+:data:`QUICK` (``proprio demo --quick``) runs every stage on a few seconds of data — the tests' run of the pipeline.
 """
 from __future__ import annotations
 
@@ -33,20 +36,31 @@ from proprio.description import load_robot
 from proprio.io import atomic_write_text, save_figure
 from proprio.recording import save_recording
 
-__all__ = ["Stage", "STAGES", "run_demo", "DEFAULT_OUT"]
+__all__ = ["Stage", "STAGES", "run_demo", "DEFAULT_OUT", "DemoSize", "FULL", "QUICK"]
 
 DEFAULT_OUT = Path("demo_output")
 TWIN = "iiwa14_twin"
 NOMINAL_ROBOT = "iiwa14_nominal"
 CAD_TWIN = "iiwa14_cad_twin"   # the nominal CAD robot as a twin: the base the diagnosis' twin_patch.yaml applies to
-RFMA_SCAFFOLDS = 3
-TWIN_SECONDS = 30.0          # s of RFMA motion simulated on the twin
-EXCITATION_SPEEDS = [1.0, 0.8]  # the first two periods of the §4.1 protocol (20 s + 25 s)
-PAYLOAD_SECONDS = 6.0        # s of motion per payload mass
 DIAGNOSIS_DOWNSAMPLE = 5     # 1 kHz -> 200 Hz for the diagnosis
 HYBRID_DOWNSAMPLE = 7        # 1 kHz twin logs -> ≈143 Hz, the thesis' data rate (the model halves it again, §4.4)
-HYBRID_EPOCHS = 30
-HYBRID_PAYLOAD_SECONDS = 20.0
+
+
+@dataclass(frozen=True)
+class DemoSize:
+    """How much each stage runs: RFMA scaffolds, seconds [s] of motion simulated on the twin, protocol speeds of the
+    excitation (fractions of the §4.1 speed, one period each), training epochs of the hybrid model."""
+    rfma_scaffolds: int = 3
+    twin_seconds: float = 30.0            # s of RFMA motion simulated on the twin
+    excitation_speeds: tuple[float, ...] = (1.0, 0.8)   # the first two periods of the §4.1 protocol (20 s + 25 s)
+    payload_seconds: float = 6.0          # s of motion per payload mass
+    hybrid_epochs: int = 30
+    hybrid_payload_seconds: float = 20.0  # s of motion per payload mass of the hybrid's payload table
+
+
+FULL = DemoSize()
+QUICK = DemoSize(rfma_scaffolds=3, twin_seconds=15.0, excitation_speeds=(1.0, 0.8), payload_seconds=6.0,
+                 hybrid_epochs=3, hybrid_payload_seconds=6.0)
 
 
 @dataclass(frozen=True)
@@ -64,12 +78,13 @@ def _indent(text: str) -> str:
 def _stage_trajectory(ctx: dict[str, Any], out: Path) -> list[Path]:
     from proprio.systems.rfma import demo_trajectory, trajectory_figure
 
-    traj, path = demo_trajectory(out, scaffolds=RFMA_SCAFFOLDS, seed=0)
+    size: DemoSize = ctx["size"]
+    traj, path = demo_trajectory(out, scaffolds=size.rfma_scaffolds, seed=0)
     ctx["rfma"] = traj
     desc = load_robot("iiwa14_identified")
     png = save_figure(trajectory_figure(traj, desc, title="proprio demo: RFMA trajectory (Fig. 4.9 views)"),
                       out / "rfma_demo.png")
-    print(f"  RFMA: {RFMA_SCAFFOLDS} scaffolds, {traj.end_time():.1f} s of motion")
+    print(f"  RFMA: {size.rfma_scaffolds} scaffolds, {traj.end_time():.1f} s of motion")
     return [path, png]
 
 
@@ -79,7 +94,7 @@ def _stage_twin(ctx: dict[str, Any], out: Path) -> list[Path]:
     from proprio.systems.trajectories import truncate_trajectory
 
     cfg = load_twin_config(TWIN)
-    traj = truncate_trajectory(ctx["rfma"], TWIN_SECONDS)
+    traj = truncate_trajectory(ctx["rfma"], ctx["size"].twin_seconds)
     t0 = time.perf_counter()
     rec = simulate_twin(cfg, traj, progress=False)
     wall = time.perf_counter() - t0
@@ -99,10 +114,11 @@ def _stage_excitation(ctx: dict[str, Any], out: Path) -> list[Path]:
     from proprio.identification.excitation import load_shipped_excitation, protocol_piecewise
 
     fourier, info = load_shipped_excitation()
-    traj = protocol_piecewise(fourier, EXCITATION_SPEEDS)
+    speeds = list(ctx["size"].excitation_speeds)
+    traj = protocol_piecewise(fourier, speeds)
     rec = simulate_twin(ctx["twin_config"], traj, progress=False)
     ctx["twin_excitation"] = rec
-    print(f"  shipped excitation: cond(K_b) = {info['cond']:.1f} (thesis 68); ran speeds {EXCITATION_SPEEDS} "
+    print(f"  shipped excitation: cond(K_b) = {info['cond']:.1f} (thesis 68); ran speeds {speeds} "
           f"→ {rec.duration:.1f} s on the twin")
     return [save_recording(rec, out / "twin_excitation.npz")]
 
@@ -124,7 +140,8 @@ def _stage_identification(ctx: dict[str, Any], out: Path) -> list[Path]:
 def _stage_payload(ctx: dict[str, Any], out: Path) -> list[Path]:
     from proprio.experiments.payload import demo_payload_experiment
 
-    exp = demo_payload_experiment(ctx["identified_model_path"], out / "payload_rbd", seconds=PAYLOAD_SECONDS)
+    exp = demo_payload_experiment(ctx["identified_model_path"], out / "payload_rbd",
+                                  seconds=ctx["size"].payload_seconds)
     ctx["payload_rbd"], ctx["payload_table_rbd"] = exp, exp.table_text
     print(_indent(exp.table_text))
     return [out / "payload_rbd" / "table.txt"]
@@ -159,8 +176,8 @@ def _stage_hybrid(ctx: dict[str, Any], out: Path) -> list[Path]:
     from proprio.payload import Payload
     from proprio.systems.observers import WrenchMapping
 
-    step = HYBRID_DOWNSAMPLE
-    traj = validation_trajectory(HYBRID_PAYLOAD_SECONDS, seed=11)
+    step, size = HYBRID_DOWNSAMPLE, ctx["size"]
+    traj = validation_trajectory(size.hybrid_payload_seconds, seed=11)
     payload_recs = {}
     for k, mass in enumerate((0.0, 1.0)):
         run = dataclasses.replace(ctx["twin_config"], seed=ctx["twin_config"].seed + 100 + k)
@@ -168,9 +185,9 @@ def _stage_hybrid(ctx: dict[str, Any], out: Path) -> list[Path]:
         payload_recs[f"{int(mass * 1000)} g"] = rec.downsample(step)
     train = [ctx["twin_rfma"].downsample(step), ctx["twin_excitation"].downsample(step)]
     model, text = demo_hybrid(train, [payload_recs["0 g"]], str(ctx["identified_model_path"]), out,
-                              epochs=HYBRID_EPOCHS, payload_recs=payload_recs)
-    print(f"  hybrid {model.cfg.label()} on the identified RBD backbone, {HYBRID_EPOCHS} epochs; test = a separate "
-          "RFMA run; payload forces from the Jacobian observer (force-only)")
+                              epochs=size.hybrid_epochs, payload_recs=payload_recs)
+    print(f"  hybrid {model.cfg.label()} on the identified RBD backbone, {size.hybrid_epochs} epochs; test = a "
+          "separate RFMA run; payload forces from the Jacobian observer (force-only)")
     # the same model online: its network stepped inside the estimation diagram, state carried sample to sample
     res = estimate_wrench(load_torque_model(out / "hybrid_lstm.pt"), payload_recs["1000 g"],
                           mapping=WrenchMapping(force_only=True))
@@ -216,13 +233,15 @@ STAGES: list[Stage] = [
 ]
 
 
-def run_demo(out_dir: str | Path = DEFAULT_OUT, stages: list[Stage] | None = None) -> dict[str, Any]:
-    """Run ``stages`` (default :data:`STAGES`) in order with a shared context; returns the context, whose
-    ``"outputs"`` maps each stage name to the files it wrote and ``"timings_s"`` to its wall time [s]."""
+def run_demo(out_dir: str | Path = DEFAULT_OUT, stages: list[Stage] | None = None,
+             size: DemoSize = FULL) -> dict[str, Any]:
+    """Run ``stages`` (default :data:`STAGES`) in order with a shared context (``ctx["size"]`` is ``size``); returns
+    the context, whose ``"outputs"`` maps each stage name to the files it wrote and ``"timings_s"`` to its wall time
+    [s]."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     stages = STAGES if stages is None else stages
-    ctx: dict[str, Any] = {"out_dir": out, "outputs": {}, "timings_s": {}}
+    ctx: dict[str, Any] = {"out_dir": out, "size": size, "outputs": {}, "timings_s": {}}
     t_all = time.perf_counter()
     for k, stage in enumerate(stages, 1):
         print(f"\n== [{k}/{len(stages)}] {stage.name}: {stage.title}", flush=True)

@@ -1,4 +1,8 @@
-"""Shared fixtures. Tests that need the real robot data skip cleanly when ../shared is absent."""
+"""Shared fixtures. Tests that need the real robot data skip cleanly when ../shared is absent.
+
+Sizes: ``make test`` (plain ``pytest``) runs every module, command and demo stage on reduced sizes; tests marked
+``slow`` are the full-size runs and are deselected unless ``--full`` is given (``make test-all``). The ``full``
+fixture tells a test which size it runs at."""
 from __future__ import annotations
 
 import os
@@ -11,6 +15,27 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("PROPRIO_SHARED", REPO.parent / "shared"))
 LWR_DIR = SHARED / "data" / "kuka_lwr4"
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption("--full", action="store_true", default=False,
+                     help="full sizes (make test-all): also run the tests marked slow, and size-parametrised "
+                          "tests at their full size")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    if config.getoption("--full"):
+        return
+    slow = [item for item in items if item.get_closest_marker("slow")]
+    if slow:
+        config.hook.pytest_deselected(items=slow)
+        items[:] = [item for item in items if not item.get_closest_marker("slow")]
+
+
+@pytest.fixture(scope="session")
+def full(request: pytest.FixtureRequest) -> bool:
+    """True under ``--full`` (``make test-all``): size-parametrised tests run at their full size."""
+    return bool(request.config.getoption("--full"))
 
 
 @pytest.fixture(scope="session")

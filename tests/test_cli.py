@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import re
 import subprocess
 import sys
@@ -196,9 +197,10 @@ def test_inspect_degrees_lwr_copy_exit_2(lwr_dir, tmp_path, capsys):
 # ---- proprio demo ----------------------------------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")
-def demo_dir(tmp_path_factory) -> Path:
+def demo_dir(tmp_path_factory, full) -> Path:
+    """Every demo stage at ``--quick`` sizes (``make test``), or at the demo's own under ``--full``."""
     out = tmp_path_factory.mktemp("demo")
-    assert main(["demo", "--out", str(out)]) == 0
+    assert main(["demo", "--out", str(out)] + ([] if full else ["--quick"])) == 0
     return out
 
 
@@ -208,8 +210,39 @@ def test_demo_writes_every_stage_output(demo_dir):
             assert path.stat().st_size > 0, path
     for name in ("rfma_demo.npz", "rfma_demo.png", "twin_rfma.npz", "twin_rfma.png", "twin_diagram.dot",
                  "twin_excitation.npz", "identified_model.npz", "identification.txt", "payload_rbd/table.txt",
-                 "hybrid_lstm.pt", "hybrid.txt"):
+                 "diagnosis/report.html", "diagnosis/twin_patch.yaml", "hybrid_lstm.pt", "hybrid.txt",
+                 "twin_rfma.html", "payload_1000g.html"):
         assert (demo_dir / name).stat().st_size > 0, name
+
+
+def _table_average(text: str, section: str) -> float:
+    """The 'average' row's RMSE [N·m] of a Table 4.4 section ('training' / 'validation') of identification.txt."""
+    block = text[text.index(f"\n{section}"):]
+    return float(next(line for line in block.splitlines() if line.startswith("average")).split()[3])
+
+
+def test_demo_identification_beats_the_cad_model(demo_dir):
+    """The identified model's validation RMSE on the RFMA run is well below the nominal CAD model's gap on the same
+    run (the diagnosis' starting point), and its training fit is not worse than its validation."""
+    text = (demo_dir / "identification.txt").read_text()
+    train, val = _table_average(text, "training"), _table_average(text, "validation")
+    cad = np.mean(json.loads((demo_dir / "diagnosis" / "diagnosis.json").read_text())["rmse_before"])
+    assert 0.05 < train <= val < 0.75 * cad, (train, val, cad)
+
+
+def test_demo_diagnosis_names_the_twins_effects(demo_dir):
+    """Scored against the twin's truth: the diagnosis names friction, hysteresis, lost motion and the sensor offset
+    among the effect families the twin simulated, and the patched CAD twin closes most of the held-out gap (as
+    predicted offline)."""
+    d = json.loads((demo_dir / "diagnosis" / "diagnosis.json").read_text())
+    truth = d["truth"]
+    assert {"friction", "hysteresis", "sensor offset/gain"} <= set(truth["present"])
+    named = set(truth["named"])
+    assert {"friction", "hysteresis", "lost motion", "sensor offset/gain"} <= named <= set(truth["present"]), named
+    before, after = np.mean(d["rmse_before"]), np.mean(d["steps"][-1]["rmse_after"])
+    assert after < 0.6 * before, (before, after)
+    replay = d["twin_replay"]
+    assert replay["reduction"] > 0.4 and abs(replay["reduction"] - replay["predicted_reduction"]) < 0.1, replay
 
 
 def test_demo_twin_recording_carries_truth(demo_dir):
@@ -225,9 +258,37 @@ def test_demo_twin_recording_carries_truth(demo_dir):
     assert "controller" in (demo_dir / "twin_diagram.dot").read_text()
 
 
+def assert_tared_payload_seen(table: str) -> None:
+    """Table 5.4's taring rows: every observer sees the 1 kg payload's weight along z within 0.5 N (of 9.8 N)."""
+    seen = table[table.index("Payload seen after taring"):]
+    rows = re.findall(r"^(\w[\w -]*?)\s+1000g\s+\[([^\]]+)\]\s+\(\[([^\]]+)\]\)", seen, flags=re.M)
+    assert len(rows) == 4, seen
+    for observer, est, true in rows:
+        est, true = np.array(est.split(), float), np.array(true.split(), float)
+        assert true[2] == pytest.approx(-9.81, abs=0.1) and abs(est[2] - true[2]) < 0.5, (observer, est, true)
+
+
 def test_demo_payload_table_sees_the_payload(demo_dir):
-    table = (demo_dir / "payload_rbd" / "table.txt").read_text()
-    assert "1000g" in table and "Payload seen after taring" in table
+    assert_tared_payload_seen((demo_dir / "payload_rbd" / "table.txt").read_text())
+
+
+def test_payload_experiment_command(tmp_path, capsys):
+    """``proprio payload-experiment`` on 6 s of the calibrated twin with the twin's own rigid-body model."""
+    assert main(["payload-experiment", "--seconds", "6", "--masses", "0", "1", "--out", str(tmp_path)]) == 0
+    assert "Table 5.4" in capsys.readouterr().out
+    assert_tared_payload_seen((tmp_path / "table.txt").read_text())
+
+
+def test_demo_hybrid_streams_like_it_trains(demo_dir):
+    """The hybrid model stepped sample by sample (streaming) gives its batch test MSE to 1 %, and the online
+    estimation diagram's force error is finite and of the RBD table's order."""
+    text = (demo_dir / "hybrid.txt").read_text()
+    avg = {line.split("|")[0].strip(): float(line.split()[-1]) for line in text.splitlines()
+           if line.startswith(("RBD ", "LSTM")) and "|" in line}
+    batch, stream = (avg[k] for k in sorted(k for k in avg if k.startswith("LSTM")))
+    assert stream == pytest.approx(batch, rel=0.01) and 0 < batch < 2 * avg["RBD"], avg
+    online = re.search(r"force-only RMSE \[([^\]]+)\] N \(Jacobian observer\)", text)
+    assert online and np.all(np.array(online.group(1).split(), float) < 10.0), text[-400:]
 
 
 def test_demo_stages_are_pluggable(tmp_path, capsys):
