@@ -28,6 +28,7 @@ from proprio.learning.evaluation import (TableRow, evaluate_model, format_table,
 from proprio.learning.features import TauRbdProvider, rbd_provider
 from proprio.learning.models import ARCHS, HybridModel, ModelConfig, load_model, save_model
 from proprio.learning.training import TrainConfig, TrainResult, train_model
+from proprio.plots.experiments import plot_model_grid
 from proprio.recording import Recording
 from proprio.typed_yaml import ConfigError, check_keys, load_typed, read_yaml
 
@@ -312,7 +313,8 @@ def _train_grid_tasks(cfg: dict[str, Any], archs: list[str], variants: list[tupl
         "tasks": {"trained": run.executed, "reused": reused + run.skipped, "backend": run.backend,
                   "failed": [{"model": f.key, "config": f.config, "error": f.error} for f in run.failures]}},
         indent=1))
-    _plot_grid(rows, out_dir / "grid.png")
+    plot_model_grid(out_dir / "grid.png", [r.name for r in rows], np.array([r.train.mean() for r in rows]),
+                    np.array([r.test.mean() for r in rows]))
     return rows, text
 
 
@@ -398,25 +400,6 @@ def search_hyperparameters(cfg: dict[str, Any], split: Split, backbone: Backbone
         {"model": tag, "space": {k: list(v) for k, v in space_def.items()}, "best": best_cfg,
          "best_val": best.metrics.get("val"), "trials": trials}, indent=1, default=str))
     return best_cfg
-
-
-def _plot_grid(rows: list[TableRow], path: Path) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from proprio.io import save_figure
-    fig, ax = plt.subplots(figsize=(8, 0.3 * len(rows) + 1.5))
-    y = np.arange(len(rows))
-    ax.barh(y - 0.2, [r.train.mean() for r in rows], 0.4, label="train")
-    ax.barh(y + 0.2, [r.test.mean() for r in rows], 0.4, label="test")
-    ax.set_yticks(y, [r.name for r in rows])
-    ax.invert_yaxis()
-    ax.set_xscale("log")
-    ax.set_xlabel("average joint-torque MSE [N·m²]")
-    ax.legend()
-    fig.tight_layout()
-    save_figure(fig, path, dpi=120)
 
 
 def demo_hybrid(train_recs: Sequence[Recording], test_recs: Sequence[Recording], robot: RobotDescription | str,

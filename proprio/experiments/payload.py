@@ -32,7 +32,8 @@ from tqdm.auto import tqdm
 
 from proprio.description import load_robot
 from proprio.dynamics import inverse_dynamics
-from proprio.io import atomic_write_text, save_figure
+from proprio.io import atomic_write_text
+from proprio.plots.experiments import plot_payload_errors
 from proprio.kinematics import point_jacobian
 from proprio.payload import Payload
 from proprio.recording import Recording, save_recording
@@ -263,29 +264,10 @@ def payload_experiment(model: str | Path | TorqueModel, out_dir: str | Path, sec
 
 def _plot_errors(exp: PayloadExperiment, path: Path) -> Path:
     """Bar chart: RMSE per axis, per mass and observer, next to the thesis' RBD row."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    rows = list(_OBSERVER_ROWS) + ["thesis RBD"]
-    fig, axs = plt.subplots(1, 3, figsize=(12, 3.8), sharey=True)
-    width = 0.8 / len(rows)
-    x = np.arange(len(exp.masses))
-    for a, ax in enumerate(axs):
-        for k, row in enumerate(rows):
-            vals = [THESIS_RBD.get(m, ([np.nan] * 3,))[0][a] if row == "thesis RBD"
-                    else _stats(exp.results[m], row)[0][a] for m in exp.masses]
-            ax.bar(x + (k - len(rows) / 2 + 0.5) * width, vals, width, label=row,
-                   color="0.6" if row == "thesis RBD" else f"C{k}")
-        ax.set_xticks(x, [f"{int(round(m * 1000))} g" for m in exp.masses])
-        ax.set_title(f"f{'xyz'[a]}")
-        ax.set_yscale("log")
-        ax.grid(alpha=0.3, axis="y")
-    axs[0].set_ylabel("RMSE of the force error [N]")
-    axs[-1].legend(fontsize=7)
-    fig.suptitle(f"payload experiment, model {exp.model} (ours) vs thesis Table 5.4 RBD")
-    fig.tight_layout()
-    return save_figure(fig, path)
+    rmse = {row: np.array([_stats(exp.results[m], row)[0] for m in exp.masses]) for row in _OBSERVER_ROWS}
+    rmse["thesis RBD"] = np.array([THESIS_RBD.get(m, ([np.nan] * 3,))[0] for m in exp.masses], dtype=float)
+    return plot_payload_errors(path, exp.masses, rmse, "thesis RBD",
+                               f"payload experiment, model {exp.model} (ours) vs thesis Table 5.4 RBD")
 
 
 def demo_payload_experiment(model: str | Path | TorqueModel, out_dir: str | Path,
