@@ -8,6 +8,7 @@ from pathlib import Path
 import yaml
 
 from proprio.cli import UserError, check_output, nonnegative_int, positive, positive_int
+from proprio.description import load_robot
 
 __all__ = ["register"]
 
@@ -42,7 +43,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _cmd_rfma(args: argparse.Namespace) -> int:
-    from proprio.description import load_robot
     from proprio.systems.rfma import generate_rfma, load_rfma_config, trajectory_meta
     from proprio.systems.trajectories import save_trajectory
 
@@ -64,7 +64,6 @@ def _cmd_rfma(args: argparse.Namespace) -> int:
 
 
 def _cmd_plot(args: argparse.Namespace) -> int:
-    from proprio.description import load_robot
     from proprio.systems.rfma import plot_trajectory
     from proprio.systems.trajectories import load_trajectory
 
