@@ -33,7 +33,7 @@ from typing import Any, Callable
 import numpy as np
 
 from proprio.description import load_robot
-from proprio.io import atomic_write_text, save_figure
+from proprio.io import atomic_write_text
 from proprio.recording import save_recording
 
 __all__ = ["Stage", "STAGES", "run_demo", "DEFAULT_OUT", "DemoSize", "FULL", "QUICK"]
@@ -76,14 +76,13 @@ def _indent(text: str) -> str:
 
 
 def _stage_trajectory(ctx: dict[str, Any], out: Path) -> list[Path]:
-    from proprio.systems.rfma import demo_trajectory, trajectory_figure
+    from proprio.systems.rfma import demo_trajectory, plot_trajectory
 
     size: DemoSize = ctx["size"]
     traj, path = demo_trajectory(out, scaffolds=size.rfma_scaffolds, seed=0)
     ctx["rfma"] = traj
     desc = load_robot("iiwa14_identified")
-    png = save_figure(trajectory_figure(traj, desc, title="proprio demo: RFMA trajectory (Fig. 4.9 views)"),
-                      out / "rfma_demo.png")
+    png = plot_trajectory(traj, desc, out / "rfma_demo.png", title="proprio demo: RFMA trajectory (Fig. 4.9 views)")
     print(f"  RFMA: {size.rfma_scaffolds} scaffolds, {traj.end_time():.1f} s of motion")
     return [path, png]
 

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from proprio.description import RobotDescription
-from proprio.io import save_figure
+from proprio.plots.recording import plot_q_tau
 from proprio.recording import (IMPORT_HINT, Recording, RecordingError, load_recording, recording_from_csv,
                               validate_recording)
 from proprio.reversals import motion_direction
@@ -104,25 +104,9 @@ def format_summary(summary: dict[str, Any], title: str = "") -> str:
 def plot_recording(rec: Recording, path: str | Path, robot: RobotDescription | None = None,
                    title: str = "") -> Path:
     """Write a PNG with joint positions q [rad] and torques τ [N·m] over time t [s] (atomically)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    path = Path(path)
     names = robot.joint_names if robot is not None and robot.n == rec.n_joints else \
         [f"j{i + 1}" for i in range(rec.n_joints)]
-    fig, (ax_q, ax_t) = plt.subplots(2, 1, sharex=True, figsize=(10, 6.5), constrained_layout=True)
-    for j, name in enumerate(names):
-        ax_q.plot(rec.t, rec.q[:, j], lw=1.0, label=name)
-        ax_t.plot(rec.t, rec.tau[:, j], lw=1.0, label=name)
-    ax_q.set_ylabel("q [rad]")
-    ax_t.set_ylabel("τ [N·m]")
-    ax_t.set_xlabel("t [s]")
-    ax_q.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    for ax in (ax_q, ax_t):
-        ax.grid(alpha=0.3)
-    ax_q.set_title(title or str(rec.meta.get("source", "recording")))
-    return save_figure(fig, path)
+    return plot_q_tau(path, rec.t, rec.q, rec.tau, names, title or str(rec.meta.get("source", "recording")))
 
 
 def load_any(path: str | Path, robot: RobotDescription | None = None, angle_unit: str = "rad") -> Recording:

@@ -14,9 +14,9 @@ import glob
 import os
 import tempfile
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Iterable, Iterator
 
-__all__ = ["atomic_path", "atomic_write_text", "atomic_write_bytes", "save_figure", "locked_dir", "DirectoryLocked",
+__all__ = ["atomic_path", "atomic_write_text", "atomic_write_bytes", "locked_dir", "DirectoryLocked",
            "remove_stale_temps", "LOCK_NAME"]
 
 LOCK_NAME = ".lock"
@@ -57,17 +57,6 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
 
 def atomic_write_text(path: str | Path, text: str) -> None:
     atomic_write_bytes(path, text.encode())
-
-
-def save_figure(fig: Any, path: str | Path, dpi: int = 110) -> Path:
-    """Write a matplotlib figure as PNG atomically, then close it (figures are not kept open by the library)."""
-    import matplotlib.pyplot as plt
-
-    path = Path(path)
-    with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=dpi, format="png")
-    plt.close(fig)
-    return path
 
 
 @contextlib.contextmanager

@@ -8,8 +8,9 @@ from pathlib import Path
 import yaml
 
 from proprio.cli import UserError, check_output, nonnegative_int, positive, positive_int
+from proprio.description import load_robot
 
-__all__ = ["register", "plot_trajectory"]
+__all__ = ["register"]
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -42,7 +43,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _cmd_rfma(args: argparse.Namespace) -> int:
-    from proprio.description import load_robot
     from proprio.systems.rfma import generate_rfma, load_rfma_config, trajectory_meta
     from proprio.systems.trajectories import save_trajectory
 
@@ -63,20 +63,8 @@ def _cmd_rfma(args: argparse.Namespace) -> int:
     return 0
 
 
-def plot_trajectory(traj, desc, out: Path, rate_hz: float = 50.0, title: str = "") -> Path:
-    """Write the Fig. 4.9 views of ``traj`` (:func:`proprio.systems.rfma.trajectory_figure`) as a PNG, atomically."""
-    import matplotlib
-    matplotlib.use("Agg")
-
-    from proprio.io import save_figure
-    from proprio.systems.rfma import trajectory_figure
-
-    fig = trajectory_figure(traj, desc, rate_hz=rate_hz, title=title)
-    return save_figure(fig, out)
-
-
 def _cmd_plot(args: argparse.Namespace) -> int:
-    from proprio.description import load_robot
+    from proprio.systems.rfma import plot_trajectory
     from proprio.systems.trajectories import load_trajectory
 
     check_output(args.out, "--out", "file")

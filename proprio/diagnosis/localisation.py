@@ -13,22 +13,20 @@ down by joint × motion regime and by frequency:
   ripple locked to the joint angle at a fixed order [cycles/rev] whatever the speed.
 
 The *gap map* is the share of the total (all joints, all samples) squared error held by each joint × regime cell;
-:func:`plot_gap_map` draws it as a heat map.
+:func:`proprio.plots.gap.plot_gap_map` draws it as a heat map.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 from scipy import signal
 
-from proprio.io import save_figure
 from proprio.reversals import reversal_travel
 
 __all__ = ["RegimeFamily", "GapMap", "Spectra", "regime_families", "gap_map",
-           "spectra", "order_spectrum", "peak_orders", "plot_gap_map", "plot_spectra"]
+           "spectra", "order_spectrum", "peak_orders"]
 
 REVERSAL_WINDOW_RAD = np.radians(1.0)       # lost-motion window after a reversal (§2.1)
 REVERSAL_DEADBAND = 1e-3                     # rad/s: |q̇| below this never counts as a direction change
@@ -234,53 +232,3 @@ def spectra(residuals: Sequence[np.ndarray], qs: Sequence[np.ndarray], qds: Sequ
             peak[j] = orders[k]
             share[j] = 0.5 * pw[k] / max(var, 1e-300)
     return Spectra(f, psd, orders, power, peak, np.clip(share, 0.0, 1.0), dominant)
-
-
-def plot_gap_map(gm: GapMap, path: str | Path, title: str = "Where the torque gap lives") -> Path:
-    """Heat map of the gap-map shares [% of total squared error] (joints × regime cells), written atomically."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fams = [f for f, _ in gm.columns]
-    keep = [c for c, f in enumerate(fams) if f != "payload" or fams.count("payload") > 1]
-    data = 100 * gm.share[:, keep]
-    fig, ax = plt.subplots(figsize=(max(8.0, 0.55 * len(keep) + 2), 0.45 * len(gm.joint_names) + 2.4))
-    im = ax.imshow(data, aspect="auto", cmap="magma_r", vmin=0)
-    ax.set_yticks(range(len(gm.joint_names)), gm.joint_names)
-    ax.set_xticks(range(len(keep)), [f"{gm.columns[c][1]}" for c in keep], rotation=60, ha="right", fontsize=8)
-    for i in range(data.shape[0]):
-        for k in range(data.shape[1]):
-            if data[i, k] >= 0.5:
-                ax.text(k, i, f"{data[i, k]:.0f}", ha="center", va="center", fontsize=7,
-                        color="white" if data[i, k] > 0.6 * data.max() else "black")
-    prev = None
-    for k, c in enumerate(keep):
-        if prev is not None and fams[c] != prev:
-            ax.axvline(k - 0.5, color="k", lw=1.2)
-        prev = fams[c]
-    fig.colorbar(im, ax=ax, label="% of total squared error")
-    ax.set_title(title + " (each family's cells add up to the joint's share)", fontsize=10)
-    fig.tight_layout()
-    return save_figure(fig, path)
-
-
-def plot_spectra(sp: Spectra, joint_names: list[str], path: str | Path) -> Path:
-    """Welch spectrum and order spectrum of the residual per joint (log scale), written atomically."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 4))
-    for j, name in enumerate(joint_names):
-        a1.semilogy(sp.freq[1:], sp.psd[1:, j] + 1e-16, label=name, lw=1)
-        a2.semilogy(sp.orders, sp.order_power[:, j] + 1e-16, label=name, lw=1)
-    a1.set_xlabel("frequency [Hz]")
-    a1.set_ylabel("PSD of e [(N·m)²/Hz]")
-    a2.set_xlabel("order [cycles per joint revolution]")
-    a2.set_ylabel("amplitude² of e vs q [(N·m)²]")
-    a1.set_title("Welch spectrum of the residual")
-    a2.set_title("Order spectrum (e against joint angle)")
-    a2.legend(fontsize=7, ncol=2)
-    fig.tight_layout()
-    return save_figure(fig, path)

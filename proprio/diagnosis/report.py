@@ -22,8 +22,6 @@ from proprio.diagnosis.localisation import (
     GapMap,
     Spectra,
     gap_map,
-    plot_gap_map,
-    plot_spectra,
     regime_families,
     spectra,
 )
@@ -32,7 +30,8 @@ from proprio.diagnosis.replay import ReplayGap, replay_gap
 from proprio.diagnosis.selection import Attribution, attribute
 from proprio.diagnosis.truth import TruthComparison, compare_to_truth, truth_summary
 from proprio.diagnosis.verdict import data_and_processing_text, verdict_text
-from proprio.io import atomic_write_text, save_figure
+from proprio.io import atomic_write_text
+from proprio.plots.gap import plot_before_after, plot_gap_map, plot_spectra
 from proprio.recording import Recording
 from proprio.timeseries_html import timeseries_html
 
@@ -73,33 +72,10 @@ def _localise(model: SimModel, recs: Sequence[Recording], trim_s: float,
 
 
 def _plot_before_after(att: Attribution, path: Path) -> Path:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    n = len(att.joint_names)
-    fig, axes = plt.subplots(n, 2, figsize=(13, 1.7 * n + 1), sharex="col",
-                             gridspec_kw={"width_ratios": [3, 1]})
-    t = att.holdout_t[0]
     e = att.holdout_e[0]
-    r = e - att.holdout_pred[0]
-    labels = ["model"] + [s.name for s in att.steps]
-    for j in range(n):
-        ax = axes[j, 0]
-        ax.plot(t, e[:, j], lw=0.7, color="tab:red", label="before")
-        ax.plot(t, r[:, j], lw=0.7, color="tab:blue", label="after all added effects")
-        ax.set_ylabel(f"{att.joint_names[j]}\ne [N·m]", fontsize=7)
-        rm = [att.rmse_before[j]] + [s.rmse_after[j] for s in att.steps]
-        axes[j, 1].bar(range(len(rm)), rm, color=["tab:red"] + ["tab:blue"] * (len(rm) - 1))
-        axes[j, 1].set_xticks(range(len(rm)), labels if j == n - 1 else [""] * len(rm), rotation=40,
-                              ha="right", fontsize=7)
-        axes[j, 1].set_ylabel("RMSE", fontsize=7)
-    axes[0, 0].legend(fontsize=7, loc="upper right")
-    axes[0, 0].set_title("Held-out residual τ_meas − τ_sim, before / after the added effects")
-    axes[0, 1].set_title("held-out RMSE per step [N·m]", fontsize=9)
-    axes[-1, 0].set_xlabel("t [s] (first held-out recording)")
-    fig.tight_layout()
-    return save_figure(fig, path, dpi=100)
+    rmse = np.array([att.rmse_before] + [s.rmse_after for s in att.steps])
+    return plot_before_after(path, att.holdout_t[0], e, e - att.holdout_pred[0], att.joint_names,
+                             [s.name for s in att.steps], rmse)
 
 
 def _residual_html(att: Attribution) -> str:
@@ -216,8 +192,9 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
         replay = replay_gap(patched, holdout_recs, base=twin, att=att, trim_s=trim_s, conditioning=conditioning)
     gm, sp = _localise(model, list(train_recs) + list(holdout_recs), trim_s, conditioning)
     verdict = verdict_text(att, gm)
-    files = {"gap_map_png": plot_gap_map(gm, out / "gap_map.png"),
-             "spectra_png": plot_spectra(sp, gm.joint_names, out / "spectra.png"),
+    files = {"gap_map_png": plot_gap_map(out / "gap_map.png", gm.share, gm.columns, gm.joint_names),
+             "spectra_png": plot_spectra(out / "spectra.png", sp.freq, sp.psd, sp.orders, sp.order_power,
+                                         gm.joint_names),
              "before_after_png": _plot_before_after(att, out / "before_after.png")}
     rank, shr, par = _tables(att)
     rs = att.residual

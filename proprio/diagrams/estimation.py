@@ -41,7 +41,8 @@ from proprio.conditioning import CausalConditioning, ConditioningConfig, conditi
 from proprio.description import RobotDescription, load_robot
 from proprio.dynamics import inverse_dynamics
 from proprio.identification.regressor import drive_identified, drive_torque
-from proprio.io import atomic_path, save_figure
+from proprio.io import atomic_path
+from proprio.plots.estimation import plot_force_estimates
 from proprio.kinematics import chain_geometry, flange_jacobian, flange_pose, point_jacobian
 from proprio.plant import DrakeRobot
 from proprio.recording import Recording, RecordingError, validate_recording
@@ -492,31 +493,10 @@ class EstimationResult:
 
     def plot(self, path: str | Path, title: str = "") -> Path:
         """PNG of f̂ (both observers) against the true force per axis over time, flagged samples shaded."""
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        fig, axs = plt.subplots(3, 1, sharex=True, figsize=(10, 7))
-        for i, ax in enumerate(axs):
-            if self.f_true is not None:
-                ax.plot(self.t, self.f_true[:, i], "k", lw=1.5, label="true")
-            for obs, style in zip(OBSERVERS, ("C0", "C1")):
-                ax.plot(self.t, self.wrench[obs][:, i], style, lw=0.8, label=obs)
-            if self.gap.any():
-                ax.fill_between(self.t, 0, 1, where=self.gap, transform=ax.get_xaxis_transform(),
-                                color="k", alpha=0.12, label="gap in the log (no data)")
-            if self.unreliable.any():
-                ax.fill_between(self.t, 0, 1, where=self.unreliable, transform=ax.get_xaxis_transform(),
-                                color="r", alpha=0.15, label="unreliable")
-            ax.axvspan(self.t[0], self.t[0] + self.skip_start_s, color="0.85", zorder=-1)
-            ax.axvspan(self.t[-1] - self.skip_end_s, self.t[-1], color="0.85", zorder=-1)
-            ax.set_ylabel(f"f{'xyz'[i]} [N]")
-            ax.grid(alpha=0.3)
-        axs[0].legend(loc="upper right", ncol=4, fontsize=8)
-        axs[-1].set_xlabel("t [s]  (grey: start-up / filter edges, excluded from statistics)")
-        fig.suptitle(title or f"external force at the flange (world frame), model {self.meta.get('model', '?')}")
-        fig.tight_layout()
-        return save_figure(fig, path)
+        return plot_force_estimates(
+            path, self.t, {o: self.wrench[o] for o in OBSERVERS}, self.f_true, self.gap, self.unreliable,
+            self.skip_start_s, self.skip_end_s,
+            title or f"external force at the flange (world frame), model {self.meta.get('model', '?')}")
 
 
 def conditioned_signals(rec: Recording, conditioning: ConditioningConfig = ConditioningConfig()

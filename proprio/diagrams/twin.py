@@ -398,32 +398,22 @@ def hysteresis_test_trajectory(desc: RobotDescription, amplitude_deg: float = 10
 def run_hysteresis_test(config: TwinConfig, out_dir: str | Path, progress: bool = True) -> tuple[Path, Recording]:
     """Run the Fig. 2.5 experiment on the twin; write ``hysteresis_test.png`` (τ vs. angle per joint, raw +
     Savitzky–Golay overlay) and ``hysteresis_test.npz`` (the Recording) into ``out_dir``."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from scipy.signal import savgol_filter
 
-    from proprio.io import save_figure
+    from proprio.plots.hysteresis import plot_hysteresis_loops
     from proprio.recording import save_recording
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     traj, windows = hysteresis_test_trajectory(config.robot)
     rec = simulate_twin(config, traj, progress=progress)
-    fig, axes = plt.subplots(2, 4, figsize=(16, 7.5))
-    for (j, ta, tb), ax in zip(windows, axes.ravel()):
+    win = max(5, int(0.25 * rec.rate_hz) | 1)
+    loops = []
+    for j, ta, tb in windows:
         sel = (rec.t >= ta) & (rec.t <= tb)
-        ang, tau = np.degrees(rec.q[sel, j]), rec.tau[sel, j]
-        win = max(5, int(0.25 * rec.rate_hz) | 1)
-        ax.plot(ang, tau, lw=0.4, color="0.6", label="measured τ_J")
-        ax.plot(ang, savgol_filter(tau, win, 2), lw=1.6, color="C3", label="Savitzky–Golay")
-        ax.set_title(f"joint {j + 1}")
-        ax.set_xlabel("angle [°]")
-        ax.set_ylabel("τ [N·m]")
-    axes.ravel()[-1].axis("off")
-    axes.ravel()[0].legend(loc="best", fontsize=8)
-    fig.suptitle(f"{config.name}: joint-wise triangular motion ±10° at 10 % speed (cf. thesis Fig. 2.5)")
-    fig.tight_layout()
-    png = save_figure(fig, out / "hysteresis_test.png")
+        tau = rec.tau[sel, j]
+        loops.append((j, np.degrees(rec.q[sel, j]), tau, savgol_filter(tau, win, 2)))
+    png = plot_hysteresis_loops(out / "hysteresis_test.png", loops, f"{config.name}: joint-wise triangular motion "
+                                "±10° at 10 % speed (cf. thesis Fig. 2.5)")
     save_recording(rec, out / "hysteresis_test.npz")
     return png, rec

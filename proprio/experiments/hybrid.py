@@ -21,14 +21,18 @@ import numpy as np
 import torch
 
 from proprio.description import RobotDescription, load_robot
-from proprio.io import atomic_write_text
+from proprio.identification.model_io import load_model as load_identified
+from proprio.io import atomic_write_bytes, atomic_write_text
 from proprio.learning.datasets import DataConfig, Split, make_split, prepare_recording
 from proprio.learning.evaluation import (TableRow, evaluate_model, format_table, predict_streaming, predict_windowed,
                                          rbd_row, streaming_row)
 from proprio.learning.features import TauRbdProvider, rbd_provider
 from proprio.learning.models import ARCHS, HybridModel, ModelConfig, load_model, save_model
-from proprio.learning.training import TrainConfig, TrainResult, train_model
+from proprio.learning.training import TrainConfig, TrainResult, pick_device, train_model
+from proprio.plots.experiments import plot_model_grid
 from proprio.recording import Recording
+from proprio.systems.observers import WrenchMapping, jacobian_wrench
+from proprio.tasks import Shared, Task, import_ray, init_ray, run_tasks
 from proprio.typed_yaml import ConfigError, check_keys, load_typed, read_yaml
 
 __all__ = ["load_config", "check_training_config", "TrainingYaml", "GridSection", "Backbone", "resolve_backbone",
@@ -110,7 +114,6 @@ def resolve_backbone(spec: str | RobotDescription) -> Backbone:
         return Backbone(spec.name, spec, rbd_provider(spec))
     path = Path(spec)
     if path.suffix == ".npz" and path.exists():
-        from proprio.identification.model_io import load_model as load_identified
         ident = load_identified(path)
         return Backbone(str(spec), ident.description, ident.torque)
     desc = load_robot(spec)
@@ -165,8 +168,6 @@ def evaluate_saved(model_path: str | Path, train_recs: Sequence[Recording], test
                    backbone: Backbone | None = None, names: Sequence[str] | None = None, device: str = "auto") -> str:
     """Table 5.3 text for a saved model on Recordings, split with the data config stored in the model; the network
     runs on ``device`` (auto | cpu | cuda, :func:`~proprio.learning.training.pick_device`)."""
-    from proprio.learning.training import pick_device
-
     model, extra = load_model(model_path)
     model.to(pick_device(device))
     backbone = backbone or resolve_backbone(extra["backbone"])
@@ -230,7 +231,6 @@ def train_grid(cfg: dict[str, Any], train_recs: Sequence[Recording], backbone: B
     tasks, reused = [], []
     ray_started = False
     if search > 0 and backend == "ray":           # one Ray instance for the searches and the grid
-        from proprio.tasks import import_ray, init_ray
         if not import_ray().is_initialized():
             init_ray(address, workers)
             ray_started = True
@@ -247,8 +247,6 @@ def _train_grid_tasks(cfg: dict[str, Any], archs: list[str], variants: list[tupl
                       address: str | None, workers: int | None, threads: int, search: int, progress: bool
                       ) -> tuple[list[TableRow], str]:
     import sys
-
-    from proprio.tasks import Shared, Task, run_tasks
 
     tcfg = TrainConfig.from_dict(cfg.get("train"))
     shared_split = Shared(split)
@@ -275,7 +273,6 @@ def _train_grid_tasks(cfg: dict[str, Any], archs: list[str], variants: list[tupl
                               num_gpus=gpus))
 
     def store(task: Task, result: dict[str, Any]) -> dict[str, Any]:
-        from proprio.io import atomic_write_bytes
         atomic_write_bytes(out_dir / f"{task.key}.pt", result["model"])
         return {k: v for k, v in result.items() if k != "model"}
 
@@ -312,7 +309,8 @@ def _train_grid_tasks(cfg: dict[str, Any], archs: list[str], variants: list[tupl
         "tasks": {"trained": run.executed, "reused": reused + run.skipped, "backend": run.backend,
                   "failed": [{"model": f.key, "config": f.config, "error": f.error} for f in run.failures]}},
         indent=1))
-    _plot_grid(rows, out_dir / "grid.png")
+    plot_model_grid(out_dir / "grid.png", [r.name for r in rows], np.array([r.train.mean() for r in rows]),
+                    np.array([r.test.mean() for r in rows]))
     return rows, text
 
 
@@ -343,8 +341,6 @@ def search_hyperparameters(cfg: dict[str, Any], split: Split, backbone: Backbone
     for one grid model, each trial one CPU, the validation loss reported every epoch and bad trials stopped early by
     ASHA (grace period 2 epochs, halving). Writes ``out_dir/search_<tag>.json`` (every trial, the best) and returns
     the best ``train:`` settings. Uses the running Ray, else starts one (``address`` / ``workers`` CPUs)."""
-    from proprio.tasks import import_ray, init_ray
-
     ray = import_ray()
     from ray import tune
     from ray.tune.schedulers import ASHAScheduler
@@ -400,25 +396,6 @@ def search_hyperparameters(cfg: dict[str, Any], split: Split, backbone: Backbone
     return best_cfg
 
 
-def _plot_grid(rows: list[TableRow], path: Path) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from proprio.io import save_figure
-    fig, ax = plt.subplots(figsize=(8, 0.3 * len(rows) + 1.5))
-    y = np.arange(len(rows))
-    ax.barh(y - 0.2, [r.train.mean() for r in rows], 0.4, label="train")
-    ax.barh(y + 0.2, [r.test.mean() for r in rows], 0.4, label="test")
-    ax.set_yticks(y, [r.name for r in rows])
-    ax.invert_yaxis()
-    ax.set_xscale("log")
-    ax.set_xlabel("average joint-torque MSE [N·m²]")
-    ax.legend()
-    fig.tight_layout()
-    save_figure(fig, path, dpi=120)
-
-
 def demo_hybrid(train_recs: Sequence[Recording], test_recs: Sequence[Recording], robot: RobotDescription | str,
                 out_dir: str | Path, epochs: int = 30, payload_recs: dict[str, Recording] | None = None,
                 contact_point: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> tuple[HybridModel, str]:
@@ -451,7 +428,6 @@ def payload_table(models: dict[str, HybridModel | None], backbone: Backbone, rec
     (MLP-7, LSTMs), else the windowed one (a Transformer: consecutive windows of T, fresh state per window, as in
     :func:`evaluate_model`), marked "(windowed)".
     """
-    from proprio.systems.observers import WrenchMapping, jacobian_wrench
     mapping = WrenchMapping(force_only=True, contact_point=contact_point)
     lines = [f"{'model':<28} {'payload':>8}  {'RMSE x, y, z [N]':>22}  {'std x, y, z [N]':>22}  {'samples':>7}"]
     for label, rec in recordings.items():

@@ -32,14 +32,18 @@ from tqdm.auto import tqdm
 
 from proprio.description import load_robot
 from proprio.dynamics import inverse_dynamics
-from proprio.io import atomic_write_text, save_figure
+from proprio.effects import EFFECTS
+from proprio.io import atomic_write_text
+from proprio.plots.experiments import plot_payload_errors
 from proprio.kinematics import point_jacobian
 from proprio.payload import Payload
 from proprio.recording import Recording, save_recording
 from proprio.conditioning import ConditioningConfig, zero_phase_lowpass
+from proprio.diagrams.twin import load_twin_config, simulate_twin
 from proprio.diagrams.estimation import (DEFAULT_GAIN, OBSERVERS, EstimationResult, TorqueModel,
                                          conditioned_signals, estimate_wrench, load_torque_model)
 from proprio.systems.observers import WrenchMapping, wrench_from_joint_torque
+from proprio.systems.rfma import generate_rfma, load_rfma_config
 
 __all__ = ["THESIS_RBD", "PayloadExperiment", "validation_trajectory", "error_budget", "format_table",
            "payload_experiment", "demo_payload_experiment"]
@@ -56,8 +60,6 @@ def validation_trajectory(seconds: float, seed: int = 7, scaffolds: int = 3,
     in the stretched, singular home pose) and shifted to t = 0. Uses the shipped RFMA config with ``scaffolds``
     scaffolds, shorter exploration phases (``waypoints``) and scaffolds ``joint_margin_deg`` inside the joint limits
     (the elastic twin overshoots a 2° margin in fast reaches)."""
-    from proprio.systems.rfma import generate_rfma, load_rfma_config
-
     cfg = load_rfma_config(scaffolds=scaffolds, seed=seed, waypoints=waypoints,
                            joint_margin=float(np.radians(joint_margin_deg)))
     _, timed = generate_rfma(cfg)
@@ -78,8 +80,6 @@ def error_budget(model: TorqueModel, rec: Recording, mapping: WrenchMapping = Wr
     Needs the twin's truth channels ``q_true``, ``tau_J_true`` and ``tau_<effect>`` and its ``meta`` (robot,
     effects). Also returns ``"total"`` (the observer's force error) so that the terms can be checked to add up.
     """
-    from proprio.effects import EFFECTS
-
     missing = [k for k in ("q_true", "tau_J_true") if k not in rec.truth]
     if missing or rec.f_ext is None:
         raise ValueError(f"error_budget needs a twin Recording with f_ext and truth {missing or ['q_true']}")
@@ -221,8 +221,6 @@ def payload_experiment(model: str | Path | TorqueModel, out_dir: str | Path, sec
             mass) and of the twin's sensor noise (``seed + k`` for the k-th mass). gain: momentum observer K_O [1/s].
         twin_config: the twin (default: the calibrated ``iiwa14_twin``).
     """
-    from proprio.diagrams.twin import load_twin_config, simulate_twin
-
     if not masses or not all(np.isfinite(m) and m >= 0 for m in masses):
         raise ValueError(f"masses must be a non-empty list of payload masses >= 0 kg, got {list(masses)}")
     if not seconds > 0:
@@ -263,29 +261,10 @@ def payload_experiment(model: str | Path | TorqueModel, out_dir: str | Path, sec
 
 def _plot_errors(exp: PayloadExperiment, path: Path) -> Path:
     """Bar chart: RMSE per axis, per mass and observer, next to the thesis' RBD row."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    rows = list(_OBSERVER_ROWS) + ["thesis RBD"]
-    fig, axs = plt.subplots(1, 3, figsize=(12, 3.8), sharey=True)
-    width = 0.8 / len(rows)
-    x = np.arange(len(exp.masses))
-    for a, ax in enumerate(axs):
-        for k, row in enumerate(rows):
-            vals = [THESIS_RBD.get(m, ([np.nan] * 3,))[0][a] if row == "thesis RBD"
-                    else _stats(exp.results[m], row)[0][a] for m in exp.masses]
-            ax.bar(x + (k - len(rows) / 2 + 0.5) * width, vals, width, label=row,
-                   color="0.6" if row == "thesis RBD" else f"C{k}")
-        ax.set_xticks(x, [f"{int(round(m * 1000))} g" for m in exp.masses])
-        ax.set_title(f"f{'xyz'[a]}")
-        ax.set_yscale("log")
-        ax.grid(alpha=0.3, axis="y")
-    axs[0].set_ylabel("RMSE of the force error [N]")
-    axs[-1].legend(fontsize=7)
-    fig.suptitle(f"payload experiment, model {exp.model} (ours) vs thesis Table 5.4 RBD")
-    fig.tight_layout()
-    return save_figure(fig, path)
+    rmse = {row: np.array([_stats(exp.results[m], row)[0] for m in exp.masses]) for row in _OBSERVER_ROWS}
+    rmse["thesis RBD"] = np.array([THESIS_RBD.get(m, ([np.nan] * 3,))[0] for m in exp.masses], dtype=float)
+    return plot_payload_errors(path, exp.masses, rmse, "thesis RBD",
+                               f"payload experiment, model {exp.model} (ours) vs thesis Table 5.4 RBD")
 
 
 def demo_payload_experiment(model: str | Path | TorqueModel, out_dir: str | Path,

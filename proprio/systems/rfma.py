@@ -47,14 +47,15 @@ from scipy.spatial import cKDTree
 from tqdm.auto import tqdm
 
 from proprio.description import RobotDescription, load_robot
-from proprio.kinematics import chain_geometry, flange_position
+from proprio.kinematics import chain_geometry, flange_jacobian, flange_position
 from proprio.collision import CollisionChecker
+from proprio.plots.trajectory import plot_flange_path
 from proprio.systems.rfma_config import RfmaConfig, RfmaError, load_rfma_config
-from proprio.systems.trajectories import Phase, TimedPath, save_trajectory, time_parameterize
+from proprio.systems.trajectories import Phase, TimedPath, sample_trajectory, save_trajectory, time_parameterize
 
 __all__ = ["RfmaError", "RfmaConfig", "RfmaPath", "load_rfma_config", "flange_in_workspace", "sample_scaffolds",
            "unvisited_by_distance", "segment_in_collision", "waypoints_in_collision", "exploration_waypoints",
-           "generate_rfma_path", "rfma_trajectory", "generate_rfma", "trajectory_meta", "trajectory_figure",
+           "generate_rfma_path", "rfma_trajectory", "generate_rfma", "trajectory_meta", "plot_trajectory",
            "demo_trajectory"]
 
 _REDRAWS = 50
@@ -315,35 +316,15 @@ def trajectory_meta(path: RfmaPath, timed: TimedPath, cfg: RfmaConfig, desc: Rob
             "config": cfg.to_dict()}
 
 
-def trajectory_figure(traj, desc: RobotDescription, rate_hz: float = 50.0, title: str = ""):
-    """The thesis' Fig. 4.9 views of a joint trajectory as a matplotlib Figure: the flange path in 3-D (world
-    frame) coloured by its linear speed [m/s] (top) and the joint angles [deg] over time (bottom)."""
-    import matplotlib.pyplot as plt
-
-    from proprio.kinematics import flange_jacobian
-    from proprio.systems.trajectories import sample_trajectory
-
+def plot_trajectory(traj, desc: RobotDescription, path: str | Path, rate_hz: float = 50.0, title: str = "") -> Path:
+    """Write the thesis' Fig. 4.9 views of a joint trajectory as a PNG (atomically): the flange path in 3-D (world
+    frame) coloured by its linear speed [m/s] (top) and the joint angles [deg] over time (bottom), sampled at
+    ``rate_hz`` [Hz]."""
     t, q, qd, _ = sample_trajectory(traj, rate_hz)
     geo = chain_geometry(desc)
     p = flange_position(geo, q)
     speed = np.linalg.norm(np.einsum("nij,nj->ni", flange_jacobian(geo, q)[:, 3:, :], qd), axis=1)
-    fig = plt.figure(figsize=(9, 11))
-    ax = fig.add_subplot(2, 1, 1, projection="3d")
-    sc = ax.scatter(p[:, 0], p[:, 1], p[:, 2], c=speed, cmap="jet", s=1.5, linewidths=0)
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_zlabel("z [m]")
-    ax.set_title(title or "flange path (colour: linear speed)")
-    fig.colorbar(sc, ax=ax, shrink=0.7, label="flange speed [m/s]")
-    ax2 = fig.add_subplot(2, 1, 2)
-    for j in range(desc.n):
-        ax2.plot(t, np.degrees(q[:, j]), lw=0.7, label=desc.joint_names[j])
-    ax2.set_xlabel("t [s]")
-    ax2.set_ylabel("joint angle [deg]")
-    ax2.legend(ncol=4, fontsize=7, loc="upper right")
-    ax2.grid(alpha=0.3)
-    fig.tight_layout()
-    return fig
+    return plot_flange_path(path, t, q, p, speed, desc.joint_names, title)
 
 
 def demo_trajectory(out_dir: Path, scaffolds: int = 3, seed: int = 0):
