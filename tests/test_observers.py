@@ -21,8 +21,9 @@ from proprio.recording import Recording, RecordingError
 from proprio.urdf import to_urdf
 from proprio.conditioning import ConditioningConfig
 from proprio.diagrams.estimation import RigidBodyTorqueModel, estimate_wrench, estimate_wrench_offline
-from proprio.systems.observers import (DrakeArm, JacobianWrenchObserver, MomentumObserver, WrenchMap, WrenchMapping,
-                                       WrenchSolver, jacobian_wrench, momentum_observer, momentum_terms, wrench_from_joint_torque)
+from proprio.systems.momentum_observer import DrakeArm, MomentumObserver, momentum_observer, momentum_terms
+from proprio.systems.observers import (JacobianWrenchObserver, WrenchMap, WrenchMapping, WrenchSolver, jacobian_wrench,
+                                       wrench_from_joint_torque)
 
 G = np.array([0.0, 0.0, -9.81])
 HOME = np.array([0.0, 0.5, 0.0, -1.2, 0.0, 0.8, 0.0])

@@ -162,4 +162,4 @@ def test_per_sample_interaction_torque_equals_the_vectorised_one(desc, coulomb_v
     model = RigidBodyTorqueModel(desc, coulomb_velocity, offset=tuple(np.linspace(-0.5, 0.9, desc.n)))
     qd = np.random.default_rng(3).normal(0, 0.05, (20, desc.n))
     step = model.tau_int_step()
-    np.testing.assert_allclose(np.array([step(row) for row in qd]), model.tau_int(qd, qd, qd), rtol=0, atol=1e-13)
+    np.testing.assert_allclose(np.array([step(row, row) for row in qd]), model.tau_int(qd, qd, qd), rtol=0, atol=1e-13)
