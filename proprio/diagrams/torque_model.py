@@ -40,7 +40,7 @@ class TorqueModel(Protocol):
     A model with memory (the hybrid model, :mod:`proprio.diagrams.hybrid_torque_model`) also provides
     ``make_system(time_step) -> System`` (the ports of :class:`TorqueModelSystem`, run online by the diagram instead of
     it) and ``signals(rec) -> (Recording, signals)`` (its own preprocessing at its own rate, instead of
-    :func:`conditioned_signals`; ``signals["edge_s"]`` is its filters' edge transient [s]) and a ``name``."""
+    :func:`~proprio.diagrams.estimation.conditioned_signals`; ``signals["edge_s"]`` is its filters' edge transient [s]) and a ``name``."""
     description: RobotDescription
 
     def tau_int(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray: ...
@@ -58,11 +58,22 @@ class RigidBodyTorqueModel:
     coulomb_velocity: float | None = None
     offset: tuple[float, ...] | None = None
 
+    @property
+    def reads_qdd(self) -> bool:
+        """Whether τ_int depends on q̈ (a drive-torque arm's rotor inertia)."""
+        return drive_identified(self.description)
+
+    def _offset(self) -> np.ndarray:
+        """The constant torque offsets [N·m] (n): the given ones, else a drive arm's drive block's, else zeros."""
+        d = self.description
+        offset = d.drive.offset if self.offset is None and self.reads_qdd else self.offset
+        return np.zeros(d.n) if offset is None else np.asarray(offset, dtype=float)
+
     def tau_int(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """τ_int ``[N,n]`` [N·m] for ``q, qd, qdd [N,n]`` (rad, rad/s, rad/s²; q is not read)."""
         d = self.description
         qd = np.asarray(qd, dtype=float)
-        offset = d.drive.offset if self.offset is None and drive_identified(d) else self.offset
-        tau = np.zeros_like(qd) if offset is None else np.broadcast_to(offset, qd.shape).copy()
+        tau = np.broadcast_to(self._offset(), qd.shape).copy()
         if drive_identified(d):
             tau += drive_torque(d, qd, qdd, self.coulomb_velocity)
         if d.has_friction:
@@ -74,9 +85,7 @@ class RigidBodyTorqueModel:
         """The same ``τ_int(q̇, q̈)`` [N·m] for ONE sample ``q̇, q̈ [n]``, constants folded (for the per-step Systems
         and the streaming estimator). q̈ matters only for a drive-torque arm (rotor inertia)."""
         d = self.description
-        drive = drive_identified(d)
-        offset = d.drive.offset if self.offset is None and drive else self.offset
-        offset = np.zeros(d.n) if offset is None else np.asarray(offset, dtype=float)
+        drive, offset = self.reads_qdd, self._offset()
         v_s = friction_law.smoothing(self.coulomb_velocity)
         fv, fc = np.asarray(d.friction_viscous, dtype=float), np.asarray(d.friction_coulomb, dtype=float)
         if drive:
@@ -121,7 +130,9 @@ class InteractionTorqueSystem(LeafSystem):
         if hasattr(model, "tau_int_step"):
             step = model.tau_int_step()
             self.calc = lambda q, qd, qdd: step(qd, qdd)
-            self._ports[0] = None                       # the rigid-body law does not read q
+            self._ports[0] = None                       # the rigid-body law does not read q, nor q̈ but for a drive arm
+            if not model.reads_qdd:
+                self._ports[2] = None
         else:
             self.calc = lambda q, qd, qdd: model.tau_int(q[None, :], qd[None, :], qdd[None, :])[0]
         self.DeclareVectorOutputPort("tau_int", n, self._calc)
