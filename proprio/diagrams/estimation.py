@@ -16,9 +16,9 @@ conditioning path (:mod:`proprio.conditioning`: uniform time base, zero-phase Bu
 noise floor or from the config, central differences), offline, so they are computed before the replay; online, a
 causal conditioning stage (:class:`~proprio.systems.causal_conditioning.CausalConditioner`) takes the raw q, τ_J
 instead (``WrenchEstimator(..., conditioning=causal_conditioning(...))``, and :mod:`proprio.online` for a loop
-without a Simulator). ``tau_dyn`` comes from any :class:`~proprio.diagrams.torque_model.TorqueModel`: the rigid-body model
-(:class:`~proprio.diagrams.torque_model.TorqueModelSystem`), or the hybrid RBD + learned residual (:mod:`proprio.diagrams.hybrid_torque_model`),
-whose network then runs online in the diagram, one step per sample with its LSTM and r-encoder state carried from
+without a Simulator). ``tau_dyn`` comes from any :class:`~proprio.diagrams.torque_model.TorqueModel`: the
+rigid-body model (:class:`~proprio.diagrams.torque_model.TorqueModelSystem`), or the hybrid RBD + learned residual
+(:mod:`proprio.diagrams.hybrid_torque_model`), whose network then runs online in the diagram, one step per sample with its LSTM and r-encoder state carried from
 sample to sample. :func:`estimate_wrench` runs it and returns an :class:`EstimationResult`.
 """
 from __future__ import annotations
