@@ -14,7 +14,8 @@ from proprio.diagrams.estimation import (RigidBodyTorqueModel, build_estimation_
 from proprio.dynamics import inverse_dynamics
 from proprio.payload import Payload, attach_payload
 from proprio.recording import Recording
-from proprio.systems.observers import jacobian_wrench, momentum_observer
+from proprio.systems.momentum_observer import momentum_observer
+from proprio.systems.observers import jacobian_wrench
 
 
 def _recording(seconds: float = 5.0, h: float = 1e-3) -> Recording:

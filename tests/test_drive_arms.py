@@ -249,7 +249,7 @@ def test_observers_subtract_the_drive_terms():
     torque; without them, the rotor inertia, motor friction and offsets look like contact."""
     from proprio.diagrams.estimation import RigidBodyTorqueModel
     from proprio.dynamics import inverse_dynamics
-    from proprio.systems.observers import momentum_observer
+    from proprio.systems.momentum_observer import momentum_observer
 
     desc = _iiwa_drive_arm()
     dt = 1e-3

@@ -72,7 +72,7 @@ def _every_stage(robot, q, qd, qdd) -> dict[str, np.ndarray]:
         "diagnosis model": SimModel(robot).rigid_torque(q, qd, qdd) - rigid,
         "diagnosis candidate": np.einsum("snp,p->sn", candidate, np.concatenate([fv, fc])),
         "estimator batch": estimator.tau_int(q, qd, qdd),
-        "estimator per step": np.array([step(x) for x in qd]),
+        "estimator per step": np.array([step(v, a) for v, a in zip(qd, qdd)]),
         "learning backbone": rbd_provider(robot)(q, qd, qdd) - rigid,
         "identification regressor": fv * buf[jj, 12 * jj + 10].T + fc * buf[jj, 12 * jj + 11].T,
         "description effect": robot_friction(robot).torque(s),

@@ -52,6 +52,30 @@ def _diagram(model, design, t, q, tau, qd=None):
     return run_estimation_diagram(diagram, estimator, logger, t[-1], 1.0 / RATE)[:t.size]
 
 
+@pytest.mark.parametrize("kind", ["rbd", "hybrid_lstm2_fcl"])
+def test_streaming_equals_the_diagram_on_a_drive_arm(kind):
+    """A drive-torque arm (TX40: τ_int reads q̈ for the rotor inertia), alone or as a hybrid model's backbone: the
+    streaming estimator takes the same per-sample law as the Diagram, to 1e-9."""
+    tx = load_robot("staubli_tx40")
+    model = backbone = RigidBodyTorqueModel(tx)
+    t = np.arange(int(1.0 * RATE)) / RATE
+    w = np.random.default_rng(2).uniform(0.5, 1.5, tx.n)
+    home = 0.5 * (np.asarray(tx.lower) + np.asarray(tx.upper))
+    q = home + 0.2 * np.sin(np.outer(t, w))
+    qd, qdd = 0.2 * w * np.cos(np.outer(t, w)), -0.2 * w ** 2 * np.sin(np.outer(t, w))
+    tau = inverse_dynamics(tx, q, qd, qdd) + backbone.tau_int(q, qd, qdd)
+    if kind.startswith("hybrid"):
+        torch.manual_seed(0)
+        net = HybridModel(ModelConfig(arch="lstm2_fcl", lstm_hidden=12, rate_hz=RATE, n_joints=tx.n))
+        net.set_normalisation(feature_matrix(tau, q, qd, qdd, rotational_displacement(q)), 0.1 * tau)
+        model = HybridTorqueModel(backbone, net, DataConfig(), "lstm2_fcl")
+    design = causal_conditioning(RATE, 10.0, tx.n, "q")
+    expected = _diagram(model, design, t, q, tau)
+    est = OnlineEstimator.from_model(model, conditioning=design)
+    got = np.array([est.step(t[k], q[k], tau[k]).vector for k in range(t.size)])
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9)
+
+
 @pytest.mark.parametrize("kind", ["rbd", "rbd_measured_velocity", "hybrid_lstm2_fcl"])
 def test_streaming_equals_the_diagram(desc, kind):
     """The streaming estimator and the Diagram with the causal conditioner give the same estimates to 1e-9 on every
@@ -162,4 +186,17 @@ def test_per_sample_interaction_torque_equals_the_vectorised_one(desc, coulomb_v
     model = RigidBodyTorqueModel(desc, coulomb_velocity, offset=tuple(np.linspace(-0.5, 0.9, desc.n)))
     qd = np.random.default_rng(3).normal(0, 0.05, (20, desc.n))
     step = model.tau_int_step()
-    np.testing.assert_allclose(np.array([step(row) for row in qd]), model.tau_int(qd, qd, qd), rtol=0, atol=1e-13)
+    np.testing.assert_allclose(np.array([step(row, row) for row in qd]), model.tau_int(qd, qd, qd), rtol=0, atol=1e-13)
+
+
+def test_per_sample_interaction_torque_of_a_drive_arm_reads_qdd():
+    """A drive-torque arm (the TX40: rotor inertia on q̈, motor friction): the per-sample τ_int of the Systems and
+    the streaming estimator equals the vectorised one, q̈ included."""
+    model = RigidBodyTorqueModel(load_robot("staubli_tx40"))
+    assert model.reads_qdd
+    rng = np.random.default_rng(4)
+    qd, qdd = rng.normal(0, 0.5, (20, 6)), rng.normal(0, 5.0, (20, 6))
+    step = model.tau_int_step()
+    per_sample = np.array([step(v, a) for v, a in zip(qd, qdd)])
+    np.testing.assert_allclose(per_sample, model.tau_int(qd, qd, qdd), rtol=0, atol=1e-12)
+    assert np.abs(per_sample - np.array([step(v, 0 * a) for v, a in zip(qd, qdd)])).max() > 1e-3   # q̈ matters

@@ -167,6 +167,25 @@ def test_view_of_an_estimates_file(pushed_run, tmp_path, capsys):
     assert len(tracks[("/proprio/force_true", ".position")]) == n_frames
 
 
+def test_view_shows_the_estimation_diagrams_numbers(pushed_run):
+    """One estimator law: the playback of a Recording (what ``proprio view`` draws) carries exactly the estimation
+    diagram's estimates (``proprio estimate``) — a second copy of the observers on the view path would differ — and
+    the vectorised form of the same law gives them too, sample for sample."""
+    from proprio.diagrams.estimation import estimate_wrench, estimate_wrench_offline
+    from proprio.diagrams.playback import playback_from_recording, torque_residual
+
+    desc, rec, _ = pushed_run
+    res, off = estimate_wrench(desc, rec), estimate_wrench_offline(desc, rec)
+    before_error = res.valid() & (res.t < 0.45 * DURATION)                     # a real push, seen by both observers
+    for observer in ("jacobian", "momentum"):
+        assert np.abs(res.wrench[observer][before_error, :3] - FORCE).max() < 0.5, observer
+    for observer in ("jacobian", "momentum"):
+        pb = playback_from_recording(rec, desc, observer)
+        np.testing.assert_allclose(pb.f_est, res.wrench[observer][:, :3], rtol=0, atol=1e-10)
+        np.testing.assert_allclose(pb.residual, torque_residual(res, desc, observer), rtol=0, atol=1e-10)
+        np.testing.assert_allclose(off.wrench[observer], res.wrench[observer], rtol=0, atol=1e-9)
+
+
 def test_view_errors_are_one_line(pushed_run, tmp_path, capsys):
     _, rec, _ = pushed_run
     odd = save_recording(rec.replace(meta={"robot": "no_such_arm"}), tmp_path / "odd.npz")

@@ -75,7 +75,7 @@ def register(subparsers) -> None:
                     "force as arrows, and each link tinted by its joint's torque residual e = τ_J − τ_model + "
                     "Jᵀf_true (grey 0, red +, blue −), with a time slider (Open Controls → Animations). SOURCE is a "
                     "Recording .npz (a twin run from `proprio simulate`, a measured log, an LWR 4+ file; the "
-                    "observers run over it offline with --model) or an estimates.npz from `proprio estimate` (or its "
+                    "estimation diagram of `proprio estimate` runs over it with --model) or an estimates.npz from `proprio estimate` (or its "
                     "output directory). Frames: 30 per second of the run up to --max-frames; longer runs play "
                     "faster, each frame showing the mean of its group of samples. Without --html a Meshcat server "
                     "runs on localhost until Ctrl-C.")

@@ -16,9 +16,9 @@ conditioning path (:mod:`proprio.conditioning`: uniform time base, zero-phase Bu
 noise floor or from the config, central differences), offline, so they are computed before the replay; online, a
 causal conditioning stage (:class:`~proprio.systems.causal_conditioning.CausalConditioner`) takes the raw q, τ_J
 instead (``WrenchEstimator(..., conditioning=causal_conditioning(...))``, and :mod:`proprio.online` for a loop
-without a Simulator). ``tau_dyn`` comes from any :class:`TorqueModel`: the rigid-body model
-(:class:`TorqueModelSystem`), or the hybrid RBD + learned residual (:mod:`proprio.diagrams.hybrid_torque_model`),
-whose network then runs online in the diagram, one step per sample with its LSTM and r-encoder state carried from
+without a Simulator). ``tau_dyn`` comes from any :class:`~proprio.diagrams.torque_model.TorqueModel`: the
+rigid-body model (:class:`~proprio.diagrams.torque_model.TorqueModelSystem`), or the hybrid RBD + learned residual
+(:mod:`proprio.diagrams.hybrid_torque_model`), whose network then runs online in the diagram, one step per sample with its LSTM and r-encoder state carried from
 sample to sample. :func:`estimate_wrench` runs it and returns an :class:`EstimationResult`.
 """
 from __future__ import annotations
@@ -26,31 +26,29 @@ from __future__ import annotations
 import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Protocol
+from typing import Any
 
 import numpy as np
 from pydrake.systems.analysis import Simulator
-from pydrake.systems.controllers import InverseDynamics
-from pydrake.systems.framework import Context, Diagram, DiagramBuilder, LeafSystem
-from pydrake.systems.primitives import (Adder, Demultiplexer, LogVectorOutput, Multiplexer, TrajectorySource,
-                                        VectorLogSink)
+from pydrake.systems.framework import Context, Diagram, DiagramBuilder
+from pydrake.systems.primitives import Demultiplexer, LogVectorOutput, TrajectorySource, VectorLogSink
 from pydrake.trajectories import PiecewisePolynomial
 
-from proprio import friction_law
 from proprio.conditioning import CausalConditioning, ConditioningConfig, condition
 from proprio.description import RobotDescription, load_robot
 from proprio.dynamics import inverse_dynamics
-from proprio.identification.regressor import drive_identified, drive_torque
+from proprio.diagrams.torque_model import (RigidBodyTorqueModel, TorqueModel, TorqueModelSystem,
+                                           load_rigid_torque_model)
 from proprio.io import atomic_path
 from proprio.plots.estimation import plot_force_estimates
 from proprio.kinematics import chain_geometry, flange_jacobian, flange_pose, point_jacobian
-from proprio.plant import DrakeRobot
 from proprio.recording import Recording, RecordingError, validate_recording
 from proprio.systems.causal_conditioning import CausalConditioner
-from proprio.systems.observers import (JacobianWrenchObserver, MomentumObserver, WrenchMap, WrenchMapping,
-                                       jacobian_wrench, momentum_observer, wrench_from_joint_torque)
+from proprio.systems.momentum_observer import MomentumObserver, momentum_observer
+from proprio.systems.observers import (JacobianWrenchObserver, WrenchMap, WrenchMapping, jacobian_wrench,
+                                       wrench_from_joint_torque)
 
-__all__ = ["TorqueModel", "RigidBodyTorqueModel", "load_torque_model", "InteractionTorqueSystem", "TorqueModelSystem",
+__all__ = ["TorqueModel", "RigidBodyTorqueModel", "load_torque_model", "TorqueModelSystem",
            "conditioned_signals", "check_recording_matches", "WrenchEstimator", "split_estimate",
            "build_estimation_diagram", "run_estimation_diagram", "EstimationResult", "estimate_wrench",
            "estimate_wrench_offline", "OBSERVERS", "DEFAULT_GAIN"]
@@ -58,61 +56,6 @@ __all__ = ["TorqueModel", "RigidBodyTorqueModel", "load_torque_model", "Interact
 OBSERVERS = ("jacobian", "momentum")
 DEFAULT_GAIN = 100.0
 """Default momentum-observer gain K_O [1/s] (time constant 10 ms)."""
-
-
-class TorqueModel(Protocol):
-    """A joint-torque model τ_dyn = τ_rbd + τ_int (eq. 3.9), vectorised over samples ``[N,n]``.
-
-    ``description`` gives the kinematics and the rigid-body inertials: τ_rbd is its inverse dynamics (Drake's
-    ``CalcInverseDynamics`` per step in the diagram, :func:`proprio.dynamics.inverse_dynamics` offline) and the
-    momentum observer takes M(q) from it. ``tau_int`` is everything the model adds to the rigid body (link friction,
-    a learned residual).
-
-    A model with memory (the hybrid model, :mod:`proprio.diagrams.hybrid_torque_model`) also provides
-    ``make_system(time_step) -> System`` (the ports of :class:`TorqueModelSystem`, run online by the diagram instead of
-    it) and ``signals(rec) -> (Recording, signals)`` (its own preprocessing at its own rate, instead of
-    :func:`conditioned_signals`; ``signals["edge_s"]`` is its filters' edge transient [s]) and a ``name``."""
-    description: RobotDescription
-
-    def tau_int(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray: ...
-
-
-@dataclass(frozen=True)
-class RigidBodyTorqueModel:
-    """The RBD model of a description plus its link-side viscous + Coulomb friction, if it has any, and constant
-    torque offsets: ``τ_int = F_v q̇ + F_c sgn(q̇) + τ_offset`` [N·m], the one law of :mod:`proprio.friction_law` with
-    ``sgn = tanh(q̇ / coulomb_velocity)`` (``np.sign`` when 0; ``None``: the library's smoothing, read when
-    evaluated). A drive-torque arm (``drive.tau_kind: drive``) adds its drive terms, rotor inertia on q̈ and motor
-    friction on the coupled motor velocity (:func:`~proprio.identification.regressor.drive_torque`), and takes the
-    drive block's offsets when none are given: the observers then see the link-side torque in τ − τ_int."""
-    description: RobotDescription
-    coulomb_velocity: float | None = None
-    offset: tuple[float, ...] | None = None
-
-    def tau_int(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
-        d = self.description
-        qd = np.asarray(qd, dtype=float)
-        offset = d.drive.offset if self.offset is None and drive_identified(d) else self.offset
-        tau = np.zeros_like(qd) if offset is None else np.broadcast_to(offset, qd.shape).copy()
-        if drive_identified(d):
-            tau += drive_torque(d, qd, qdd, self.coulomb_velocity)
-        if d.has_friction:
-            tau += friction_law.viscous_coulomb(qd, np.asarray(d.friction_viscous), np.asarray(d.friction_coulomb),
-                                                self.coulomb_velocity)
-        return tau
-
-    def tau_int_step(self) -> Callable[[np.ndarray], np.ndarray] | None:
-        """The same ``τ_int(q̇)`` [N·m] for ONE sample ``q̇ [n]``, constants folded (for the per-step Systems);
-        ``None`` for a drive-torque arm, whose τ_int also depends on q̈ (the Systems then call :meth:`tau_int`)."""
-        d = self.description
-        if drive_identified(d):
-            return None
-        offset = np.zeros(d.n) if self.offset is None else np.asarray(self.offset, dtype=float)
-        if not d.has_friction:
-            return lambda qd: offset.copy()
-        fv, fc = np.asarray(d.friction_viscous, dtype=float), np.asarray(d.friction_coulomb, dtype=float)
-        v_s = friction_law.smoothing(self.coulomb_velocity)
-        return lambda qd: offset + friction_law.viscous_coulomb(qd, fv, fc, v_s)
 
 
 def load_torque_model(spec: str | Path) -> TorqueModel:
@@ -124,98 +67,7 @@ def load_torque_model(spec: str | Path) -> TorqueModel:
     if path.suffix == ".pt":
         from proprio.diagrams.hybrid_torque_model import load_hybrid_torque_model
         return load_hybrid_torque_model(path)
-    if path.suffix == ".npz":
-        from proprio.identification.model_io import load_model
-        ident = load_model(path)
-        model = RigidBodyTorqueModel(ident.description_identified(), ident.coulomb_velocity_scale,
-                                     tuple(float(x) for x in ident.offsets))
-        try:
-            DrakeRobot(model.description)
-        except (RuntimeError, ValueError) as exc:
-            raise ValueError(f"{path}: Drake cannot build a plant from the identified inertials "
-                             f"({str(exc).splitlines()[0]}); identify with --method sdp for a physically consistent "
-                             "model") from None
-        return model
-    return RigidBodyTorqueModel(load_robot(spec))
-
-
-class InteractionTorqueSystem(LeafSystem):
-    """``tau_int`` (n) [N·m] = the model's τ_int for one sample of the inputs ``q`` [rad], ``qd`` [rad/s], ``qdd``
-    [rad/s²]: folded per-sample constants for a :class:`RigidBodyTorqueModel` (``tau_int_step``), the model's
-    vectorised ``tau_int`` on one row otherwise. :meth:`calc` is the step function."""
-
-    def __init__(self, model: TorqueModel):
-        LeafSystem.__init__(self)
-        n = model.description.n
-        self._ports = [self.DeclareVectorInputPort(name, n) for name in ("q", "qd", "qdd")]
-        step = model.tau_int_step() if hasattr(model, "tau_int_step") else None
-        self.calc = (lambda q, qd, qdd: step(qd)) if step is not None else \
-            (lambda q, qd, qdd: model.tau_int(q[None, :], qd[None, :], qdd[None, :])[0])
-        self._depends_on_q = step is None
-        self.DeclareVectorOutputPort("tau_int", n, self._calc)
-
-    def _calc(self, context, output) -> None:
-        if self._depends_on_q:
-            output.SetFromVector(self.calc(*(p.Eval(context) for p in self._ports)))
-        else:
-            output.SetFromVector(self.calc(None, self._ports[1].Eval(context), None))
-
-
-class TorqueModelSystem(Diagram):
-    """A :class:`TorqueModel` as a sub-Diagram: τ_rbd from Drake's C++ ``InverseDynamics`` (gravity as the applied
-    force) and τ_int from :class:`InteractionTorqueSystem`::
-
-        q, qd ──▶ Multiplexer ──▶ InverseDynamics ──τ_rbd──▶ Adder ──▶ tau_dyn
-        qdd ───────────────────────────┘                ┌──▶ ┘
-        q, qd, qdd ──▶ InteractionTorqueSystem ──tau_int┴────────────▶ tau_int
-
-    Inputs ``q``, ``qd``, ``qdd`` (n each, rad, rad/s, rad/s²); outputs ``tau_dyn`` = τ_rbd + τ_int, ``tau_int`` and
-    ``tau_rbd`` (n each, N·m). ``arm`` is the plant the C++ system evaluates (kept alive with it)."""
-
-    def __init__(self, model: TorqueModel):
-        Diagram.__init__(self)
-        n = model.description.n
-        self.arm = DrakeRobot(model.description)
-        builder = DiagramBuilder()
-        state = builder.AddNamedSystem("state", Multiplexer([n, n]))
-        self.rbd = builder.AddNamedSystem("rigid_body", InverseDynamics(self.arm.plant))
-        self.interaction = builder.AddNamedSystem("interaction", InteractionTorqueSystem(model))
-        total = builder.AddNamedSystem("total", Adder(2, n))
-        builder.ExportInput(state.get_input_port(0), "q")
-        builder.ExportInput(state.get_input_port(1), "qd")
-        builder.ExportInput(self.rbd.get_input_port_desired_acceleration(), "qdd")
-        for name in ("q", "qd", "qdd"):
-            builder.ConnectInput(name, self.interaction.GetInputPort(name))
-        builder.Connect(state.get_output_port(), self.rbd.get_input_port_estimated_state())
-        builder.Connect(self.rbd.get_output_port_generalized_force(), total.get_input_port(0))
-        builder.Connect(self.interaction.get_output_port(), total.get_input_port(1))
-        builder.ExportOutput(total.get_output_port(), "tau_dyn")
-        builder.ExportOutput(self.interaction.get_output_port(), "tau_int")
-        builder.ExportOutput(self.rbd.get_output_port_generalized_force(), "tau_rbd")
-        builder.BuildInto(self)
-        self.set_name("torque_model")
-
-    def initial_memory(self) -> None:
-        """No state (the streaming interface shared with the hybrid model's System)."""
-        return None
-
-    def output_buffer(self) -> tuple:
-        """A preallocated output ``[τ_dyn; τ_int]`` for :meth:`step_into`: ``(vector, τ_dyn view, τ_int view, None)``
-        (no memory)."""
-        n = self.arm.description.n
-        out = np.empty(2 * n)
-        return out, out[:n], out[n:], None
-
-    def step_into(self, memory: None, inputs: np.ndarray, out: tuple) -> np.ndarray:
-        """``out`` (an :meth:`output_buffer`) gets ``[τ_dyn; τ_int]`` from ``inputs = [τ_rigid; q; q̇; q̈]`` (τ_rigid =
-        ``CalcInverseDynamics`` of the same description, as the C++ ``InverseDynamics`` evaluates it) — the step
-        function without allocating the output (the interface shared with the hybrid model's System); returns its
-        vector."""
-        n = self.arm.description.n
-        vector, tau_dyn, tau_int, _ = out
-        tau_int[:] = self.interaction.calc(inputs[n:2 * n], inputs[2 * n:3 * n], inputs[3 * n:])
-        np.add(inputs[:n], tau_int, out=tau_dyn)
-        return vector
+    return load_rigid_torque_model(path)
 
 
 def check_recording_matches(rec: Recording, desc: RobotDescription) -> Recording:
@@ -560,10 +412,13 @@ def estimate_wrench(model: TorqueModel | RobotDescription, rec: Recording, gain:
 def estimate_wrench_offline(model: TorqueModel | RobotDescription, rec: Recording,
                             gain: float | np.ndarray = DEFAULT_GAIN,
                             mapping: WrenchMapping = WrenchMapping(),
-                    conditioning: ConditioningConfig = ConditioningConfig()
+                            conditioning: ConditioningConfig = ConditioningConfig()
                             ) -> EstimationResult:
-    """The same estimates as :func:`estimate_wrench`, vectorised over samples with the observers' offline functions
-    (:func:`jacobian_wrench`, :func:`momentum_observer`) instead of stepping the diagram."""
+    """The same estimates as :func:`estimate_wrench`, sample for sample, from the vectorised form of the same laws:
+    the model's batch ``tau_int``, :func:`jacobian_wrench` and :func:`momentum_observer` (the recursion of the
+    momentum System's ``LinearSystem``, :func:`~proprio.systems.momentum_observer.momentum_filter`) instead of stepping
+    the diagram. As in the diagram (Drake discrete semantics) the momentum estimate at sample k is r_{k−1} (0 at the
+    first sample). Tests: equal to the diagram's to 1e-9."""
     model, rec, sig, edge_s = _prepare(model, rec, conditioning)
     desc = model.description
     q, qd, qdd, tau = sig["q"], sig["qd"], sig["qdd"], sig["tau"]
@@ -572,9 +427,10 @@ def estimate_wrench_offline(model: TorqueModel | RobotDescription, rec: Recordin
     geo = chain_geometry(desc)
     w_jac, manip, flag = jacobian_wrench(geo, q, tau, tau_dyn, mapping)
     r = momentum_observer(desc, sig["time_step"], q, qd, tau, tau_int, gain)
+    r = np.vstack([np.zeros((1, desc.n)), r[:-1]])                  # the System's output: r_{k−1}
     w_mom, _, _ = wrench_from_joint_torque(point_jacobian(geo, q, np.asarray(mapping.contact_point)), r, mapping)
     return EstimationResult(
-        t=rec.t.copy(), q=q, wrench={"jacobian": w_jac, "momentum": w_mom}, tau_ext={"jacobian": tau_dyn - tau,
-                                                                                 "momentum": r},
-        manipulability=manip, unreliable=flag, f_true=None if rec.f_ext is None else rec.f_ext.copy(),
-        **_skips(gain, edge_s), meta=_meta(model, rec, gain, mapping, conditioning, "offline"), gap=sig.get("gap"))
+        t=rec.t.copy(), q=q, wrench={"jacobian": w_jac, "momentum": w_mom},
+        tau_ext={"jacobian": tau_dyn - tau, "momentum": r}, manipulability=manip, unreliable=flag,
+        f_true=None if rec.f_ext is None else rec.f_ext.copy(), **_skips(gain, edge_s),
+        meta=_meta(model, rec, gain, mapping, conditioning, "offline"), gap=sig.get("gap"))

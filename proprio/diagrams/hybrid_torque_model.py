@@ -1,7 +1,7 @@
 """The hybrid torque model τ_HYB = τ_RBD + f_NN(τ_RBD, q, q̇, q̈, r) (§4.2, eq. 4.29/4.30) as a ``TorqueModel`` of
 the estimation diagram (:mod:`proprio.diagrams.estimation`), so both wrench observers run on it online.
 
-Online (``make_system``), a sub-Diagram with the same ports as :class:`~proprio.diagrams.estimation.TorqueModelSystem`
+Online (``make_system``), a sub-Diagram with the same ports as :class:`~proprio.diagrams.torque_model.TorqueModelSystem`
 (inputs ``q``, ``qd``, ``qdd``; outputs ``tau_dyn``, ``tau_int``), :class:`HybridTorqueModelSystem`: C++
 ``InverseDynamics`` for the rigid body, then ONE Python step that adds the backbone's friction (τ_RBD) and runs the
 network on vec(τ_RBD, q, q̇, q̈, r), its memory held by a C++ ``ZeroOrderHold``.
@@ -34,7 +34,7 @@ from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Demultiplexer, Multiplexer, ZeroOrderHold
 
 from proprio.description import RobotDescription, load_robot
-from proprio.diagrams.estimation import RigidBodyTorqueModel, load_torque_model
+from proprio.diagrams.torque_model import RigidBodyTorqueModel, load_rigid_torque_model
 from proprio.dynamics import inverse_dynamics
 from proprio.learning.datasets import DataConfig, condition_for_training, kept_samples
 from proprio.learning.evaluation import predict_streaming
@@ -150,7 +150,7 @@ class HybridTorqueModelSystem(Diagram):
     torque (τ_RBD, the network's input) and runs the network (:class:`~proprio.systems.residual_network.
     ResidualNetworkCore`, the same step as :class:`~proprio.systems.residual_network.ResidualNetworkSystem`); its
     memory (r-encoder + LSTM state) is held by a C++ ``ZeroOrderHold``, and passed in and out of :meth:`step_into` by
-    the streaming estimator (the interface shared with :class:`~proprio.diagrams.estimation.TorqueModelSystem`)."""
+    the streaming estimator (the interface shared with :class:`~proprio.diagrams.torque_model.TorqueModelSystem`)."""
 
     def __init__(self, model: HybridTorqueModel, time_step: float):
         Diagram.__init__(self)
@@ -199,7 +199,7 @@ class HybridTorqueModelSystem(Diagram):
         (modified in place: its first block becomes τ_RBD = τ_rigid + the backbone's τ_int); returns its vector."""
         n = self.n
         vector, tau_hybrid, tau_int, memory_out = out
-        friction = self._friction(inputs[2 * n:3 * n])
+        friction = self._friction(inputs[2 * n:3 * n], inputs[3 * n:])
         inputs[:n] += friction                                        # τ_RBD, the network's input
         self.core.step_views(memory, inputs, tau_hybrid, memory_out)
         np.subtract(tau_hybrid, inputs[:n], out=tau_int)
@@ -215,7 +215,7 @@ def load_hybrid_torque_model(path: str | Path) -> HybridTorqueModel:
     if not spec:
         raise ValueError(f"{path}: the model file names no backbone; train it with `proprio train`")
     if Path(spec).suffix == ".npz":
-        backbone = load_torque_model(spec)
+        backbone = load_rigid_torque_model(spec)
     else:   # the training backbone rbd_provider(): RNEA + the friction law at the library's smoothing
         backbone = RigidBodyTorqueModel(load_robot(spec))
     return HybridTorqueModel(backbone, network, DataConfig.from_dict(extra.get("data")), Path(path).name)

@@ -47,7 +47,7 @@ from pydrake.systems.framework import DiagramBuilder
 
 from proprio.conditioning import ConditioningConfig
 from proprio.description import RobotDescription
-from proprio.diagrams.estimation import (EstimationResult, TorqueModel, estimate_wrench_offline,
+from proprio.diagrams.estimation import (EstimationResult, TorqueModel, estimate_wrench,
                                          load_torque_model)
 from proprio.io import atomic_write_text
 from proprio.kinematics import flange_position, point_jacobian
@@ -225,11 +225,11 @@ def playback_from_estimate(res: EstimationResult, desc: RobotDescription, observ
 
 def playback_from_recording(rec: Recording, model: TorqueModel | RobotDescription, observer: str = "jacobian",
                             conditioning: ConditioningConfig = ConditioningConfig(), title: str = "") -> Playback:
-    """The playback of a Recording (measured, or a twin run): the wrench observers run offline over it with
-    ``model`` (:func:`~proprio.diagrams.estimation.estimate_wrench_offline`, vectorised; a jittered log is resampled
-    onto a uniform grid first), then :func:`playback_from_estimate`."""
+    """The playback of a Recording (measured, or a twin run): the estimation diagram runs over it with ``model``
+    (:func:`~proprio.diagrams.estimation.estimate_wrench`, what ``proprio estimate`` writes; a jittered log is
+    resampled onto a uniform grid first), then :func:`playback_from_estimate`."""
     desc = model if isinstance(model, RobotDescription) else model.description
-    return playback_from_estimate(estimate_wrench_offline(model, rec, conditioning=conditioning), desc, observer, title)
+    return playback_from_estimate(estimate_wrench(model, rec, conditioning=conditioning), desc, observer, title)
 
 
 def _torque_model(spec: str | Path | None, guesses: list, source: Path) -> TorqueModel:
@@ -251,7 +251,7 @@ def load_playback(source: str | Path, model: str | Path | None = None, observer:
                   conditioning: ConditioningConfig = ConditioningConfig()) -> Playback:
     """The playback of a file: an ``estimates.npz`` written by ``proprio estimate`` (or its output directory), or a
     Recording ``.npz`` (a twin run from ``proprio simulate``, a measured log, an LWR 4+ file), over which the
-    observers run offline with ``model`` (default: the robot the file names). ``start_s``/``end_s`` [s from the
+    estimation diagram runs with ``model`` (default: the robot the file names). ``start_s``/``end_s`` [s from the
     start] cut a window first."""
     path = Path(source)
     if path.is_dir():
