@@ -82,7 +82,12 @@ class TorqueNoise(JointEffect):
         self._check_n(s)
         if rng is None:
             raise ValueError("torque_noise: a seeded rng (np.random.Generator) is required")
-        return rng.standard_normal(s.q.shape) * self.std
+        return self.from_normal(rng.standard_normal(s.q.shape))
+
+    def from_normal(self, z: np.ndarray) -> np.ndarray:
+        """The noise [N·m] for standard-normal draws ``z`` (``[..., n]``): ``std·z``. The batch form draws ``z`` from
+        a numpy generator, the twin's torque-sensor System from Drake's ``RandomSource``."""
+        return z * self.std
 
 
 class EncoderNoise(JointEffect):
@@ -103,8 +108,16 @@ class EncoderNoise(JointEffect):
 
     def measure(self, q: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Measured positions ``[N,n]`` rad for true ``q``."""
-        q_meas = q + rng.standard_normal(q.shape) * self.std
+        return self.reading(q, rng.standard_normal(q.shape))
+
+    def reading(self, q: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """The law: ``x = q + std·z`` for standard-normal draws ``z``, then ``x − wrap(x)`` with ``wrap`` into
+        ``[−res/2, res/2)`` (= ``res·floor(x/res + 1/2)``; no quantisation where ``res = 0``). The twin's encoder is
+        this law in Drake's C++ systems (``Gain``, ``Adder``, ``WrapToSystem``: :func:`proprio.systems.sensors.AddEncoder`)."""
+        x = q + z * self.std
         res = self.resolution
-        return np.where(res > 0, np.round(q_meas / np.where(res > 0, res, 1.0)) * res, q_meas)
+        step = np.where(res > 0, res, 1.0)
+        wrapped = x - step * np.floor((x + 0.5 * step) / step)
+        return x - np.where(res > 0, wrapped, 0.0)
 
 

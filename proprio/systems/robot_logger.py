@@ -4,21 +4,22 @@ A real arm's log (the iiwa over FRI, the LWR 4+ through its research interface, 
 jitter and lost samples, the encoder ``q`` and the torque sensors' ``τ_J`` — sometimes the controller's own filtered
 ``q̇``, never ``q̈``. The twin's exact ``q̇``, ``q̈`` and its true sampling instants go to ``truth__*`` channels only.
 
-The model (the ``logger:`` block of a twin config, :class:`LoggerConfig`), applied to the twin's samples at
-``rate_hz`` in one vectorised pass, seeded by the twin's seed:
+The model (the ``logger:`` block of a twin config, :class:`LoggerConfig`) is the Drake System
+:class:`RobotLoggerSystem` in the twin's Diagram; it decides sample by sample, its random draws come from Drake's
+``RandomSource`` (seeded with the Diagram's random context):
 
+* **sampling** — the samples at ``rate_hz``: the time step nearest to each ``m / rate_hz`` (150 Hz → 6/7 ms steps
+  like the iiwa; :func:`sample_steps`);
 * **samples lost** — a burst of ``1 … dropout_max_samples`` consecutive samples is lost after any sample with
   probability ``dropout_prob`` (a late packet the host never logged), so a step of ``k + 1`` nominal periods appears
-  (overlapping bursts merge, and a run of lost samples never exceeds ``dropout_max_samples``);
+  (overlapping bursts merge, and a run of lost samples never exceeds ``dropout_max_samples``); the first and the last
+  sample are always kept;
 * **time stamps** — each kept sample is stamped ``t_true + e`` with ``e ~ N(0, stamp_jitter_ms)`` clipped to ±3σ
   (host receive time instead of the controller's sampling instant). ``3σ`` must stay below half the nominal step,
   so the stamps stay strictly increasing;
 * **channels** — ``q`` and ``tau`` always; ``qd`` only when listed, as the controller's own estimate: the backward
   difference of the encoder ``q`` through a causal first-order low-pass at ``qd_filter_hz`` (computed at ``rate_hz``
   before samples are lost, as a controller does), i.e. with the phase lag a real robot's q̇ has.
-
-:class:`RobotLogger` draws its random numbers after the sensor models, so the sensors' noise of a given sample does
-not change when the logger's settings do.
 """
 from __future__ import annotations
 
@@ -27,8 +28,9 @@ from typing import Any
 
 import numpy as np
 import scipy.signal
+from pydrake.systems.framework import Context, DiscreteValues, LeafSystem
 
-__all__ = ["LoggerConfig", "RobotLogger", "LoggedSamples"]
+__all__ = ["LoggerConfig", "RobotLoggerSystem", "sample_steps"]
 
 _CHANNELS = ("q", "tau", "qd")
 
@@ -89,51 +91,69 @@ class LoggerConfig:
         return {**asdict(self), "channels": list(self.channels)}
 
 
-@dataclass
-class LoggedSamples:
-    """What :meth:`RobotLogger.log` keeps: ``keep [M]`` indices into the samples given, their ``stamps [M]`` [s] and
-    the robot's own ``qd [M, n]`` [rad/s] (None unless the logger reports it)."""
-    keep: np.ndarray
-    stamps: np.ndarray
-    qd: np.ndarray | None
+def sample_steps(n_steps: int, time_step: float, rate_hz: float) -> np.ndarray:
+    """Indices of the ``n_steps`` time steps of ``time_step`` [s] sampled at ``rate_hz`` [Hz] (nearest step)."""
+    if abs(rate_hz * time_step - 1.0) < 1e-9:
+        return np.arange(n_steps)
+    t_want = np.arange(0.0, n_steps * time_step, 1.0 / rate_hz)
+    return np.unique(np.minimum(np.round(t_want / time_step).astype(int), n_steps - 1))
 
 
-class RobotLogger:
-    """Applies a :class:`LoggerConfig` to samples taken at its ``rate_hz``."""
+class RobotLoggerSystem(LeafSystem):
+    """The robot's logger (module docstring) for ``n`` joints on a twin of ``n_steps`` time steps of ``time_step``
+    [s] starting at ``start_time`` [s].
 
-    def __init__(self, config: LoggerConfig):
-        self.config = config
+    Input ports: ``q_measured`` [n] rad (the encoder), ``draws`` [2] (uniform on [0, 1): loss, burst length),
+    ``jitter`` [1] (standard normal: stamp error). Output port ``record`` (sample and hold of the last update, i.e.
+    the previous time step): ``[taken, kept, stamp [s], t_true [s], q [n] (, q̇ [n] when the robot reports it)]``,
+    ``taken`` = 1 when that step was a sample at ``rate_hz``, ``kept`` = 1 when it was not lost.
+    """
 
-    def robot_velocity(self, q_encoder: np.ndarray) -> np.ndarray:
-        """The controller's own q̇ [rad/s]: backward difference of the encoder ``q [N, n]`` at ``rate_hz``, then a
-        causal first-order Butterworth at ``qd_filter_hz`` (started at rest on the first difference)."""
-        c = self.config
-        dq = np.diff(q_encoder, axis=0, prepend=q_encoder[:1]) * c.rate_hz
-        b, a = scipy.signal.butter(1, float(c.qd_filter_hz), fs=c.rate_hz)
-        zi = scipy.signal.lfilter_zi(b, a)[:, None] * dq[:1]
-        return scipy.signal.lfilter(b, a, dq, axis=0, zi=zi)[0]
+    def __init__(self, n: int, config: LoggerConfig, time_step: float, n_steps: int, start_time: float = 0.0):
+        super().__init__()
+        self.n, self.config, self.time_step, self.start_time = n, config, float(time_step), float(start_time)
+        self.steps = sample_steps(n_steps, time_step, config.rate_hz)
+        self._qd = "qd" in config.channels
+        if self._qd:
+            b, a = scipy.signal.butter(1, float(config.qd_filter_hz), fs=config.rate_hz)
+            self._b0, self._b1, self._a1 = float(b[0]), float(b[1]), float(a[1])
+        self._q = self.DeclareVectorInputPort("q_measured", n)
+        self._draws = self.DeclareVectorInputPort("draws", 2)
+        self._jitter = self.DeclareVectorInputPort("jitter", 1)
+        # next sample index, last index a started burst covers, position of the last sample in a covered run,
+        # previous encoder q, the q̇ filter's state
+        self._inner = self.DeclareDiscreteState(np.concatenate([[0.0, -1.0, -1.0], np.zeros(2 * n)]))
+        self._record = self.DeclareDiscreteState(4 + n + (n if self._qd else 0))
+        self.DeclarePeriodicDiscreteUpdateEvent(time_step, 0.0, self._update)
+        self.DeclareStateOutputPort("record", self._record)
 
-    def log(self, t_true: np.ndarray, q_encoder: np.ndarray, rng: np.random.Generator) -> LoggedSamples:
-        """Lose samples, stamp the rest and (if reported) estimate q̇, for samples at the true instants ``t_true [N]``
-        [s] with encoder readings ``q_encoder [N, n]`` [rad]. The first and the last sample are always kept."""
-        c = self.config
-        n = t_true.shape[0]
-        lost = np.zeros(n, dtype=bool)
+    def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
+        c, n = self.config, self.n
+        t = context.get_time()
+        inner = context.get_discrete_state(self._inner).value()
+        i = int(inner[0])
+        if i >= self.steps.size or self.steps[i] != int(round((t - self.start_time) / self.time_step)):
+            discrete_state.get_mutable_vector(self._record).SetAtIndex(0, 0.0)        # no sample at this step
+            return
+        q = self._q.Eval(context)
+        covered = i <= inner[1]
+        pos = inner[2] + 1.0 if covered else -1.0
+        lost = covered and pos < c.dropout_max_samples and 0 < i < self.steps.size - 1
+        pending = inner[1]
         if c.dropout_prob > 0:
-            starts = np.flatnonzero(rng.random(n) < c.dropout_prob) + 1
-            lengths = rng.integers(1, c.dropout_max_samples + 1, size=starts.size)
-            mark = np.zeros(n + c.dropout_max_samples + 2, dtype=int)
-            np.add.at(mark, starts, 1)
-            np.add.at(mark, starts + lengths, -1)
-            lost = np.cumsum(mark)[:n] > 0
-            idx = np.arange(n)           # overlapping bursts merge: cut each run of lost samples at the maximum
-            run_start = np.maximum.accumulate(np.where(lost, 0, idx + 1))
-            lost &= idx - run_start < c.dropout_max_samples
-            lost[[0, -1]] = False
-        keep = np.flatnonzero(~lost)
-        stamps = t_true[keep].copy()
+            u = self._draws.Eval(context)
+            if u[0] < c.dropout_prob:
+                pending = max(pending, i + 1 + int(u[1] * c.dropout_max_samples))
+        stamp = t
         if c.stamp_jitter_ms > 0:
             sigma = 1e-3 * c.stamp_jitter_ms
-            stamps += np.clip(rng.normal(0.0, sigma, keep.size), -3 * sigma, 3 * sigma)
-        qd = self.robot_velocity(q_encoder)[keep] if "qd" in c.channels else None
-        return LoggedSamples(keep=keep, stamps=stamps, qd=qd)
+            stamp += float(np.clip(sigma * self._jitter.Eval(context)[0], -3 * sigma, 3 * sigma))
+        record = [np.array([1.0, 0.0 if lost else 1.0, stamp, t]), q]
+        z = inner[3 + n:]
+        if self._qd:
+            dq = (q - inner[3:3 + n]) * c.rate_hz if i > 0 else np.zeros(n)
+            y = self._b0 * dq + z
+            z = self._b1 * dq - self._a1 * y
+            record.append(y)
+        discrete_state.set_value(self._inner, np.concatenate([[i + 1.0, pending, pos], q, z]))
+        discrete_state.set_value(self._record, np.concatenate(record))

@@ -1,36 +1,37 @@
 """Sensor models of the twin: the link-side joint torque sensor and the joint position encoder.
 
-Two forms of the same models (built from the :mod:`proprio.effects` classes the identification and gap
-diagnosis fit):
+Each model is the effect library's laws (:mod:`proprio.effects`), in two forms that call the same code:
 
-* :class:`TorqueSensor` / :class:`PositionSensor` — vectorised over all samples of a logged motion. Neither sensor
-  feeds back into the twin's motion (the tracking controller uses the plant state, as the iiwa's position loop uses
-  its motor encoders), so the twin applies them to its 1 kHz log in one pass: exact and far cheaper than a Python
-  system evaluated every 1 ms step.
-* :class:`TorqueSensorSystem` — the streaming form, a Drake ``LeafSystem`` with the reversal/hysteresis state as
-  discrete state (one vectorised update per step), for live diagrams; :func:`AddTorqueSensor` adds it with Drake's
-  C++ ``RandomSource`` for the white noise. It reproduces :class:`TorqueSensor` sample by sample (tests).
+* :class:`TorqueSensor` — the batch form over a whole motion ``[N, n]`` (the diagnosis' model
+  :meth:`proprio.diagnosis.data.SimModel.predict_parts`, the offline gap benchmark);
+* :class:`TorqueSensorSystem` (added by :func:`AddTorqueSensor`) and the encoder Diagram of :func:`AddEncoder` —
+  the Drake Systems of the twin's Diagram (``proprio.diagrams.twin``), one sample per time step. The torque sensor
+  keeps the state of the reversal-dependent effects (hysteresis, lost motion: :meth:`~proprio.effects.Hysteresis.step`)
+  as discrete state and evaluates the memoryless ones (ripple, offset/gain, drift, plugins) by their ``torque`` on
+  the one sample; the white noise comes from Drake's C++ ``RandomSource`` (seeded with the Diagram's random
+  context) through :meth:`~proprio.effects.TorqueNoise.from_normal`. The encoder is
+  :meth:`~proprio.effects.EncoderNoise.reading` in Drake's C++ primitives (``RandomSource``, ``Gain``, ``Adder``,
+  ``WrapToSystem``). Tests: the System's output equals the batch form on the same inputs to 1e-12 N·m.
 
 Torque sensor chain (thesis §2.1): ``τ_meas = (1 + g)·(τ_J + τ_hyst + τ_lost + τ_ripple) + o + o_d(t) + noise``,
 i.e. the strain-gauge effects act on the transmitted τ_J, the gain/offset error on everything the gauge sees, a
 drifting offset ``o_d`` (``offset_drift``, on the session clock ``MotionSignals.t``) adds to it, and white noise is
 added last. Sensor-side plugins (:mod:`proprio.effects.plugins`) act with the strain-gauge effects, after the
-library's, on the transmitted τ_J (``s.tau``). Every contribution is returned separately (the twin's
-``tau_<effect>`` truth channels). The streaming :class:`TorqueSensorSystem` models the library's time-invariant
-effects only (it has no session clock) and refuses the others.
+library's, on the transmitted τ_J (``s.tau``); in the twin they are evaluated one sample at a time (a sensor-side
+plugin is a function of the current sample: t, q, q̇, q̈, τ_J). Every contribution is returned separately (the
+twin's ``tau_<effect>`` truth channels).
 """
 from __future__ import annotations
 
 import numpy as np
 from pydrake.common import RandomDistribution
-from pydrake.systems.framework import BasicVector, Context, DiagramBuilder, DiscreteValues, LeafSystem
-from pydrake.systems.primitives import Adder, Gain, RandomSource
+from pydrake.systems.framework import Context, Diagram, DiagramBuilder, DiscreteValues, LeafSystem
+from pydrake.systems.primitives import Adder, Demultiplexer, Gain, MatrixGain, RandomSource, WrapToSystem
 
-from proprio.effects import (EncoderNoise, Hysteresis, JointEffect, LostMotion, OffsetDrift, Ripple,
-                             SensorOffsetGain, TorqueNoise)
+from proprio.effects import (EncoderNoise, JointEffect, OffsetDrift, SensorOffsetGain, TorqueNoise)
 from proprio.signals import MotionSignals
 
-__all__ = ["TorqueSensor", "PositionSensor", "TorqueSensorSystem", "AddTorqueSensor"]
+__all__ = ["TorqueSensor", "TorqueSensorSystem", "AddTorqueSensor", "AddEncoder"]
 
 _GAUGE_ORDER = ("hysteresis", "lost_motion", "ripple")
 _SENSOR_LIBRARY = ("sensor_offset_gain", "offset_drift", "torque_noise")   # library sensor effects past the gauge
@@ -52,10 +53,15 @@ class TorqueSensor:
         self.drift: OffsetDrift | None = by_name.get("offset_drift")
         self.noise: TorqueNoise | None = by_name.get("torque_noise")
 
-    def measure(self, s: MotionSignals, tau_j: np.ndarray, rng: np.random.Generator
+    @property
+    def effects(self) -> list[JointEffect]:
+        """All effects in the order they act (gauge, offset/gain, drift, noise)."""
+        return self.gauge + [e for e in (self.offset_gain, self.drift, self.noise) if e is not None]
+
+    def measure(self, s: MotionSignals, tau_j: np.ndarray, rng: np.random.Generator | None = None
                 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """Measured torque ``[N,n]`` N·m for true link motion ``s`` and true transmitted torque ``tau_j``, and the
-        contribution of each effect (keys = effect names)."""
+        contribution of each effect (keys = effect names). ``rng`` is needed only with ``torque_noise``."""
         s = s.with_tau(tau_j)
         parts: dict[str, np.ndarray] = {}
         seen = tau_j.copy()
@@ -74,97 +80,39 @@ class TorqueSensor:
         return seen, parts
 
 
-class PositionSensor:
-    """The link-side joint position sensor: noise + quantisation (ideal without an ``encoder_noise`` effect)."""
-
-    def __init__(self, encoder: EncoderNoise | None):
-        self.encoder = encoder
-
-    def measure(self, q: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """Measured positions ``[N,n]`` rad."""
-        return q.copy() if self.encoder is None else self.encoder.measure(q, rng)
-
-
 class TorqueSensorSystem(LeafSystem):
-    """Streaming torque sensor (noise-free part of :class:`TorqueSensor`) for ``n`` joints, sampled every
-    ``time_step``.
+    """The twin's joint torque sensor for ``n`` joints: every sensor-side effect of ``effects`` (not the encoder's),
+    one sample every ``time_step`` [s] (module docstring).
 
-    Input ports: ``tau_J`` [n] N·m (true transmitted torque), ``link_state`` [2n] = [q; q̇]. Output port:
-    ``tau_measured`` [n] N·m = ``(1+g)(τ_J + hysteresis + lost motion + ripple) + o``. Discrete state per joint
-    (the online form of :func:`~proprio.effects.reversal_travel`): direction d, has-reversed flag,
-    running max/min of q in the current segment, anchor, hysteresis value at the last reversal, and the previous
-    sample's saturation level. The output at a sample uses the state updated with that sample (direct feedthrough).
+    Input ports: ``tau_J`` [n] N·m (true transmitted torque), ``link_state`` [2n] = [q; q̇] (rad, rad/s), ``qdd`` [n]
+    rad/s², ``noise`` [n] (standard-normal draws, e.g. a ``RandomSource``). Output ports (sample and hold: the
+    sample taken at the last update, i.e. the previous time step): ``tau_measured`` [n] N·m and ``record``
+    [(2 + k)·n] = [τ_meas; τ_J; the contribution of each of the k effects in :attr:`names` order] N·m. Discrete
+    state: the per-step state of the stateful effects (:meth:`~proprio.effects.Hysteresis.step`). The effects see
+    the session clock ``context time + session_time_s`` [s].
     """
-    _FIELDS = ("d", "reversed", "hi", "lo", "anchor", "tau_rev", "sat_prev")
 
-    def __init__(self, n: int, effects: list[JointEffect], time_step: float = 1e-3):
+    def __init__(self, n: int, effects: list[JointEffect], time_step: float = 1e-3, session_time_s: float = 0.0):
         super().__init__()
-        varying = [e.name for e in effects if e.time_varying]
-        if varying:
-            raise ValueError(f"TorqueSensorSystem: time-varying effect(s) {varying} need the session clock; "
-                             "use the vectorised TorqueSensor")
-        sensor = TorqueSensor([e for e in effects if not isinstance(e, TorqueNoise)])
-        others = [e.name for e in sensor.gauge if e.name not in _GAUGE_ORDER]
-        if others:
-            raise ValueError(f"TorqueSensorSystem: {others} are not library effects; the streaming sensor models "
-                             f"{list(_GAUGE_ORDER) + ['sensor_offset_gain', 'torque_noise']} (plugins: TorqueSensor)")
-        by_type = {type(e): e for e in sensor.gauge}
+        sensor = TorqueSensor([e for e in effects if e.place == "sensor" and not isinstance(e, EncoderNoise)])
         self.n = n
-        self.hysteresis: Hysteresis | None = by_type.get(Hysteresis)
-        self.lost_motion: LostMotion | None = by_type.get(LostMotion)
-        self.ripple: Ripple | None = by_type.get(Ripple)
-        self.offset_gain = sensor.offset_gain
-        eps = [e.reversal_velocity for e in (self.hysteresis, self.lost_motion) if e is not None]
-        if len(eps) == 2 and not np.array_equal(eps[0], eps[1]):
-            raise ValueError("TorqueSensorSystem: hysteresis and lost_motion must share reversal_velocity")
-        self._eps = eps[0] if eps else np.full(n, np.inf)
+        self.sensor = sensor
+        self.names = [e.name for e in sensor.effects]
+        self.session_time_s = float(session_time_s)
+        self._stateful = [hasattr(e, "step") for e in sensor.gauge]
+        sizes = [e.state_size * n if st else 0 for e, st in zip(sensor.gauge, self._stateful)]
+        self._slices = [slice(a, a + b) for a, b in zip(np.cumsum([0] + sizes[:-1]), sizes)]
         self._tau = self.DeclareVectorInputPort("tau_J", n)
         self._x = self.DeclareVectorInputPort("link_state", 2 * n)
-        self._state = self.DeclareDiscreteState(len(self._FIELDS) * n)
+        self._qdd = self.DeclareVectorInputPort("qdd", n)
+        self._z = self.DeclareVectorInputPort("noise", n)
+        self._effect_state = self.DeclareDiscreteState(max(sum(sizes), 1))
+        self._measured = self.DeclareDiscreteState(n)
+        self._record = self.DeclareDiscreteState((2 + len(self.names)) * n)
         self.DeclarePeriodicDiscreteUpdateEvent(time_step, 0.0, self._update)
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
-        self.DeclareVectorOutputPort("tau_measured", n, self._output)
-
-    def _unpack(self, v: np.ndarray) -> dict[str, np.ndarray]:
-        return {k: v[i * self.n:(i + 1) * self.n] for i, k in enumerate(self._FIELDS)}
-
-    def _sat(self, tau: np.ndarray) -> np.ndarray:
-        h = self.hysteresis
-        return h.saturation + h.load_gain * np.abs(tau) if h is not None else np.zeros(self.n)
-
-    def _advance(self, st: dict[str, np.ndarray], q: np.ndarray, qd: np.ndarray, tau: np.ndarray
-                 ) -> dict[str, np.ndarray]:
-        """The state after taking in one sample (q, q̇, τ)."""
-        raw = np.where(qd > self._eps, 1.0, np.where(qd < -self._eps, -1.0, 0.0))
-        d = np.where(raw != 0, raw, st["d"])
-        flip = (d != st["d"]) & (st["d"] != 0)
-        new_anchor = np.where(st["d"] > 0, st["hi"], st["lo"])
-        tau_rev = st["tau_rev"]
-        if self.hysteresis is not None:
-            rho = self.hysteresis.saturation_travel / 3.0
-            target = st["d"] * st["sat_prev"]
-            carried = target + (tau_rev - target) * np.exp(-np.abs(new_anchor - st["anchor"]) / rho)
-            tau_rev = np.where(flip, carried, tau_rev)
-        return {"d": d, "reversed": np.where(flip, 1.0, st["reversed"]),
-                "hi": np.where(flip, q, np.maximum(st["hi"], q)), "lo": np.where(flip, q, np.minimum(st["lo"], q)),
-                "anchor": np.where(flip, new_anchor, st["anchor"]), "tau_rev": tau_rev, "sat_prev": self._sat(tau)}
-
-    def _measure(self, st: dict[str, np.ndarray], q: np.ndarray, tau: np.ndarray) -> np.ndarray:
-        r = q - st["anchor"]
-        seen = tau.copy()
-        if self.hysteresis is not None:
-            d_sat = st["d"] * st["sat_prev"]
-            seen += d_sat + (st["tau_rev"] - d_sat) * np.exp(-np.abs(r) / (self.hysteresis.saturation_travel / 3.0))
-        if self.lost_motion is not None:
-            lm = self.lost_motion
-            amp = lm.amplitude + lm.load_gain * np.abs(tau)
-            seen += -st["d"] * (1.0 + st["reversed"]) * amp * np.exp(-(np.abs(r) / lm.window) ** 6)
-        if self.ripple is not None:
-            ph = self.ripple.harmonic * self.ripple.gear_ratio * q
-            seen += self.ripple.sin_amplitude * np.sin(ph) + self.ripple.cos_amplitude * np.cos(ph)
-        if self.offset_gain is not None:
-            seen = (1.0 + self.offset_gain.gain) * seen + self.offset_gain.offset
-        return seen
+        self.DeclareStateOutputPort("tau_measured", self._measured)
+        self.DeclareStateOutputPort("record", self._record)
 
     def _inputs(self, context: Context) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         x = self._x.Eval(context)
@@ -172,37 +120,80 @@ class TorqueSensorSystem(LeafSystem):
 
     def _initialize(self, context: Context, discrete_state: DiscreteValues) -> None:
         q, qd, tau = self._inputs(context)
-        d0 = np.where(qd > self._eps, 1.0, np.where(qd < -self._eps, -1.0, 0.0))
-        z = np.zeros(self.n)
-        # the state *before* the first sample: the first sample then starts segment 0 at q0 without a reversal
-        discrete_state.set_value(self._state, np.concatenate([d0, z, q, q, q, z, self._sat(tau)]))
+        x = np.zeros(discrete_state.get_vector(self._effect_state).size())
+        for eff, st, sl in zip(self.sensor.gauge, self._stateful, self._slices):
+            if st:
+                x[sl] = eff.initial_state(q, qd, tau)
+        discrete_state.set_value(self._effect_state, x)
 
     def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
         q, qd, tau = self._inputs(context)
-        st = self._advance(self._unpack(context.get_discrete_state(self._state).value()), q, qd, tau)
-        discrete_state.set_value(self._state, np.concatenate([st[k] for k in self._FIELDS]))
-
-    def _output(self, context: Context, output: BasicVector) -> None:
-        q, qd, tau = self._inputs(context)
-        st = self._advance(self._unpack(context.get_discrete_state(self._state).value()), q, qd, tau)
-        output.SetFromVector(self._measure(st, q, tau))
+        x = context.get_discrete_state(self._effect_state).value().copy()
+        s = MotionSignals(np.array([context.get_time() + self.session_time_s]), q[None], qd[None],
+                          self._qdd.Eval(context)[None], tau[None])
+        sensor, parts = self.sensor, []
+        seen = tau.copy()
+        for eff, st, sl in zip(sensor.gauge, self._stateful, self._slices):
+            if st:
+                x[sl], c = eff.step(x[sl], q, qd, tau)
+            else:
+                c = eff.torque(s)[0]
+            parts.append(c)
+            seen = seen + c
+        if sensor.offset_gain is not None:
+            parts.append(sensor.offset_gain.torque(s.with_tau(seen[None]))[0])
+            seen = seen + parts[-1]
+        if sensor.drift is not None:
+            parts.append(sensor.drift.torque(s)[0])
+            seen = seen + parts[-1]
+        if sensor.noise is not None:
+            parts.append(sensor.noise.from_normal(self._z.Eval(context)))
+            seen = seen + parts[-1]
+        discrete_state.set_value(self._effect_state, x)
+        discrete_state.set_value(self._measured, seen)
+        discrete_state.set_value(self._record, np.concatenate([seen, tau, *parts]))
 
 
 def AddTorqueSensor(builder: DiagramBuilder, n: int, effects: list[JointEffect], time_step: float = 1e-3,
-                    name: str = "torque_sensor") -> tuple[TorqueSensorSystem, Adder]:
-    """Add a :class:`TorqueSensorSystem` and, if ``effects`` has ``torque_noise``, Drake's C++ ``RandomSource``
-    (Gaussian, sampled every ``time_step``) scaled by σ and added to its output. Returns ``(sensor, output)``
-    where ``output.get_output_port()`` is the measured torque (seed the noise with
-    ``diagram.SetRandomContext(context, RandomGenerator(seed))``)."""
-    sensor = builder.AddSystem(TorqueSensorSystem(n, effects, time_step))
+                    session_time_s: float = 0.0, name: str = "torque_sensor") -> TorqueSensorSystem:
+    """Add a :class:`TorqueSensorSystem` and Drake's C++ ``RandomSource`` (Gaussian, one draw per ``time_step``)
+    feeding its ``noise`` port (seed: ``diagram.SetRandomContext(context, RandomGenerator(seed))``)."""
+    sensor = builder.AddSystem(TorqueSensorSystem(n, effects, time_step, session_time_s))
     sensor.set_name(name)
-    adder = builder.AddSystem(Adder(2, n))
-    adder.set_name(f"{name}_noise_sum")
-    builder.Connect(sensor.GetOutputPort("tau_measured"), adder.get_input_port(0))
-    noise = next((e for e in effects if isinstance(e, TorqueNoise)), None)
-    std = noise.std if noise is not None else np.zeros(n)
     source = builder.AddSystem(RandomSource(RandomDistribution.kGaussian, n, time_step))
-    gain = builder.AddSystem(Gain(std))
-    builder.Connect(source.get_output_port(0), gain.get_input_port())
-    builder.Connect(gain.get_output_port(), adder.get_input_port(1))
-    return sensor, adder
+    source.set_name(f"{name}_noise")
+    builder.Connect(source.get_output_port(0), sensor.GetInputPort("noise"))
+    return sensor
+
+
+def AddEncoder(builder: DiagramBuilder, n: int, encoder: EncoderNoise | None, time_step: float = 1e-3,
+               name: str = "encoder") -> Diagram:
+    """Add the joint position encoder: a Diagram of Drake C++ systems computing
+    :meth:`~proprio.effects.EncoderNoise.reading` (``x = q + std·z``, ``x − wrap(x)`` into ``[−res/2, res/2)``) with
+    ``z`` from a Gaussian ``RandomSource`` (one draw per ``time_step``); ideal (``q``) without an encoder effect.
+    Input port ``link_state`` [2n] = [q; q̇]; output port ``q_measured`` [n] rad."""
+    std = np.zeros(n) if encoder is None else encoder.std
+    res = np.zeros(n) if encoder is None else encoder.resolution
+    sub = DiagramBuilder()
+    split = sub.AddSystem(Demultiplexer([n, n]))
+    source = sub.AddSystem(RandomSource(RandomDistribution.kGaussian, n, time_step))
+    source.set_name("noise")
+    scale = sub.AddSystem(Gain(std))
+    noisy = sub.AddSystem(Adder(2, n))
+    sub.Connect(source.get_output_port(0), scale.get_input_port())
+    sub.Connect(split.get_output_port(0), noisy.get_input_port(0))
+    sub.Connect(scale.get_output_port(), noisy.get_input_port(1))
+    wrap = sub.AddSystem(WrapToSystem(n))
+    for j in np.flatnonzero(res > 0):
+        wrap.set_interval(int(j), -0.5 * float(res[j]), 0.5 * float(res[j]))
+    drop = sub.AddSystem(MatrixGain(-np.diag((res > 0).astype(float))))      # − wrap(x) where quantised
+    quantised = sub.AddSystem(Adder(2, n))
+    sub.Connect(noisy.get_output_port(), wrap.get_input_port())
+    sub.Connect(wrap.get_output_port(), drop.get_input_port())
+    sub.Connect(noisy.get_output_port(), quantised.get_input_port(0))
+    sub.Connect(drop.get_output_port(), quantised.get_input_port(1))
+    sub.ExportInput(split.get_input_port(), "link_state")
+    sub.ExportOutput(quantised.get_output_port(), "q_measured")
+    encoder_system = builder.AddSystem(sub.Build())
+    encoder_system.set_name(name)
+    return encoder_system
