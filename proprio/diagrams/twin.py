@@ -68,7 +68,7 @@ from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.controllers import InverseDynamicsController
 from pydrake.systems.framework import Diagram, DiagramBuilder
-from pydrake.systems.primitives import Multiplexer, RandomSource, VectorLogSink, ZeroOrderHold
+from pydrake.systems.primitives import Demultiplexer, Multiplexer, RandomSource, VectorLogSink, ZeroOrderHold
 from pydrake.trajectories import PiecewisePolynomial, Trajectory
 from tqdm import tqdm
 
@@ -84,7 +84,8 @@ from proprio.systems.joint_drive import (
 from proprio.effects import Elasticity, EncoderNoise, JointEffect, Motor, effect_key, make_effects
 from proprio.signals import MotionSignals
 from proprio.systems.robot_logger import LoggerConfig, RobotLoggerSystem
-from proprio.systems.sensors import AddEncoder, AddTorqueSensor, TorqueSensor, TorqueSensorSystem
+from proprio.systems.sensors import (AddEncoder, AddSampleBank, TorqueSensor, TorqueSensorSystem,
+                                    block_update_offset)
 from proprio.systems.trajectories import AddTrajectorySource, sample_trajectory
 
 __all__ = ["TwinConfig", "TwinConfigError", "load_twin_config", "merge_twin_patch", "PATCH_KEYS", "TwinDiagram",
@@ -327,11 +328,16 @@ class TwinDynamics:
     instance: Any                  # the robot's model instance in ``plant``
 
 
+BLOCK_STEPS = 50
+"""Time steps the twin's measurement chain takes in per update (its sample bank; 50 ms at 1 kHz)."""
+
+
 @dataclass
 class TwinDiagram:
-    """What :func:`build_twin_diagram` returns: the Diagram and its stages. ``log`` records, every time step, the
-    previous step's sample as ``[robot_logger record; torque_sensor record; truth hold]`` (``layout`` names the
-    column slices ``logger``, ``sensor``, ``truth``; see :class:`RobotLoggerSystem`, :class:`TorqueSensorSystem`)."""
+    """What :func:`build_twin_diagram` returns: the Diagram and its stages. ``log`` records, once per block of
+    ``BLOCK_STEPS`` time steps, the block the chain took in last: ``[robot_logger record; torque_sensor record; held
+    samples]`` (``layout`` names the column slices ``logger``, ``sensor``, ``samples`` of one time step's row, and
+    ``width`` its size; see :class:`RobotLoggerSystem`, :class:`TorqueSensorSystem`)."""
     diagram: Diagram
     dynamics: TwinDynamics
     torque_sensor: TorqueSensorSystem
@@ -412,53 +418,60 @@ def _n_steps(trajectory: Trajectory, time_step: float) -> int:
 
 def build_twin_diagram(config: TwinConfig, trajectory: Trajectory) -> TwinDiagram:
     """Wire the twin for ``trajectory`` (joint positions vs. time; velocity/acceleration by differentiation): the
-    dynamics (:func:`AddTwinDynamics`), then the measurement chain ``JointDrive.tau_J → torque_sensor``
-    (:class:`TorqueSensorSystem`, every sensor-side effect incl. plugins, C++ ``RandomSource`` noise), ``plant state →
-    encoder`` (:func:`AddEncoder`) ``→ robot_logger`` (:class:`RobotLoggerSystem`: rate, lost samples, stamps, the
-    robot's own q̇), and a ``ZeroOrderHold`` of the true motion; one ``VectorLogSink`` (``log``) records them.
+    dynamics (:func:`AddTwinDynamics`), the ``encoder`` (:func:`AddEncoder`, C++), and the measurement chain on
+    blocks of :data:`BLOCK_STEPS` time steps handed over by a bank of C++ holds (:func:`AddSampleBank`):
+    ``torque_sensor`` (:class:`TorqueSensorSystem`: the drive's τ_J law on the plant's net actuation and motion, then
+    every sensor-side effect incl. plugins, C++ ``RandomSource`` noise) and ``robot_logger``
+    (:class:`RobotLoggerSystem`: rate, lost samples, stamps, the robot's own q̇); one ``VectorLogSink`` (``log``)
+    records them with the held true motion.
 
     Raises ``ValueError`` when the friction or the elasticity is too stiff for the time step on this trajectory.
     """
-    n, dt = config.robot.n, config.time_step
+    n, dt, t0 = config.robot.n, config.time_step, trajectory.start_time()
     builder = DiagramBuilder()
     dyn = AddTwinDynamics(builder, config, trajectory)
     plant, drive, instance = dyn.plant, dyn.drive, dyn.instance
     state = plant.get_state_output_port(instance)
-    qdd = plant.get_generalized_acceleration_output_port(instance)
-
-    sensor = AddTorqueSensor(builder, n, config.effects, dt, config.session_time_s)
-    builder.Connect(drive.GetOutputPort("tau_J"), sensor.GetInputPort("tau_J"))
-    builder.Connect(state, sensor.GetInputPort("link_state"))
-    builder.Connect(qdd, sensor.GetInputPort("qdd"))
+    split = builder.AddSystem(Demultiplexer([n, n]))
+    split.set_name("link_state")
+    builder.Connect(state, split.get_input_port())
     encoder = AddEncoder(builder, n, next((e for e in config.effects if isinstance(e, EncoderNoise)), None), dt)
     builder.Connect(state, encoder.GetInputPort("link_state"))
+    noise = builder.AddSystem(RandomSource(RandomDistribution.kGaussian, n, dt))
+    noise.set_name("torque_sensor_noise")
+    draws = []
+    for port, dist, size in (("loss", RandomDistribution.kUniform, 2), ("stamp", RandomDistribution.kGaussian, 1)):
+        source = builder.AddSystem(RandomSource(dist, size, dt))
+        source.set_name(f"robot_logger_{port}")
+        draws.append(source.get_output_port(0))
+    # one time step's row: the torque sensor's [a; q; q̇; q̈; z], the logger's [q_meas; draws], (θ; θ̇)
+    sensor_in = [plant.get_net_actuation_output_port(instance), split.get_output_port(0), split.get_output_port(1),
+                 plant.get_generalized_acceleration_output_port(instance), noise.get_output_port(0)]
+    logger_in = [encoder.GetOutputPort("q_measured"), *draws]
+    motor = [drive.GetOutputPort("motor_state")] if drive.elasticity is not None else []
+    bank, width = AddSampleBank(builder, sensor_in + logger_in + motor, BLOCK_STEPS, dt)
+    sensor = builder.AddSystem(TorqueSensorSystem(n, config.effects, dt, BLOCK_STEPS, config.session_time_s, t0,
+                                                  drive.sensed_torque, (width, 0)))
+    sensor.set_name("torque_sensor")
     n_steps = _n_steps(trajectory, dt)
-    logger = builder.AddSystem(RobotLoggerSystem(n, config.logger, dt, n_steps, trajectory.start_time()))
+    logger = builder.AddSystem(RobotLoggerSystem(n, config.logger, dt, n_steps, t0, BLOCK_STEPS, (width, 5 * n)))
     logger.set_name("robot_logger")
-    builder.Connect(encoder.GetOutputPort("q_measured"), logger.GetInputPort("q_measured"))
-    for port, dist, size in (("draws", RandomDistribution.kUniform, 2), ("jitter", RandomDistribution.kGaussian, 1)):
-        draws = builder.AddSystem(RandomSource(dist, size, dt))
-        draws.set_name(f"robot_logger_{port}")
-        builder.Connect(draws.get_output_port(0), logger.GetInputPort(port))
-
-    truth = [state, qdd] + ([drive.GetOutputPort("motor_state")] if drive.elasticity is not None else [])
-    truth_mux = builder.AddSystem(Multiplexer([port.size() for port in truth]))
-    for k, port in enumerate(truth):
-        builder.Connect(port, truth_mux.get_input_port(k))
-    hold = builder.AddSystem(ZeroOrderHold(dt, truth_mux.get_output_port().size()))
-    hold.set_name("truth_hold")
-    builder.Connect(truth_mux.get_output_port(), hold.get_input_port())
+    builder.Connect(bank, sensor.GetInputPort("samples"))
+    builder.Connect(bank, logger.GetInputPort("samples"))
+    hold = builder.AddSystem(ZeroOrderHold(BLOCK_STEPS * dt, BLOCK_STEPS * width, block_update_offset(BLOCK_STEPS, dt, t0)))
+    hold.set_name("samples_hold")                   # the block the sensor and the logger took in at the last update
+    builder.Connect(bank, hold.get_input_port())
 
     recorded = [logger.GetOutputPort("record"), sensor.GetOutputPort("record"), hold.get_output_port()]
-    sizes = [port.size() for port in recorded]
-    mux = builder.AddSystem(Multiplexer(sizes))
+    mux = builder.AddSystem(Multiplexer([port.size() for port in recorded]))
     for k, port in enumerate(recorded):
         builder.Connect(port, mux.get_input_port(k))
-    log = builder.AddSystem(VectorLogSink(mux.get_output_port().size(), dt))
+    log = builder.AddSystem(VectorLogSink(mux.get_output_port().size(), BLOCK_STEPS * dt))
     log.set_name("log")
     builder.Connect(mux.get_output_port(), log.get_input_port())
+    sizes = [port.size() // BLOCK_STEPS for port in recorded]
     edges = np.cumsum([0] + sizes)
-    layout = {key: slice(int(a), int(b)) for key, a, b in zip(("logger", "sensor", "truth"), edges[:-1], edges[1:])}
+    layout = {key: slice(int(a), int(b)) for key, a, b in zip(("logger", "sensor", "samples"), edges[:-1], edges[1:])}
     diagram = builder.Build()
     diagram.set_name(f"twin:{config.name}")
     return TwinDiagram(diagram, dyn, sensor, encoder, logger, log, layout, config, n_steps)
@@ -540,17 +553,18 @@ def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload |
 
     chunks = []
     wall0, cpu0 = time.perf_counter(), time.process_time()
-    bar = tqdm(total=round((n_steps - 1) * dt, 3), unit="s sim", disable=not progress, desc=f"twin {config.name}",
+    t_end = t0 + (n_steps - 1) * dt
+    bar = tqdm(total=round(t_end - t0, 3), unit="s sim", disable=not progress, desc=f"twin {config.name}",
                bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} s sim [{elapsed}<{remaining}{postfix}]")
-    t_stop = t0 + (n_steps + 0.5) * dt            # the log holds the previous step's sample: one step past the end
+    # the log holds the block before the last: run until the last step's block is recorded
+    t_stop = t0 + ((n_steps - 1) // BLOCK_STEPS + 1) * BLOCK_STEPS * dt + 0.25 * dt
     t = t0
     while t < t_stop:
         t_next = min(t + chunk_s, t_stop)
         sim.AdvanceTo(t_next)
-        data = log.data().T
-        chunks.append(data[data[:, twin.layout["logger"].start] > 0.5])        # the steps that were samples
+        chunks.append(_rows(log.data().T, twin.layout))
         log.Clear()
-        bar.update(round(min(t_next, t0 + (n_steps - 1) * dt) - min(t, t0 + (n_steps - 1) * dt), 3))
+        bar.update(round(min(t_next, t_end) - min(t, t_end), 3))
         bar.set_postfix_str(f"{(t_next - t0) / max(time.perf_counter() - wall0, 1e-9):.1f}x real time")
         t = t_next
     bar.close()
@@ -561,16 +575,27 @@ def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload |
     return _to_recording(config, twin.layout, rows, wall, cpu)
 
 
+def _rows(blocks: np.ndarray, layout: dict[str, slice]) -> np.ndarray:
+    """The time steps that were samples, one row each, from the log's blocks ``[M, B·(row parts)]``."""
+    parts, at = [], 0
+    for key in ("logger", "sensor", "samples"):
+        size = (layout[key].stop - layout[key].start) * BLOCK_STEPS
+        parts.append(blocks[:, at:at + size].reshape(-1, layout[key].stop - layout[key].start))
+        at += size
+    rows = np.hstack(parts)
+    return rows[rows[:, layout["logger"].start] > 0.5]
+
+
 def _to_recording(config: TwinConfig, layout: dict[str, slice], rows: np.ndarray, wall_s: float,
                   cpu_s: float) -> Recording:
     """The Recording of the samples the twin's Diagram logged (``rows``: one per sample, columns ``layout``): the
     measured channels its robot logger kept, and the truth channels at the same samples."""
     desc, n = config.robot, config.robot.n
-    lg, sens, true = rows[:, layout["logger"]], rows[:, layout["sensor"]], rows[:, layout["truth"]]
+    lg, sens, held = rows[:, layout["logger"]], rows[:, layout["sensor"]], rows[:, layout["samples"]]
     k = lg[:, 1] > 0.5
-    lg, sens, true = lg[k], sens[k], true[k]
+    lg, sens, held = lg[k], sens[k], held[k]
     stamps, t = lg[:, 2], lg[:, 3]
-    q, qd, qdd = true[:, :n], true[:, n:2 * n], true[:, 2 * n:3 * n]
+    q, qd, qdd = held[:, n:2 * n], held[:, 2 * n:3 * n], held[:, 3 * n:4 * n]
     truth: dict[str, np.ndarray] = {}
     truth["tau_rbd"] = _in_batches(inverse_dynamics, attach_payload(desc, config.payload), q, qd, qdd)
     # link-side effects act with q̈ = 0, on the session clock (JointDrive.link_torque)
@@ -583,8 +608,8 @@ def _to_recording(config: TwinConfig, layout: dict[str, slice], rows: np.ndarray
     sensor_order = TorqueSensor([e for e in config.effects if e.name in names]).effects
     truth.update({f"tau_{e.name}": sens[:, (2 + i) * n:(3 + i) * n] for i, e in enumerate(sensor_order)})
     truth.update(q_true=q, qd=qd, qdd=qdd, t_true=t - stamps[0])
-    if true.shape[1] > 3 * n:                          # elastic drive: θ, θ̇ (what a motor-side sensor reads)
-        truth["q_motor"], truth["qd_motor"] = true[:, 3 * n:4 * n], true[:, 4 * n:5 * n]
+    if held.shape[1] > 6 * n + 3:                      # elastic drive: θ, θ̇ (what a motor-side sensor reads)
+        truth["q_motor"], truth["qd_motor"] = held[:, 6 * n + 3:7 * n + 3], held[:, 7 * n + 3:8 * n + 3]
     f_ext = _in_batches(lambda d, *x: payload_wrench(d, config.payload, *x), desc, q, qd, qdd)
     span = float(rows[-1, layout["logger"].start + 3] - rows[0, layout["logger"].start + 3])
     meta = {**config.meta(), "rate_hz": config.logger.rate_hz, "source": "twin",

@@ -1,14 +1,12 @@
 """Torque-sensor effects that depend on the reversal travel r: hysteresis and lost motion.
 
-Each law is written once and evaluated in two forms that call the same functions:
-
-* the batch form :meth:`~JointEffect.torque` over a whole motion ``[N, n]`` (the diagnosis, the fits, the offline
-  benchmark), with the reversal segmentation of :func:`proprio.reversals.reversal_travel`;
-* the per-step form :meth:`step` ``(x, q, q̇, τ) → (x', contribution)`` on one sample ``[n]`` with the effect's state
-  ``x`` (:meth:`initial_state`, :attr:`state_size`): the online reversal tracker (:func:`reversal_advance`) plus,
-  for the hysteresis, the value carried at the last reversal. The twin's torque-sensor System
-  (:class:`proprio.systems.sensors.TorqueSensorSystem`) keeps ``x`` as Drake discrete state and calls :meth:`step`
-  every time step; both forms agree to rounding (tests: 1e-12 N·m).
+Each law is written once, as a scan with state: :meth:`Hysteresis.scan` ``(x0, q, q̇, τ) → (x_end, contribution)``
+over samples ``[N, n]`` from the effect's state ``x0`` (:meth:`initial_state`: the reversal tracker of
+:func:`proprio.reversals.reversal_scan` plus, for the hysteresis, the value carried at the last reversal and the
+last sample's saturation). The batch form :meth:`~JointEffect.torque` is the scan of a whole motion from rest (the
+diagnosis, the fits, the offline benchmark); the twin's torque-sensor System
+(:class:`proprio.systems.sensors.TorqueSensorSystem`) keeps ``x`` as Drake discrete state and scans block after
+block of time steps (one step is a block of one). Both agree to rounding (tests: 1e-12 N·m).
 """
 from __future__ import annotations
 
@@ -17,47 +15,14 @@ import math
 import numpy as np
 
 from proprio.effects.base import INF, TINY, JointEffect, affine_scan
-from proprio.reversals import ReversalTravel, reversal_travel
+from proprio.reversals import ReversalTravel, reversal_scan, reversal_start
 from proprio.signals import MotionSignals
 
-__all__ = ["Hysteresis", "LostMotion", "MAX_LOAD_GAIN", "REVERSAL_FIELDS", "reversal_start", "reversal_advance"]
+__all__ = ["Hysteresis", "LostMotion", "MAX_LOAD_GAIN"]
 
 MAX_LOAD_GAIN = 0.1
 """Upper bound of ``load_gain`` [–]: the loop amplitude grows by at most 10 % of the load torque (the calibrated twin
 has 2 %, Fig. 2.5's gravity-loaded joints); a fit beyond it is a light joint's loop taken for a load law."""
-
-REVERSAL_FIELDS = ("d", "reversed", "hi", "lo", "anchor")
-"""The online reversal tracker's state per joint, packed ``[5·n]`` in this order: direction d ∈ {−1, 0, +1}, has
-reversed (0/1), running max / min of q in the current segment [rad], the segment's anchor [rad]."""
-
-
-def _direction(qd: np.ndarray, reversal_velocity: np.ndarray) -> np.ndarray:
-    """Raw direction of one sample ``[n]``: ±1 outside the ``reversal_velocity`` band [rad/s], 0 inside."""
-    return np.where(qd > reversal_velocity, 1.0, np.where(qd < -reversal_velocity, -1.0, 0.0))
-
-
-def reversal_start(q: np.ndarray, qd: np.ndarray, reversal_velocity: np.ndarray) -> np.ndarray:
-    """The tracker's state *before* the first sample ``(q, q̇)`` ``[n]``: the first sample then starts segment 0 at
-    q[0] without a reversal, as :func:`~proprio.reversals.reversal_travel` does."""
-    return np.concatenate([_direction(qd, reversal_velocity), np.zeros_like(q), q, q, q])
-
-
-def reversal_advance(x: np.ndarray, q: np.ndarray, qd: np.ndarray, reversal_velocity: np.ndarray
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Take in one sample ``(q, q̇)`` ``[n]``: returns the new state, the reversal flags ``[n]`` (a reversal starts a
-    new segment at this sample) and the previous anchor ``[n]`` (the segment that ended started there). The online
-    form of :func:`~proprio.reversals.reversal_travel`: a Schmitt trigger on q̇, the anchor of a new segment is the
-    extremum of q reached in the one that ended."""
-    n = q.shape[0]
-    d0, rev, hi, lo, anchor = (x[k * n:(k + 1) * n] for k in range(5))
-    raw = _direction(qd, reversal_velocity)
-    d = np.where(raw != 0, raw, d0)
-    flip = (d != d0) & (d0 != 0)
-    new_anchor = np.where(d0 > 0, hi, lo)
-    state = np.concatenate([d, np.where(flip, 1.0, rev), np.where(flip, q, np.maximum(hi, q)),
-                            np.where(flip, q, np.minimum(lo, q)), np.where(flip, new_anchor, anchor)])
-    return state, flip, anchor
-
 
 class Hysteresis(JointEffect):
     """Torque-sensor hysteresis vs. joint travel since the last reversal (thesis §2.1, Fig. 2.5).
@@ -107,35 +72,33 @@ class Hysteresis(JointEffect):
     def torque(self, s: MotionSignals, rng: np.random.Generator | None = None,
                travel: ReversalTravel | None = None) -> np.ndarray:
         self._check_n(s)
-        rt = travel or reversal_travel(s.q, s.qd, self.reversal_velocity)
-        sat = self._saturation(s.tau, s.q.shape)
-        rho = self.saturation_travel / 3.0
-        out = np.empty_like(s.q)
-        for j in range(self.n):
-            st, anc, sd = rt.starts[j], rt.anchors[j], rt.seg_direction[j]
-            ends = np.concatenate([st[1:] - 1, [s.q.shape[0] - 1]])
-            a, b = self.carry(anc[1:] - anc[:-1], sd[:-1] * sat[ends[:-1], j], rho[j])
-            tau_rev = affine_scan(a, b, 0.0)
-            out[:, j] = self.loop(rt.direction[:, j] * sat[:, j], tau_rev[rt.segment[:, j]], rt.r[:, j], rho[j])
-        return out
+        x0 = self.initial_state(s.q[0], s.qd[0], None if s.tau is None else s.tau[0])
+        return self.scan(x0, s.q, s.qd, s.tau, travel)[1]
 
     def initial_state(self, q: np.ndarray, qd: np.ndarray, tau: np.ndarray | None) -> np.ndarray:
-        """The per-step state ``[7n]`` before the first sample (virgin: τ_rev = 0)."""
+        """The state ``[7n]`` before a first sample ``(q, q̇, τ)`` ``[n]``: at rest, virgin (τ_rev = 0)."""
         return np.concatenate([reversal_start(q, qd, self.reversal_velocity), np.zeros(self.n),
                                self._saturation(tau, q.shape)])
 
-    def step(self, x: np.ndarray, q: np.ndarray, qd: np.ndarray, tau: np.ndarray | None
-             ) -> tuple[np.ndarray, np.ndarray]:
-        """One sample ``(q, q̇, τ_J)`` ``[n]``: ``(state after it, contribution [N·m])`` (module docstring)."""
+    def scan(self, x0: np.ndarray, q: np.ndarray, qd: np.ndarray, tau: np.ndarray | None,
+             travel: ReversalTravel | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The law over samples ``q, q̇, τ`` ``[N, n]`` from state ``x0`` ``[7n]`` (module docstring): returns the
+        state after the last sample and the contribution ``[N, n]`` N·m. ``travel``: the reversal scan of the same
+        samples from the same state, if already computed."""
         n = self.n
-        rho = self.saturation_travel / 3.0
-        rev, tau_rev, sat_prev = x[:5 * n], x[5 * n:6 * n], x[6 * n:]
-        rev_new, flip, anchor = reversal_advance(rev, q, qd, self.reversal_velocity)
-        a, b = self.carry(rev_new[4 * n:] - anchor, rev[:n] * sat_prev, rho)
-        tau_rev = np.where(flip, a * tau_rev + b, tau_rev)
+        rt = travel or reversal_scan(x0[:5 * n], q, qd, self.reversal_velocity)
         sat = self._saturation(tau, q.shape)
-        out = self.loop(rev_new[:n] * sat, tau_rev, q - rev_new[4 * n:], rho)
-        return np.concatenate([rev_new, tau_rev, sat]), out
+        sat_ext = np.vstack([x0[6 * n:], sat])                   # [the last sample's saturation; samples]
+        rho = self.saturation_travel / 3.0
+        out, tau_end = np.empty_like(q), np.empty(n)
+        for j in range(n):
+            anc, sd = rt.anchors[j], rt.seg_direction[j]
+            ends = rt.starts[j][1:]                           # last sample of each ended segment, in sat_ext rows
+            a, b = self.carry(anc[1:] - anc[:-1], sd[:-1] * sat_ext[ends, j], rho[j])
+            tau_rev = affine_scan(a, b, x0[5 * n + j])
+            out[:, j] = self.loop(rt.direction[:, j] * sat[:, j], tau_rev[rt.segment[:, j]], rt.r[:, j], rho[j])
+            tau_end[j] = tau_rev[-1]
+        return np.concatenate([rt.end, tau_end, sat[-1]]), out
 
 
 class LostMotion(JointEffect):
@@ -171,18 +134,16 @@ class LostMotion(JointEffect):
     def torque(self, s: MotionSignals, rng: np.random.Generator | None = None,
                travel: ReversalTravel | None = None) -> np.ndarray:
         self._check_n(s)
-        rt = travel or reversal_travel(s.q, s.qd, self.reversal_velocity)
-        return self.lag(rt.direction, (rt.segment > 0).astype(float), s.tau, rt.r)
+        return self.scan(self.initial_state(s.q[0], s.qd[0], None), s.q, s.qd, s.tau, travel)[1]
 
     def initial_state(self, q: np.ndarray, qd: np.ndarray, tau: np.ndarray | None) -> np.ndarray:
-        """The per-step state ``[5n]`` before the first sample."""
+        """The state ``[5n]`` before a first sample ``(q, q̇)`` ``[n]``: at rest."""
         return reversal_start(q, qd, self.reversal_velocity)
 
-    def step(self, x: np.ndarray, q: np.ndarray, qd: np.ndarray, tau: np.ndarray | None
-             ) -> tuple[np.ndarray, np.ndarray]:
-        """One sample ``(q, q̇, τ_J)`` ``[n]``: ``(state after it, contribution [N·m])`` (module docstring)."""
-        n = self.n
-        rev, _, _ = reversal_advance(x, q, qd, self.reversal_velocity)
-        return rev, self.lag(rev[:n], rev[n:2 * n], tau, q - rev[4 * n:])
-
-
+    def scan(self, x0: np.ndarray, q: np.ndarray, qd: np.ndarray, tau: np.ndarray | None,
+             travel: ReversalTravel | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The law over samples ``q, q̇, τ`` ``[N, n]`` from state ``x0`` ``[5n]``: the state after the last sample and
+        the contribution ``[N, n]`` N·m (c = 2 after a reversal in these samples or before them, else 1)."""
+        rt = travel or reversal_scan(x0, q, qd, self.reversal_velocity)
+        reversed_ = np.where(rt.segment > 0, 1.0, x0[self.n:2 * self.n])
+        return rt.end, self.lag(rt.direction, reversed_, tau, rt.r)

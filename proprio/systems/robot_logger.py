@@ -30,6 +30,8 @@ import numpy as np
 import scipy.signal
 from pydrake.systems.framework import Context, DiscreteValues, LeafSystem
 
+from proprio.systems.sensors import block_times, block_update_offset
+
 __all__ = ["LoggerConfig", "RobotLoggerSystem", "sample_steps"]
 
 _CHANNELS = ("q", "tau", "qd")
@@ -101,59 +103,72 @@ def sample_steps(n_steps: int, time_step: float, rate_hz: float) -> np.ndarray:
 
 class RobotLoggerSystem(LeafSystem):
     """The robot's logger (module docstring) for ``n`` joints on a twin of ``n_steps`` time steps of ``time_step``
-    [s] starting at ``start_time`` [s].
+    [s] from ``start_time`` [s], taking the time steps in blocks of ``block_steps``.
 
-    Input ports: ``q_measured`` [n] rad (the encoder), ``draws`` [2] (uniform on [0, 1): loss, burst length),
-    ``jitter`` [1] (standard normal: stamp error). Output port ``record`` (sample and hold of the last update, i.e.
-    the previous time step): ``[taken, kept, stamp [s], t_true [s], q [n] (, q̇ [n] when the robot reports it)]``,
-    ``taken`` = 1 when that step was a sample at ``rate_hz``, ``kept`` = 1 when it was not lost.
+    Input port ``samples`` [B·(n + 3)] (or [B·w] with ``row = (w, offset)``: its part starts at ``offset`` of each
+    time step's row of ``w``): per time step ``[q_measured [n] rad (the encoder); u_loss, u_burst (uniform
+    on [0, 1)); z_stamp (standard normal)]``, as :func:`proprio.systems.sensors.AddSampleBank` keeps them. Output
+    port ``record`` [B·(4 + n (+ n))]: per time step ``[taken, kept, stamp [s], t_true [s], q [n] (, q̇ [n] when the
+    robot reports it)]`` for the block the last update took in; ``taken`` = 1 when that step was a sample at
+    ``rate_hz``, ``kept`` = 1 when it was not lost. Discrete state: the next sample's index, the last sample a started
+    burst covers, the position of the last sample in a run of covered ones, the previous encoder q and the q̇
+    filter's state.
     """
 
-    def __init__(self, n: int, config: LoggerConfig, time_step: float, n_steps: int, start_time: float = 0.0):
+    def __init__(self, n: int, config: LoggerConfig, time_step: float, n_steps: int, start_time: float = 0.0,
+                 block_steps: int = 1, row: tuple[int, int] | None = None):
         super().__init__()
         self.n, self.config, self.time_step, self.start_time = n, config, float(time_step), float(start_time)
+        self.block_steps = int(block_steps)
         self.steps = sample_steps(n_steps, time_step, config.rate_hz)
         self._qd = "qd" in config.channels
         if self._qd:
-            b, a = scipy.signal.butter(1, float(config.qd_filter_hz), fs=config.rate_hz)
-            self._b0, self._b1, self._a1 = float(b[0]), float(b[1]), float(a[1])
-        self._q = self.DeclareVectorInputPort("q_measured", n)
-        self._draws = self.DeclareVectorInputPort("draws", 2)
-        self._jitter = self.DeclareVectorInputPort("jitter", 1)
-        # next sample index, last index a started burst covers, position of the last sample in a covered run,
-        # previous encoder q, the q̇ filter's state
+            self._ba = scipy.signal.butter(1, float(config.qd_filter_hz), fs=config.rate_hz)
+        self._row = row or (n + 3, 0)                                  # (width of a time step's row, offset)
+        self._samples = self.DeclareVectorInputPort("samples", self.block_steps * self._row[0])
         self._inner = self.DeclareDiscreteState(np.concatenate([[0.0, -1.0, -1.0], np.zeros(2 * n)]))
-        self._record = self.DeclareDiscreteState(4 + n + (n if self._qd else 0))
-        self.DeclarePeriodicDiscreteUpdateEvent(time_step, 0.0, self._update)
+        self._width = 4 + n + (n if self._qd else 0)
+        self._record = self.DeclareDiscreteState(self.block_steps * self._width)
+        self.DeclarePeriodicDiscreteUpdateEvent(self.block_steps * self.time_step,
+                                                block_update_offset(self.block_steps, self.time_step, start_time),
+                                                self._update)
         self.DeclareStateOutputPort("record", self._record)
 
     def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
-        c, n = self.config, self.n
-        t = context.get_time()
+        c, n, b = self.config, self.n, self.block_steps
+        width, first = self._row
+        blk = self._samples.Eval(context).reshape(b, width)[:, first:first + n + 3]
+        k, t = block_times(context.get_time(), b, self.time_step, self.start_time)
         inner = context.get_discrete_state(self._inner).value()
-        i = int(inner[0])
-        if i >= self.steps.size or self.steps[i] != int(round((t - self.start_time) / self.time_step)):
-            discrete_state.get_mutable_vector(self._record).SetAtIndex(0, 0.0)        # no sample at this step
-            return
-        q = self._q.Eval(context)
-        covered = i <= inner[1]
-        pos = inner[2] + 1.0 if covered else -1.0
-        lost = covered and pos < c.dropout_max_samples and 0 < i < self.steps.size - 1
-        pending = inner[1]
-        if c.dropout_prob > 0:
-            u = self._draws.Eval(context)
-            if u[0] < c.dropout_prob:
-                pending = max(pending, i + 1 + int(u[1] * c.dropout_max_samples))
-        stamp = t
+        first, pending, pos = int(inner[0]), inner[1], inner[2]
+        idx = np.minimum(np.searchsorted(self.steps, k), self.steps.size - 1)
+        taken = self.steps[idx] == k
+        i = idx[taken]                                              # sample indices, first, first + 1, ...
+        q, u, z = blk[taken, :n], blk[taken, n:n + 2], blk[taken, n + 2]
+        # lost samples: bursts started after sample i cover i + 1 ... i + L, L = 1 + ⌊u·max⌋
+        cover = np.where(u[:, 0] < c.dropout_prob, i + 1 + (u[:, 1] * c.dropout_max_samples).astype(int), -1)
+        before = np.maximum(pending, np.concatenate([[-1], np.maximum.accumulate(cover)[:-1]]))
+        covered = i <= before
+        count = np.arange(i.size)
+        last_free = np.maximum.accumulate(np.where(~covered, count, -(pos + 2.0)))
+        run_pos = np.where(covered, count - last_free - 1, -1.0)     # position in the run of covered samples
+        lost = covered & (run_pos < c.dropout_max_samples) & (i > 0) & (i < self.steps.size - 1)
+        stamps = t[taken].copy()
         if c.stamp_jitter_ms > 0:
             sigma = 1e-3 * c.stamp_jitter_ms
-            stamp += float(np.clip(sigma * self._jitter.Eval(context)[0], -3 * sigma, 3 * sigma))
-        record = [np.array([1.0, 0.0 if lost else 1.0, stamp, t]), q]
-        z = inner[3 + n:]
-        if self._qd:
-            dq = (q - inner[3:3 + n]) * c.rate_hz if i > 0 else np.zeros(n)
-            y = self._b0 * dq + z
-            z = self._b1 * dq - self._a1 * y
-            record.append(y)
-        discrete_state.set_value(self._inner, np.concatenate([[i + 1.0, pending, pos], q, z]))
-        discrete_state.set_value(self._record, np.concatenate(record))
+            stamps += np.clip(sigma * z, -3 * sigma, 3 * sigma)
+        record = np.zeros((b, self._width))
+        record[taken, 0], record[taken, 1], record[taken, 2], record[taken, 3] = 1.0, ~lost, stamps, t[taken]
+        record[taken, 4:4 + n] = q
+        q_prev, zf = inner[3:3 + n], inner[3 + n:]
+        if i.size:
+            if self._qd:                                             # backward difference, first-order low-pass
+                dq = np.diff(q, axis=0, prepend=(q[:1] if first == 0 else q_prev[None])) * c.rate_hz
+                y, zf = scipy.signal.lfilter(*self._ba, dq, axis=0, zi=zf[None])
+                record[taken, 4 + n:] = y
+                zf = zf[0]
+            q_prev = q[-1]
+            pending = max(pending, float(cover.max()))
+            pos = run_pos[-1]
+        discrete_state.set_value(self._inner, np.concatenate([[first + i.size, pending, pos], q_prev, zf]))
+        discrete_state.set_value(self._record, record.ravel())

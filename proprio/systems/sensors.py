@@ -4,11 +4,12 @@ Each model is the effect library's laws (:mod:`proprio.effects`), in two forms t
 
 * :class:`TorqueSensor` — the batch form over a whole motion ``[N, n]`` (the diagnosis' model
   :meth:`proprio.diagnosis.data.SimModel.predict_parts`, the offline gap benchmark);
-* :class:`TorqueSensorSystem` (added by :func:`AddTorqueSensor`) and the encoder Diagram of :func:`AddEncoder` —
-  the Drake Systems of the twin's Diagram (``proprio.diagrams.twin``), one sample per time step. The torque sensor
-  keeps the state of the reversal-dependent effects (hysteresis, lost motion: :meth:`~proprio.effects.Hysteresis.step`)
-  as discrete state and evaluates the memoryless ones (ripple, offset/gain, drift, plugins) by their ``torque`` on
-  the one sample; the white noise comes from Drake's C++ ``RandomSource`` (seeded with the Diagram's random
+* :class:`TorqueSensorSystem` and the encoder Diagram of :func:`AddEncoder` —
+  the Drake Systems of the twin's Diagram (``proprio.diagrams.twin``). The torque sensor keeps the scan state of
+  the reversal-dependent effects (hysteresis, lost motion: :meth:`~proprio.effects.Hysteresis.scan`) as discrete
+  state and takes the time steps in blocks (:func:`AddSampleBank`: a C++ shift register collects them, one Python
+  update per block instead of per step), evaluating the memoryless effects (ripple, offset/gain, drift, plugins) by their
+  ``torque`` on the block; the white noise comes from Drake's C++ ``RandomSource`` (seeded with the Diagram's random
   context) through :meth:`~proprio.effects.TorqueNoise.from_normal`. The encoder is
   :meth:`~proprio.effects.EncoderNoise.reading` in Drake's C++ primitives (``RandomSource``, ``Gain``, ``Adder``,
   ``WrapToSystem``). Tests: the System's output equals the batch form on the same inputs to 1e-12 N·m.
@@ -17,21 +18,26 @@ Torque sensor chain (thesis §2.1): ``τ_meas = (1 + g)·(τ_J + τ_hyst + τ_lo
 i.e. the strain-gauge effects act on the transmitted τ_J, the gain/offset error on everything the gauge sees, a
 drifting offset ``o_d`` (``offset_drift``, on the session clock ``MotionSignals.t``) adds to it, and white noise is
 added last. Sensor-side plugins (:mod:`proprio.effects.plugins`) act with the strain-gauge effects, after the
-library's, on the transmitted τ_J (``s.tau``); in the twin they are evaluated one sample at a time (a sensor-side
-plugin is a function of the current sample: t, q, q̇, q̈, τ_J). Every contribution is returned separately (the
+library's, on the transmitted τ_J (``s.tau``); in the twin they are evaluated block by block (a sensor-side plugin
+is a function of each sample's t, q, q̇, q̈, τ_J, not of the samples before it). Every contribution is returned separately (the
 twin's ``tau_<effect>`` truth channels).
 """
 from __future__ import annotations
 
-import numpy as np
-from pydrake.common import RandomDistribution
-from pydrake.systems.framework import Context, Diagram, DiagramBuilder, DiscreteValues, LeafSystem
-from pydrake.systems.primitives import Adder, Demultiplexer, Gain, MatrixGain, RandomSource, WrapToSystem
+from typing import Callable
 
-from proprio.effects import (EncoderNoise, JointEffect, OffsetDrift, SensorOffsetGain, TorqueNoise)
+import numpy as np
+import scipy.sparse
+from pydrake.common import RandomDistribution
+from pydrake.systems.framework import Context, Diagram, DiagramBuilder, DiscreteValues, LeafSystem, OutputPort
+from pydrake.systems.primitives import (Adder, Demultiplexer, Gain, MatrixGain, Multiplexer, RandomSource,
+                                        SparseMatrixGain, WrapToSystem, ZeroOrderHold)
+
+from proprio.effects import EncoderNoise, JointEffect, OffsetDrift, SensorOffsetGain, TorqueNoise
 from proprio.signals import MotionSignals
 
-__all__ = ["TorqueSensor", "TorqueSensorSystem", "AddTorqueSensor", "AddEncoder"]
+__all__ = ["TorqueSensor", "TorqueSensorSystem", "AddEncoder", "AddSampleBank", "block_update_offset",
+           "block_times"]
 
 _GAUGE_ORDER = ("hysteresis", "lost_motion", "ripple")
 _SENSOR_LIBRARY = ("sensor_offset_gain", "offset_drift", "torque_noise")   # library sensor effects past the gauge
@@ -80,90 +86,126 @@ class TorqueSensor:
         return seen, parts
 
 
+def AddSampleBank(builder: DiagramBuilder, ports: list[OutputPort], block_steps: int, time_step: float,
+                  name: str = "sample_bank") -> tuple[OutputPort, int]:
+    """Add a shift register of C++ systems that keeps the last ``block_steps`` samples of ``ports``: a
+    ``ZeroOrderHold`` (period ``time_step``, offset 0: it samples at the discrete plant's own instants, seeing what
+    the plant sees) of ``[B·m]`` fed with ``[its own rows 2 … B; the new sample]`` by a ``SparseMatrixGain``. Between
+    the time steps ``k`` and ``k + 1`` its output holds the samples of steps ``k − B + 1 … k``, oldest first (each
+    ``[m]`` = the ports concatenated). A block System (:func:`block_update_offset`) reads it once per B steps.
+    Returns ``(output port, m)``."""
+    m = sum(port.size() for port in ports)
+    size = block_steps * m
+    sample = builder.AddSystem(Multiplexer([port.size() for port in ports]))
+    sample.set_name(f"{name}_sample")
+    for k, port in enumerate(ports):
+        builder.Connect(port, sample.get_input_port(k))
+    cat = builder.AddSystem(Multiplexer([size, m]))
+    shift = builder.AddSystem(SparseMatrixGain(scipy.sparse.eye(size, size + m, k=m, format="csc")))
+    hold = builder.AddSystem(ZeroOrderHold(time_step, size))
+    hold.set_name(name)
+    builder.Connect(hold.get_output_port(), cat.get_input_port(0))
+    builder.Connect(sample.get_output_port(), cat.get_input_port(1))
+    builder.Connect(cat.get_output_port(), shift.get_input_port())
+    builder.Connect(shift.get_output_port(), hold.get_input_port())
+    return hold.get_output_port(), m
+
+
+def block_update_offset(block_steps: int, time_step: float, start_time: float = 0.0) -> float:
+    """Offset [s] of the periodic update (period ``block_steps·time_step``) of a System reading an
+    :func:`AddSampleBank`: half a step after each block's last step (between the plant's instants, so it never
+    ties with them)."""
+    return start_time + (block_steps - 0.5) * time_step
+
+
+def block_times(context_time: float, block_steps: int, time_step: float, start_time: float = 0.0
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """``(step indices, times [s])`` of the block a System reading an :func:`AddSampleBank` sees at
+    ``context_time``."""
+    last = int(round((context_time - start_time) / time_step - 0.5))
+    steps = last - block_steps + 1 + np.arange(block_steps)
+    return steps, start_time + steps * time_step
+
+
 class TorqueSensorSystem(LeafSystem):
     """The twin's joint torque sensor for ``n`` joints: every sensor-side effect of ``effects`` (not the encoder's),
-    one sample every ``time_step`` [s] (module docstring).
+    on blocks of ``block_steps`` time steps of ``time_step`` [s] from ``start_time`` [s] (module docstring).
 
-    Input ports: ``tau_J`` [n] N·m (true transmitted torque), ``link_state`` [2n] = [q; q̇] (rad, rad/s), ``qdd`` [n]
-    rad/s², ``noise`` [n] (standard-normal draws, e.g. a ``RandomSource``). Output ports (sample and hold: the
-    sample taken at the last update, i.e. the previous time step): ``tau_measured`` [n] N·m and ``record``
-    [(2 + k)·n] = [τ_meas; τ_J; the contribution of each of the k effects in :attr:`names` order] N·m. Discrete
-    state: the per-step state of the stateful effects (:meth:`~proprio.effects.Hysteresis.step`). The effects see
-    the session clock ``context time + session_time_s`` [s].
+    Input port ``samples`` [B·5n] (or [B·w] with ``row = (w, offset)``: its part starts at ``offset`` of each time
+    step's row of ``w``): per time step ``[a; q; q̇; q̈; z]`` — ``a`` the transmitted torque τ_J [N·m] (or,
+    with ``transmission``, what ``transmission(a, t, q, q̇, q̈)`` turns into τ_J, e.g. the plant's net actuation and
+    :meth:`proprio.systems.joint_drive.JointDrive.sensed_torque`), link q [rad], q̇ [rad/s], q̈ [rad/s²], ``z``
+    standard-normal draws for the noise — as :func:`AddSampleBank` hands them over. Output port ``record``
+    [B·(2 + k)·n], per time step ``[τ_meas; τ_J; the contribution of each of the k effects in :attr:`names` order]``
+    N·m, for the block the last update took in. Discrete state: the scan state of the reversal-dependent effects
+    (:meth:`~proprio.effects.Hysteresis.scan`), started at rest at the first sample. The effects see the session clock
+    ``t + session_time_s`` [s].
     """
 
-    def __init__(self, n: int, effects: list[JointEffect], time_step: float = 1e-3, session_time_s: float = 0.0):
+    def __init__(self, n: int, effects: list[JointEffect], time_step: float = 1e-3, block_steps: int = 1,
+                 session_time_s: float = 0.0, start_time: float = 0.0,
+                 transmission: Callable[..., np.ndarray] | None = None, row: tuple[int, int] | None = None):
         super().__init__()
         sensor = TorqueSensor([e for e in effects if e.place == "sensor" and not isinstance(e, EncoderNoise)])
-        self.n = n
-        self.sensor = sensor
+        self.n, self.sensor, self.block_steps = n, sensor, int(block_steps)
+        self.time_step, self.session_time_s, self.start_time = float(time_step), float(session_time_s), start_time
+        self.transmission = transmission
         self.names = [e.name for e in sensor.effects]
-        self.session_time_s = float(session_time_s)
-        self._stateful = [hasattr(e, "step") for e in sensor.gauge]
+        self._stateful = [hasattr(e, "scan") for e in sensor.gauge]
         sizes = [e.state_size * n if st else 0 for e, st in zip(sensor.gauge, self._stateful)]
-        self._slices = [slice(a, a + b) for a, b in zip(np.cumsum([0] + sizes[:-1]), sizes)]
-        self._tau = self.DeclareVectorInputPort("tau_J", n)
-        self._x = self.DeclareVectorInputPort("link_state", 2 * n)
-        self._qdd = self.DeclareVectorInputPort("qdd", n)
-        self._z = self.DeclareVectorInputPort("noise", n)
-        self._effect_state = self.DeclareDiscreteState(max(sum(sizes), 1))
-        self._measured = self.DeclareDiscreteState(n)
-        self._record = self.DeclareDiscreteState((2 + len(self.names)) * n)
-        self.DeclarePeriodicDiscreteUpdateEvent(time_step, 0.0, self._update)
-        self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
-        self.DeclareStateOutputPort("tau_measured", self._measured)
+        self._slices = [slice(int(a), int(a + b)) for a, b in zip(np.cumsum([0] + sizes[:-1]), sizes)]
+        self._row = row or (5 * n, 0)                                  # (width of a time step's row, offset)
+        self._samples = self.DeclareVectorInputPort("samples", self.block_steps * self._row[0])
+        self._state = self.DeclareDiscreteState(sum(sizes) + 1)          # + started flag
+        self._record = self.DeclareDiscreteState(self.block_steps * (2 + len(self.names)) * n)
+        self.DeclarePeriodicDiscreteUpdateEvent(self.block_steps * self.time_step,
+                                                block_update_offset(self.block_steps, self.time_step, start_time),
+                                                self._update)
         self.DeclareStateOutputPort("record", self._record)
 
-    def _inputs(self, context: Context) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        x = self._x.Eval(context)
-        return x[:self.n], x[self.n:], self._tau.Eval(context)
-
-    def _initialize(self, context: Context, discrete_state: DiscreteValues) -> None:
-        q, qd, tau = self._inputs(context)
-        x = np.zeros(discrete_state.get_vector(self._effect_state).size())
-        for eff, st, sl in zip(self.sensor.gauge, self._stateful, self._slices):
-            if st:
-                x[sl] = eff.initial_state(q, qd, tau)
-        discrete_state.set_value(self._effect_state, x)
-
-    def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
-        q, qd, tau = self._inputs(context)
-        x = context.get_discrete_state(self._effect_state).value().copy()
-        s = MotionSignals(np.array([context.get_time() + self.session_time_s]), q[None], qd[None],
-                          self._qdd.Eval(context)[None], tau[None])
+    def measure_block(self, x: np.ndarray, s: MotionSignals, tau_j: np.ndarray, z: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+        """One block: from state ``x`` (empty or started) and samples ``s`` ``[B, n]`` with τ_J and noise draws
+        ``z``, return ``(state after, τ_meas [B, n], contributions)``; the same laws, in the same order, as
+        :meth:`TorqueSensor.measure`."""
+        x = x.copy()
+        if x[-1] == 0:                                               # first block: start at rest at sample 0
+            for eff, st, sl in zip(self.sensor.gauge, self._stateful, self._slices):
+                if st:
+                    x[sl] = eff.initial_state(s.q[0], s.qd[0], tau_j[0])
+            x[-1] = 1.0
+        s = s.with_tau(tau_j)
         sensor, parts = self.sensor, []
-        seen = tau.copy()
+        seen = tau_j.copy()
         for eff, st, sl in zip(sensor.gauge, self._stateful, self._slices):
             if st:
-                x[sl], c = eff.step(x[sl], q, qd, tau)
+                x[sl], c = eff.scan(x[sl], s.q, s.qd, tau_j)
             else:
-                c = eff.torque(s)[0]
+                c = eff.torque(s)
             parts.append(c)
             seen = seen + c
         if sensor.offset_gain is not None:
-            parts.append(sensor.offset_gain.torque(s.with_tau(seen[None]))[0])
+            parts.append(sensor.offset_gain.torque(s.with_tau(seen)))
             seen = seen + parts[-1]
         if sensor.drift is not None:
-            parts.append(sensor.drift.torque(s)[0])
+            parts.append(sensor.drift.torque(s))
             seen = seen + parts[-1]
         if sensor.noise is not None:
-            parts.append(sensor.noise.from_normal(self._z.Eval(context)))
+            parts.append(sensor.noise.from_normal(z))
             seen = seen + parts[-1]
-        discrete_state.set_value(self._effect_state, x)
-        discrete_state.set_value(self._measured, seen)
-        discrete_state.set_value(self._record, np.concatenate([seen, tau, *parts]))
+        return x, seen, parts
 
-
-def AddTorqueSensor(builder: DiagramBuilder, n: int, effects: list[JointEffect], time_step: float = 1e-3,
-                    session_time_s: float = 0.0, name: str = "torque_sensor") -> TorqueSensorSystem:
-    """Add a :class:`TorqueSensorSystem` and Drake's C++ ``RandomSource`` (Gaussian, one draw per ``time_step``)
-    feeding its ``noise`` port (seed: ``diagram.SetRandomContext(context, RandomGenerator(seed))``)."""
-    sensor = builder.AddSystem(TorqueSensorSystem(n, effects, time_step, session_time_s))
-    sensor.set_name(name)
-    source = builder.AddSystem(RandomSource(RandomDistribution.kGaussian, n, time_step))
-    source.set_name(f"{name}_noise")
-    builder.Connect(source.get_output_port(0), sensor.GetInputPort("noise"))
-    return sensor
+    def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
+        n, b = self.n, self.block_steps
+        width, first = self._row
+        blk = self._samples.Eval(context).reshape(b, width)[:, first:first + 5 * n]
+        a, q, qd, qdd, z = (blk[:, k * n:(k + 1) * n] for k in range(5))
+        _, t = block_times(context.get_time(), b, self.time_step, self.start_time)
+        tau_j = a if self.transmission is None else self.transmission(a, t, q, qd, qdd)
+        s = MotionSignals(t + self.session_time_s, q, qd, qdd)
+        x, seen, parts = self.measure_block(context.get_discrete_state(self._state).value(), s, tau_j, z)
+        discrete_state.set_value(self._state, x)
+        discrete_state.set_value(self._record, np.hstack([seen, tau_j, *parts]).ravel())
 
 
 def AddEncoder(builder: DiagramBuilder, n: int, encoder: EncoderNoise | None, time_step: float = 1e-3,
