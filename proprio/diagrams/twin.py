@@ -63,12 +63,11 @@ from typing import Any
 
 import numpy as np
 import yaml
-from pydrake.common import RandomDistribution, RandomGenerator
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.controllers import InverseDynamicsController
 from pydrake.systems.framework import Diagram, DiagramBuilder
-from pydrake.systems.primitives import Demultiplexer, Multiplexer, RandomSource, VectorLogSink, ZeroOrderHold
+from pydrake.systems.primitives import Demultiplexer, Multiplexer, VectorLogSink, ZeroOrderHold
 from pydrake.trajectories import PiecewisePolynomial, Trajectory
 from tqdm import tqdm
 
@@ -84,8 +83,7 @@ from proprio.systems.joint_drive import (
 from proprio.effects import Elasticity, EncoderNoise, JointEffect, Motor, effect_key, make_effects
 from proprio.signals import MotionSignals
 from proprio.systems.robot_logger import LoggerConfig, RobotLoggerSystem
-from proprio.systems.sensors import (AddEncoder, AddSampleBank, TorqueSensor, TorqueSensorSystem,
-                                    block_update_offset)
+from proprio.systems.sensors import AddSampleBank, EncoderSystem, TorqueSensor, TorqueSensorSystem
 from proprio.systems.trajectories import AddTrajectorySource, sample_trajectory
 
 __all__ = ["TwinConfig", "TwinConfigError", "load_twin_config", "merge_twin_patch", "PATCH_KEYS", "TwinDiagram",
@@ -328,8 +326,8 @@ class TwinDynamics:
     instance: Any                  # the robot's model instance in ``plant``
 
 
-BLOCK_STEPS = 50
-"""Time steps the twin's measurement chain takes in per update (its sample bank; 50 ms at 1 kHz)."""
+BLOCK_STEPS = 100
+"""Time steps the twin's measurement chain takes in per update (its sample bank; 100 ms at 1 kHz)."""
 
 
 @dataclass
@@ -341,7 +339,7 @@ class TwinDiagram:
     diagram: Diagram
     dynamics: TwinDynamics
     torque_sensor: TorqueSensorSystem
-    encoder: Diagram
+    encoder: EncoderSystem
     robot_logger: RobotLoggerSystem
     log: VectorLogSink
     layout: dict[str, slice]
@@ -418,59 +416,50 @@ def _n_steps(trajectory: Trajectory, time_step: float) -> int:
 
 def build_twin_diagram(config: TwinConfig, trajectory: Trajectory) -> TwinDiagram:
     """Wire the twin for ``trajectory`` (joint positions vs. time; velocity/acceleration by differentiation): the
-    dynamics (:func:`AddTwinDynamics`), the ``encoder`` (:func:`AddEncoder`, C++), and the measurement chain on
-    blocks of :data:`BLOCK_STEPS` time steps handed over by a bank of C++ holds (:func:`AddSampleBank`):
-    ``torque_sensor`` (:class:`TorqueSensorSystem`: the drive's τ_J law on the plant's net actuation and motion, then
-    every sensor-side effect incl. plugins, C++ ``RandomSource`` noise) and ``robot_logger``
-    (:class:`RobotLoggerSystem`: rate, lost samples, stamps, the robot's own q̇); one ``VectorLogSink`` (``log``)
-    records them with the held true motion.
+    dynamics (:func:`AddTwinDynamics`), then the measurement chain on blocks of :data:`BLOCK_STEPS` time steps that a
+    C++ shift register keeps (:func:`AddSampleBank`): ``torque_sensor`` (:class:`TorqueSensorSystem`: the drive's τ_J
+    law on the plant's net actuation and motion, then every sensor-side effect incl. plugins) and ``encoder``
+    (:class:`EncoderSystem`) feed ``robot_logger`` (:class:`RobotLoggerSystem`: rate, lost samples, stamps, the
+    robot's own q̇); one ``VectorLogSink`` (``log``) records them with the held true motion. Seeded by ``config.seed``.
 
     Raises ``ValueError`` when the friction or the elasticity is too stiff for the time step on this trajectory.
     """
-    n, dt, t0 = config.robot.n, config.time_step, trajectory.start_time()
+    n, dt, t0, b = config.robot.n, config.time_step, trajectory.start_time(), BLOCK_STEPS
     builder = DiagramBuilder()
     dyn = AddTwinDynamics(builder, config, trajectory)
     plant, drive, instance = dyn.plant, dyn.drive, dyn.instance
-    state = plant.get_state_output_port(instance)
     split = builder.AddSystem(Demultiplexer([n, n]))
     split.set_name("link_state")
-    builder.Connect(state, split.get_input_port())
-    encoder = AddEncoder(builder, n, next((e for e in config.effects if isinstance(e, EncoderNoise)), None), dt)
-    builder.Connect(state, encoder.GetInputPort("link_state"))
-    noise = builder.AddSystem(RandomSource(RandomDistribution.kGaussian, n, dt))
-    noise.set_name("torque_sensor_noise")
-    draws = []
-    for port, dist, size in (("loss", RandomDistribution.kUniform, 2), ("stamp", RandomDistribution.kGaussian, 1)):
-        source = builder.AddSystem(RandomSource(dist, size, dt))
-        source.set_name(f"robot_logger_{port}")
-        draws.append(source.get_output_port(0))
-    # one time step's row: the torque sensor's [a; q; q̇; q̈; z], the logger's [q_meas; draws], (θ; θ̇)
-    sensor_in = [plant.get_net_actuation_output_port(instance), split.get_output_port(0), split.get_output_port(1),
-                 plant.get_generalized_acceleration_output_port(instance), noise.get_output_port(0)]
-    logger_in = [encoder.GetOutputPort("q_measured"), *draws]
-    motor = [drive.GetOutputPort("motor_state")] if drive.elasticity is not None else []
-    bank, width = AddSampleBank(builder, sensor_in + logger_in + motor, BLOCK_STEPS, dt)
-    sensor = builder.AddSystem(TorqueSensorSystem(n, config.effects, dt, BLOCK_STEPS, config.session_time_s, t0,
+    builder.Connect(plant.get_state_output_port(instance), split.get_input_port())
+    # one time step's row: [net actuation; q; q̇; q̈ (; θ; θ̇)]
+    row = [plant.get_net_actuation_output_port(instance), split.get_output_port(0), split.get_output_port(1),
+           plant.get_generalized_acceleration_output_port(instance)]
+    row += [drive.GetOutputPort("motor_state")] if drive.elasticity is not None else []
+    bank, width = AddSampleBank(builder, row, b, dt)
+    sensor = builder.AddSystem(TorqueSensorSystem(n, config.effects, dt, b, config.session_time_s, t0, config.seed,
                                                   drive.sensed_torque, (width, 0)))
     sensor.set_name("torque_sensor")
+    encoder_effect = next((e for e in config.effects if isinstance(e, EncoderNoise)), None)
+    encoder = builder.AddSystem(EncoderSystem(n, encoder_effect, dt, b, t0, config.seed, (width, n)))
+    encoder.set_name("encoder")
     n_steps = _n_steps(trajectory, dt)
-    logger = builder.AddSystem(RobotLoggerSystem(n, config.logger, dt, n_steps, t0, BLOCK_STEPS, (width, 5 * n)))
+    logger = builder.AddSystem(RobotLoggerSystem(n, config.logger, dt, n_steps, t0, b, config.seed))
     logger.set_name("robot_logger")
-    builder.Connect(bank, sensor.GetInputPort("samples"))
-    builder.Connect(bank, logger.GetInputPort("samples"))
-    hold = builder.AddSystem(ZeroOrderHold(BLOCK_STEPS * dt, BLOCK_STEPS * width, block_update_offset(BLOCK_STEPS, dt, t0)))
-    hold.set_name("samples_hold")                   # the block the sensor and the logger took in at the last update
-    builder.Connect(bank, hold.get_input_port())
+    hold = builder.AddSystem(ZeroOrderHold(b * dt, b * width, t0 + (b - 0.5) * dt))
+    hold.set_name("samples_hold")                   # the block the sensors took in at their last update
+    for port in (sensor.GetInputPort("samples"), encoder.GetInputPort("samples"), hold.get_input_port()):
+        builder.Connect(bank, port)
+    builder.Connect(encoder.GetOutputPort("q_measured"), logger.GetInputPort("q_measured"))
+    builder.Connect(sensor.GetOutputPort("tau_measured"), logger.GetInputPort("tau_measured"))
 
     recorded = [logger.GetOutputPort("record"), sensor.GetOutputPort("record"), hold.get_output_port()]
     mux = builder.AddSystem(Multiplexer([port.size() for port in recorded]))
     for k, port in enumerate(recorded):
         builder.Connect(port, mux.get_input_port(k))
-    log = builder.AddSystem(VectorLogSink(mux.get_output_port().size(), BLOCK_STEPS * dt))
+    log = builder.AddSystem(VectorLogSink(mux.get_output_port().size(), b * dt))
     log.set_name("log")
     builder.Connect(mux.get_output_port(), log.get_input_port())
-    sizes = [port.size() // BLOCK_STEPS for port in recorded]
-    edges = np.cumsum([0] + sizes)
+    edges = np.cumsum([0] + [port.size() // b for port in recorded])
     layout = {key: slice(int(a), int(b)) for key, a, b in zip(("logger", "sensor", "samples"), edges[:-1], edges[1:])}
     diagram = builder.Build()
     diagram.set_name(f"twin:{config.name}")
@@ -528,7 +517,7 @@ def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload |
     ``payload`` overrides the config's payload. Raises :class:`TwinConfigError` before simulating when the
     trajectory leaves the joint limits or the friction is too stiff for the time step. The Diagram of
     :func:`build_twin_diagram` runs in ``chunk_s`` pieces (progress bar with the real-time factor); its random
-    sources are seeded with ``config.seed``; only the samples its robot logger took are kept.
+    draws are seeded with ``config.seed``; only the samples its robot logger took are kept.
     """
     if payload is not None:
         config = config.with_payload(payload)
@@ -539,7 +528,6 @@ def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload |
 
     sim = Simulator(twin.diagram)
     ctx = sim.get_mutable_context()
-    twin.diagram.SetRandomContext(ctx, RandomGenerator(config.seed))
     ctx.SetTime(t0)
     pctx = twin.plant.GetMyMutableContextFromRoot(ctx)
     q0 = trajectory.value(t0).ravel()
@@ -595,7 +583,7 @@ def _to_recording(config: TwinConfig, layout: dict[str, slice], rows: np.ndarray
     k = lg[:, 1] > 0.5
     lg, sens, held = lg[k], sens[k], held[k]
     stamps, t = lg[:, 2], lg[:, 3]
-    q, qd, qdd = held[:, n:2 * n], held[:, 2 * n:3 * n], held[:, 3 * n:4 * n]
+    q, qd, qdd = held[:, n:2 * n], held[:, 2 * n:3 * n], held[:, 3 * n:4 * n]      # [u; q; q̇; q̈ (; θ; θ̇)]
     truth: dict[str, np.ndarray] = {}
     truth["tau_rbd"] = _in_batches(inverse_dynamics, attach_payload(desc, config.payload), q, qd, qdd)
     # link-side effects act with q̈ = 0, on the session clock (JointDrive.link_torque)
@@ -608,16 +596,16 @@ def _to_recording(config: TwinConfig, layout: dict[str, slice], rows: np.ndarray
     sensor_order = TorqueSensor([e for e in config.effects if e.name in names]).effects
     truth.update({f"tau_{e.name}": sens[:, (2 + i) * n:(3 + i) * n] for i, e in enumerate(sensor_order)})
     truth.update(q_true=q, qd=qd, qdd=qdd, t_true=t - stamps[0])
-    if held.shape[1] > 6 * n + 3:                      # elastic drive: θ, θ̇ (what a motor-side sensor reads)
-        truth["q_motor"], truth["qd_motor"] = held[:, 6 * n + 3:7 * n + 3], held[:, 7 * n + 3:8 * n + 3]
+    if held.shape[1] > 4 * n:                          # elastic drive: θ, θ̇ (what a motor-side sensor reads)
+        truth["q_motor"], truth["qd_motor"] = held[:, 4 * n:5 * n], held[:, 5 * n:6 * n]
     f_ext = _in_batches(lambda d, *x: payload_wrench(d, config.payload, *x), desc, q, qd, qdd)
     span = float(rows[-1, layout["logger"].start + 3] - rows[0, layout["logger"].start + 3])
     meta = {**config.meta(), "rate_hz": config.logger.rate_hz, "source": "twin",
             "channels": list(config.logger.channels), "samples_lost": int(rows.shape[0] - lg.shape[0]),
             "sim_wall_s": round(wall_s, 3), "sim_cpu_s": round(cpu_s, 3),
             "real_time_factor": round(span / max(wall_s, 1e-9), 2)}
-    qd_robot = lg[:, 4 + n:4 + 2 * n] if "qd" in config.logger.channels else None
-    return Recording(t=stamps - stamps[0], q=lg[:, 4:4 + n], tau=sens[:, :n], qd=qd_robot, f_ext=f_ext,
+    qd_robot = lg[:, 4 + 2 * n:4 + 3 * n] if "qd" in config.logger.channels else None
+    return Recording(t=stamps - stamps[0], q=lg[:, 4:4 + n], tau=lg[:, 4 + n:4 + 2 * n], qd=qd_robot, f_ext=f_ext,
                      truth=truth, meta=json.loads(json.dumps(meta)))
 
 

@@ -111,13 +111,9 @@ class EncoderNoise(JointEffect):
         return self.reading(q, rng.standard_normal(q.shape))
 
     def reading(self, q: np.ndarray, z: np.ndarray) -> np.ndarray:
-        """The law: ``x = q + std·z`` for standard-normal draws ``z``, then ``x − wrap(x)`` with ``wrap`` into
-        ``[−res/2, res/2)`` (= ``res·floor(x/res + 1/2)``; no quantisation where ``res = 0``). The twin's encoder is
-        this law in Drake's C++ systems (``Gain``, ``Adder``, ``WrapToSystem``: :func:`proprio.systems.sensors.AddEncoder`)."""
-        x = q + z * self.std
+        """The law: ``q + std·z`` for standard-normal draws ``z`` (``[..., n]``), quantised to ``resolution`` (none
+        where it is 0). The batch form draws ``z`` from a numpy generator, the twin's encoder System
+        (:class:`proprio.systems.sensors.EncoderSystem`) block by block."""
+        q_meas = q + z * self.std
         res = self.resolution
-        step = np.where(res > 0, res, 1.0)
-        wrapped = x - step * np.floor((x + 0.5 * step) / step)
-        return x - np.where(res > 0, wrapped, 0.0)
-
-
+        return np.where(res > 0, np.round(q_meas / np.where(res > 0, res, 1.0)) * res, q_meas)

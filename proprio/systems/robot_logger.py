@@ -5,8 +5,8 @@ jitter and lost samples, the encoder ``q`` and the torque sensors' ``τ_J`` — 
 ``q̇``, never ``q̈``. The twin's exact ``q̇``, ``q̈`` and its true sampling instants go to ``truth__*`` channels only.
 
 The model (the ``logger:`` block of a twin config, :class:`LoggerConfig`) is the Drake System
-:class:`RobotLoggerSystem` in the twin's Diagram; it decides sample by sample, its random draws come from Drake's
-``RandomSource`` (seeded with the Diagram's random context):
+:class:`RobotLoggerSystem` in the twin's Diagram, the last stage of its measurement chain: it takes the encoder's q and
+the torque sensor's τ of each time step (in blocks) and decides sample by sample, seeded by the twin's seed:
 
 * **sampling** — the samples at ``rate_hz``: the time step nearest to each ``m / rate_hz`` (150 Hz → 6/7 ms steps
   like the iiwa; :func:`sample_steps`);
@@ -28,9 +28,9 @@ from typing import Any
 
 import numpy as np
 import scipy.signal
-from pydrake.systems.framework import Context, DiscreteValues, LeafSystem
+from pydrake.systems.framework import Context, DiscreteValues
 
-from proprio.systems.sensors import block_times, block_update_offset
+from proprio.systems.sensors import BlockSystem
 
 __all__ = ["LoggerConfig", "RobotLoggerSystem", "sample_steps"]
 
@@ -101,50 +101,46 @@ def sample_steps(n_steps: int, time_step: float, rate_hz: float) -> np.ndarray:
     return np.unique(np.minimum(np.round(t_want / time_step).astype(int), n_steps - 1))
 
 
-class RobotLoggerSystem(LeafSystem):
+class RobotLoggerSystem(BlockSystem):
     """The robot's logger (module docstring) for ``n`` joints on a twin of ``n_steps`` time steps of ``time_step``
-    [s] from ``start_time`` [s], taking the time steps in blocks of ``block_steps``.
+    [s] from ``start_time`` [s], block by block (:class:`~proprio.systems.sensors.BlockSystem`: it updates after the
+    sensors of the same block; its draws are stream 2 of ``seed``).
 
-    Input port ``samples`` [B·(n + 3)] (or [B·w] with ``row = (w, offset)``: its part starts at ``offset`` of each
-    time step's row of ``w``): per time step ``[q_measured [n] rad (the encoder); u_loss, u_burst (uniform
-    on [0, 1)); z_stamp (standard normal)]``, as :func:`proprio.systems.sensors.AddSampleBank` keeps them. Output
-    port ``record`` [B·(4 + n (+ n))]: per time step ``[taken, kept, stamp [s], t_true [s], q [n] (, q̇ [n] when the
-    robot reports it)]`` for the block the last update took in; ``taken`` = 1 when that step was a sample at
-    ``rate_hz``, ``kept`` = 1 when it was not lost. Discrete state: the next sample's index, the last sample a started
-    burst covers, the position of the last sample in a run of covered ones, the previous encoder q and the q̇
-    filter's state.
+    Input ports ``q_measured`` [B·n] rad (the encoder's block) and ``tau_measured`` [B·n] N·m (the torque sensor's).
+    Output port ``record`` [B·(4 + 2n (+ n))]: per time step ``[taken, kept, stamp [s], t_true [s], q [n], τ [n]
+    (, q̇ [n] when the robot reports it)]`` for the block the last update took in; ``taken`` = 1 when that step was a
+    sample at ``rate_hz``, ``kept`` = 1 when it was not lost. Discrete state: the next sample's index, the last
+    sample a started burst covers, the position of the last sample in a run of covered ones, the previous encoder q
+    and the q̇ filter's state.
     """
 
     def __init__(self, n: int, config: LoggerConfig, time_step: float, n_steps: int, start_time: float = 0.0,
-                 block_steps: int = 1, row: tuple[int, int] | None = None):
-        super().__init__()
-        self.n, self.config, self.time_step, self.start_time = n, config, float(time_step), float(start_time)
-        self.block_steps = int(block_steps)
+                 block_steps: int = 1, seed: int = 0):
+        super().__init__(block_steps, time_step, start_time, seed, stream=2, stage=0.25)
+        self.n, self.config = n, config
         self.steps = sample_steps(n_steps, time_step, config.rate_hz)
         self._qd = "qd" in config.channels
         if self._qd:
             self._ba = scipy.signal.butter(1, float(config.qd_filter_hz), fs=config.rate_hz)
-        self._row = row or (n + 3, 0)                                  # (width of a time step's row, offset)
-        self._samples = self.DeclareVectorInputPort("samples", self.block_steps * self._row[0])
+        self._q = self.DeclareVectorInputPort("q_measured", self.block_steps * n)
+        self._tau = self.DeclareVectorInputPort("tau_measured", self.block_steps * n)
         self._inner = self.DeclareDiscreteState(np.concatenate([[0.0, -1.0, -1.0], np.zeros(2 * n)]))
-        self._width = 4 + n + (n if self._qd else 0)
+        self._width = 4 + 2 * n + (n if self._qd else 0)
         self._record = self.DeclareDiscreteState(self.block_steps * self._width)
-        self.DeclarePeriodicDiscreteUpdateEvent(self.block_steps * self.time_step,
-                                                block_update_offset(self.block_steps, self.time_step, start_time),
-                                                self._update)
+        self.declare_block_update(self._update)
         self.DeclareStateOutputPort("record", self._record)
 
     def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
         c, n, b = self.config, self.n, self.block_steps
-        width, first = self._row
-        blk = self._samples.Eval(context).reshape(b, width)[:, first:first + n + 3]
-        k, t = block_times(context.get_time(), b, self.time_step, self.start_time)
+        k, t = self.block(context)
         inner = context.get_discrete_state(self._inner).value()
         first, pending, pos = int(inner[0]), inner[1], inner[2]
         idx = np.minimum(np.searchsorted(self.steps, k), self.steps.size - 1)
         taken = self.steps[idx] == k
         i = idx[taken]                                              # sample indices, first, first + 1, ...
-        q, u, z = blk[taken, :n], blk[taken, n:n + 2], blk[taken, n + 2]
+        rng = self.rng(k)
+        u, z = rng.random((b, 2))[taken], rng.standard_normal(b)[taken]
+        q = self._q.Eval(context).reshape(b, n)[taken]
         # lost samples: bursts started after sample i cover i + 1 ... i + L, L = 1 + ⌊u·max⌋
         cover = np.where(u[:, 0] < c.dropout_prob, i + 1 + (u[:, 1] * c.dropout_max_samples).astype(int), -1)
         before = np.maximum(pending, np.concatenate([[-1], np.maximum.accumulate(cover)[:-1]]))
@@ -160,12 +156,13 @@ class RobotLoggerSystem(LeafSystem):
         record = np.zeros((b, self._width))
         record[taken, 0], record[taken, 1], record[taken, 2], record[taken, 3] = 1.0, ~lost, stamps, t[taken]
         record[taken, 4:4 + n] = q
+        record[taken, 4 + n:4 + 2 * n] = self._tau.Eval(context).reshape(b, n)[taken]
         q_prev, zf = inner[3:3 + n], inner[3 + n:]
         if i.size:
             if self._qd:                                             # backward difference, first-order low-pass
                 dq = np.diff(q, axis=0, prepend=(q[:1] if first == 0 else q_prev[None])) * c.rate_hz
                 y, zf = scipy.signal.lfilter(*self._ba, dq, axis=0, zi=zf[None])
-                record[taken, 4 + n:] = y
+                record[taken, 4 + 2 * n:] = y
                 zf = zf[0]
             q_prev = q[-1]
             pending = max(pending, float(cover.max()))

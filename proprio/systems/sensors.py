@@ -4,15 +4,15 @@ Each model is the effect library's laws (:mod:`proprio.effects`), in two forms t
 
 * :class:`TorqueSensor` — the batch form over a whole motion ``[N, n]`` (the diagnosis' model
   :meth:`proprio.diagnosis.data.SimModel.predict_parts`, the offline gap benchmark);
-* :class:`TorqueSensorSystem` and the encoder Diagram of :func:`AddEncoder` —
-  the Drake Systems of the twin's Diagram (``proprio.diagrams.twin``). The torque sensor keeps the scan state of
-  the reversal-dependent effects (hysteresis, lost motion: :meth:`~proprio.effects.Hysteresis.scan`) as discrete
-  state and takes the time steps in blocks (:func:`AddSampleBank`: a C++ shift register collects them, one Python
-  update per block instead of per step), evaluating the memoryless effects (ripple, offset/gain, drift, plugins) by their
-  ``torque`` on the block; the white noise comes from Drake's C++ ``RandomSource`` (seeded with the Diagram's random
-  context) through :meth:`~proprio.effects.TorqueNoise.from_normal`. The encoder is
-  :meth:`~proprio.effects.EncoderNoise.reading` in Drake's C++ primitives (``RandomSource``, ``Gain``, ``Adder``,
-  ``WrapToSystem``). Tests: the System's output equals the batch form on the same inputs to 1e-12 N·m.
+* :class:`TorqueSensorSystem` and :class:`EncoderSystem` — Drake Systems of the twin's Diagram
+  (``proprio.diagrams.twin``). They take the time steps in blocks (:func:`AddSampleBank`: a C++ shift register keeps
+  them, so the Python update runs once per block, not per step — the twin stays ≥ 15× real time): the torque
+  sensor keeps the scan state of the reversal-dependent effects (hysteresis, lost motion:
+  :meth:`~proprio.effects.Hysteresis.scan`) as discrete state and evaluates the memoryless effects (ripple,
+  offset/gain, drift, plugins) by their ``torque`` on the block, the white noise through
+  :meth:`~proprio.effects.TorqueNoise.from_normal`; the encoder is :meth:`~proprio.effects.EncoderNoise.reading`.
+  Random draws are keyed on (seed, stream, block) (:class:`BlockSystem`). Tests: the System's output equals the
+  batch form on the same inputs to 1e-12 N·m.
 
 Torque sensor chain (thesis §2.1): ``τ_meas = (1 + g)·(τ_J + τ_hyst + τ_lost + τ_ripple) + o + o_d(t) + noise``,
 i.e. the strain-gauge effects act on the transmitted τ_J, the gain/offset error on everything the gauge sees, a
@@ -28,16 +28,14 @@ from typing import Callable
 
 import numpy as np
 import scipy.sparse
-from pydrake.common import RandomDistribution
-from pydrake.systems.framework import Context, Diagram, DiagramBuilder, DiscreteValues, LeafSystem, OutputPort
-from pydrake.systems.primitives import (Adder, Demultiplexer, Gain, MatrixGain, Multiplexer, RandomSource,
-                                        SparseMatrixGain, WrapToSystem, ZeroOrderHold)
+from pydrake.systems.framework import Context, DiagramBuilder, DiscreteValues, LeafSystem, OutputPort
+from pydrake.systems.primitives import Multiplexer, SparseMatrixGain, ZeroOrderHold
 
 from proprio.effects import EncoderNoise, JointEffect, OffsetDrift, SensorOffsetGain, TorqueNoise
+from proprio.reversals import reversal_scan
 from proprio.signals import MotionSignals
 
-__all__ = ["TorqueSensor", "TorqueSensorSystem", "AddEncoder", "AddSampleBank", "block_update_offset",
-           "block_times"]
+__all__ = ["TorqueSensor", "TorqueSensorSystem", "EncoderSystem", "BlockSystem", "AddSampleBank"]
 
 _GAUGE_ORDER = ("hysteresis", "lost_motion", "ripple")
 _SENSOR_LIBRARY = ("sensor_offset_gain", "offset_drift", "torque_noise")   # library sensor effects past the gauge
@@ -92,8 +90,7 @@ def AddSampleBank(builder: DiagramBuilder, ports: list[OutputPort], block_steps:
     ``ZeroOrderHold`` (period ``time_step``, offset 0: it samples at the discrete plant's own instants, seeing what
     the plant sees) of ``[B·m]`` fed with ``[its own rows 2 … B; the new sample]`` by a ``SparseMatrixGain``. Between
     the time steps ``k`` and ``k + 1`` its output holds the samples of steps ``k − B + 1 … k``, oldest first (each
-    ``[m]`` = the ports concatenated). A block System (:func:`block_update_offset`) reads it once per B steps.
-    Returns ``(output port, m)``."""
+    ``[m]`` = the ports concatenated). :class:`BlockSystem` s read it once per B steps. Returns ``(output port, m)``."""
     m = sum(port.size() for port in ports)
     size = block_steps * m
     sample = builder.AddSystem(Multiplexer([port.size() for port in ports]))
@@ -111,56 +108,68 @@ def AddSampleBank(builder: DiagramBuilder, ports: list[OutputPort], block_steps:
     return hold.get_output_port(), m
 
 
-def block_update_offset(block_steps: int, time_step: float, start_time: float = 0.0) -> float:
-    """Offset [s] of the periodic update (period ``block_steps·time_step``) of a System reading an
-    :func:`AddSampleBank`: half a step after each block's last step (between the plant's instants, so it never
-    ties with them)."""
-    return start_time + (block_steps - 0.5) * time_step
+class BlockSystem(LeafSystem):
+    """Base of the measurement chain's Systems: one discrete update per block of ``block_steps`` time steps of
+    ``time_step`` [s] from ``start_time`` [s], at ``stage`` steps before the block's end + 1 step (0 < stage < 1:
+    between the plant's instants, never tied with them; a smaller stage runs later, so it sees the block's other
+    stages' outputs). Random draws of a block come from a counter-based generator (Philox) keyed on (``seed``,
+    ``stream``) at the counter of the block's first step: a function of the seed and the block, no hidden state."""
+
+    def __init__(self, block_steps: int, time_step: float, start_time: float, seed: int, stream: int,
+                 stage: float = 0.5):
+        super().__init__()
+        self.block_steps, self.time_step, self.start_time = int(block_steps), float(time_step), float(start_time)
+        self.seed, self.stream, self.stage = int(seed), int(stream), float(stage)
+
+    def declare_block_update(self, update: Callable[[Context, DiscreteValues], None]) -> None:
+        self.DeclarePeriodicDiscreteUpdateEvent(self.block_steps * self.time_step,
+                                                self.start_time + (self.block_steps - self.stage) * self.time_step,
+                                                update)
+
+    def block(self, context: Context) -> tuple[np.ndarray, np.ndarray]:
+        """``(step indices [B], times [B] s)`` of the block this update takes in."""
+        last = int(round((context.get_time() - self.start_time) / self.time_step - (1.0 - self.stage)))
+        steps = last - self.block_steps + 1 + np.arange(self.block_steps)
+        return steps, self.start_time + steps * self.time_step
+
+    def rng(self, steps: np.ndarray) -> np.random.Generator:
+        """The generator of the block starting at step ``steps[0]``."""
+        return np.random.Generator(np.random.Philox(key=[self.seed, self.stream], counter=[int(steps[0]), 0, 0, 0]))
 
 
-def block_times(context_time: float, block_steps: int, time_step: float, start_time: float = 0.0
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """``(step indices, times [s])`` of the block a System reading an :func:`AddSampleBank` sees at
-    ``context_time``."""
-    last = int(round((context_time - start_time) / time_step - 0.5))
-    steps = last - block_steps + 1 + np.arange(block_steps)
-    return steps, start_time + steps * time_step
-
-
-class TorqueSensorSystem(LeafSystem):
+class TorqueSensorSystem(BlockSystem):
     """The twin's joint torque sensor for ``n`` joints: every sensor-side effect of ``effects`` (not the encoder's),
-    on blocks of ``block_steps`` time steps of ``time_step`` [s] from ``start_time`` [s] (module docstring).
+    block by block (module docstring, :class:`BlockSystem`).
 
-    Input port ``samples`` [B·5n] (or [B·w] with ``row = (w, offset)``: its part starts at ``offset`` of each time
-    step's row of ``w``): per time step ``[a; q; q̇; q̈; z]`` — ``a`` the transmitted torque τ_J [N·m] (or,
-    with ``transmission``, what ``transmission(a, t, q, q̇, q̈)`` turns into τ_J, e.g. the plant's net actuation and
-    :meth:`proprio.systems.joint_drive.JointDrive.sensed_torque`), link q [rad], q̇ [rad/s], q̈ [rad/s²], ``z``
-    standard-normal draws for the noise — as :func:`AddSampleBank` hands them over. Output port ``record``
-    [B·(2 + k)·n], per time step ``[τ_meas; τ_J; the contribution of each of the k effects in :attr:`names` order]``
-    N·m, for the block the last update took in. Discrete state: the scan state of the reversal-dependent effects
-    (:meth:`~proprio.effects.Hysteresis.scan`), started at rest at the first sample. The effects see the session clock
-    ``t + session_time_s`` [s].
+    Input port ``samples`` [B·w]: per time step a row of ``w`` whose columns ``offset … offset + 4n`` (``row = (w,
+    offset)``; default ``(4n, 0)``) are ``[a; q; q̇; q̈]`` — ``a`` the transmitted torque τ_J [N·m] or, with
+    ``transmission``, what ``transmission(a, t, q, q̇, q̈)`` turns into τ_J (the twin: the plant's net actuation and
+    :meth:`proprio.systems.joint_drive.JointDrive.sensed_torque`), link q [rad], q̇ [rad/s], q̈ [rad/s²]. Output
+    ports (for the block the last update took in): ``tau_measured`` [B·n] N·m and ``record`` [B·(2 + k)·n], per time
+    step ``[τ_meas; τ_J; the contribution of each of the k effects in :attr:`names` order]`` N·m. Discrete state: the
+    scan state of the reversal-dependent effects (:meth:`~proprio.effects.Hysteresis.scan`), started at rest at the
+    first sample. The effects see the session clock ``t + session_time_s`` [s]; the noise draws ``z`` are standard
+    normal (stream 0 of ``seed``).
     """
 
     def __init__(self, n: int, effects: list[JointEffect], time_step: float = 1e-3, block_steps: int = 1,
-                 session_time_s: float = 0.0, start_time: float = 0.0,
+                 session_time_s: float = 0.0, start_time: float = 0.0, seed: int = 0,
                  transmission: Callable[..., np.ndarray] | None = None, row: tuple[int, int] | None = None):
-        super().__init__()
+        super().__init__(block_steps, time_step, start_time, seed, stream=0)
         sensor = TorqueSensor([e for e in effects if e.place == "sensor" and not isinstance(e, EncoderNoise)])
-        self.n, self.sensor, self.block_steps = n, sensor, int(block_steps)
-        self.time_step, self.session_time_s, self.start_time = float(time_step), float(session_time_s), start_time
-        self.transmission = transmission
+        self.n, self.sensor = n, sensor
+        self.session_time_s, self.transmission = float(session_time_s), transmission
         self.names = [e.name for e in sensor.effects]
         self._stateful = [hasattr(e, "scan") for e in sensor.gauge]
         sizes = [e.state_size * n if st else 0 for e, st in zip(sensor.gauge, self._stateful)]
         self._slices = [slice(int(a), int(a + b)) for a, b in zip(np.cumsum([0] + sizes[:-1]), sizes)]
-        self._row = row or (5 * n, 0)                                  # (width of a time step's row, offset)
+        self._row = row or (4 * n, 0)                                  # (width of a time step's row, offset)
         self._samples = self.DeclareVectorInputPort("samples", self.block_steps * self._row[0])
         self._state = self.DeclareDiscreteState(sum(sizes) + 1)          # + started flag
+        self._measured = self.DeclareDiscreteState(self.block_steps * n)
         self._record = self.DeclareDiscreteState(self.block_steps * (2 + len(self.names)) * n)
-        self.DeclarePeriodicDiscreteUpdateEvent(self.block_steps * self.time_step,
-                                                block_update_offset(self.block_steps, self.time_step, start_time),
-                                                self._update)
+        self.declare_block_update(self._update)
+        self.DeclareStateOutputPort("tau_measured", self._measured)
         self.DeclareStateOutputPort("record", self._record)
 
     def measure_block(self, x: np.ndarray, s: MotionSignals, tau_j: np.ndarray, z: np.ndarray
@@ -175,11 +184,14 @@ class TorqueSensorSystem(LeafSystem):
                     x[sl] = eff.initial_state(s.q[0], s.qd[0], tau_j[0])
             x[-1] = 1.0
         s = s.with_tau(tau_j)
-        sensor, parts = self.sensor, []
+        sensor, parts, travel = self.sensor, [], {}
         seen = tau_j.copy()
         for eff, st, sl in zip(sensor.gauge, self._stateful, self._slices):
-            if st:
-                x[sl], c = eff.scan(x[sl], s.q, s.qd, tau_j)
+            if st:                     # effects with the same deadband share one reversal scan (same tracker state)
+                key = eff.reversal_velocity.tobytes()
+                if key not in travel:
+                    travel[key] = reversal_scan(x[sl][:5 * self.n], s.q, s.qd, eff.reversal_velocity)
+                x[sl], c = eff.scan(x[sl], s.q, s.qd, tau_j, travel[key])
             else:
                 c = eff.torque(s)
             parts.append(c)
@@ -198,44 +210,39 @@ class TorqueSensorSystem(LeafSystem):
     def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
         n, b = self.n, self.block_steps
         width, first = self._row
-        blk = self._samples.Eval(context).reshape(b, width)[:, first:first + 5 * n]
-        a, q, qd, qdd, z = (blk[:, k * n:(k + 1) * n] for k in range(5))
-        _, t = block_times(context.get_time(), b, self.time_step, self.start_time)
+        blk = self._samples.Eval(context).reshape(b, width)[:, first:first + 4 * n]
+        a, q, qd, qdd = (blk[:, k * n:(k + 1) * n] for k in range(4))
+        steps, t = self.block(context)
         tau_j = a if self.transmission is None else self.transmission(a, t, q, qd, qdd)
-        s = MotionSignals(t + self.session_time_s, q, qd, qdd)
-        x, seen, parts = self.measure_block(context.get_discrete_state(self._state).value(), s, tau_j, z)
+        z = self.rng(steps).standard_normal((b, n))
+        x, seen, parts = self.measure_block(context.get_discrete_state(self._state).value(),
+                                            MotionSignals(t + self.session_time_s, q, qd, qdd), tau_j, z)
         discrete_state.set_value(self._state, x)
+        discrete_state.set_value(self._measured, seen.ravel())
         discrete_state.set_value(self._record, np.hstack([seen, tau_j, *parts]).ravel())
 
 
-def AddEncoder(builder: DiagramBuilder, n: int, encoder: EncoderNoise | None, time_step: float = 1e-3,
-               name: str = "encoder") -> Diagram:
-    """Add the joint position encoder: a Diagram of Drake C++ systems computing
-    :meth:`~proprio.effects.EncoderNoise.reading` (``x = q + std·z``, ``x − wrap(x)`` into ``[−res/2, res/2)``) with
-    ``z`` from a Gaussian ``RandomSource`` (one draw per ``time_step``); ideal (``q``) without an encoder effect.
-    Input port ``link_state`` [2n] = [q; q̇]; output port ``q_measured`` [n] rad."""
-    std = np.zeros(n) if encoder is None else encoder.std
-    res = np.zeros(n) if encoder is None else encoder.resolution
-    sub = DiagramBuilder()
-    split = sub.AddSystem(Demultiplexer([n, n]))
-    source = sub.AddSystem(RandomSource(RandomDistribution.kGaussian, n, time_step))
-    source.set_name("noise")
-    scale = sub.AddSystem(Gain(std))
-    noisy = sub.AddSystem(Adder(2, n))
-    sub.Connect(source.get_output_port(0), scale.get_input_port())
-    sub.Connect(split.get_output_port(0), noisy.get_input_port(0))
-    sub.Connect(scale.get_output_port(), noisy.get_input_port(1))
-    wrap = sub.AddSystem(WrapToSystem(n))
-    for j in np.flatnonzero(res > 0):
-        wrap.set_interval(int(j), -0.5 * float(res[j]), 0.5 * float(res[j]))
-    drop = sub.AddSystem(MatrixGain(-np.diag((res > 0).astype(float))))      # − wrap(x) where quantised
-    quantised = sub.AddSystem(Adder(2, n))
-    sub.Connect(noisy.get_output_port(), wrap.get_input_port())
-    sub.Connect(wrap.get_output_port(), drop.get_input_port())
-    sub.Connect(noisy.get_output_port(), quantised.get_input_port(0))
-    sub.Connect(drop.get_output_port(), quantised.get_input_port(1))
-    sub.ExportInput(split.get_input_port(), "link_state")
-    sub.ExportOutput(quantised.get_output_port(), "q_measured")
-    encoder_system = builder.AddSystem(sub.Build())
-    encoder_system.set_name(name)
-    return encoder_system
+class EncoderSystem(BlockSystem):
+    """The joint position encoder for ``n`` joints: :meth:`~proprio.effects.EncoderNoise.reading` (noise, then
+    quantisation; ideal without an ``encoder``) block by block (:class:`BlockSystem`; draws: stream 1 of ``seed``).
+    Input port ``samples`` [B·w]: per time step a row of ``w`` whose column ``offset …`` holds the link q [rad]
+    (``row = (w, offset)``, default ``(n, 0)``). Output port ``q_measured`` [B·n] rad, for the block the last update
+    took in."""
+
+    def __init__(self, n: int, encoder: EncoderNoise | None, time_step: float = 1e-3, block_steps: int = 1,
+                 start_time: float = 0.0, seed: int = 0, row: tuple[int, int] | None = None):
+        super().__init__(block_steps, time_step, start_time, seed, stream=1)
+        self.n, self.encoder = n, encoder
+        self._row = row or (n, 0)
+        self._samples = self.DeclareVectorInputPort("samples", self.block_steps * self._row[0])
+        self._measured = self.DeclareDiscreteState(self.block_steps * n)
+        self.declare_block_update(self._update)
+        self.DeclareStateOutputPort("q_measured", self._measured)
+
+    def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
+        width, first = self._row
+        q = self._samples.Eval(context).reshape(self.block_steps, width)[:, first:first + self.n]
+        if self.encoder is not None:
+            steps, _ = self.block(context)
+            q = self.encoder.reading(q, self.rng(steps).standard_normal(q.shape))
+        discrete_state.set_value(self._measured, q.ravel())
