@@ -337,3 +337,22 @@ def test_logger_jitter_dropouts_and_a_robot_reported_velocity(calibrated):
         TwinConfig.from_dict({**config_dict(), "logger": {"jitter_ms": 0.1}})
     with pytest.raises(TwinConfigError, match="stamp_jitter_ms"):
         calibrated.with_logger(stamp_jitter_ms=0.5)
+
+
+def test_one_plant_factory_makes_the_urdf_once_per_description_and_payload(nominal):
+    """Every plant of a twin (the discrete plant, the controller's model, the inertia check's DrakeRobot) comes from
+    proprio.plant's factory: the URDF text is generated once per (description, payload), the DrakeRobot parsed
+    once."""
+    from proprio.diagrams.twin import build_twin_diagram
+    from proprio.plant import drake_robot, robot_urdf
+
+    robot_urdf.cache_clear()
+    drake_robot.cache_clear()
+    build_twin_diagram(nominal, waypoints(0.2))
+    first, robots = robot_urdf.cache_info(), drake_robot.cache_info()
+    build_twin_diagram(nominal, waypoints(0.2, seed=1))
+    again = robot_urdf.cache_info()
+    assert first.misses == 1 and first.hits >= 1 and robots.misses == 1
+    assert again.misses == 1 and again.hits >= first.hits + 2 and drake_robot.cache_info().misses == 1
+    build_twin_diagram(nominal.with_payload(Payload(1.0, (0.0, 0.0, 0.05))), waypoints(0.2))
+    assert robot_urdf.cache_info().misses == 2                  # a payload is another plant
