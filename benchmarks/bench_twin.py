@@ -72,7 +72,8 @@ def main() -> None:
     print(f"\ntwin {config.name}: effects {sorted(rec.meta['effects'])}; load average at start {load:.1f} on "
           f"{os.cpu_count()} cores")
     print(f"simulated {sim_s:.1f} s at 1 kHz ({rec.n_samples} samples)")
-    print(f"  full-chain twin, wall: simulation loop {loop:.1f} s -> {sim_s / loop:.1f}x real time ({loop / sim_s * 1e3:.0f} us per "
+    print(f"  full-chain twin, wall: simulation loop {loop:.1f} s -> {sim_s / loop:.1f}x real time "
+          f"({loop / sim_s * 1e3:.0f} us per "
           f"1 ms step); incl. truth post-processing {total:.1f} s -> {sim_s / total:.1f}x")
     loop_cpu = rec.meta["sim_cpu_s"]
     print(f"  CPU time of this process (load-independent): simulation loop {loop_cpu:.1f} s -> "

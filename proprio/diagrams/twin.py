@@ -5,7 +5,8 @@ One Drake Diagram (:func:`build_twin_diagram`, the one :func:`simulate_twin` run
 → MultibodyPlant (discrete 1 ms, payload)``, then the measurement chain ``JointDrive.tau_J → torque_sensor`` (every
 sensor-side effect of the effect library and the plugins, :mod:`proprio.systems.sensors`) and ``plant → encoder →
 robot_logger`` (rate, lost samples, jittered stamps, the channels the robot reports:
-:mod:`proprio.systems.robot_logger`), recorded by one ``VectorLogSink``; its random sources are seeded by ``seed``.
+:mod:`proprio.systems.robot_logger`), read block by block from the Diagram's ``record`` output; seeded by
+``seed``.
 Output: a :class:`~proprio.recording.Recording`
 whose measured channels are what that robot logs — stamps ``t``, encoder ``q``, ``tau`` (τ_J) and, only for a robot
 that reports one, its own filtered ``qd``; never ``qdd`` — plus the true flange wrench ``f_ext`` (for scoring) and
@@ -67,7 +68,7 @@ from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.controllers import InverseDynamicsController
 from pydrake.systems.framework import Diagram, DiagramBuilder
-from pydrake.systems.primitives import Demultiplexer, Multiplexer, VectorLogSink, ZeroOrderHold
+from pydrake.systems.primitives import Demultiplexer, Multiplexer
 from pydrake.trajectories import PiecewisePolynomial, Trajectory
 from tqdm import tqdm
 
@@ -87,7 +88,8 @@ from proprio.systems.sensors import AddSampleBank, EncoderSystem, TorqueSensor, 
 from proprio.systems.trajectories import AddTrajectorySource, sample_trajectory
 
 __all__ = ["TwinConfig", "TwinConfigError", "load_twin_config", "merge_twin_patch", "PATCH_KEYS", "TwinDiagram",
-           "TwinDynamics", "AddTwinDynamics", "build_twin_diagram", "simulate_twin", "payload_wrench", "hysteresis_test_trajectory", "run_hysteresis_test"]
+           "TwinDynamics", "AddTwinDynamics", "build_twin_diagram", "simulate_twin", "payload_wrench",
+           "hysteresis_test_trajectory", "run_hysteresis_test"]
 
 _TOP_KEYS = {"name", "robot", "time_step", "logger", "seed", "controller", "drive", "payload", "effects",
              "session_time_s"}
@@ -332,16 +334,15 @@ BLOCK_STEPS = 100
 
 @dataclass
 class TwinDiagram:
-    """What :func:`build_twin_diagram` returns: the Diagram and its stages. ``log`` records, once per block of
-    ``BLOCK_STEPS`` time steps, the block the chain took in last: ``[robot_logger record; torque_sensor record; held
-    samples]`` (``layout`` names the column slices ``logger``, ``sensor``, ``samples`` of one time step's row, and
-    ``width`` its size; see :class:`RobotLoggerSystem`, :class:`TorqueSensorSystem`)."""
+    """What :func:`build_twin_diagram` returns: the Diagram and its stages. The Diagram's output port ``record``,
+    read at the block times (:meth:`RobotLoggerSystem.block_time`), holds the block of ``BLOCK_STEPS`` time steps
+    the chain reads then: per step ``[robot_logger record; torque_sensor record; the bank's sample]`` (``layout``
+    names these column slices; see :class:`RobotLoggerSystem`, :class:`TorqueSensorSystem`)."""
     diagram: Diagram
     dynamics: TwinDynamics
     torque_sensor: TorqueSensorSystem
     encoder: EncoderSystem
     robot_logger: RobotLoggerSystem
-    log: VectorLogSink
     layout: dict[str, slice]
     config: TwinConfig
     n_steps: int                   # time steps of the trajectory, both ends included
@@ -420,7 +421,7 @@ def build_twin_diagram(config: TwinConfig, trajectory: Trajectory) -> TwinDiagra
     C++ shift register keeps (:func:`AddSampleBank`): ``torque_sensor`` (:class:`TorqueSensorSystem`: the drive's τ_J
     law on the plant's net actuation and motion, then every sensor-side effect incl. plugins) and ``encoder``
     (:class:`EncoderSystem`) feed ``robot_logger`` (:class:`RobotLoggerSystem`: rate, lost samples, stamps, the
-    robot's own q̇); one ``VectorLogSink`` (``log``) records them with the held true motion. Seeded by ``config.seed``.
+    robot's own q̇); the Diagram's output ``record`` holds them with the true motion. Seeded by ``config.seed``.
 
     Raises ``ValueError`` when the friction or the elasticity is too stiff for the time step on this trajectory.
     """
@@ -445,25 +446,22 @@ def build_twin_diagram(config: TwinConfig, trajectory: Trajectory) -> TwinDiagra
     n_steps = _n_steps(trajectory, dt)
     logger = builder.AddSystem(RobotLoggerSystem(n, config.logger, dt, n_steps, t0, b, config.seed))
     logger.set_name("robot_logger")
-    hold = builder.AddSystem(ZeroOrderHold(b * dt, b * width, t0 + (b - 0.5) * dt))
-    hold.set_name("samples_hold")                   # the block the sensors took in at their last update
-    for port in (sensor.GetInputPort("samples"), encoder.GetInputPort("samples"), hold.get_input_port()):
+    for port in (sensor.GetInputPort("samples"), encoder.GetInputPort("samples")):
         builder.Connect(bank, port)
     builder.Connect(encoder.GetOutputPort("q_measured"), logger.GetInputPort("q_measured"))
     builder.Connect(sensor.GetOutputPort("tau_measured"), logger.GetInputPort("tau_measured"))
 
-    recorded = [logger.GetOutputPort("record"), sensor.GetOutputPort("record"), hold.get_output_port()]
+    recorded = [logger.GetOutputPort("record"), sensor.GetOutputPort("record"), bank]
     mux = builder.AddSystem(Multiplexer([port.size() for port in recorded]))
+    mux.set_name("record")
     for k, port in enumerate(recorded):
         builder.Connect(port, mux.get_input_port(k))
-    log = builder.AddSystem(VectorLogSink(mux.get_output_port().size(), b * dt))
-    log.set_name("log")
-    builder.Connect(mux.get_output_port(), log.get_input_port())
+    builder.ExportOutput(mux.get_output_port(), "record")
     edges = np.cumsum([0] + [port.size() // b for port in recorded])
     layout = {key: slice(int(a), int(b)) for key, a, b in zip(("logger", "sensor", "samples"), edges[:-1], edges[1:])}
     diagram = builder.Build()
     diagram.set_name(f"twin:{config.name}")
-    return TwinDiagram(diagram, dyn, sensor, encoder, logger, log, layout, config, n_steps)
+    return TwinDiagram(diagram, dyn, sensor, encoder, logger, layout, config, n_steps)
 
 
 # ------------------------------------------------------------------------------------------------------------------
@@ -516,7 +514,8 @@ def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload |
 
     ``payload`` overrides the config's payload. Raises :class:`TwinConfigError` before simulating when the
     trajectory leaves the joint limits or the friction is too stiff for the time step. The Diagram of
-    :func:`build_twin_diagram` runs in ``chunk_s`` pieces (progress bar with the real-time factor); its random
+    :func:`build_twin_diagram` runs block by block (progress bar with the real-time factor every ``chunk_s`` of
+    simulated time); its random
     draws are seeded with ``config.seed``; only the samples its robot logger took are kept.
     """
     if payload is not None:
@@ -536,7 +535,6 @@ def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload |
     twin.plant.SetVelocities(pctx, qd0)
     twin.drive.set_motor_state(twin.drive.GetMyMutableContextFromRoot(ctx), q0, qd0,
                                inverse_dynamics(attach_payload(desc, config.payload), q0, qd0, np.zeros(n)))
-    log = twin.log.FindMutableLog(ctx)
     sim.Initialize()
 
     chunks = []
@@ -544,17 +542,15 @@ def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload |
     t_end = t0 + (n_steps - 1) * dt
     bar = tqdm(total=round(t_end - t0, 3), unit="s sim", disable=not progress, desc=f"twin {config.name}",
                bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} s sim [{elapsed}<{remaining}{postfix}]")
-    # the log holds the block before the last: run until the last step's block is recorded
-    t_stop = t0 + ((n_steps - 1) // BLOCK_STEPS + 1) * BLOCK_STEPS * dt + 0.25 * dt
-    t = t0
-    while t < t_stop:
-        t_next = min(t + chunk_s, t_stop)
-        sim.AdvanceTo(t_next)
-        chunks.append(_rows(log.data().T, twin.layout))
-        log.Clear()
-        bar.update(round(min(t_next, t_end) - min(t, t_end), 3))
-        bar.set_postfix_str(f"{(t_next - t0) / max(time.perf_counter() - wall0, 1e-9):.1f}x real time")
-        t = t_next
+    record, shown = twin.diagram.GetOutputPort("record"), t0
+    for j in range((n_steps - 1) // BLOCK_STEPS + 1):          # read each block of the chain at its block time
+        t = twin.robot_logger.block_time(j)
+        sim.AdvanceTo(t)
+        chunks.append(_rows(record.Eval(ctx), twin.layout))
+        if t - shown >= chunk_s or j == (n_steps - 1) // BLOCK_STEPS:
+            bar.update(round(min(t, t_end) - shown, 3))
+            bar.set_postfix_str(f"{(t - t0) / max(time.perf_counter() - wall0, 1e-9):.1f}x real time")
+            shown = min(t, t_end)
     bar.close()
     wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
     rows = np.concatenate(chunks)
@@ -563,12 +559,12 @@ def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload |
     return _to_recording(config, twin.layout, rows, wall, cpu)
 
 
-def _rows(blocks: np.ndarray, layout: dict[str, slice]) -> np.ndarray:
-    """The time steps that were samples, one row each, from the log's blocks ``[M, B·(row parts)]``."""
+def _rows(block: np.ndarray, layout: dict[str, slice]) -> np.ndarray:
+    """The time steps that were samples, one row each, from one block of the Diagram's ``record`` output."""
     parts, at = [], 0
     for key in ("logger", "sensor", "samples"):
         size = (layout[key].stop - layout[key].start) * BLOCK_STEPS
-        parts.append(blocks[:, at:at + size].reshape(-1, layout[key].stop - layout[key].start))
+        parts.append(block[at:at + size].reshape(-1, layout[key].stop - layout[key].start))
         at += size
     rows = np.hstack(parts)
     return rows[rows[:, layout["logger"].start] > 0.5]

@@ -66,7 +66,8 @@ class Hysteresis(JointEffect):
         if not np.any(self.load_gain):
             return np.broadcast_to(self.saturation, shape)
         if tau is None:
-            raise ValueError(f"{self.name}: load_gain is set, so MotionSignals.tau (the transmitted torque) is required")
+            raise ValueError(f"{self.name}: load_gain is set, so MotionSignals.tau (the transmitted torque) is "
+                             "required")
         return self.saturation + self.load_gain * np.abs(tau)
 
     def torque(self, s: MotionSignals, rng: np.random.Generator | None = None,
@@ -127,7 +128,8 @@ class LostMotion(JointEffect):
             ) -> np.ndarray:
         """The law [N·m]: ``−d·(1 + reversed)·A·exp(−(|r|/W)⁶)`` with ``A = amplitude + load_gain·|τ|``."""
         if np.any(self.load_gain) and tau is None:
-            raise ValueError(f"{self.name}: load_gain is set, so MotionSignals.tau (the transmitted torque) is required")
+            raise ValueError(f"{self.name}: load_gain is set, so MotionSignals.tau (the transmitted torque) is "
+                             "required")
         amp = self.amplitude + (self.load_gain * np.abs(tau) if np.any(self.load_gain) else 0.0)
         return -direction * (1.0 + reversed_) * amp * np.exp(-(np.abs(travel) / self.window) ** 6)
 

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 import scipy.signal
-from pydrake.systems.framework import Context, DiscreteValues
+from pydrake.systems.framework import Context
 
 from proprio.systems.sensors import BlockSystem
 
@@ -103,12 +103,12 @@ def sample_steps(n_steps: int, time_step: float, rate_hz: float) -> np.ndarray:
 
 class RobotLoggerSystem(BlockSystem):
     """The robot's logger (module docstring) for ``n`` joints on a twin of ``n_steps`` time steps of ``time_step``
-    [s] from ``start_time`` [s], block by block (:class:`~proprio.systems.sensors.BlockSystem`: it updates after the
-    sensors of the same block; its draws are stream 2 of ``seed``).
+    [s] from ``start_time`` [s], block by block (:class:`~proprio.systems.sensors.BlockSystem`; its draws are stream 2
+    of ``seed``).
 
     Input ports ``q_measured`` [B·n] rad (the encoder's block) and ``tau_measured`` [B·n] N·m (the torque sensor's).
     Output port ``record`` [B·(4 + 2n (+ n))]: per time step ``[taken, kept, stamp [s], t_true [s], q [n], τ [n]
-    (, q̇ [n] when the robot reports it)]`` for the block the last update took in; ``taken`` = 1 when that step was a
+    (, q̇ [n] when the robot reports it)]`` for the block read at this time; ``taken`` = 1 when that step was a
     sample at ``rate_hz``, ``kept`` = 1 when it was not lost. Discrete state: the next sample's index, the last
     sample a started burst covers, the position of the last sample in a run of covered ones, the previous encoder q
     and the q̇ filter's state.
@@ -116,7 +116,7 @@ class RobotLoggerSystem(BlockSystem):
 
     def __init__(self, n: int, config: LoggerConfig, time_step: float, n_steps: int, start_time: float = 0.0,
                  block_steps: int = 1, seed: int = 0):
-        super().__init__(block_steps, time_step, start_time, seed, stream=2, stage=0.25)
+        super().__init__(block_steps, time_step, start_time, seed, stream=2)
         self.n, self.config = n, config
         self.steps = sample_steps(n_steps, time_step, config.rate_hz)
         self._qd = "qd" in config.channels
@@ -126,11 +126,12 @@ class RobotLoggerSystem(BlockSystem):
         self._tau = self.DeclareVectorInputPort("tau_measured", self.block_steps * n)
         self._inner = self.DeclareDiscreteState(np.concatenate([[0.0, -1.0, -1.0], np.zeros(2 * n)]))
         self._width = 4 + 2 * n + (n if self._qd else 0)
-        self._record = self.DeclareDiscreteState(self.block_steps * self._width)
-        self.declare_block_update(self._update)
-        self.DeclareStateOutputPort("record", self._record)
+        self._block = self.declare_block(self._calc_block, self._inner)
+        self.DeclareVectorOutputPort("record", self.block_steps * self._width,
+                                     lambda context, out: out.SetFromVector(self._block.Eval(context)[1]),
+                                     prerequisites_of_calc={self._block.ticket()})
 
-    def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
+    def _calc_block(self, context: Context) -> tuple[np.ndarray, np.ndarray]:
         c, n, b = self.config, self.n, self.block_steps
         k, t = self.block(context)
         inner = context.get_discrete_state(self._inner).value()
@@ -167,5 +168,4 @@ class RobotLoggerSystem(BlockSystem):
             q_prev = q[-1]
             pending = max(pending, float(cover.max()))
             pos = run_pos[-1]
-        discrete_state.set_value(self._inner, np.concatenate([[first + i.size, pending, pos], q_prev, zf]))
-        discrete_state.set_value(self._record, record.ravel())
+        return np.concatenate([[first + i.size, pending, pos], q_prev, zf]), record.ravel()

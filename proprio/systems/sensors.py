@@ -19,16 +19,18 @@ i.e. the strain-gauge effects act on the transmitted τ_J, the gain/offset error
 drifting offset ``o_d`` (``offset_drift``, on the session clock ``MotionSignals.t``) adds to it, and white noise is
 added last. Sensor-side plugins (:mod:`proprio.effects.plugins`) act with the strain-gauge effects, after the
 library's, on the transmitted τ_J (``s.tau``); in the twin they are evaluated block by block (a sensor-side plugin
-is a function of each sample's t, q, q̇, q̈, τ_J, not of the samples before it). Every contribution is returned separately (the
-twin's ``tau_<effect>`` truth channels).
+is a function of each sample's t, q, q̇, q̈, τ_J, not of the samples before it). Every contribution is returned
+separately (the twin's ``tau_<effect>`` truth channels).
 """
 from __future__ import annotations
 
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 import scipy.sparse
-from pydrake.systems.framework import Context, DiagramBuilder, DiscreteValues, LeafSystem, OutputPort
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import (BasicVector, CacheEntry, Context, DiagramBuilder, LeafSystem, OutputPort,
+                                       ValueProducer)
 from pydrake.systems.primitives import Multiplexer, SparseMatrixGain, ZeroOrderHold
 
 from proprio.effects import EncoderNoise, JointEffect, OffsetDrift, SensorOffsetGain, TorqueNoise
@@ -109,26 +111,42 @@ def AddSampleBank(builder: DiagramBuilder, ports: list[OutputPort], block_steps:
 
 
 class BlockSystem(LeafSystem):
-    """Base of the measurement chain's Systems: one discrete update per block of ``block_steps`` time steps of
-    ``time_step`` [s] from ``start_time`` [s], at ``stage`` steps before the block's end + 1 step (0 < stage < 1:
-    between the plant's instants, never tied with them; a smaller stage runs later, so it sees the block's other
-    stages' outputs). Random draws of a block come from a counter-based generator (Philox) keyed on (``seed``,
-    ``stream``) at the counter of the block's first step: a function of the seed and the block, no hidden state."""
+    """Base of the measurement chain's Systems: they take the time steps of ``time_step`` [s] from ``start_time`` [s]
+    in blocks of ``block_steps`` from an :func:`AddSampleBank`. A block is read half a step after its last step
+    (:meth:`block_time`: between the plant's instants, never tied with them): the System's outputs then hold that
+    block, computed once into a cache entry from the bank, the System's small discrete state (the carried scan state)
+    and the time; a periodic discrete update at the same instants carries the state on. A Diagram's user reads the
+    outputs at the block times. Random draws of a block come from a counter-based generator (Philox) keyed on
+    (``seed``, ``stream``) at the counter of the block's first step: a function of the seed and the block, no hidden
+    state."""
 
-    def __init__(self, block_steps: int, time_step: float, start_time: float, seed: int, stream: int,
-                 stage: float = 0.5):
+    def __init__(self, block_steps: int, time_step: float, start_time: float, seed: int, stream: int):
         super().__init__()
         self.block_steps, self.time_step, self.start_time = int(block_steps), float(time_step), float(start_time)
-        self.seed, self.stream, self.stage = int(seed), int(stream), float(stage)
+        self.seed, self.stream = int(seed), int(stream)
 
-    def declare_block_update(self, update: Callable[[Context, DiscreteValues], None]) -> None:
-        self.DeclarePeriodicDiscreteUpdateEvent(self.block_steps * self.time_step,
-                                                self.start_time + (self.block_steps - self.stage) * self.time_step,
-                                                update)
+    def block_time(self, j: int) -> float:
+        """The instant [s] block ``j`` (steps ``j·B … j·B + B − 1``) is read: half a step after its last step. The
+        same floating-point expression as the update event's time (offset + j·period), so advancing a Simulator to
+        it stops just before that update."""
+        period, offset = self.block_steps * self.time_step, self.start_time + (self.block_steps - 0.5) * self.time_step
+        return offset + j * period
+
+    def declare_block(self, calc: Callable[[Context], Any], state: Any = None) -> CacheEntry:
+        """Declare the cache entry holding ``calc(context)`` (the block's results; ``[0]`` is the state after the
+        block when ``state`` is the index of the System's discrete state group) and, with ``state``, the periodic
+        update that carries the state on at the block times."""
+        entry = self.DeclareCacheEntry("block", ValueProducer(allocate=lambda: AbstractValue.Make(None),
+                                                              calc=lambda context, value: value.set_value(calc(context))))
+        if state is not None:
+            self.DeclarePeriodicDiscreteUpdateEvent(
+                self.block_steps * self.time_step, self.block_time(0),
+                lambda context, discrete_state: discrete_state.set_value(state, entry.Eval(context)[0]))
+        return entry
 
     def block(self, context: Context) -> tuple[np.ndarray, np.ndarray]:
-        """``(step indices [B], times [B] s)`` of the block this update takes in."""
-        last = int(round((context.get_time() - self.start_time) / self.time_step - (1.0 - self.stage)))
+        """``(step indices [B], times [B] s)`` of the block read at this context's time."""
+        last = int(round((context.get_time() - self.start_time) / self.time_step - 0.5))
         steps = last - self.block_steps + 1 + np.arange(self.block_steps)
         return steps, self.start_time + steps * self.time_step
 
@@ -145,8 +163,8 @@ class TorqueSensorSystem(BlockSystem):
     offset)``; default ``(4n, 0)``) are ``[a; q; q̇; q̈]`` — ``a`` the transmitted torque τ_J [N·m] or, with
     ``transmission``, what ``transmission(a, t, q, q̇, q̈)`` turns into τ_J (the twin: the plant's net actuation and
     :meth:`proprio.systems.joint_drive.JointDrive.sensed_torque`), link q [rad], q̇ [rad/s], q̈ [rad/s²]. Output
-    ports (for the block the last update took in): ``tau_measured`` [B·n] N·m and ``record`` [B·(2 + k)·n], per time
-    step ``[τ_meas; τ_J; the contribution of each of the k effects in :attr:`names` order]`` N·m. Discrete state: the
+    ports (the block read at this time, :class:`BlockSystem`): ``tau_measured`` [B·n] N·m and ``record``
+    [B·(2 + k)·n], per time step ``[τ_meas; τ_J; the contribution of each of the k effects in :attr:`names` order]`` N·m. Discrete state: the
     scan state of the reversal-dependent effects (:meth:`~proprio.effects.Hysteresis.scan`), started at rest at the
     first sample. The effects see the session clock ``t + session_time_s`` [s]; the noise draws ``z`` are standard
     normal (stream 0 of ``seed``).
@@ -166,11 +184,13 @@ class TorqueSensorSystem(BlockSystem):
         self._row = row or (4 * n, 0)                                  # (width of a time step's row, offset)
         self._samples = self.DeclareVectorInputPort("samples", self.block_steps * self._row[0])
         self._state = self.DeclareDiscreteState(sum(sizes) + 1)          # + started flag
-        self._measured = self.DeclareDiscreteState(self.block_steps * n)
-        self._record = self.DeclareDiscreteState(self.block_steps * (2 + len(self.names)) * n)
-        self.declare_block_update(self._update)
-        self.DeclareStateOutputPort("tau_measured", self._measured)
-        self.DeclareStateOutputPort("record", self._record)
+        self._block = self.declare_block(self._calc_block, self._state)
+        self.DeclareVectorOutputPort("tau_measured", self.block_steps * n,
+                                     lambda context, out: out.SetFromVector(self._block.Eval(context)[1]),
+                                     prerequisites_of_calc={self._block.ticket()})
+        self.DeclareVectorOutputPort("record", self.block_steps * (2 + len(self.names)) * n,
+                                     lambda context, out: out.SetFromVector(self._block.Eval(context)[2]),
+                                     prerequisites_of_calc={self._block.ticket()})
 
     def measure_block(self, x: np.ndarray, s: MotionSignals, tau_j: np.ndarray, z: np.ndarray
                       ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
@@ -207,7 +227,7 @@ class TorqueSensorSystem(BlockSystem):
             seen = seen + parts[-1]
         return x, seen, parts
 
-    def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
+    def _calc_block(self, context: Context) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         n, b = self.n, self.block_steps
         width, first = self._row
         blk = self._samples.Eval(context).reshape(b, width)[:, first:first + 4 * n]
@@ -217,17 +237,15 @@ class TorqueSensorSystem(BlockSystem):
         z = self.rng(steps).standard_normal((b, n))
         x, seen, parts = self.measure_block(context.get_discrete_state(self._state).value(),
                                             MotionSignals(t + self.session_time_s, q, qd, qdd), tau_j, z)
-        discrete_state.set_value(self._state, x)
-        discrete_state.set_value(self._measured, seen.ravel())
-        discrete_state.set_value(self._record, np.hstack([seen, tau_j, *parts]).ravel())
+        return x, seen.ravel(), np.hstack([seen, tau_j, *parts]).ravel()
 
 
 class EncoderSystem(BlockSystem):
     """The joint position encoder for ``n`` joints: :meth:`~proprio.effects.EncoderNoise.reading` (noise, then
     quantisation; ideal without an ``encoder``) block by block (:class:`BlockSystem`; draws: stream 1 of ``seed``).
     Input port ``samples`` [B·w]: per time step a row of ``w`` whose column ``offset …`` holds the link q [rad]
-    (``row = (w, offset)``, default ``(n, 0)``). Output port ``q_measured`` [B·n] rad, for the block the last update
-    took in."""
+    (``row = (w, offset)``, default ``(n, 0)``). Output port ``q_measured`` [B·n] rad of the block read at this time
+    (no state)."""
 
     def __init__(self, n: int, encoder: EncoderNoise | None, time_step: float = 1e-3, block_steps: int = 1,
                  start_time: float = 0.0, seed: int = 0, row: tuple[int, int] | None = None):
@@ -235,14 +253,12 @@ class EncoderSystem(BlockSystem):
         self.n, self.encoder = n, encoder
         self._row = row or (n, 0)
         self._samples = self.DeclareVectorInputPort("samples", self.block_steps * self._row[0])
-        self._measured = self.DeclareDiscreteState(self.block_steps * n)
-        self.declare_block_update(self._update)
-        self.DeclareStateOutputPort("q_measured", self._measured)
+        self.DeclareVectorOutputPort("q_measured", self.block_steps * n, self._calc_measured)
 
-    def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
+    def _calc_measured(self, context: Context, output: BasicVector) -> None:
         width, first = self._row
         q = self._samples.Eval(context).reshape(self.block_steps, width)[:, first:first + self.n]
         if self.encoder is not None:
             steps, _ = self.block(context)
             q = self.encoder.reading(q, self.rng(steps).standard_normal(q.shape))
-        discrete_state.set_value(self._measured, q.ravel())
+        output.SetFromVector(q.ravel())
