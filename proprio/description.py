@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import xml.etree.ElementTree as ET
+import warnings
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -25,8 +25,9 @@ import numpy as np
 import yaml
 
 __all__ = [
-    "CollisionShape", "Joint", "Link", "EndEffector", "RobotDescription", "DescriptionError",
+    "CollisionShape", "Joint", "Link", "EndEffector", "RobotDescription", "DescriptionError", "DescriptionWarning",
     "load_robot", "robot_from_dict", "robot_from_mdh", "robot_from_urdf", "builtin_robots", "rpy_to_matrix",
+    "check_keys", "nearest_key", "matrix_to_rpy",
 ]
 
 INERTIA_KEYS = ("ixx", "iyy", "izz", "ixy", "ixz", "iyz")
@@ -34,6 +35,33 @@ INERTIA_KEYS = ("ixx", "iyy", "izz", "ixy", "ixz", "iyz")
 
 class DescriptionError(ValueError):
     """A robot description is malformed; the message names the offending field."""
+
+
+class DescriptionWarning(UserWarning):
+    """A robot description was accepted after a repair within numerical tolerance (the message names the link)."""
+
+
+# relative tolerance of the physical-consistency checks, × the link's largest principal moment of inertia
+INERTIA_RTOL = 1e-4
+# the keys each mapping of the robot YAML may hold (anything else is an error naming the nearest valid key) ...
+TOP_KEYS = ("format", "name", "provenance", "gravity_world", "base", "joints", "links", "end_effector", "friction")
+BASE_KEYS = ("world_to_base_link", "base_link")
+POSE_KEYS = ("xyz", "rpy")
+LINK_KEYS = ("name", "mass", "com_xyz", "com", "com_rpy", "inertia_com", "inertia", "collision")
+SHAPE_KEYS = ("shape", "xyz", "rpy", "radius", "length", "size")
+JOINT_KEYS = ("name", "parent", "child", "origin_xyz", "origin_rpy", "axis", "limits")
+LIMIT_KEYS = ("lower", "upper", "lower_deg", "upper_deg", "velocity", "velocity_deg", "effort", "acceleration")
+EE_KEYS = ("name", "parent", "xyz", "rpy")
+FRICTION_KEYS = ("viscous", "coulomb")
+MDH_TOP_KEYS = ("format", "name", "provenance", "gravity_world", "mdh", "limits", "links", "friction")
+MDH_TABLE_KEYS = ("alpha", "alpha_deg", "a", "d", "theta_offset", "theta_offset_deg", "flange_d")
+MDH_LIMIT_KEYS = ("position", "position_deg", "lower", "lower_deg", "upper", "upper_deg", "velocity",
+                  "velocity_deg_s", "effort", "acceleration")
+URDF_REF_KEYS = ("format", "name", "urdf", "base_link", "tip_link", "flange_xyz")
+# ... and the documentation keys every mapping may carry and the loader ignores (robot-numbers/v1 of
+# ../shared/data/kuka_lwr4/robot.yaml: units, conventions, notes, alternative parameter sets, source friction)
+DOC_KEYS = ("units", "conventions", "note", "notes", "comment", "source", "alternatives",
+            "nominal_friction_in_source")
 
 
 def rpy_to_matrix(rpy: np.ndarray | list[float]) -> np.ndarray:
@@ -210,6 +238,38 @@ def _shape_dict(s: CollisionShape) -> dict[str, Any]:
 
 # ---- validation helpers ---------------------------------------------------------------------------------
 
+def check_keys(d: dict, allowed: tuple[str, ...] | frozenset[str], where: str,
+               ignored: tuple[str, ...] | frozenset[str] = ()) -> None:
+    """Refuse a key of mapping ``d`` that is neither ``allowed`` nor in the explicit ``ignored`` list (documentation
+    keys a format carries, e.g. ``note``); the error names the key path and the nearest valid key."""
+    for key in d:
+        if key in allowed or key in ignored:
+            continue
+        near = nearest_key(str(key), allowed)
+        hint = f"; did you mean '{near}'?" if near else f" (valid: {', '.join(allowed)})"
+        raise DescriptionError(f"{where}: unknown key '{key}'{hint}")
+
+
+def nearest_key(key: str, valid: tuple[str, ...] | frozenset[str]) -> str | None:
+    """The valid key closest to a misspelt one: fewest edits (insert, delete, substitute, swap two neighbours), then
+    the longest common prefix; None when every valid key needs more edits than a third of its length (at least 2)."""
+    def edits(a: str, b: str) -> int:
+        d = [[i + j if i * j == 0 else 0 for j in range(len(b) + 1)] for i in range(len(a) + 1)]
+        for i in range(1, len(a) + 1):
+            for j in range(1, len(b) + 1):
+                d[i][j] = min(d[i - 1][j] + 1, d[i][j - 1] + 1, d[i - 1][j - 1] + (a[i - 1] != b[j - 1]))
+                if i > 1 and j > 1 and a[i - 1] == b[j - 2] and a[i - 2] == b[j - 1]:
+                    d[i][j] = min(d[i][j], d[i - 2][j - 2] + 1)
+        return d[-1][-1]
+
+    def prefix(a: str, b: str) -> int:
+        return next((k for k, (x, y) in enumerate(zip(a, b)) if x != y), min(len(a), len(b)))
+
+    scored = [(edits(key, v), -prefix(key, v), v) for v in valid]
+    best = min(scored, default=None)
+    return best[2] if best is not None and best[0] <= max(2, len(best[2]) // 3) else None
+
+
 def _vec(d: dict, key: str, where: str, size: int = 3, default: Any = None) -> tuple[float, ...]:
     if key not in d:
         if default is not None:
@@ -257,6 +317,7 @@ def _angle(d: dict, key: str, where: str, default: float | None = None) -> float
 
 def _parse_inertia(v: Any, where: str) -> tuple[float, ...]:
     if isinstance(v, dict):
+        check_keys(v, INERTIA_KEYS, f"{where}.inertia_com", DOC_KEYS)
         missing = [k for k in INERTIA_KEYS[:3] if k not in v]
         if missing:
             raise DescriptionError(f"{where}.inertia_com: missing {missing}")
@@ -273,7 +334,10 @@ def _parse_link(d: dict, where: str) -> Link:
     if name is None:
         raise DescriptionError(f"{where}: missing field 'name'")
     where = f"{where}({name})"
+    check_keys(d, LINK_KEYS, where, DOC_KEYS)
     mass = _num(d, "mass", where, nonneg=True)
+    if not math.isfinite(mass):
+        raise DescriptionError(f"{where}.mass: must be finite, got {mass}")
     com = _vec(d, "com_xyz" if "com_xyz" in d else "com", where)
     inertia_key = "inertia_com" if "inertia_com" in d else "inertia"
     if inertia_key not in d:
@@ -282,25 +346,46 @@ def _parse_link(d: dict, where: str) -> Link:
     com_rpy = _vec(d, "com_rpy", where, default=(0.0, 0.0, 0.0))
     shapes = tuple(_parse_shape(s, f"{where}.collision[{k}]") for k, s in enumerate(d.get("collision") or []))
     link = Link(name=name, mass=mass, com_xyz=com, inertia_com=inertia, com_rpy=com_rpy, collision=shapes)
-    _check_inertia(link, where)
-    return link
+    return _check_inertia(link, where)
 
 
-def _check_inertia(link: Link, where: str) -> None:
-    i = link.inertia_matrix_link()
-    eig = np.linalg.eigvalsh(i)
-    tol = 1e-12
+def _check_inertia(link: Link, where: str) -> Link:
+    """Physical consistency of the rotational inertia, with a tolerance scaled by the link's own inertia: principal
+    moments must be ≥ 0 and obey the triangle inequality to within ``INERTIA_RTOL`` × the largest moment. Within that
+    tolerance the nearest consistent inertia is used (negative moments clipped to 0, a triangle deficit spread over
+    the three moments) with a :class:`DescriptionWarning` naming the link; beyond it the link is refused."""
+    ixx, iyy, izz, ixy, ixz, iyz = link.inertia_com
+    i_c = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])   # in the com_rpy frame
+    if not np.all(np.isfinite(i_c)):
+        raise DescriptionError(f"{where}.inertia_com: non-finite value")
+    eig, vec = np.linalg.eigh(i_c)
+    tol = INERTIA_RTOL * float(np.abs(eig).max()) + 1e-15
     if eig[0] < -tol:
-        raise DescriptionError(f"{where}.inertia_com: not positive semi-definite (eigenvalues {eig})")
-    # triangle inequality of principal moments
+        raise DescriptionError(f"{where}.inertia_com: not positive semi-definite (eigenvalues {eig}; tolerance "
+                               f"{tol:.2g} kg·m²)")
     a, b, c = eig
-    if a + b < c * (1 - 1e-9):
-        raise DescriptionError(f"{where}.inertia_com: principal moments {eig} violate the triangle inequality")
+    if a + b < c - tol:
+        raise DescriptionError(f"{where}.inertia_com: principal moments {eig} violate the triangle inequality "
+                               f"(a + b − c = {a + b - c:.3g} kg·m², tolerance {tol:.2g})")
+    eps = 1e-9 * float(np.abs(eig).max())             # rounding noise: accepted as is
+    if eig[0] >= -eps and a + b >= c - eps:
+        return link
+    fixed = np.clip(eig, 0.0, None)
+    deficit = fixed[2] - fixed[0] - fixed[1]
+    if deficit > 0:                                    # nearest point of the plane a + b = c
+        fixed = fixed + deficit / 3.0 * np.array([1.0, 1.0, -1.0])
+    i_new = vec @ np.diag(fixed) @ vec.T
+    warnings.warn(f"{where}.inertia_com: principal moments {eig} are inconsistent within the tolerance {tol:.2g} "
+                  f"kg·m² (numerical noise); using the nearest consistent inertia, moments {fixed}",
+                  DescriptionWarning, stacklevel=2)
+    return dataclasses.replace(link, inertia_com=(float(i_new[0, 0]), float(i_new[1, 1]), float(i_new[2, 2]),
+                                                  float(i_new[0, 1]), float(i_new[0, 2]), float(i_new[1, 2])))
 
 
 def _parse_shape(d: dict, where: str) -> CollisionShape:
     if not isinstance(d, dict) or "shape" not in d:
         raise DescriptionError(f"{where}: expected a mapping with 'shape'")
+    check_keys(d, SHAPE_KEYS, where, DOC_KEYS)
     shape = d["shape"]
     xyz = _vec(d, "xyz", where, default=(0, 0, 0))
     rpy = _vec(d, "rpy", where, default=(0, 0, 0))
@@ -324,6 +409,7 @@ def _parse_joint(d: dict, where: str) -> Joint:
         if key not in d:
             raise DescriptionError(f"{where}: missing field '{key}'")
     where = f"{where}({d['name']})"
+    check_keys(d, JOINT_KEYS, where, DOC_KEYS)
     axis = np.array(_vec(d, "axis", where))
     norm = np.linalg.norm(axis)
     if not abs(norm - 1.0) < 1e-6:
@@ -332,6 +418,7 @@ def _parse_joint(d: dict, where: str) -> Joint:
     if not isinstance(lim, dict):
         raise DescriptionError(f"{where}: missing mapping 'limits' (lower, upper, velocity, effort)")
     lw = f"{where}.limits"
+    check_keys(lim, LIMIT_KEYS, lw, DOC_KEYS)
     lower, upper = _angle(lim, "lower", lw), _angle(lim, "upper", lw)
     if not lower < upper:
         raise DescriptionError(f"{lw}: lower ({lower}) must be < upper ({upper})")
@@ -357,15 +444,20 @@ def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescri
     fmt = str(data.get("format", "proprio-robot/v1"))
     if fmt.startswith("proprio-mdh"):
         return _robot_from_mdh_dict(data, source)
+    if fmt.startswith("proprio-urdf"):
+        return _robot_from_urdf_ref(data, source)
+    check_keys(data, TOP_KEYS, source, DOC_KEYS)
     name = str(data.get("name", Path(source).stem))
     base = data.get("base") or {}
     pose = (base.get("world_to_base_link") or {}) if isinstance(base, dict) else None
     if not isinstance(base, dict) or not isinstance(pose, dict):
         raise DescriptionError(f"{source}:base: expected a mapping with 'world_to_base_link' {{xyz, rpy}} and "
                                "'base_link'")
+    check_keys(base, BASE_KEYS, f"{source}:base", DOC_KEYS)
+    check_keys(pose, POSE_KEYS, f"{source}:base.world_to_base_link", DOC_KEYS)
     base_link = _parse_link(base["base_link"], f"{source}:base.base_link") if "base_link" in base else \
         Link("base", 0.0, (0.0, 0.0, 0.0), (0.0,) * 6)
-    if "joints" not in data or "links" not in data:
+    if not isinstance(data.get("joints"), list) or not isinstance(data.get("links"), list):
         raise DescriptionError(f"{source}: needs 'joints' and 'links' lists")
     joints = tuple(_parse_joint(j, f"{source}:joints[{k}]") for k, j in enumerate(data["joints"]))
     links = tuple(_parse_link(lk, f"{source}:links[{k}]") for k, lk in enumerate(data["links"]))
@@ -384,18 +476,13 @@ def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescri
     ee = data.get("end_effector") or {"parent": links[-1].name}
     if not isinstance(ee, dict):
         raise DescriptionError(f"{source}:end_effector: expected a mapping {{name, parent, xyz, rpy}}, got {ee!r}")
+    check_keys(ee, EE_KEYS, f"{source}:end_effector", DOC_KEYS)
     ee_obj = EndEffector(parent=str(ee.get("parent", links[-1].name)), xyz=_vec(ee, "xyz", f"{source}:end_effector",
                          default=(0, 0, 0)), rpy=_vec(ee, "rpy", f"{source}:end_effector", default=(0, 0, 0)),
                          name=str(ee.get("name", "flange")))
     if ee_obj.parent != links[-1].name:
         raise DescriptionError(f"{source}:end_effector.parent must be the last link '{links[-1].name}'")
-    fv = fc = None
-    fr = data.get("friction")
-    if fr is not None:
-        fv = _vec(fr, "viscous", f"{source}:friction", size=len(joints))
-        fc = _vec(fr, "coulomb", f"{source}:friction", size=len(joints))
-        if min(fv) < 0 or min(fc) < 0:
-            raise DescriptionError(f"{source}:friction: coefficients must be >= 0")
+    fv, fc = _parse_friction(data, len(joints), source)
     gravity = _vec(data, "gravity_world", source, default=(0.0, 0.0, -9.81))
     return RobotDescription(
         name=name, base=base_link, joints=joints, links=links, end_effector=ee_obj,
@@ -403,6 +490,21 @@ def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescri
         world_to_base_rpy=_vec(pose, "rpy", f"{source}:base.world_to_base_link", default=(0, 0, 0)),
         gravity=gravity, friction_viscous=fv, friction_coulomb=fc,
         provenance=str(data.get("provenance", "")).strip())
+
+
+def _parse_friction(data: dict, n: int, source: str) -> tuple[tuple[float, ...] | None, tuple[float, ...] | None]:
+    """The optional ``friction: {viscous, coulomb}`` block: n coefficients each, ≥ 0 (None, None when absent)."""
+    fr = data.get("friction")
+    if fr is None:
+        return None, None
+    if not isinstance(fr, dict):
+        raise DescriptionError(f"{source}:friction: expected a mapping {{viscous, coulomb}}, got {fr!r}")
+    check_keys(fr, FRICTION_KEYS, f"{source}:friction", DOC_KEYS)
+    fv = _vec(fr, "viscous", f"{source}:friction", size=n)
+    fc = _vec(fr, "coulomb", f"{source}:friction", size=n)
+    if min(fv) < 0 or min(fc) < 0:
+        raise DescriptionError(f"{source}:friction: coefficients must be >= 0")
+    return fv, fc
 
 
 def robot_from_mdh(alpha: list[float], a: list[float], d: list[float], links: list[Link] | None = None,
@@ -442,7 +544,7 @@ def robot_from_mdh(alpha: list[float], a: list[float], d: list[float], links: li
         parent = links[i].name
     if any(abs(o) > 0 for o in off):
         # θ offset: rotate the *child* frame — fold into the origin as an extra yaw after Rx(α)
-        joints = [dataclasses.replace(j, origin_rpy=_rpy_of(rpy_to_matrix(j.origin_rpy) @ _rz(o)))
+        joints = [dataclasses.replace(j, origin_rpy=matrix_to_rpy(rpy_to_matrix(j.origin_rpy) @ _rz(o)))
                   for j, o in zip(joints, off)]
     return RobotDescription(name=name, base=base, joints=tuple(joints), links=tuple(links),
                             end_effector=EndEffector(parent=links[-1].name, xyz=(0.0, 0.0, flange_d)),
@@ -454,7 +556,7 @@ def _rz(t: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def _rpy_of(r: np.ndarray) -> tuple[float, float, float]:
+def matrix_to_rpy(r: np.ndarray) -> tuple[float, float, float]:
     """Rotation matrix → URDF rpy (roll, pitch, yaw)."""
     pitch = math.atan2(-r[2, 0], math.hypot(r[0, 0], r[1, 0]))
     if abs(math.cos(pitch)) < 1e-12:
@@ -464,156 +566,92 @@ def _rpy_of(r: np.ndarray) -> tuple[float, float, float]:
     return (roll, pitch, yaw)
 
 
+def _mdh_list(d: dict, key: str, where: str, n: int | None, deg_key: str | None = "") -> list[float] | None:
+    """A list of n numbers under ``key`` (rad, m, …) or ``deg_key`` (degrees, converted); None when neither."""
+    deg_key = f"{key}_deg" if deg_key == "" else deg_key
+    if key in d and deg_key in d:
+        raise DescriptionError(f"{where}: both '{key}' and '{deg_key}' given; keep one")
+    use = deg_key if deg_key in d else key
+    if use not in d:
+        return None
+    if n is None:
+        if not isinstance(d[use], list) or not d[use]:
+            raise DescriptionError(f"{where}.{use}: expected a list of numbers, one per joint, got {d[use]!r}")
+        n = len(d[use])
+    vals = _vec(d, use, where, size=n)
+    return [math.radians(x) for x in vals] if use == deg_key else list(vals)
+
+
 def _robot_from_mdh_dict(data: dict, source: str) -> RobotDescription:
+    """``proprio-mdh/v1``: the table, limits (symmetric ``position`` or asymmetric ``lower``/``upper``, each also
+    ``_deg``), optional inertials and friction; the result is validated like any robot YAML."""
+    check_keys(data, MDH_TOP_KEYS, source, DOC_KEYS)
     t = data.get("mdh")
     if not isinstance(t, dict):
         raise DescriptionError(f"{source}: proprio-mdh/v1 needs a mapping 'mdh' with alpha_deg, a, d")
+    tw = f"{source}:mdh"
+    check_keys(t, MDH_TABLE_KEYS, tw, DOC_KEYS)
     for key in ("a", "d"):
         if key not in t:
-            raise DescriptionError(f"{source}:mdh: missing field '{key}'")
-    if "alpha" not in t and "alpha_deg" not in t:
-        raise DescriptionError(f"{source}:mdh: missing field 'alpha_deg' (or 'alpha' in rad)")
-    alpha = [math.radians(x) for x in t["alpha_deg"]] if "alpha_deg" in t else list(t["alpha"])
-    off = [math.radians(x) for x in t.get("theta_offset_deg", [])] or None
+            raise DescriptionError(f"{tw}: missing field '{key}'")
+    alpha = _mdh_list(t, "alpha", tw, None)
+    if alpha is None:
+        raise DescriptionError(f"{tw}: missing field 'alpha_deg' (or 'alpha' in rad)")
     n = len(alpha)
-    lim = data.get("limits", {})
-    def deg_list(key: str) -> list[float] | None:
-        return [math.radians(x) for x in lim[key]] if key in lim else None
+    a, d = _mdh_list(t, "a", tw, n, None), _mdh_list(t, "d", tw, n, None)
+    lim = data.get("limits") or {}
+    lw = f"{source}:limits"
+    if not isinstance(lim, dict):
+        raise DescriptionError(f"{lw}: expected a mapping, got {lim!r}")
+    check_keys(lim, MDH_LIMIT_KEYS, lw, DOC_KEYS)
+    pos = _mdh_list(lim, "position", lw, n)
+    lower, upper = _mdh_list(lim, "lower", lw, n), _mdh_list(lim, "upper", lw, n)
+    if pos is not None and (lower is not None or upper is not None):
+        raise DescriptionError(f"{lw}: give either symmetric 'position(_deg)' or 'lower(_deg)'/'upper(_deg)'")
+    if (lower is None) != (upper is None):
+        raise DescriptionError(f"{lw}: 'lower' and 'upper' go together")
+    if pos is not None:
+        lower, upper = [-x for x in pos], pos
     links = None
     if "links" in data:
+        if not isinstance(data["links"], list):
+            raise DescriptionError(f"{source}:links: expected a list, one per joint")
         links = [_parse_link(lk, f"{source}:links[{k}]") for k, lk in enumerate(data["links"])]
-    desc = robot_from_mdh(alpha, list(t["a"]), list(t["d"]), links=links, theta_offset=off,
-                          lower=[-x for x in deg_list("position_deg")] if "position_deg" in lim else None,
-                          upper=deg_list("position_deg"), velocity=deg_list("velocity_deg_s"),
-                          effort=lim.get("effort"), flange_d=float(t.get("flange_d", 0.0)),
+    desc = robot_from_mdh(alpha, a, d, links=links, theta_offset=_mdh_list(t, "theta_offset", tw, n),
+                          lower=lower, upper=upper, velocity=_mdh_list(lim, "velocity", lw, n, "velocity_deg_s"),
+                          effort=_mdh_list(lim, "effort", lw, n, None), flange_d=_num(t, "flange_d", tw, 0.0),
                           name=str(data.get("name", "mdh_robot")))
-    if len(desc.joints) != n:
-        raise DescriptionError(f"{source}: MDH table length mismatch")
-    return desc
+    acc = _mdh_list(lim, "acceleration", lw, n, None)
+    if acc is not None:
+        desc = dataclasses.replace(desc, joints=tuple(dataclasses.replace(j, acceleration=x)
+                                                      for j, x in zip(desc.joints, acc)))
+    fv, fc = _parse_friction(data, n, source)
+    desc = dataclasses.replace(desc, friction_viscous=fv, friction_coulomb=fc,
+                               gravity=_vec(data, "gravity_world", source, default=(0.0, 0.0, -9.81)),
+                               provenance=str(data.get("provenance", desc.provenance)).strip())
+    return robot_from_dict(desc.to_dict(), source)          # the same checks as every robot YAML
+
+
+def _robot_from_urdf_ref(data: dict, source: str) -> RobotDescription:
+    """``proprio-urdf/v1``: a URDF file (relative to this YAML) with the chain's ``base_link``/``tip_link`` for
+    URDFs where it is ambiguous, and an optional ``flange_xyz`` [m] tool offset."""
+    check_keys(data, URDF_REF_KEYS, source, DOC_KEYS)
+    if "urdf" not in data:
+        raise DescriptionError(f"{source}: proprio-urdf/v1 needs 'urdf' (a file, relative to this YAML)")
+    path = Path(source).parent / str(data["urdf"])
+    if not path.exists():
+        raise DescriptionError(f"{source}:urdf: {path} not found")
+    opt = {k: str(data[k]) for k in ("base_link", "tip_link") if k in data}
+    desc = robot_from_urdf(path, flange_xyz=_vec(data, "flange_xyz", source, default=(0.0, 0.0, 0.0)), **opt)
+    return dataclasses.replace(desc, name=str(data.get("name", desc.name)))
 
 
 def robot_from_urdf(path: str | Path, base_link: str | None = None, tip_link: str | None = None,
                     flange_xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> RobotDescription:
-    """Import a user's URDF file: the serial chain of revolute joints from ``base_link`` to ``tip_link``.
+    """Import a URDF file; see :func:`proprio.urdf.robot_from_urdf` (the URDF reader lives beside the writer)."""
+    from proprio.urdf import robot_from_urdf as read
 
-    Without ``base_link`` the chain starts at the root link; fixed joints right below the root (e.g. a weld to an
-    undeclared ``world``) become the base pose. Fixed joints after the last revolute joint place the flange (named
-    after the last link), offset further by ``flange_xyz`` [m] in that frame. Fixed joints between movable ones are
-    not supported (merge them first); mesh geometry is ignored.
-    """
-    path = Path(path)
-    try:
-        root = ET.parse(path).getroot()
-    except ET.ParseError as exc:
-        raise DescriptionError(f"{path}: not valid XML ({exc})") from exc
-    links: dict[str, Link] = {}
-    for el in root.findall("link"):
-        name = el.get("name")
-        inert = el.find("inertial")
-        if inert is None:
-            links[name] = Link(name, 0.0, (0.0, 0.0, 0.0), (0.0,) * 6)
-            continue
-        org = inert.find("origin")
-        xyz = _floats(org.get("xyz") if org is not None else None, 3)
-        rpy = _floats(org.get("rpy") if org is not None else None, 3)
-        mass = float(inert.find("mass").get("value"))
-        ie = inert.find("inertia")
-        vals = tuple(float(ie.get(k, 0.0)) for k in INERTIA_KEYS)
-        links[name] = Link(name, mass, xyz, vals, com_rpy=rpy)
-    joints_by_child = {}
-    for el in root.findall("joint"):
-        joints_by_child[el.find("child").get("link")] = el
-    by_parent: dict[str, list] = {}
-    for el in joints_by_child.values():
-        by_parent.setdefault(el.find("parent").get("link"), []).append(el)
-    world_to_base = np.eye(4)
-    if base_link is None:
-        # the root may be an undeclared "world" (Drake's convention); fixed joints below it weld the base to it
-        roots = sorted({*links, *by_parent} - set(joints_by_child))
-        if len(roots) != 1:
-            raise DescriptionError(f"{path}: expected one root link, found {roots}; pass base_link")
-        base_name = roots[0]
-        while len(by_parent.get(base_name, [])) == 1 and by_parent[base_name][0].get("type") == "fixed":
-            world_to_base = world_to_base @ _origin_matrix(by_parent[base_name][0])
-            base_name = by_parent[base_name][0].find("child").get("link")
-    else:
-        base_name = base_link
-    if base_name not in links:
-        raise DescriptionError(f"{path}: base link {base_name!r} not found")
-    # walk down from the base
-    chain = []
-    cur = base_name
-    while cur in by_parent and cur != tip_link:
-        kids = by_parent[cur]
-        if len(kids) != 1:
-            raise DescriptionError(f"{path}: link '{cur}' has {len(kids)} children; only serial chains are supported")
-        chain.append(kids[0])
-        cur = kids[0].find("child").get("link")
-    # fixed joints after the last movable one place the flange (composed, then offset by flange_xyz)
-    n_fixed_tail = 0
-    while n_fixed_tail < len(chain) and chain[len(chain) - 1 - n_fixed_tail].get("type") == "fixed":
-        n_fixed_tail += 1
-    flange = np.eye(4)
-    for el in chain[len(chain) - n_fixed_tail:]:
-        flange = flange @ _origin_matrix(el)
-    flange[:3, 3] += flange[:3, :3] @ np.asarray(flange_xyz, dtype=float)
-    flange_name = chain[-1].find("child").get("link") if n_fixed_tail else "flange"
-    joints = []
-    for el in chain[:len(chain) - n_fixed_tail]:
-        jtype = el.get("type")
-        if jtype not in ("revolute", "continuous"):
-            raise DescriptionError(f"{path}: joint '{el.get('name')}' is {jtype}; only revolute joints are supported")
-        org = el.find("origin")
-        lim = el.find("limit")
-        lo = float(lim.get("lower", -math.pi)) if lim is not None else -math.pi
-        hi = float(lim.get("upper", math.pi)) if lim is not None else math.pi
-        ax = el.find("axis")
-        joints.append(Joint(
-            name=el.get("name"), parent=el.find("parent").get("link"), child=el.find("child").get("link"),
-            origin_xyz=_floats(org.get("xyz") if org is not None else None, 3),
-            origin_rpy=_floats(org.get("rpy") if org is not None else None, 3),
-            axis=_floats(ax.get("xyz") if ax is not None else "1 0 0", 3), lower=lo, upper=hi,
-            velocity=float(lim.get("velocity", 1.0)) if lim is not None else 1.0,
-            effort=float(lim.get("effort", 100.0)) if lim is not None else 100.0))
-    if not joints:
-        raise DescriptionError(f"{path}: no revolute joints found below '{base_name}'")
-    data = {
-        "name": root.get("name", path.stem),
-        "base": {"base_link": _link_to_dict(links[base_name]),
-                 "world_to_base_link": {"xyz": world_to_base[:3, 3].tolist(), "rpy": list(_rpy_of(world_to_base))}},
-        "joints": [{"name": j.name, "parent": j.parent, "child": j.child, "origin_xyz": list(j.origin_xyz),
-                    "origin_rpy": list(j.origin_rpy), "axis": list(j.axis),
-                    "limits": {"lower": j.lower, "upper": j.upper, "velocity": j.velocity, "effort": j.effort}}
-                   for j in joints],
-        "links": [_link_to_dict(links[j.child]) for j in joints],
-        "end_effector": {"name": flange_name, "parent": joints[-1].child, "xyz": flange[:3, 3].tolist(),
-                         "rpy": list(_rpy_of(flange))},
-        "provenance": f"imported from URDF {path.name}",
-    }
-    return robot_from_dict(data, str(path))
-
-
-def _origin_matrix(joint_el: ET.Element) -> np.ndarray:
-    """4×4 transform of a URDF joint's ``<origin>`` (identity when absent)."""
-    org = joint_el.find("origin")
-    t = np.eye(4)
-    t[:3, :3] = rpy_to_matrix(_floats(org.get("rpy") if org is not None else None, 3))
-    t[:3, 3] = _floats(org.get("xyz") if org is not None else None, 3)
-    return t
-
-
-def _link_to_dict(link: Link) -> dict[str, Any]:
-    return {"name": link.name, "mass": link.mass, "com_xyz": list(link.com_xyz), "com_rpy": list(link.com_rpy),
-            "inertia_com": dict(zip(INERTIA_KEYS, link.inertia_com))}
-
-
-def _floats(text: str | None, size: int) -> tuple[float, ...]:
-    if not text:
-        return (0.0,) * size
-    vals = tuple(float(x) for x in text.split())
-    if len(vals) != size:
-        raise DescriptionError(f"URDF attribute {text!r}: expected {size} numbers")
-    return vals
+    return read(path, base_link, tip_link, flange_xyz)
 
 
 def builtin_robots() -> list[str]:

@@ -13,7 +13,8 @@ import numpy as np
 
 from proprio.description import RobotDescription
 from proprio.io import save_figure
-from proprio.recording import Recording, RecordingError, load_recording, recording_from_csv, validate_recording
+from proprio.recording import (IMPORT_HINT, Recording, RecordingError, load_recording, recording_from_csv,
+                              validate_recording)
 from proprio.reversals import motion_direction
 
 __all__ = ["DEFAULT_DEADBAND", "load_any", "joint_velocities", "reversal_counts", "summarize_recording",
@@ -136,5 +137,10 @@ def load_any(path: str | Path, robot: RobotDescription | None = None, angle_unit
         header = f.readline()
     n = sum(1 for name in header.split(",") if re.fullmatch(r"q\d+", name.strip()))
     if n == 0:
-        raise RecordingError(f"{path}: no 'q1', 'q2', ... columns in the CSV header")
-    return validate_recording(recording_from_csv(path, n, angle_unit=angle_unit), robot, source=str(path))
+        raise RecordingError(f"{path}: no 'q1', 'q2', ... columns in the CSV header; for another layout "
+                             f"{IMPORT_HINT}")
+    try:
+        rec = recording_from_csv(path, n, angle_unit=angle_unit)
+    except RecordingError as exc:   # e.g. ';'-separated or decimal-comma tables: `proprio import` reads those
+        raise RecordingError(f"{exc}; for another layout {IMPORT_HINT}") from exc
+    return validate_recording(rec, robot, source=str(path))

@@ -44,6 +44,9 @@ _OPTIONAL = ("qd", "qdd", "f_ext")
 PLAUSIBLE_LIMIT_FACTOR = 3.0
 """Measured ``|τ|`` / ``|q̇|`` above this multiple of the robot's effort / velocity limit are refused (module
 docstring): a drive's peak torque may exceed its rated limit, but not several times over."""
+TEXT_LOG_SUFFIXES = (".csv", ".txt", ".tsv", ".dat")
+IMPORT_HINT = ("convert it with `proprio import MAPPING.yaml --out REC.npz` (a mapping says which columns are q, τ, "
+               "units, gear ratios; example: proprio/configs/import_tx40.yaml)")
 
 
 class RecordingError(ValueError):
@@ -236,6 +239,8 @@ def load_recording(path: str | Path, robot: RobotDescription | None = None) -> R
     path = Path(path)
     if not path.exists():
         raise RecordingError(f"{path}: no such file")
+    if path.suffix.lower() in TEXT_LOG_SUFFIXES:
+        raise RecordingError(f"{path}: a text log, not a Recording (.npz); {IMPORT_HINT}")
     try:
         with np.load(path, allow_pickle=False) as z:
             files = set(z.files)

@@ -12,6 +12,7 @@ import argparse
 import importlib
 import pkgutil
 import sys
+import warnings
 
 __all__ = ["main", "build_parser", "UserError"]
 
@@ -38,7 +39,12 @@ def _version() -> str:
     return __version__
 
 
+def _warning_line(message, category, filename, lineno, line=None) -> str:
+    return f"proprio: warning: {message}\n"
+
+
 def main(argv: list[str] | None = None) -> int:
+    warnings.formatwarning = _warning_line   # a library warning (e.g. a repaired inertia) is one line, no source
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):

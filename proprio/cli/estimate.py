@@ -47,11 +47,22 @@ def _options(args: argparse.Namespace):
 
 
 def run_estimate(args: argparse.Namespace) -> int:
-    from proprio.diagrams.estimation import OBSERVERS, estimate_wrench, load_torque_model
-    from proprio.recording import load_recording
+    from proprio.diagrams.estimation import OBSERVERS, check_recording_matches, estimate_wrench, load_torque_model
+    from proprio.recording import RecordingError, load_recording
 
     model = load_torque_model(args.model)
     rec = load_recording(args.recording)
+    try:
+        check_recording_matches(rec, model.description)
+    except RecordingError as exc:
+        name, own = rec.meta.get("robot"), model.description.name
+        if not name or name == own:
+            raise
+        raise UserError(f"{args.recording}: {str(exc).removeprefix('recording: ')}. Pass --model for robot '{name}' "
+                        f"(e.g. --model {name} if that is a built-in name or a description file, or an identified "
+                        f"model from `proprio identify --robot {name} ...`); if the recording was made on '{own}', "
+                        f"re-import it with `proprio import MAPPING --robot {args.model}` so that meta.robot names "
+                        "it") from None
     mapping, conditioning = _options(args)
     res = estimate_wrench(model, rec, gain=args.gain, mapping=mapping, conditioning=conditioning)
     out = Path(args.out)

@@ -14,7 +14,8 @@ def _identify(args: argparse.Namespace) -> int:
     from proprio.data_quality import assess, format_findings
     from proprio.description import load_robot
     from proprio.identification.model_io import save_model
-    from proprio.identification.recordings import identify_recordings
+    from proprio.identification.estimators import torque_error_table
+    from proprio.identification.recordings import identify_recordings, stack_recordings
     from proprio.recording import load_recording
 
     robot = load_robot(args.robot)
@@ -23,13 +24,16 @@ def _identify(args: argparse.Namespace) -> int:
     for role, paths, recs in (("train", args.train, train), ("validate", args.validate, validate)):
         for path, rec in zip(paths, recs):          # warnings and problems only, and the conditioning line
             print(format_findings(assess(rec, robot), "warning", title=f"data quality of {path} ({role}):"))
-    model, text = identify_recordings(train, validate, robot, args.method, args.trim, args.offsets,
+    model, text = identify_recordings(train, [], robot, args.method, args.trim, args.offsets,
                                       args.coulomb_velocity_scale)
     print(f"{args.method.upper()} on {model.n_train_samples} samples: {model.phi_b.size} parameters "
           f"({model.base.n_base} base{' + offsets' if args.offsets else ''})")
     if args.show_parameters:
         print(model.parameter_table())
     print(text)
+    for path, rec in zip(args.validate, validate):   # one table per held-out file: runs are not pooled
+        (q, qd, qdd, tau), (cs,) = stack_recordings([rec], args.trim)
+        print(f"\n{cs.describe()}\n" + torque_error_table(tau, model.torque(q, qd, qdd), f"validation: {path}")[0])
     save_model(model, args.out)
     print(f"wrote {args.out}")
     return 0
@@ -75,13 +79,14 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "identify", help="identify the rigid-body backbone (base parameters) from recordings",
         description="Identify base inertial + friction parameters (thesis §4.1) by OLS, weighted LS or a "
-                    "physically consistent SDP; print Table 4.4-style per-joint errors on training and validation "
-                    "data and save the model (.npz).")
+                    "physically consistent SDP; print Table 4.4-style per-joint errors on the training data and "
+                    "on each validation file (one table per file) and save the model (.npz).")
     p.add_argument("--robot", required=True, help="robot description: built-in name, YAML, URDF or directory "
                                                   "(kinematics + a-priori inertials)")
     p.add_argument("--train", nargs="+", required=True, metavar="REC", help="training recordings (.npz; FloBaRoID "
                                                                             "LWR files accepted)")
-    p.add_argument("--validate", nargs="*", default=[], metavar="REC", help="validation recordings")
+    p.add_argument("--validate", nargs="*", default=[], metavar="REC",
+                   help="validation recordings (one error table per file)")
     p.add_argument("--method", choices=("ols", "wls", "sdp"), default="ols", help="estimator (default ols)")
     p.add_argument("--out", required=True, help="output model file (.npz)")
     p.add_argument("--trim", type=int, default=100, help="samples dropped at both ends of every recording "
