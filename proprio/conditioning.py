@@ -54,7 +54,8 @@ from proprio.recording import Recording, RecordingError
 from proprio.signals import MotionSignals
 
 __all__ = ["ConditioningConfig", "ConditionedSignals", "condition", "zero_phase_lowpass", "auto_cutoff",
-           "uniform_time_base", "gap_steps", "measured_segments", "clock_stamps", "processing_torque_sigma", "noise_floor_dof"]
+           "uniform_time_base", "gap_steps", "measured_segments", "clock_stamps", "processing_torque_sigma", "noise_floor_dof",
+           "tau_white_level"]
 
 
 @dataclass(frozen=True)
@@ -124,7 +125,8 @@ class ConditionedSignals:
     rad; ``sigma_q_dof``: the χ² degrees of freedom of ``sigma_q²``, :func:`noise_floor_dof`) and the estimated
     errors of the derivatives (``sigma_qd``, ``sigma_qdd [n]``), ``velocity_source``,
     ``tau_gain [n]`` (the factor by which the τ low-pass scales the variance of white noise: compare a noise level
-    with the conditioned τ through it) and ``notes`` (what was done to the time base)."""
+    with the conditioned τ through it), ``notes`` (what was done to the time base) and ``sigma_tau [n]`` N·m: the
+    white noise of the raw τ at the log's own rate and stamps, robustly (:func:`tau_white_level`)."""
     t: np.ndarray
     q: np.ndarray
     qd: np.ndarray
@@ -142,6 +144,7 @@ class ConditionedSignals:
     tau_gain: np.ndarray
     notes: list[str] = field(default_factory=list)
     source: Recording | None = None
+    sigma_tau: np.ndarray | None = None
 
     @property
     def n_samples(self) -> int:
@@ -154,7 +157,8 @@ class ConditionedSignals:
         return ConditionedSignals(self.t[sl], self.q[sl], self.qd[sl], self.qdd[sl], self.tau[sl], self.valid[sl],
                                   self.rate_hz, self.cutoff_hz, self.sigma_q, self.sigma_q_dof, self.sigma_qd,
                                   self.sigma_qdd,
-                                  self.velocity_source, self.auto_cutoff, self.tau_gain, list(self.notes), None)
+                                  self.velocity_source, self.auto_cutoff, self.tau_gain, list(self.notes), None,
+                                  self.sigma_tau)
 
     def motion(self, tau: np.ndarray | None = None) -> MotionSignals:
         """The conditioned motion as the effect library's :class:`MotionSignals` (``tau`` defaults to the conditioned
@@ -492,7 +496,17 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
                               sigma_qd=sigma_qd,
                               sigma_qdd=sigma_qdd, velocity_source=velocity_source,
                               auto_cutoff=config.cutoff_hz == "auto",
-                              tau_gain=tau_gain, notes=notes, source=rec)
+                              tau_gain=tau_gain, notes=notes, source=rec, sigma_tau=tau_white_level(rec.tau))
+
+
+def tau_white_level(tau: np.ndarray) -> np.ndarray:
+    """Per-joint σ [N·m] of the white noise of a raw τ log ``[N, n]`` at its own rate: ``1.4826 · MAD(Δ²τ) / √6``
+    (the second difference of white noise has variance ``6σ²``; the median ignores the bursts of fast motion and
+    reversals, and ``Δ²`` the smooth torque of the motion). The level a noise finding may claim for the sensor."""
+    d2 = np.diff(np.asarray(tau, dtype=float), n=2, axis=0)
+    if d2.shape[0] < 1:
+        return np.zeros(np.shape(tau)[1])
+    return 1.4826 * np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0) / np.sqrt(6.0)
 
 
 def _decimation(rate_hz: float, cutoff: np.ndarray, config: ConditioningConfig) -> int:

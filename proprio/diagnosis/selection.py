@@ -555,7 +555,10 @@ def _noise_findings(model: SimModel, structure: ResidualStructure, hold: GapData
     structured residual is never noise, whatever its size) and larger than the model's own noise (variance ratio
     beyond the χ² 99.9 % bound of the sample variance, plus 20 % of slack). Its level is the residual's white part
     (first differences) less the model's noise, brought back to the log's own rate through ``tau_gain`` (a decimated
-    τ keeps its noise density, not its variance), so that a patch adds what a τ sample at the robot's rate has."""
+    τ keeps its noise density, not its variance), and never above the raw τ's own white level at that rate
+    (``ConditionedSignals.sigma_tau``): a residual white on the conditioned grid but smooth in the raw log is
+    unmodelled motion, not sensor noise: it is no finding when the raw level is below half of it, and a patch adds
+    at most what a τ sample at the robot's rate has."""
     present = model.effect_names
     out = []
     white_j = structure.white_joints
@@ -572,6 +575,13 @@ def _noise_findings(model: SimModel, structure: ResidualStructure, hold: GapData
         return out
     if "torque_noise" not in present and "torque_noise" in EFFECTS:
         level = np.sqrt(np.maximum(np.minimum(var, structure.white_rms ** 2) - expected, 0.0) / gain)
+        raw = [cs.sigma_tau for cs in hold.conditioned if cs.sigma_tau is not None]
+        if raw:
+            raw_level = np.sqrt(np.mean(np.square(raw), axis=0))
+            excess &= raw_level >= 0.5 * level          # the raw τ must carry the noise the residual shows
+            level = np.minimum(level, raw_level)
+        if not excess.any():
+            return out
         out.append(NoiseFinding("torque_noise", np.where(excess, level, 0.0),
                                 "white residual above the model's noise level"))
     return out
