@@ -112,3 +112,32 @@ def test_only_data_path_candidates_are_filed_as_data_path(robot):
     assert [b[0] for b in att.below_floor] == ["viscous_coulomb"]
     assert "Within the conditioning error: viscous + Coulomb friction" in data_and_processing_text(att)
     assert "Data path:" not in data_and_processing_text(att)
+
+
+def test_diagnose_model_takes_an_identified_model_file(tmp_path):
+    """``diagnose --model M.npz`` (item 4): the model under diagnosis is the identified one — its inertials, its
+    viscous/Coulomb friction and its torque offsets — so "my identified model vs new data" is one command."""
+    import argparse
+
+    from proprio.cli.diagnose import _model
+    from proprio.identification.estimators import identify
+    from proprio.identification.excitation import FourierTrajectory
+    from proprio.identification.model_io import load_model, save_model
+
+    robot = load_robot("iiwa14_identified")
+    rng = np.random.default_rng(1)
+    traj = FourierTrajectory(rng.uniform(-0.4, 0.4, (7, 5)), rng.uniform(-0.4, 0.4, (7, 5)), 0.1 * np.pi)
+    q, qd, qdd = traj.evaluate(np.linspace(0.0, 20.0, 2000, endpoint=False))
+    offsets = np.linspace(-0.5, 0.5, robot.n)
+    tau = inverse_dynamics(robot, q, qd, qdd) + np.array(robot.friction_viscous) * qd \
+        + np.array(robot.friction_coulomb) * np.sign(qd) + offsets
+    path = save_model(identify(robot, q, qd, qdd, tau, method="ols", offsets=True), tmp_path / "ident.npz")
+    ident = load_model(path)
+    args = argparse.Namespace(model=str(path), effects=[], effects_config=None)
+    model = _model(args)
+    assert model.robot.has_friction and "sensor_offset_gain" in model.effect_names
+    moving = np.all(np.abs(qd) > 50 * ident.coulomb_velocity_scale, axis=1)    # away from the smoothed sign
+    assert moving.sum() > 200
+    pred = model.predict(MotionSignals(np.arange(len(q)) / 100.0, q, qd, qdd, tau))
+    np.testing.assert_allclose(pred[moving], ident.torque(q, qd, qdd)[moving], atol=1e-6 * np.abs(tau).max() + 1e-6)
+    np.testing.assert_allclose(pred[moving], tau[moving], atol=0.05)       # and it is the robot that made the data
