@@ -65,7 +65,8 @@ class ConditioningConfig:
     ``cutoff_hz``: ``"auto"`` (per joint from the noise floor, module docstring), one number [Hz] or one per joint.
     ``velocity``: ``"q"`` (default) differentiates ``q`` — zero phase, whatever the robot did to its own q̇ (the LWR 4+
     files' q̇ lags by ≈3 ms, ``proprio inspect`` says so); ``"auto"`` uses the robot's own ``q̇`` when the Recording has
-    one (its ``q̈`` still comes from our filter), ``"measured"`` requires it. A Recording's ``qdd`` is
+    one and it is better — no lag, no more noise than ``d/dt q`` (``velocity_source`` says which and why; its ``q̈``
+    still comes from our filter); ``"measured"`` requires it. A Recording's ``qdd`` is
     never used: no robot measures it. ``tau_filter``: apply the same low-pass to τ (default) or leave it raw.
     ``time_base``: ``auto``, ``stamps`` or ``clock`` (module docstring, step 1). ``max_motion_hz`` [Hz]: the
     physical bound of the arm's motion band for the auto cutoff; ``decimate`` / ``oversampling``: decimation of a log
@@ -442,6 +443,9 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
     t_u, valid, h, notes = uniform_time_base(rec.t, config.max_gap_s)
     rate = 1.0 / h
     t_src = _time_base(rec, t_u, h, config, notes)
+    dup = rec.meta.get("duplicate_stamps")
+    if isinstance(dup, dict) and dup.get("stamps"):
+        notes.append(f"{dup['stamps']} duplicated stamps ({dup.get('samples', '?')} rows) merged at import")
     q = _resample(t_src, rec.q, t_u)
     tau = _resample(t_src, rec.tau, t_u)
     if config.velocity == "measured" and rec.qd is None:
@@ -478,15 +482,19 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
                              f"of the {cutoff.min():.3g} Hz cutoff; the derivative filter needs ≥ {max(need, longest)}")
     lp = lambda x: zero_phase_lowpass(x, rate, cutoff, config.order, config.edge_cycles)  # noqa: E731
     q_f = lp(q)
-    if use_qd:
-        qd = lp(qd_raw)
-        velocity_source = "the robot's q̇ (low-passed)"
-    else:
-        qd = np.gradient(q_f, h, axis=0)
-        velocity_source = "q"
-    qdd = np.gradient(qd, h, axis=0)
     gains = np.array([_chain_gains(rate, c, config.order, config.edge_cycles) for c in cutoff])     # [n, 3]
     sigma_grid = sigma_q ** 2 / m              # white noise keeps its density: σ² ∝ rate (step 2, decimation)
+    qd = np.gradient(q_f, h, axis=0)
+    velocity_source = "q"
+    if use_qd:
+        qd_robot = lp(qd_raw)
+        better, why = (True, "") if config.velocity == "measured" else _robot_velocity_better(
+            qd_robot, qd, h, tau_white_level(rec.qd) ** 2 / m * gains[:, 0], sigma_grid * gains[:, 1])
+        if better:
+            qd, velocity_source = qd_robot, "the robot's q̇ (low-passed)" + (f"; {why}" if why else "")
+        else:
+            velocity_source = f"q ({why})"
+    qdd = np.gradient(qd, h, axis=0)
     sigma_qd = np.sqrt(sigma_grid * gains[:, 1] + lost[0] ** 2)
     sigma_qdd = np.sqrt(sigma_grid * gains[:, 2] + lost[1] ** 2)
     tau_gain = (gains[:, 0] if config.tau_filter else np.ones(n)) / m
@@ -497,6 +505,23 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
                               sigma_qdd=sigma_qdd, velocity_source=velocity_source,
                               auto_cutoff=config.cutoff_hz == "auto",
                               tau_gain=tau_gain, notes=notes, source=rec, sigma_tau=tau_white_level(rec.tau))
+
+
+def _robot_velocity_better(qd_robot: np.ndarray, qd_q: np.ndarray, h: float, noise_robot: np.ndarray,
+                           noise_q: np.ndarray) -> tuple[bool, str]:
+    """Whether the robot's own low-passed q̇ ``[N, n]`` rad/s is better than ``d/dt`` of the low-passed q (``velocity:
+    auto``), and why: it must not lag (the median over joints of the least-squares delay ``δ`` of
+    ``q̇_robot(t) ≈ q̇_q(t − δ) ≈ q̇_q − δ q̈_q``, within half a step ``h`` [s]) and its white noise after the filter
+    (``noise_robot [n]``, (rad/s)²) must not exceed that of the derivative (``noise_q [n]``) on average."""
+    edge = slice(len(qd_q) // 20, len(qd_q) - len(qd_q) // 20)     # away from the filter's ends
+    slope = np.gradient(qd_q, h, axis=0)[edge]
+    lag = float(np.median(np.sum((qd_q[edge] - qd_robot[edge]) * slope, axis=0)
+                          / np.maximum(np.sum(slope ** 2, axis=0), 1e-300)))
+    if abs(lag) > 0.5 * h:
+        return False, f"the robot's q̇ {'lags' if lag > 0 else 'leads'} by {1e3 * abs(lag):.2g} ms"
+    if float(np.mean(noise_robot)) > float(np.mean(noise_q)):
+        return False, "the robot's q̇ is noisier than d/dt q"
+    return True, "no lag, no more noise than d/dt q"
 
 
 def tau_white_level(tau: np.ndarray) -> np.ndarray:

@@ -218,3 +218,14 @@ def test_the_processing_floor_ignores_the_models_own_coulomb_jump():
     b = processing_torque_sigma(coulomb.smooth_torque, [cs])
     np.testing.assert_allclose(a, b)
     assert np.all(b < 1.0)              # a q̇ error flipping sign(q̇) would add up to 2 × 13 N·m near reversals
+
+
+def test_auto_velocity_takes_the_robots_qd_only_when_it_does_not_lag():
+    t = np.arange(0.0, 12.0, 5e-3)
+    q, qd, _ = _motion(t)
+    q_meas = q + np.random.default_rng(2).normal(0.0, 1e-4, q.shape)          # a coarse encoder: d/dt q is noisy
+    good = condition(Recording(t=t, q=q_meas, tau=q, qd=qd), ConditioningConfig(velocity="auto"))
+    assert good.velocity_source.startswith("the robot's q̇")
+    lagged = np.vstack([qd[:1]] * 3 + [qd[:-3]])                            # the robot's filter: 15 ms late
+    late = condition(Recording(t=t, q=q_meas, tau=q, qd=lagged), ConditioningConfig(velocity="auto"))
+    assert late.velocity_source.startswith("q (the robot's q̇ lags by 15 ms")

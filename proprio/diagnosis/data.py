@@ -33,11 +33,12 @@ MIN_BLOCK_S = 0.25
 MAX_FIT_SAMPLES = 4000
 
 
-DIAGNOSIS_CONDITIONING = ConditioningConfig(tau_filter=False, decimate=True)
+DIAGNOSIS_CONDITIONING = ConditioningConfig(tau_filter=False, decimate=True, velocity="auto")
 """The diagnosis conditions the motion (q̇, q̈ for the rigid body) but compares the raw τ_J: its effect candidates
 (ripple, noise, hysteresis steps) model τ's whole band, and a zero-phase filter would only hide it. A log sampled far
 faster than the arm moves (1–5 kHz) is decimated to ≈10× its motion band first (anti-aliased, zero phase:
-:mod:`proprio.conditioning`), which keeps every candidate's band and makes long logs tractable."""
+:mod:`proprio.conditioning`), which keeps every candidate's band and makes long logs tractable. The robot's own q̇
+is used where it logs one that is better than d/dt q (no lag, no more noise); the conditioning line says which."""
 
 
 class DiagnosisError(ValueError):
