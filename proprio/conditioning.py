@@ -12,8 +12,10 @@ Steps, all vectorised over samples and joints:
    the grid index nearest its stamp (a missing index is a lost sample, filled by the spline). ``auto`` (default)
    takes the one under which ``q`` is smoother: the white floor of ``Δ²q/h²`` (step 2) must drop by at least 20 %
    for ``clock`` (a wrong stamp adds ``q̇·δt`` of noise; a wrong snap does the same). A step longer
-   than ``max_gap_s`` is a *gap* (a dropout): the grid samples inside it are interpolated but flagged invalid
-   (``valid``), and every later stage drops them. Duplicate stamps cannot reach this point: a Recording's time is
+   than ``max_gap_s`` is a *gap* (a dropout): the grid samples inside it are interpolated (``gap``) and flagged
+   invalid (``valid``); so are, beside a gap lasting a cutoff period or more (where the fill is guesswork), the
+   samples within ``edge_cycles`` periods of the lowest cutoff — the zero-phase filters of step 3 carry the fill that
+   far. Every later stage drops the invalid samples. Duplicate stamps cannot reach this point: a Recording's time is
    strictly increasing (:func:`proprio.recording.recording_from_csv` averages duplicated stamps at import).
 2. **Cutoff per joint.** From the config, or ``auto``: the Welch spectrum ``P_q(f)`` of each joint's ``q`` and its
    white-noise floor ``P_0`` (mean over the upper half of the band: encoder noise and quantisation) give the
@@ -54,8 +56,8 @@ from proprio.recording import Recording, RecordingError
 from proprio.signals import MotionSignals
 
 __all__ = ["ConditioningConfig", "ConditionedSignals", "condition", "zero_phase_lowpass", "auto_cutoff",
-           "uniform_time_base", "gap_steps", "measured_segments", "clock_stamps", "processing_torque_sigma", "noise_floor_dof",
-           "tau_white_level"]
+           "uniform_time_base", "gap_steps", "measured_segments", "clock_stamps", "processing_torque_sigma",
+           "noise_floor_dof", "tau_white_level"]
 
 
 @dataclass(frozen=True)
@@ -122,9 +124,11 @@ class ConditionedSignals:
     """Uniformly sampled, zero-phase conditioned signals of one Recording.
 
     ``t [N]`` s (uniform, from 0), ``q, qd, qdd, tau [N,n]`` (rad, rad/s, rad/s², N·m), ``valid [N]`` (False inside
-    gaps of the original log), ``cutoff_hz [n]``, ``rate_hz``, the estimated white noise of ``q`` (``sigma_q [n]``,
-    rad; ``sigma_q_dof``: the χ² degrees of freedom of ``sigma_q²``, :func:`noise_floor_dof`) and the estimated
-    errors of the derivatives (``sigma_qd``, ``sigma_qdd [n]``), ``velocity_source``,
+    gaps of the original log and within the filters' reach of a long one: the samples every later stage may use),
+    ``gap [N]`` (True inside gaps of the log: nothing was measured there; default ``~valid``), ``cutoff_hz [n]``,
+    ``rate_hz``, the estimated white noise of ``q`` (``sigma_q [n]``, rad; ``sigma_q_dof``: the χ² degrees of freedom
+    of ``sigma_q²``, :func:`noise_floor_dof`) and the estimated errors of the derivatives (``sigma_qd``,
+    ``sigma_qdd [n]``), ``velocity_source``,
     ``tau_gain [n]`` (the factor by which the τ low-pass scales the variance of white noise: compare a noise level
     with the conditioned τ through it), ``notes`` (what was done to the time base) and ``sigma_tau [n]`` N·m: the
     white noise of the raw τ at the log's own rate and stamps, robustly (:func:`tau_white_level`)."""
@@ -145,7 +149,12 @@ class ConditionedSignals:
     tau_gain: np.ndarray
     notes: list[str] = field(default_factory=list)
     source: Recording | None = None
+    gap: np.ndarray | None = None
     sigma_tau: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.gap is None:
+            self.gap = ~np.asarray(self.valid, dtype=bool)
 
     @property
     def n_samples(self) -> int:
@@ -159,7 +168,7 @@ class ConditionedSignals:
                                   self.rate_hz, self.cutoff_hz, self.sigma_q, self.sigma_q_dof, self.sigma_qd,
                                   self.sigma_qdd,
                                   self.velocity_source, self.auto_cutoff, self.tau_gain, list(self.notes), None,
-                                  self.sigma_tau)
+                                  self.gap[sl], self.sigma_tau)
 
     def motion(self, tau: np.ndarray | None = None) -> MotionSignals:
         """The conditioned motion as the effect library's :class:`MotionSignals` (``tau`` defaults to the conditioned
@@ -185,7 +194,8 @@ class ConditionedSignals:
         return {"rate_hz": self.rate_hz, "cutoff_hz": [float(x) for x in self.cutoff_hz],
                 "auto_cutoff": self.auto_cutoff, "velocity_source": self.velocity_source,
                 "sigma_qd": [float(x) for x in self.sigma_qd], "sigma_qdd": [float(x) for x in self.sigma_qdd],
-                "invalid_samples": int((~self.valid).sum()), "notes": list(self.notes), "line": self.describe()}
+                "invalid_samples": int((~self.valid).sum()), "gap_samples": int(self.gap.sum()),
+                "notes": list(self.notes), "line": self.describe()}
 
     def describe(self) -> str:
         """One line for every output: time base, cutoffs (and whether chosen from the noise floor), q̇ source and the
@@ -495,6 +505,9 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
         else:
             velocity_source = f"q ({why})"
     qdd = np.gradient(qd, h, axis=0)
+    gap = ~valid
+    valid = _settled(gap, rate / float(cutoff.min()), int(np.ceil(config.edge_cycles * rate / float(cutoff.min()))),
+                     notes)
     sigma_qd = np.sqrt(sigma_grid * gains[:, 1] + lost[0] ** 2)
     sigma_qdd = np.sqrt(sigma_grid * gains[:, 2] + lost[1] ** 2)
     tau_gain = (gains[:, 0] if config.tau_filter else np.ones(n)) / m
@@ -504,7 +517,8 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
                               sigma_qd=sigma_qd,
                               sigma_qdd=sigma_qdd, velocity_source=velocity_source,
                               auto_cutoff=config.cutoff_hz == "auto",
-                              tau_gain=tau_gain, notes=notes, source=rec, sigma_tau=tau_white_level(rec.tau))
+                              tau_gain=tau_gain, notes=notes, source=rec, gap=gap,
+                              sigma_tau=tau_white_level(rec.tau))
 
 
 def _robot_velocity_better(qd_robot: np.ndarray, qd_q: np.ndarray, h: float, noise_robot: np.ndarray,
@@ -554,6 +568,27 @@ def _decimate_valid(valid: np.ndarray, m: int) -> np.ndarray:
     is (the anti-alias filter's main lobe reaches that far)."""
     bad = np.convolve((~valid).astype(float), np.ones(2 * m + 1), mode="same") > 0
     return ~bad[::m]
+
+
+def _settled(gap: np.ndarray, period: float, reach: int, notes: list[str]) -> np.ndarray:
+    """``valid [N]``: not in a gap, nor within ``reach`` samples of a gap lasting at least ``period`` samples (one
+    period of the lowest cutoff). Inside a shorter gap the spline follows the band the filters pass, so its fill is
+    as good as a sample; across a longer one it is guesswork, which the zero-phase filters spread ``edge_cycles``
+    periods to either side (module docstring, step 1)."""
+    if not gap.any():
+        return ~gap
+    edges = np.flatnonzero(np.diff(np.r_[0, gap.astype(np.int8), 0]))
+    starts, ends = edges[::2], edges[1::2]                         # gap runs gap[starts[k]:ends[k]]
+    long_ = (ends - starts) >= period
+    if not long_.any():
+        return ~gap
+    mark = np.zeros(gap.size + 1, dtype=int)
+    np.add.at(mark, np.maximum(starts[long_] - reach, 0), 1)
+    np.add.at(mark, np.minimum(ends[long_] + reach, gap.size), -1)
+    valid = ~gap & (np.cumsum(mark[:-1]) == 0)
+    notes.append(f"{int((~valid).sum() - gap.sum())} samples beside {int(long_.sum())} gap(s) longer than a cutoff "
+                 f"period flagged too (the filters' reach, {reach} samples)")
+    return valid
 
 
 def processing_torque_sigma(torque: Any, signals: Sequence[ConditionedSignals], samples: int = 2000,

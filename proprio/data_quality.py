@@ -255,7 +255,7 @@ def _time_base(rec: Recording, cfg: ConditioningConfig, th: QualityThresholds) -
             "problem" if share > th.gap_problem_fraction else "warning", "gap",
             f"t: {gaps.size} gap(s) > {1e3 * limit:.3g} ms (longest {1e3 * dt[gaps].max():.3g} ms, "
             f"{missing:.3g} s = {100 * share:.2g} % missing) at {_times(t, gaps)}; conditioning drops the samples "
-            "inside", "t",
+            "inside and within the filters' reach of them", "t",
             values={"gap_limit_s": limit, "gaps": int(gaps.size), "missing_s": missing, "missing_fraction": share,
                     "gap_start_s": t[gaps[:20]], "gap_length_s": dt[gaps[:20]]}))
     dup = rec.meta.get("duplicate_stamps")

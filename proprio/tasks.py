@@ -42,7 +42,7 @@ import time
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Iterator, Mapping, Sequence
 
 from proprio.io import LOCK_NAME, atomic_write_text, locked_dir
 
@@ -189,7 +189,7 @@ def run_tasks(tasks: Sequence[Task], state_dir: str | Path, store: Callable[[Tas
 
 
 @contextlib.contextmanager
-def sigterm_as_interrupt() -> Any:
+def sigterm_as_interrupt() -> Iterator[None]:
     """While the block runs in the main thread, SIGTERM raises ``KeyboardInterrupt`` (module docstring: shutdown)."""
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -275,7 +275,7 @@ def _run_locked(tasks: Sequence[Task], state: Path, store: Callable[[Task, Any],
 
 def _worker_init() -> None:
     """A pool worker leaves interrupts to the driver: Ctrl-C (sent to the whole process group) is ignored here, and
-    SIGTERM — from the driver stopping the pool — ends the worker at once (not the driver's handler it inherited)."""
+    SIGTERM — from the driver stopping the pool — ends the worker at once (not the handler it inherited)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
 

@@ -10,6 +10,10 @@ is hidden at any zoom.
 Data are embedded as JSON with 5 significant digits. A series longer than ``max_points`` samples is embedded as its
 min/max envelope over ``max_points / 2`` equal-count buckets (each bucket's min and max, placed at its first and
 last time), which still shows every excursion but not the finer detail inside a bucket.
+
+Gaps: a step in ``t`` longer than ``GAP_FACTOR`` times the median step (samples a stage left out, e.g. a dropout of
+the log) is drawn as a break in every line over a shaded band, never as a line bridging it; envelope buckets never
+span a gap.
 """
 from __future__ import annotations
 
@@ -20,7 +24,9 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-__all__ = ["timeseries_html", "envelope", "SERIES_COLORS"]
+__all__ = ["timeseries_html", "envelope", "SERIES_COLORS", "GAP_FACTOR"]
+
+GAP_FACTOR = 3.0
 
 SERIES_COLORS = ("#d62728", "#1f77b4", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b")
 
@@ -30,7 +36,7 @@ _SCRIPT = r"""
   const data = JSON.parse(document.getElementById(%(data_id)s).textContent);
   const NS = "http://www.w3.org/2000/svg";
   const t = data.t, n = t.length, H = data.panel_height, M = {l: 64, r: 10, t: 6, b: 22};
-  const shown = data.series.map(() => true);
+  const shown = data.series.map(() => true), gaps = data.gaps || [];
   let view = [t[0], t[n - 1]];
   function el(name, attrs, parent) {
     const e = document.createElementNS(NS, name);
@@ -103,14 +109,25 @@ _SCRIPT = r"""
       });
       el("text", {x: 4, y: M.t + 11, "font-size": 11, "font-weight": "bold"}, p.svg).textContent = p.name;
       el("text", {x: 4, y: M.t + 24, "font-size": 10, fill: "#666"}, p.svg).textContent = data.y_label;
+      gaps.forEach(g => {                // no data there: a shaded band, and every line breaks
+        if (g[1] > view[0] && g[0] < view[1])
+          el("rect", {x: X(Math.max(g[0], view[0])), y: M.t, height: ph, fill: "#eee",
+                      width: X(Math.min(g[1], view[1])) - X(Math.max(g[0], view[0]))}, p.svg);
+      });
       p.y.forEach((y, k) => {
         if (!shown[k]) return;
-        const pts = [];                  // at most the min and max of each pixel column
+        const segs = [];
+        let pts = [], last = -Infinity;  // at most the min and max of each pixel column
         let col = -1, cmin = 0, cmax = 0, imin = 0, imax = 0;
         const flush = () => {
           if (col < 0) return;
           const a = [[imin, cmin], [imax, cmax]].sort((u, v) => u[0] - v[0]);
-          a.forEach(q => pts.push(X(t[q[0]]).toFixed(1) + "," + Y(q[1]).toFixed(1)));
+          a.forEach(q => {
+            const tq = t[q[0]];
+            if (pts.length && gaps.some(g => last <= g[0] && tq >= g[1])) { segs.push(pts); pts = []; }
+            pts.push(X(tq).toFixed(1) + "," + Y(q[1]).toFixed(1));
+            last = tq;
+          });
         };
         for (let i = i0; i < i1; i++) {
           const c = Math.floor((t[i] - view[0]) * sx);
@@ -118,8 +135,10 @@ _SCRIPT = r"""
           else { if (y[i] < cmin) { cmin = y[i]; imin = i; } if (y[i] > cmax) { cmax = y[i]; imax = i; } }
         }
         flush();
-        el("polyline", {points: pts.join(" "), fill: "none", stroke: data.series[k].color, "stroke-width": 1,
-                        "clip-path": "url(#" + root.id + "-clip-" + j + ")"}, p.svg);
+        segs.push(pts);
+        segs.forEach(s => el("polyline", {points: s.join(" "), fill: "none", stroke: data.series[k].color,
+                                          "stroke-width": 1, "clip-path": "url(#" + root.id + "-clip-" + j + ")"},
+                             p.svg));
       });
     });
     if (panels.length) panels[panels.length - 1].svg.setAttribute("data-view", view.join(","));
@@ -208,12 +227,20 @@ def timeseries_html(t: np.ndarray, series: Mapping[str, np.ndarray], panel_names
                              f"got {list(y.shape)}")
         arrays[label] = y
     stacked = np.stack(list(arrays.values()), axis=2)                     # [N, P, S]
-    t_emb, y_emb = envelope(t, stacked, max_points)
+    steps = np.diff(t)
+    med = float(np.median(steps))
+    cut = np.flatnonzero(steps > GAP_FACTOR * med) if med > 0 else np.zeros(0, dtype=int)   # a gap after cut[k]
+    bounds = np.r_[0, cut + 1, t.size]
+    pieces = [envelope(t[a:b], stacked[a:b], max(2, int(max_points * (b - a) / t.size)))   # no bucket spans a gap
+              for a, b in zip(bounds[:-1], bounds[1:])]
+    t_emb = np.concatenate([p[0] for p in pieces])
+    y_emb = np.concatenate([p[1] for p in pieces])
     data = {"t": _round(t_emb), "y_label": y_label, "panel_height": int(panel_height),
             "series": [{"label": lb, "color": colors[k % len(colors)]} for k, lb in enumerate(arrays)],
             "panels": [{"name": nm, "y": [_round(y_emb[:, p, s]) for s in range(len(arrays))]}
                        for p, nm in enumerate(names)],
-            "envelope": bool(t_emb.size != t.size), "samples": int(t.size)}
+            "envelope": bool(t_emb.size != t.size), "samples": int(t.size),
+            "gaps": [[a, b] for a, b in zip(_round(t[cut]), _round(t[cut + 1]))]}
     data_id = f"{element_id}-data"
     script = _SCRIPT % {"id": json.dumps(element_id), "data_id": json.dumps(data_id)}
     note = (f" (min/max envelope of {t.size} samples)" if data["envelope"] else "")

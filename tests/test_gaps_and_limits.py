@@ -124,6 +124,49 @@ def test_replay_synthesises_no_motion_inside_the_hole(holed, tmp_path, capsys):
     assert np.max(np.abs(rep.q - q_meas)) < 0.02
 
 
+def test_identify_and_diagnose_use_no_sample_from_the_hole_or_its_filter_reach(holed):
+    from proprio.conditioning import ConditioningConfig, condition
+    from proprio.diagnosis.data import kept
+    from proprio.identification.recordings import stack_recordings
+
+    rec, _ = holed
+    config = ConditioningConfig(cutoff_hz=10.0)
+    cs = condition(rec, config)
+    reach = 3.0 / 10.0                                                 # edge_cycles periods of the cutoff [s]
+    near = (cs.t > HOLE[0] - reach - 1e-6) & (cs.t < HOLE[1] + reach - 1e-6)
+    (q, _, _, _), _ = stack_recordings([rec], trim=50, config=config)
+    assert q.shape[0] == cs.n_samples - 100 - near.sum()                # identify: every such sample dropped
+    assert not (kept(cs, 0.1) & near).any()                            # diagnose too
+    assert kept(cs, 0.1).sum() == pytest.approx((~near).sum() - 2 * 50, abs=2)
+
+
+def test_timeseries_plot_breaks_its_lines_at_the_hole(tmp_path):
+    import shutil
+
+    from proprio.timeseries_html import timeseries_html
+    from test_timeseries_html import DOM, embedded
+
+    t = np.arange(0.0, DURATION, 1.0 / RATE)
+    t = t[~inside(t) & (t != HOLE[0])]
+    y = np.column_stack([np.sin(t), np.cos(3 * t)])
+    for max_points in (100_000, 1_000):                                # as it is, and as a min/max envelope
+        frag = timeseries_html(t, {"before": y, "after": y / 2}, ["j1", "j2"], max_points=max_points)
+        data = embedded(frag)
+        assert data["gaps"] == [[pytest.approx(HOLE[0] - 1 / RATE), pytest.approx(HOLE[1])]]
+        assert not inside(np.asarray(data["t"])).any()                  # no bucket spans the hole
+    if shutil.which("node") is None:
+        pytest.skip("Node.js not installed: the drawing is not checked")
+    (tmp_path / "data.json").write_text(json.dumps(data))
+    (tmp_path / "plot.js").write_text(re.search(r"<script>(.*?)</script>", frag, re.S).group(1))
+    (tmp_path / "dom.js").write_text(DOM)
+    run = subprocess.run(["node", str(tmp_path / "dom.js"), str(tmp_path / "data.json"), str(tmp_path / "plot.js")],
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0, run.stderr
+    out = json.loads(run.stdout)
+    assert [len(panel) for panel in out["first"]] == [4, 4]           # per series one line each side of the hole
+    assert [len(panel) for panel in out["toggled"]] == [2, 2]
+
+
 # ---- 2. plausibility at the boundary -----------------------------------------------------------------------------
 
 @pytest.fixture()

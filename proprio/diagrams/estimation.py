@@ -522,7 +522,7 @@ def conditioned_signals(rec: Recording, conditioning: ConditioningConfig = Condi
     and the filters' edge transient [s]."""
     cs = condition(rec, conditioning)
     sig = {"t": cs.t, "q": cs.q, "qd": cs.qd, "qdd": cs.qdd, "tau": cs.tau, "time_step": 1.0 / cs.rate_hz,
-           "gap": ~cs.valid}
+           "gap": cs.gap}
     return cs.as_recording(), sig, conditioning.edge_cycles / float(cs.cutoff_hz.min())
 
 

@@ -113,7 +113,7 @@ class HybridTorqueModel:
         at_rate = cs.as_recording().take(keep)
         cutoffs = [float(cs.cutoff_hz.min())] + ([self.data.tau_filter_hz] if self.data.tau_filter_hz else [])
         return at_rate, {"t": at_rate.t - at_rate.t[0], "q": cs.q[keep], "qd": cs.qd[keep], "qdd": cs.qdd[keep],
-                         "tau": tau[keep], "time_step": k / cs.rate_hz, "gap": ~cs.valid[keep],  # inside log gaps
+                         "tau": tau[keep], "time_step": k / cs.rate_hz, "gap": cs.gap[keep],
                          "edge_s": self.data.conditioning().edge_cycles / min(cutoffs)}
 
 

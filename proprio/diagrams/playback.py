@@ -209,9 +209,12 @@ def playback_from_estimate(res: EstimationResult, desc: RobotDescription, observ
     if keep.sum() < 1:
         raise RecordingError("playback: every sample lies inside a gap of the log; nothing to show")
     t = res.t - res.t[0]
-    edges = np.flatnonzero(np.diff(keep.astype(int)))          # k: keep[k] != keep[k+1]
-    starts, ends = edges[keep[edges]], edges[~keep[edges]] + 1  # last sample before, first sample after a gap
-    gaps = tuple((float(t[a]), float(t[b])) for a, b in zip(starts, ends[ends > starts[0]] if starts.size else ()))
+    edges = np.flatnonzero(np.diff(keep.astype(np.int8)))     # keep[k] != keep[k + 1]
+    before, after = edges[keep[edges]], edges[~keep[edges]] + 1  # the samples around each gap
+    if not keep[0]:
+        after = after[1:]                                        # a gap at the start has no sample before it,
+    before = before[:after.size]                                 # one at the end none after it
+    gaps = tuple((float(t[a]), float(t[b])) for a, b in zip(before, after))
     cut = lambda a: None if a is None else np.asarray(a)[keep]  # noqa: E731
     return Playback(desc, t[keep], res.q[keep], f_est=res.wrench[observer][keep, :3],
                     f_true=None if res.f_true is None else res.f_true[keep, :3],
