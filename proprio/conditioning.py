@@ -22,7 +22,7 @@ Steps, all vectorised over samples and joints:
    estimated error of ``q̈`` for a cutoff ``f_c``: the signal the filter's magnitude ``G`` removes,
    ``∫ (2πf)⁴ (P_q − P_0)⁺ (1 − G)²``, plus the noise it passes, ``∫ (2πf)⁴ P_0 G²``; the cutoff minimises the sum
    (a Wiener-style trade-off) within ``[min_cutoff_hz, min(max_cutoff_fraction · rate, max_motion_hz)]``.
-   ``max_motion_hz`` (20 Hz) is the physical bound of a manipulator's rigid-body motion: what ``q`` holds above it
+   ``max_motion_hz`` (40 Hz) is the physical bound of a manipulator's rigid-body motion: what ``q`` holds above it
    (drive and structure vibration, servo chatter of a 5 kHz log) is counted neither as motion to keep nor as
    motion the filter distorts, so a fast log's cutoff and its error estimate follow the arm, not its vibrations.
    **Decimation** (``decimate``, on in the diagnosis): when the grid rate exceeds ``oversampling ×`` the motion band
@@ -83,7 +83,7 @@ class ConditioningConfig:
     tau_filter: bool = True
     max_gap_s: float = 0.02
     time_base: str = "auto"
-    max_motion_hz: float = 20.0
+    max_motion_hz: float = 40.0
     decimate: bool = False
     oversampling: float = 10.0
 
@@ -378,7 +378,7 @@ def _spectra(q: np.ndarray, rate_hz: float, t: np.ndarray | None = None, band_hz
 
 
 def auto_cutoff(q: np.ndarray, rate_hz: float, min_hz: float = 1.0, max_fraction: float = 0.2,
-                t: np.ndarray | None = None, order: int = 2, max_motion_hz: float = 20.0
+                t: np.ndarray | None = None, order: int = 2, max_motion_hz: float = 40.0
                 ) -> tuple[np.ndarray, np.ndarray]:
     """Per-joint cutoff [Hz] minimising the estimated q̈ error (module docstring, step 2) and the white noise σ of q
     [rad] implied by the floor (``σ² = P_0 · rate / 2``); ``q`` at its own stamps ``t`` [s] when given.
