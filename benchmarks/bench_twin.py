@@ -5,10 +5,8 @@ and the calibration check of issue 4 (identified-style RBD model vs. twin data, 
     .venv/bin/python benchmarks/bench_twin.py --scaffolds 150          # the full ≈1 h path (slow)
     .venv/bin/python benchmarks/bench_twin.py --trajectory FILE.npz    # any 'proprio trajectory rfma' file
 
-Prints: simulated seconds, wall seconds (simulation loop of the full twin Diagram — dynamics and the measurement
-chain: torque sensor, encoder, robot logger — and the truth post-processing separately), real-time factor, µs per
-1 ms step, the same for the dynamics-only Diagram (trajectory, controller, joint drive, plant) measured in the same
-run and the ratio of the two, the projection to a 3600 s path, and per-joint MSE [N·m²] of ``τ_RBD + F_v q̇ + F_c
+Prints: simulated seconds, wall seconds (simulation loop and sensor/truth post-processing separately), real-time
+factor, µs per 1 ms step, the projection to a 3600 s path, and per-joint MSE [N·m²] of ``τ_RBD + F_v q̇ + F_c
 sign(q̇)`` (true inertials and friction of the twin's robot, true q̇/q̈) against the measured τ_J — raw and with the
 white noise removed — beside the thesis' RBD test row.
 """
@@ -20,10 +18,7 @@ import time
 
 import numpy as np
 
-from pydrake.systems.analysis import Simulator
-from pydrake.systems.framework import DiagramBuilder
-
-from proprio.diagrams.twin import AddTwinDynamics, load_twin_config, simulate_twin
+from proprio.diagrams.twin import load_twin_config, simulate_twin
 from proprio.dynamics import inverse_dynamics
 
 THESIS_RBD_TEST_MSE = np.array([2.0882, 23.1839, 0.0991, 2.1749, 0.4097, 0.0985, 0.0471])   # Table 5.3, N·m²
@@ -37,20 +32,6 @@ def rfma(scaffolds: int, seed: int, path: str | None):
     return generate_rfma(load_rfma_config(scaffolds=scaffolds, seed=seed))[1].trajectory
 
 
-def dynamics_only(config, traj) -> tuple[float, float]:
-    """Wall and CPU seconds of the dynamics-only Diagram (no sensors, no logger, no log) along ``traj``."""
-    builder = DiagramBuilder()
-    dyn = AddTwinDynamics(builder, config, traj)
-    sim = Simulator(builder.Build())
-    pctx = dyn.plant.GetMyMutableContextFromRoot(sim.get_mutable_context())
-    dyn.plant.SetPositions(pctx, traj.value(traj.start_time()).ravel())
-    dyn.plant.SetVelocities(pctx, traj.MakeDerivative(1).value(traj.start_time()).ravel())
-    sim.Initialize()
-    t0, c0 = time.perf_counter(), time.process_time()
-    sim.AdvanceTo(traj.end_time())
-    return time.perf_counter() - t0, time.process_time() - c0
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--twin", default="iiwa14_twin")
@@ -62,7 +43,6 @@ def main() -> None:
     traj = rfma(args.scaffolds, args.seed, args.trajectory)
     config = load_twin_config(args.twin)
     load = os.getloadavg()[0]
-    dyn_wall, dyn_cpu = dynamics_only(config, traj)
     t0, c0 = time.perf_counter(), time.process_time()
     rec = simulate_twin(config, traj, progress=True)
     total, cpu = time.perf_counter() - t0, time.process_time() - c0
@@ -72,17 +52,12 @@ def main() -> None:
     print(f"\ntwin {config.name}: effects {sorted(rec.meta['effects'])}; load average at start {load:.1f} on "
           f"{os.cpu_count()} cores")
     print(f"simulated {sim_s:.1f} s at 1 kHz ({rec.n_samples} samples)")
-    print(f"  full-chain twin, wall: simulation loop {loop:.1f} s -> {sim_s / loop:.1f}x real time "
-          f"({loop / sim_s * 1e3:.0f} us per "
-          f"1 ms step); incl. truth post-processing {total:.1f} s -> {sim_s / total:.1f}x")
+    print(f"  wall: simulation loop {loop:.1f} s -> {sim_s / loop:.1f}x real time ({loop / sim_s * 1e3:.0f} us per "
+          f"1 ms step); incl. sensors/truth post-processing {total:.1f} s -> {sim_s / total:.1f}x")
     loop_cpu = rec.meta["sim_cpu_s"]
     print(f"  CPU time of this process (load-independent): simulation loop {loop_cpu:.1f} s -> "
           f"{sim_s / loop_cpu:.1f}x real time ({loop_cpu / sim_s * 1e3:.0f} us per step); incl. post-processing "
           f"{cpu:.1f} s -> {sim_s / cpu:.1f}x")
-    print(f"dynamics-only Diagram (same path, same run): {dyn_wall:.1f} s wall -> {sim_s / dyn_wall:.1f}x real time, "
-          f"CPU {dyn_cpu:.1f} s -> {sim_s / dyn_cpu:.1f}x")
-    print(f"full-chain twin / dynamics-only: {loop / dyn_wall:.2f}x the wall time, {loop_cpu / dyn_cpu:.2f}x the CPU "
-          "time")
     print(f"projected time for the 3600 s RFMA path ({how}): {3600 * total / sim_s / 60:.1f} min wall now, "
           f"{3600 * cpu / sim_s / 60:.1f} min on one free core")
 

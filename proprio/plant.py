@@ -1,68 +1,25 @@
-"""The one plant factory: a Drake ``MultibodyPlant`` from a :class:`RobotDescription` (+ payload), and thin
-single-sample Drake helpers.
+"""Build a Drake ``MultibodyPlant`` from a :class:`RobotDescription`, and thin single-sample Drake helpers.
 
-Every plant of the app is made here from one URDF text per (description, payload), generated once and cached
-(:func:`robot_urdf`):
-
-* :func:`robot_plant` — a finalized plant without a SceneGraph (the twin's discrete plant and its controller's model);
-* ``AddRobot(builder, desc, ...)`` (the ``AddX(builder, ...)`` idiom) — plant + scene graph in a ``DiagramBuilder``
-  (collision checking, drawing);
-* :func:`drake_robot` — the cached :class:`DrakeRobot` of a (description, payload): a finalized continuous plant and
-  a context for cross-checks (``CalcInverseDynamics``, ``CalcJacobianSpatialVelocity``) and one-off queries, parsed
-  once per process.
+``AddRobot(builder, desc, ...)`` follows the ``AddX(builder, ...)`` idiom: it adds a plant + scene graph to a
+``DiagramBuilder`` and returns them. :class:`DrakeRobot` wraps a finalized plant and a context for cross-checks
+(``CalcInverseDynamics``, ``CalcJacobianSpatialVelocity``) and one-off queries.
 """
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import numpy as np
 from pydrake.multibody.parsing import Parser
-from pydrake.multibody.plant import AddMultibodyPlantSceneGraph, DiscreteContactApproximation, MultibodyPlant
-from pydrake.multibody.tree import JacobianWrtVariable, ModelInstanceIndex, MultibodyForces, PdControllerGains
+from pydrake.multibody.plant import AddMultibodyPlantSceneGraph, MultibodyPlant
+from pydrake.multibody.tree import MultibodyForces
+from pydrake.multibody.tree import JacobianWrtVariable, ModelInstanceIndex
 from pydrake.systems.framework import DiagramBuilder
 
 from proprio.description import RobotDescription
 from proprio.payload import Payload
 from proprio.urdf import to_urdf
 
-__all__ = ["RobotPlant", "AddRobot", "build_plant", "DrakeRobot", "robot_urdf", "robot_plant", "drake_robot"]
-
-
-@functools.lru_cache(maxsize=64)
-def robot_urdf(desc: RobotDescription, payload: Payload | None = None, collision: bool = False,
-               visual: bool = False) -> str:
-    """The URDF text of ``desc`` (+ ``payload`` welded to the flange), generated once per argument set
-    (:func:`proprio.urdf.to_urdf`)."""
-    return to_urdf(desc, payload, collision=collision, visual=visual)
-
-
-def robot_plant(desc: RobotDescription, payload: Payload | None = None, time_step: float = 0.0,
-                rotor_inertia: np.ndarray | None = None,
-                spring: tuple[np.ndarray, np.ndarray] | None = None) -> MultibodyPlant:
-    """A finalized ``MultibodyPlant`` of ``desc`` (+ ``payload``), no collision shapes, no SceneGraph (a plant that
-    plays planned, collision-free motion needs no geometry queries: they would cost ~1/3 of a step).
-
-    ``time_step`` 0 → continuous, else the discrete period [s]; ``rotor_inertia`` [kg·m²] per actuator (reflected
-    motor inertia, implicit); ``spring`` = (K [N·m/rad], D [N·m·s/rad]) per actuator makes each actuator a
-    PD-controlled joint (the series spring of an elastic drive; needs SAP). A discrete plant's output ports are
-    those of the current state (not sampled), and without a spring it uses TAMSI (≈2× faster than SAP when nothing
-    is in contact)."""
-    plant = MultibodyPlant(time_step)
-    Parser(plant).AddModelsFromString(robot_urdf(desc, payload), "urdf")
-    plant.mutable_gravity_field().set_gravity_vector(np.asarray(desc.gravity, dtype=float))
-    for k, index in enumerate(plant.GetJointActuatorIndices()):
-        actuator = plant.get_joint_actuator(index)
-        if rotor_inertia is not None:
-            actuator.set_default_rotor_inertia(float(rotor_inertia[k]))
-        if spring is not None:
-            actuator.set_controller_gains(PdControllerGains(p=float(spring[0][k]), d=float(spring[1][k])))
-    if time_step > 0:
-        plant.SetUseSampledOutputPorts(False)
-        plant.set_discrete_contact_approximation(DiscreteContactApproximation.kSap if spring is not None
-                                                 else DiscreteContactApproximation.kTamsi)
-    plant.Finalize()
-    return plant
+__all__ = ["RobotPlant", "AddRobot", "build_plant", "DrakeRobot"]
 
 
 @dataclass
@@ -87,7 +44,7 @@ def AddRobot(builder: DiagramBuilder, desc: RobotDescription, time_step: float =
         visual: also register simple visual geometry (:func:`proprio.urdf.visual_shapes`), for Meshcat.
     """
     plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step=time_step)
-    instances = Parser(plant).AddModelsFromString(robot_urdf(desc, payload, collision=True, visual=visual), "urdf")
+    instances = Parser(plant).AddModelsFromString(to_urdf(desc, payload, visual=visual), "urdf")
     plant.mutable_gravity_field().set_gravity_vector(np.asarray(desc.gravity, dtype=float))
     if finalize:
         plant.Finalize()
@@ -100,12 +57,14 @@ def build_plant(desc: RobotDescription, time_step: float = 0.0, payload: Payload
 
 
 class DrakeRobot:
-    """A finalized continuous plant of ``desc`` with a context, for single-sample Drake queries (SI, world frame).
-    :func:`drake_robot` gives the cached one of a (description, payload)."""
+    """A finalized continuous plant of ``desc`` with a context, for single-sample Drake queries (SI, world frame)."""
 
     def __init__(self, desc: RobotDescription, payload: Payload | None = None):
         self.description = desc
-        self.plant = robot_plant(desc, payload)
+        self.plant = MultibodyPlant(0.0)
+        Parser(self.plant).AddModelsFromString(to_urdf(desc, payload, collision=False), "urdf")
+        self.plant.mutable_gravity_field().set_gravity_vector(np.asarray(desc.gravity, dtype=float))
+        self.plant.Finalize()
         self.context = self.plant.CreateDefaultContext()
         self.flange = self.plant.GetFrameByName(desc.end_effector.name)
         self._world, self._origin = self.plant.world_frame(), np.zeros(3)
@@ -160,10 +119,3 @@ class DrakeRobot:
     def mass_matrix(self, q: np.ndarray) -> np.ndarray:
         self._set(q)
         return self.plant.CalcMassMatrix(self.context)[np.ix_(self._v_index, self._v_index)]
-
-
-@functools.lru_cache(maxsize=16)
-def drake_robot(desc: RobotDescription, payload: Payload | None = None) -> DrakeRobot:
-    """The :class:`DrakeRobot` of ``desc`` (+ ``payload``), parsed once per process (its context is shared: use it
-    from one thread)."""
-    return DrakeRobot(desc, payload)

@@ -118,8 +118,12 @@ def test_errors_name_the_unidentifiable_parameters(robot, base, data):
         ols(robot, q[few], qd[few], qdd[few], tau[few], base=base)
 
 
-def test_model_file_round_trip(tmp_path, robot, base, prior, data):
+def test_model_file_round_trip_and_backbone_system(tmp_path, robot, base, prior, data):
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import ConstantVectorSource
+
     from proprio.identification.model_io import load_model, save_model
+    from proprio.systems.rbd_backbone import AddRbdBackbone
 
     model = identify(prior, *data, method="ols", base=base, offsets=True)
     path = save_model(model, tmp_path / "m.npz")
@@ -128,7 +132,15 @@ def test_model_file_round_trip(tmp_path, robot, base, prior, data):
     assert back.names == model.names and back.names[-1] == "offset7"
     assert back.training_digest == model.training_digest and len(back.training_digest) == 64
     q, qd, qdd, tau = data
-    np.testing.assert_allclose(back.torque(q[10], qd[10], qdd[10]), tau[10], atol=1e-7)
+    builder = DiagramBuilder()
+    rbd = AddRbdBackbone(builder, path)
+    for name, value in (("q", q[10]), ("qd", qd[10]), ("qdd", qdd[10])):
+        src = builder.AddSystem(ConstantVectorSource(value))
+        builder.Connect(src.get_output_port(), rbd.GetInputPort(name))
+    diagram = builder.Build()
+    ctx = diagram.CreateDefaultContext()
+    out = rbd.GetOutputPort("tau_rbd").Eval(rbd.GetMyContextFromRoot(ctx))
+    np.testing.assert_allclose(out, tau[10], atol=1e-7)
 
 
 def test_excitation_optimiser_improves_cond_and_respects_constraints(robot, base):

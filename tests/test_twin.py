@@ -229,80 +229,44 @@ def test_hysteresis_test_trajectory_is_fig_2_5(nominal):
     assert cli_main(["twin"]) == 2                                               # no experiment given: help
 
 
-def test_torque_sensor_system_equals_the_effect_library_batch_law(calibrated):
-    """The twin's sensor System, block by block (7 steps per block, so blocks cut reversals), gives the batch law of
-    the effect library (TorqueSensor.measure) on the same inputs to 1e-12 N·m: every contribution, incl. a plugin and
-    the time-varying offset drift, and the noise from the same draws."""
+def test_streaming_torque_sensor_system_matches_the_vectorised_sensor(calibrated):
+    from pydrake.common import RandomGenerator
     from pydrake.systems.analysis import Simulator
     from pydrake.systems.framework import DiagramBuilder
-    from pydrake.systems.primitives import TrajectorySource
+    from pydrake.systems.primitives import TrajectorySource, VectorLogSink
 
-    from proprio.systems.sensors import AddSampleBank, TorqueSensor, TorqueSensorSystem
+    from proprio.systems.sensors import AddTorqueSensor, TorqueSensor
 
     rng = np.random.default_rng(2)
     knots = np.linspace(0.0, 3.0, 13)
     motion = PiecewisePolynomial.CubicShapePreserving(knots, (Q_A + rng.uniform(-0.2, 0.2, (13, 7))).T, True)
     torque = PiecewisePolynomial.FirstOrderHold(knots, rng.uniform(-40, 40, (13, 7)).T)
-    extra = make_effects({"offset_drift": {"drift": 0.5, "time_constant": 20.0},
-                          "proprio.effects.open_world:TorqueCrossTalk": {"coupling": 0.03}}, 7)
-    effects = [e for e in calibrated.effects if e.place == "sensor"] + extra
-    block, dt, session = 7, 1e-3, 12.0
+    sensor_effects = [e for e in calibrated.effects if e.place == "sensor" and e.name != "encoder_noise"]
     builder = DiagramBuilder()
+    state_src = builder.AddSystem(TrajectorySource(motion, output_derivative_order=1))
     tau_src = builder.AddSystem(TrajectorySource(torque))
-    motion_src = builder.AddSystem(TrajectorySource(motion, output_derivative_order=2))
-    bank, width = AddSampleBank(builder, [tau_src.get_output_port(), motion_src.get_output_port()], block, dt)
-    sensor = builder.AddSystem(TorqueSensorSystem(7, effects, dt, block, session_time_s=session, seed=5))
-    builder.Connect(bank, sensor.GetInputPort("samples"))
+    sensor, out = AddTorqueSensor(builder, 7, sensor_effects)
+    builder.Connect(state_src.get_output_port(), sensor.GetInputPort("link_state"))
+    builder.Connect(tau_src.get_output_port(), sensor.GetInputPort("tau_J"))
+    clean_log = builder.AddSystem(VectorLogSink(7, 1e-3))
+    noisy_log = builder.AddSystem(VectorLogSink(7, 1e-3))
+    builder.Connect(sensor.GetOutputPort("tau_measured"), clean_log.get_input_port())
+    builder.Connect(out.get_output_port(), noisy_log.get_input_port())
     diagram = builder.Build()
     sim = Simulator(diagram)
-    blocks = []
-    for j in range(428):                                        # 2996 steps, read block by block
-        sim.AdvanceTo(sensor.block_time(j))
-        blocks.append(sensor.GetOutputPort("record").Eval(sensor.GetMyContextFromRoot(sim.get_context())))
-    rows = np.concatenate(blocks).reshape(-1, (2 + len(sensor.names)) * 7)
-    t = dt * np.arange(rows.shape[0])
-    q, qd, qdd = (motion.MakeDerivative(k).vector_values(t).T for k in range(3))
-    tau_j = torque.vector_values(t).T
-    batch = TorqueSensor([e for e in effects if e.name != "encoder_noise"])
-    assert sensor.names == [e.name for e in batch.effects] and len(batch.gauge) == 4    # incl. the plugin
-    noise = batch.noise
-    batch.noise = None
-    expected, parts = batch.measure(MotionSignals(t + session, q, qd, qdd), tau_j)
-    z = np.concatenate([sensor.rng(np.array([k])).standard_normal((block, 7)) for k in range(0, t.size, block)])
-    parts["torque_noise"] = noise.from_normal(z[:t.size])
-    expected = expected + parts["torque_noise"]
-    assert t.size >= 2990 and min(len(st) for st in reversal_travel(q, qd).starts) >= 3    # every joint reverses
-    np.testing.assert_allclose(rows[:, 7:14], tau_j, rtol=0, atol=1e-12)
-    for k, name in enumerate(sensor.names):
-        assert np.abs(parts[name]).max() > 1e-3, name
-        np.testing.assert_allclose(rows[:, (2 + k) * 7:(3 + k) * 7], parts[name], rtol=0, atol=1e-12, err_msg=name)
-    np.testing.assert_allclose(rows[:, :7], expected, rtol=0, atol=1e-12)
-    assert np.all(np.abs(parts["torque_noise"].std(axis=0) / noise.std - 1.0) < 0.1)
-
-
-def test_simulate_runs_one_diagram_with_the_sensors_and_the_logger(calibrated, monkeypatch):
-    """The Diagram simulate_twin runs holds the torque sensor, the encoder and the robot's logger (the whole chain,
-    drawable), and its recording is what that chain logged."""
-    import proprio.diagrams.twin as twin
-    from proprio.systems.robot_logger import RobotLoggerSystem
-    from proprio.systems.sensors import EncoderSystem, TorqueSensorSystem
-
-    built = []
-    build = twin.build_twin_diagram
-    monkeypatch.setattr(twin, "build_twin_diagram", lambda *a, **k: built.append(build(*a, **k)) or built[-1])
-    rec = simulate_twin(calibrated, waypoints(0.5), progress=False)
-    systems = {s.get_name(): s for s in built[0].diagram.GetSystems()}
-    assert isinstance(systems["torque_sensor"], TorqueSensorSystem)
-    assert isinstance(systems["encoder"], EncoderSystem)
-    assert isinstance(systems["robot_logger"], RobotLoggerSystem)
-    assert {"plant", "controller", "joint_drive"} <= set(systems)
-    dot = built[0].diagram.GetGraphvizString(max_depth=1)
-    assert all(name in dot for name in ("torque_sensor", "encoder", "robot_logger"))
-    assert set(systems["torque_sensor"].names) == {"hysteresis", "lost_motion", "ripple", "sensor_offset_gain",
-                                                   "torque_noise"}
-    assert rec.n_samples + rec.meta["samples_lost"] == 501
-    np.testing.assert_allclose(rec.tau - rec.truth["tau_J_true"],
-                               sum(rec.truth[f"tau_{k}"] for k in systems["torque_sensor"].names), atol=1e-9)
+    diagram.SetRandomContext(sim.get_mutable_context(), RandomGenerator(4))
+    sim.AdvanceTo(3.0)
+    log = clean_log.FindLog(sim.get_context())
+    t = log.sample_times()
+    q, qd = motion.vector_values(t).T, motion.MakeDerivative(1).vector_values(t).T
+    offline = TorqueSensor([e for e in sensor_effects if e.name != "torque_noise"])
+    expected, _ = offline.measure(MotionSignals(t, q, qd, np.zeros_like(q)), torque.vector_values(t).T, rng)
+    assert len(offline.gauge) == 3 and t.size == 3001
+    assert min(len(st) for st in reversal_travel(q, qd).starts) >= 3          # every joint reverses
+    np.testing.assert_allclose(log.data().T, expected, atol=1e-9)
+    noise = noisy_log.FindLog(sim.get_context()).data().T - log.data().T
+    std = calibrated.effect("torque_noise").std
+    assert np.all(np.abs(noise.std(axis=0) / std - 1.0) < 0.1)
 
 
 def test_cli_hysteresis_test_writes_the_fig_2_5_plot(calibrated, tmp_path):
@@ -338,22 +302,3 @@ def test_logger_jitter_dropouts_and_a_robot_reported_velocity(calibrated):
         TwinConfig.from_dict({**config_dict(), "logger": {"jitter_ms": 0.1}})
     with pytest.raises(TwinConfigError, match="stamp_jitter_ms"):
         calibrated.with_logger(stamp_jitter_ms=0.5)
-
-
-def test_one_plant_factory_makes_the_urdf_once_per_description_and_payload(nominal):
-    """Every plant of a twin (the discrete plant, the controller's model, the inertia check's DrakeRobot) comes from
-    proprio.plant's factory: the URDF text is generated once per (description, payload), the DrakeRobot parsed
-    once."""
-    from proprio.diagrams.twin import build_twin_diagram
-    from proprio.plant import drake_robot, robot_urdf
-
-    robot_urdf.cache_clear()
-    drake_robot.cache_clear()
-    build_twin_diagram(nominal, waypoints(0.2))
-    first, robots = robot_urdf.cache_info(), drake_robot.cache_info()
-    build_twin_diagram(nominal, waypoints(0.2, seed=1))
-    again = robot_urdf.cache_info()
-    assert first.misses == 1 and first.hits >= 1 and robots.misses == 1
-    assert again.misses == 1 and again.hits >= first.hits + 2 and drake_robot.cache_info().misses == 1
-    build_twin_diagram(nominal.with_payload(Payload(1.0, (0.0, 0.0, 0.05))), waypoints(0.2))
-    assert robot_urdf.cache_info().misses == 2                  # a payload is another plant

@@ -3,9 +3,8 @@
 **How the data are made (stated, as the benchmark is offline):** motion is an RFMA-like sequence generated here in
 closed form (min-jerk *reach* segments between random configurations at up to ≈70 % of the speed limits, then
 *exploration* segments: a smoothly windowed 3-term sinusoid of 0.5–3° per joint, §4.3), sampled at 200 Hz; the
-measured torque is ``τ_rbd(q, q̇, q̈) + Σ link-side effect.torque(...)`` passed through the twin's torque-sensor chain
-(:class:`proprio.systems.sensors.TorqueSensor`, the batch form of the twin's sensor System: strain-gauge effects, the
-gain on all the gauge sees, offsets) plus white sensor noise; encoder noise and elasticity act
+measured torque is ``τ_J = τ_rbd(q, q̇, q̈) + Σ effect.torque(...)`` with the library's own effect classes (link-side
+friction first, then sensor effects on the resulting τ_J) plus white sensor noise; encoder noise and elasticity act
 on the *recorded* q (encoder noise + quantisation; a motor-side position sensor that sees the spring deflection
 τ_J/K), which is how they reach a torque residual. Recordings store q only (q̇, q̈ are differentiated by the
 diagnosis, as from a real recorder). The model carries the background noise the data were made with: torque noise
@@ -56,7 +55,6 @@ from proprio.effects.plugins import is_plugin_path
 from proprio.payload import Payload, attach_payload
 from proprio.recording import Recording
 from proprio.signals import MotionSignals
-from proprio.systems.sensors import TorqueSensor
 
 __all__ = ["BenchmarkCase", "CaseData", "make_cases", "time_varying_cases", "select_cases", "generate_case_data",
            "generate_twin_case_data", "twin_case_config", "rfma_like_motion", "EFFECT_TYPES", "TWIN_EFFECT_TYPES",
@@ -397,9 +395,12 @@ def generate_case_data(case: BenchmarkCase, robot: RobotDescription | None = Non
         for name, eff in effects.items():          # link-side plugins (q, q̇ only, as in the twin's drive)
             if is_plugin_path(name) and eff.place == "link":
                 tau = tau + eff.torque(s)
-        sensor = TorqueSensor([eff for name, eff in effects.items()
-                               if eff.place == "sensor" and name not in ("torque_noise", "encoder_noise")])
-        tau_meas = sensor.measure(s, tau)[0] + (steps[k] if steps is not None else 0.0)   # the twin's sensor chain
+        s = s.with_tau(tau)
+        sensor = np.zeros_like(tau)
+        for name, eff in effects.items():
+            if eff.place == "sensor" and name not in ("torque_noise", "encoder_noise"):
+                sensor += eff.torque(s)
+        tau_meas = tau + sensor + (steps[k] if steps is not None else 0.0)
         if "signal_lag" in params:
             a = np.exp(-1.0 / (RATE_HZ * params["signal_lag"]["time_constant"]))
             tau_meas = signal.lfilter([1 - a], [1, -a], tau_meas - tau_meas[0], axis=0) + tau_meas[0]

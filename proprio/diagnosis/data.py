@@ -21,7 +21,6 @@ from proprio.effects import JointEffect, ViscousCoulomb, resolve_effect, robot_f
 from proprio.conditioning import ConditionedSignals, ConditioningConfig, condition
 from proprio.recording import Recording
 from proprio.signals import MotionSignals
-from proprio.systems.sensors import TorqueSensor
 
 __all__ = ["DiagnosisError", "SimModel", "GapData", "signals_of", "condition_all", "kept", "session_time",
            "session_motion", "NOISE_EFFECTS", "DIAGNOSIS_CONDITIONING"]
@@ -88,20 +87,22 @@ class SimModel:
         return names
 
     def predict(self, s: MotionSignals) -> np.ndarray:
-        """Deterministic τ_J [N·m]: rigid body + link-side friction/effects, then the torque sensor's chain applied to
-        that link-side torque (never to the measured one: a fit must not see the measurement's own noise)."""
+        """Deterministic τ_J [N·m]: rigid body + link-side friction/effects, then sensor effects applied to that
+        link-side torque (never to the measured one: a fit must not see the measurement's own noise)."""
         return self.predict_parts(s)[1]
 
     def predict_parts(self, s: MotionSignals) -> tuple[np.ndarray, np.ndarray]:
-        """``(link-side torque, sensor output)`` the model predicts, each ``[N,n]`` N·m. The sensor output is the
-        twin's torque-sensor chain (:class:`proprio.systems.sensors.TorqueSensor`, the batch form of the twin's
-        sensor System): strain-gauge effects on the link-side torque, the gain on all of it, offsets, without noise."""
+        """``(link-side torque, sensor output)`` the model predicts, each ``[N,n]`` N·m."""
         tau = self.rigid_torque(s.q, s.qd, s.qdd)
         for eff in self.effects:
             if eff.place != "sensor":
                 tau = tau + eff.torque(s)
-        sensor = TorqueSensor([e for e in self.effects if e.place == "sensor" and e.name not in NOISE_EFFECTS])
-        return tau, sensor.measure(s, tau)[0]
+        s_link = s.with_tau(tau)
+        out = tau.copy()
+        for eff in self.effects:
+            if eff.place == "sensor" and eff.name not in NOISE_EFFECTS:
+                out = out + eff.torque(s_link)
+        return tau, out
 
     def rigid_torque(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """Rigid body + the description's link friction [N·m] (what the processing error propagates through)."""

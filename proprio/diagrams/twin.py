@@ -1,20 +1,16 @@
 """The twin: the data-collection diagram that plays the role of the real robot (DESIGN.md, "Physics of the twin").
 
-One Drake Diagram (:func:`build_twin_diagram`, the one :func:`simulate_twin` runs; draw it with
-``GetGraphvizString``): ``JointTrajectorySource → InverseDynamicsController → JointDrive (motor side + link friction)
-→ MultibodyPlant (discrete 1 ms, payload)``, then the measurement chain ``JointDrive.tau_J → torque_sensor`` (every
-sensor-side effect of the effect library and the plugins, :mod:`proprio.systems.sensors`) and ``plant → encoder →
-robot_logger`` (rate, lost samples, jittered stamps, the channels the robot reports:
-:mod:`proprio.systems.robot_logger`), read block by block from the Diagram's ``record`` output; seeded by
-``seed``.
-Output: a :class:`~proprio.recording.Recording`
+``JointTrajectorySource → InverseDynamicsController → JointDrive (motor side + link friction) → MultibodyPlant
+(discrete 1 ms, payload) → VectorLogSink``; the logged true motion then passes the sensor models
+(:mod:`proprio.systems.sensors`) and the robot's logger (:mod:`proprio.systems.robot_logger`: lost samples, jittered
+stamps, the channels the robot reports) in one vectorised pass. Output: a :class:`~proprio.recording.Recording`
 whose measured channels are what that robot logs — stamps ``t``, encoder ``q``, ``tau`` (τ_J) and, only for a robot
 that reports one, its own filtered ``qd``; never ``qdd`` — plus the true flange wrench ``f_ext`` (for scoring) and
 truth channels:
 
 * ``tau_rbd``: rigid-body torque of the logged motion incl. payload (``proprio.dynamics.inverse_dynamics``);
-* ``tau_J_true``: the transmitted, sensed torque before the sensor effects, the torque sensor's input
-  (``JointDrive.tau_J`` = ``JointDrive.sensed_torque``: actuation + link friction [− B q̈ for a rigid drive]); it equals
+* ``tau_J_true``: the transmitted, sensed torque before the sensor effects, straight from the simulation
+  (``JointDrive.sensed_torque``: actuation + link friction [− B q̈ for a rigid drive]); it equals
   ``tau_rbd + Σ link friction`` to solver precision (tests: 1e-6 N·m);
 * ``tau_<effect>``: each effect's contribution (``tau_viscous_coulomb``, ``tau_hysteresis``, ...);
 * ``q_true``, ``qd``, ``qdd``: the plant's exact link position, velocity and acceleration at the true sampling
@@ -61,11 +57,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.parsing import Parser
+from pydrake.multibody.plant import DiscreteContactApproximation, MultibodyPlant
+from pydrake.multibody.tree import PdControllerGains
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.controllers import InverseDynamicsController
 from pydrake.systems.framework import Diagram, DiagramBuilder
-from pydrake.systems.primitives import Demultiplexer, Multiplexer
+from pydrake.systems.primitives import Multiplexer, VectorLogSink
 from pydrake.trajectories import PiecewisePolynomial, Trajectory
 from tqdm import tqdm
 
@@ -73,79 +71,79 @@ from proprio.description import RobotDescription
 from proprio.dynamics import inverse_dynamics
 from proprio.kinematics import flange_pose, point_jacobian
 from proprio.payload import Payload, attach_payload
-from proprio.plant import drake_robot, robot_plant
+from proprio.plant import DrakeRobot
 from proprio.recording import Recording
+from proprio.urdf import to_urdf
 from proprio.systems.joint_drive import (
-    AddJointDrive, JointDrive, check_elastic_stability, check_explicit_friction, friction_slope,
+    AddJointDrive, JointDrive, check_elastic_stability, check_explicit_friction, friction_slope, motor_from_description,
 )
 from proprio.identification.regressor import drive_identified
 from proprio.effects import Elasticity, EncoderNoise
 from proprio.signals import MotionSignals
-from proprio.systems.robot_logger import RobotLoggerSystem
-from proprio.systems.sensors import AddSampleBank, EncoderSystem, TorqueSensor, TorqueSensorSystem
+from proprio.systems.robot_logger import RobotLogger
+from proprio.systems.sensors import PositionSensor, TorqueSensor
 from proprio.systems.trajectories import AddTrajectorySource, sample_trajectory
 from proprio.diagrams.twin_config import (  # noqa: F401  (re-exported: callers import them from here)
     PATCH_KEYS, TwinConfig, TwinConfigError, load_twin_config, merge_twin_patch,
 )
 
 __all__ = ["TwinConfig", "TwinConfigError", "load_twin_config", "merge_twin_patch", "PATCH_KEYS", "TwinDiagram",
-           "TwinDynamics", "AddTwinDynamics", "build_twin_diagram", "simulate_twin", "payload_wrench",
-           "hysteresis_test_trajectory", "run_hysteresis_test"]
+           "build_twin_diagram", "simulate_twin", "payload_wrench", "hysteresis_test_trajectory", "run_hysteresis_test"]
 
 
 # ------------------------------------------------------------------------------------------------------------------
 # the diagram
 # ------------------------------------------------------------------------------------------------------------------
 @dataclass
-class TwinDynamics:
-    """What :func:`AddTwinDynamics` adds: the discrete plant, the joint drive, the controller (and its model)."""
-    plant: MultibodyPlant
+class TwinDiagram:
+    """What :func:`build_twin_diagram` returns."""
+    diagram: Diagram
+    plant: Any
     drive: JointDrive
     controller: InverseDynamicsController
-    control_plant: MultibodyPlant  # keeps the controller's model alive
-    instance: Any                  # the robot's model instance in ``plant``
-
-
-BLOCK_STEPS = 100
-"""Time steps the twin's measurement chain takes in per update (its sample bank; 100 ms at 1 kHz)."""
-
-
-@dataclass
-class TwinDiagram:
-    """What :func:`build_twin_diagram` returns: the Diagram and its stages. The Diagram's output port ``record``,
-    read at the block times (:meth:`RobotLoggerSystem.block_time`), holds the block of ``BLOCK_STEPS`` time steps
-    the chain reads then: per step ``[robot_logger record; torque_sensor record; the bank's sample]`` (``layout``
-    names these column slices; see :class:`RobotLoggerSystem`, :class:`TorqueSensorSystem`)."""
-    diagram: Diagram
-    dynamics: TwinDynamics
-    torque_sensor: TorqueSensorSystem
-    encoder: EncoderSystem
-    robot_logger: RobotLoggerSystem
-    layout: dict[str, slice]
+    logger: VectorLogSink          # logs [q; q̇; q̈; net actuation (; θ; θ̇ if elastic)] every time_step
     config: TwinConfig
-    n_steps: int                   # time steps of the trajectory, both ends included
+    control_plant: Any             # keeps the controller's model alive
 
-    @property
-    def plant(self) -> MultibodyPlant:
-        return self.dynamics.plant
 
-    @property
-    def drive(self) -> JointDrive:
-        return self.dynamics.drive
+def _robot_plant(desc: RobotDescription, payload: Payload | None, time_step: float,
+                 rotor_inertia: np.ndarray | None = None, spring: Elasticity | None = None) -> MultibodyPlant:
+    """The robot as a finalized MultibodyPlant (proprio's URDF, no collision shapes) with reflected rotor inertia,
+    or with each actuator a PD-controlled joint whose gains are the series spring (K, D) of ``spring``.
+
+    The twin plays planned, collision-free paths and draws nothing, so it needs no SceneGraph: geometry queries
+    would cost ~1/3 of a step. Same URDF as ``proprio.plant.AddRobot``. Without a spring the discrete solver is
+    TAMSI (≈2× faster than SAP when nothing is in contact); the implicit PD actuators need SAP.
+    """
+    plant = MultibodyPlant(time_step)
+    Parser(plant).AddModelsFromString(to_urdf(desc, payload, collision=False), "urdf")
+    plant.mutable_gravity_field().set_gravity_vector(np.asarray(desc.gravity, dtype=float))
+    for k, index in enumerate(plant.GetJointActuatorIndices()):
+        actuator = plant.get_joint_actuator(index)
+        if rotor_inertia is not None:
+            actuator.set_default_rotor_inertia(float(rotor_inertia[k]))
+        if spring is not None:
+            actuator.set_controller_gains(PdControllerGains(p=float(spring.stiffness[k]),
+                                                            d=float(spring.damping[k])))
+    if time_step > 0:
+        plant.SetUseSampledOutputPorts(False)          # log q̈ and u of the state at the logged instant
+        plant.set_discrete_contact_approximation(DiscreteContactApproximation.kSap if spring is not None
+                                                 else DiscreteContactApproximation.kTamsi)
+    plant.Finalize()
+    return plant
 
 
 def _effective_inertia(desc: RobotDescription, payload: Payload | None, trajectory: Trajectory,
                        extra: np.ndarray) -> np.ndarray:
     """Smallest inertia a torque on each joint sees along the trajectory: ``min_t 1/[(M(q)+diag(extra))⁻¹]_jj``."""
-    robot = drake_robot(desc, payload)
+    robot = DrakeRobot(desc, payload)
     times = np.linspace(trajectory.start_time(), trajectory.end_time(), 25)
     inv = [np.diag(np.linalg.inv(robot.mass_matrix(trajectory.value(t).ravel()) + np.diag(extra))) for t in times]
     return 1.0 / np.max(inv, axis=0)
 
 
-def AddTwinDynamics(builder: DiagramBuilder, config: TwinConfig, trajectory: Trajectory) -> TwinDynamics:
-    """Add the twin's dynamics to ``builder``: ``JointTrajectorySource → InverseDynamicsController → JointDrive →
-    MultibodyPlant`` (discrete ``config.time_step``, payload; plants from :func:`proprio.plant.robot_plant`).
+def build_twin_diagram(config: TwinConfig, trajectory: Trajectory) -> TwinDiagram:
+    """Wire the twin for ``trajectory`` (joint positions vs. time; velocity/acceleration by differentiation).
 
     Raises ``ValueError`` when the friction or the elasticity is too stiff for the time step on this trajectory.
     """
@@ -163,11 +161,11 @@ def AddTwinDynamics(builder: DiagramBuilder, config: TwinConfig, trajectory: Tra
                                 _effective_inertia(desc, config.payload, trajectory, np.zeros(n)), dt)
         check_elastic_stability(elastic, motor, dt)
 
-    spring = None if elastic is None else (elastic.stiffness, elastic.damping)
-    plant = builder.AddSystem(robot_plant(desc, config.payload, dt, rotor if elastic is None else None, spring))
+    builder = DiagramBuilder()
+    plant = builder.AddSystem(_robot_plant(desc, config.payload, dt, rotor if elastic is None else None, elastic))
     plant.set_name("plant")
     instance = plant.GetModelInstanceByName(desc.name)
-    control_plant = robot_plant(desc, config.payload if config.payload_model else None, 0.0, rotor)
+    control_plant = _robot_plant(desc, config.payload if config.payload_model else None, 0.0, rotor)
     ctrl = builder.AddSystem(InverseDynamicsController(control_plant, config.kp, config.ki, config.kd, True))
     ctrl.set_name("controller")
     drive = AddJointDrive(builder, n, link, motor, elastic, dt, session_time_s=config.session_time_s,
@@ -183,64 +181,23 @@ def AddTwinDynamics(builder: DiagramBuilder, config: TwinConfig, trajectory: Tra
     builder.Connect(ctrl.get_output_port_generalized_force(), drive.GetInputPort("motor_torque"))
     builder.Connect(state, drive.GetInputPort("link_state"))
     builder.Connect(drive.GetOutputPort("actuation"), plant.get_actuation_input_port(instance))
-    builder.Connect(plant.get_net_actuation_output_port(instance), drive.GetInputPort("net_actuation"))
-    builder.Connect(plant.get_generalized_acceleration_output_port(instance), drive.GetInputPort("qdd"))
+    net_actuation = plant.get_net_actuation_output_port(instance)
     if elastic is not None:
         builder.Connect(drive.GetOutputPort("motor_state"), plant.get_desired_state_input_port(instance))
-    return TwinDynamics(plant, drive, ctrl, control_plant, instance)
+        builder.Connect(net_actuation, drive.GetInputPort("net_actuation"))
 
-
-def _n_steps(trajectory: Trajectory, time_step: float) -> int:
-    return int(math.floor((trajectory.end_time() - trajectory.start_time()) / time_step + 1e-9)) + 1
-
-
-def build_twin_diagram(config: TwinConfig, trajectory: Trajectory) -> TwinDiagram:
-    """Wire the twin for ``trajectory`` (joint positions vs. time; velocity/acceleration by differentiation): the
-    dynamics (:func:`AddTwinDynamics`), then the measurement chain on blocks of :data:`BLOCK_STEPS` time steps that a
-    C++ shift register keeps (:func:`AddSampleBank`): ``torque_sensor`` (:class:`TorqueSensorSystem`: the drive's τ_J
-    law on the plant's net actuation and motion, then every sensor-side effect incl. plugins) and ``encoder``
-    (:class:`EncoderSystem`) feed ``robot_logger`` (:class:`RobotLoggerSystem`: rate, lost samples, stamps, the
-    robot's own q̇); the Diagram's output ``record`` holds them with the true motion. Seeded by ``config.seed``.
-
-    Raises ``ValueError`` when the friction or the elasticity is too stiff for the time step on this trajectory.
-    """
-    n, dt, t0, b = config.robot.n, config.time_step, trajectory.start_time(), BLOCK_STEPS
-    builder = DiagramBuilder()
-    dyn = AddTwinDynamics(builder, config, trajectory)
-    plant, drive, instance = dyn.plant, dyn.drive, dyn.instance
-    split = builder.AddSystem(Demultiplexer([n, n]))
-    split.set_name("link_state")
-    builder.Connect(plant.get_state_output_port(instance), split.get_input_port())
-    # one time step's row: [net actuation; q; q̇; q̈ (; θ; θ̇)]
-    row = [plant.get_net_actuation_output_port(instance), split.get_output_port(0), split.get_output_port(1),
-           plant.get_generalized_acceleration_output_port(instance)]
-    row += [drive.GetOutputPort("motor_state")] if drive.elasticity is not None else []
-    bank, width = AddSampleBank(builder, row, b, dt)
-    sensor = builder.AddSystem(TorqueSensorSystem(n, config.effects, dt, b, config.session_time_s, t0, config.seed,
-                                                  drive.sensed_torque, (width, 0)))
-    sensor.set_name("torque_sensor")
-    encoder_effect = next((e for e in config.effects if isinstance(e, EncoderNoise)), None)
-    encoder = builder.AddSystem(EncoderSystem(n, encoder_effect, dt, b, t0, config.seed, (width, n)))
-    encoder.set_name("encoder")
-    n_steps = _n_steps(trajectory, dt)
-    logger = builder.AddSystem(RobotLoggerSystem(n, config.logger, dt, n_steps, t0, b, config.seed))
-    logger.set_name("robot_logger")
-    for port in (sensor.GetInputPort("samples"), encoder.GetInputPort("samples")):
-        builder.Connect(bank, port)
-    builder.Connect(encoder.GetOutputPort("q_measured"), logger.GetInputPort("q_measured"))
-    builder.Connect(sensor.GetOutputPort("tau_measured"), logger.GetInputPort("tau_measured"))
-
-    recorded = [logger.GetOutputPort("record"), sensor.GetOutputPort("record"), bank]
-    mux = builder.AddSystem(Multiplexer([port.size() for port in recorded]))
-    mux.set_name("record")
-    for k, port in enumerate(recorded):
+    logged = [state, plant.get_generalized_acceleration_output_port(instance), net_actuation]
+    if elastic is not None:
+        logged.append(drive.GetOutputPort("motor_state"))
+    mux = builder.AddSystem(Multiplexer([port.size() for port in logged]))
+    for k, port in enumerate(logged):
         builder.Connect(port, mux.get_input_port(k))
-    builder.ExportOutput(mux.get_output_port(), "record")
-    edges = np.cumsum([0] + [port.size() // b for port in recorded])
-    layout = {key: slice(int(a), int(b)) for key, a, b in zip(("logger", "sensor", "samples"), edges[:-1], edges[1:])}
+    logger = builder.AddSystem(VectorLogSink(mux.get_output_port().size(), dt))
+    logger.set_name("logger")
+    builder.Connect(mux.get_output_port(), logger.get_input_port())
     diagram = builder.Build()
     diagram.set_name(f"twin:{config.name}")
-    return TwinDiagram(diagram, dyn, sensor, encoder, logger, layout, config, n_steps)
+    return TwinDiagram(diagram, plant, drive, ctrl, logger, config, control_plant)
 
 
 # ------------------------------------------------------------------------------------------------------------------
@@ -287,22 +244,30 @@ def payload_wrench(desc: RobotDescription, payload: Payload | None, q: np.ndarra
     return np.concatenate([-force, -(moment + np.cross(p_c - p_f, force))], axis=1)
 
 
+def _log_indices(n_steps: int, time_step: float, rate_hz: float) -> np.ndarray:
+    """Indices of the 1/time_step log kept at ``rate_hz`` (nearest step; 150 Hz → 6/7 ms jitter like the iiwa)."""
+    if abs(rate_hz * time_step - 1.0) < 1e-9:
+        return np.arange(n_steps)
+    t_want = np.arange(0.0, n_steps * time_step, 1.0 / rate_hz)
+    return np.unique(np.minimum(np.round(t_want / time_step).astype(int), n_steps - 1))
+
+
 def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload | None = None,
                   progress: bool = True, chunk_s: float = 2.0) -> Recording:
     """Simulate the twin along ``trajectory`` and return the Recording (see module docstring for the channels).
 
     ``payload`` overrides the config's payload. Raises :class:`TwinConfigError` before simulating when the
-    trajectory leaves the joint limits or the friction is too stiff for the time step. The Diagram of
-    :func:`build_twin_diagram` runs block by block (progress bar with the real-time factor every ``chunk_s`` of
-    simulated time); its random
-    draws are seeded with ``config.seed``; only the samples its robot logger took are kept.
+    trajectory leaves the joint limits or the friction is too stiff for the time step. The simulation advances in
+    ``chunk_s`` pieces (progress bar with the real-time factor); only the samples at ``logger.rate_hz`` are kept.
     """
     if payload is not None:
         config = config.with_payload(payload)
     desc, n, dt = config.robot, config.robot.n, config.time_step
     _check_trajectory(trajectory, desc)
     twin = build_twin_diagram(config, trajectory)
-    t0, n_steps = trajectory.start_time(), twin.n_steps
+    t0, t1 = trajectory.start_time(), trajectory.end_time()
+    n_steps = int(math.floor((t1 - t0) / dt + 1e-9)) + 1
+    keep = _log_indices(n_steps, dt, config.logger.rate_hz)
 
     sim = Simulator(twin.diagram)
     ctx = sim.get_mutable_context()
@@ -314,73 +279,68 @@ def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload |
     twin.plant.SetVelocities(pctx, qd0)
     twin.drive.set_motor_state(twin.drive.GetMyMutableContextFromRoot(ctx), q0, qd0,
                                inverse_dynamics(attach_payload(desc, config.payload), q0, qd0, np.zeros(n)))
+    log = twin.logger.FindMutableLog(ctx)
     sim.Initialize()
 
-    chunks = []
+    chunks, got = [], 0
     wall0, cpu0 = time.perf_counter(), time.process_time()
-    t_end = t0 + (n_steps - 1) * dt
-    bar = tqdm(total=round(t_end - t0, 3), unit="s sim", disable=not progress, desc=f"twin {config.name}",
+    bar = tqdm(total=round(t1 - t0, 3), unit="s sim", disable=not progress, desc=f"twin {config.name}",
                bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} s sim [{elapsed}<{remaining}{postfix}]")
-    record, shown = twin.diagram.GetOutputPort("record"), t0
-    for j in range((n_steps - 1) // BLOCK_STEPS + 1):          # read each block of the chain at its block time
-        t = twin.robot_logger.block_time(j)
+    t = t0
+    while got < n_steps:
+        t = min(t + chunk_s, t0 + (n_steps - 1) * dt)
         sim.AdvanceTo(t)
-        chunks.append(_rows(record.Eval(ctx), twin.layout))
-        if t - shown >= chunk_s or j == (n_steps - 1) // BLOCK_STEPS:
-            bar.update(round(min(t, t_end) - shown, 3))
-            bar.set_postfix_str(f"{(t - t0) / max(time.perf_counter() - wall0, 1e-9):.1f}x real time")
-            shown = min(t, t_end)
+        data = log.data().T.copy()
+        log.Clear()
+        data = data[: n_steps - got]
+        idx = keep[(keep >= got) & (keep < got + data.shape[0])] - got
+        chunks.append(data[idx])
+        got += data.shape[0]
+        bar.update(round(data.shape[0] * dt, 3))
+        bar.set_postfix_str(f"{(got * dt) / max(time.perf_counter() - wall0, 1e-9):.1f}x real time")
+        if t >= t0 + (n_steps - 1) * dt and got < n_steps:
+            raise RuntimeError(f"twin logged {got} of {n_steps} samples")
     bar.close()
     wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
-    rows = np.concatenate(chunks)
-    if rows.shape[0] != twin.robot_logger.steps.size:
-        raise RuntimeError(f"twin logged {rows.shape[0]} of {twin.robot_logger.steps.size} samples")
-    return _to_recording(config, twin.layout, rows, wall, cpu)
+    data = np.concatenate(chunks)
+    return _to_recording(config, twin.drive, t0 + keep * dt, data, wall, cpu)
 
 
-def _rows(block: np.ndarray, layout: dict[str, slice]) -> np.ndarray:
-    """The time steps that were samples, one row each, from one block of the Diagram's ``record`` output."""
-    parts, at = [], 0
-    for key in ("logger", "sensor", "samples"):
-        size = (layout[key].stop - layout[key].start) * BLOCK_STEPS
-        parts.append(block[at:at + size].reshape(-1, layout[key].stop - layout[key].start))
-        at += size
-    rows = np.hstack(parts)
-    return rows[rows[:, layout["logger"].start] > 0.5]
-
-
-def _to_recording(config: TwinConfig, layout: dict[str, slice], rows: np.ndarray, wall_s: float,
+def _to_recording(config: TwinConfig, drive: JointDrive, t: np.ndarray, data: np.ndarray, wall_s: float,
                   cpu_s: float) -> Recording:
-    """The Recording of the samples the twin's Diagram logged (``rows``: one per sample, columns ``layout``): the
-    measured channels its robot logger kept, and the truth channels at the same samples."""
+    """Sensor models, the robot's logger and truth channels from the logged true motion ``[q; q̇; q̈; net actuation
+    (; θ; θ̇)]`` at the true instants ``t`` [s]."""
     desc, n = config.robot, config.robot.n
-    lg, sens, held = rows[:, layout["logger"]], rows[:, layout["sensor"]], rows[:, layout["samples"]]
-    k = lg[:, 1] > 0.5
-    lg, sens, held = lg[k], sens[k], held[k]
-    stamps, t = lg[:, 2], lg[:, 3]
-    q, qd, qdd = held[:, n:2 * n], held[:, 2 * n:3 * n], held[:, 3 * n:4 * n]      # [u; q; q̇; q̈ (; θ; θ̇)]
+    q, qd, qdd, u = (data[:, k * n:(k + 1) * n] for k in range(4))
+    rng = np.random.default_rng(config.seed)
+    s = MotionSignals(t=t + config.session_time_s, q=q, qd=qd, qdd=qdd)      # effects see the session clock
     truth: dict[str, np.ndarray] = {}
     truth["tau_rbd"] = _in_batches(inverse_dynamics, attach_payload(desc, config.payload), q, qd, qdd)
-    # link-side effects act with q̈ = 0, on the session clock (JointDrive.link_torque)
+    # link-side effects act with q̈ = 0, on the session clock
     s_drive = MotionSignals(t=t + config.session_time_s, q=q, qd=qd, qdd=np.zeros_like(qdd))
     for eff in config.effects:
         if eff.place == "link":
             truth[f"tau_{eff.name}"] = eff.torque(s_drive)
-    truth["tau_J_true"] = sens[:, n:2 * n]
-    names = [e.name for e in config.effects if e.place == "sensor" and not isinstance(e, EncoderNoise)]
-    sensor_order = TorqueSensor([e for e in config.effects if e.name in names]).effects
-    truth.update({f"tau_{e.name}": sens[:, (2 + i) * n:(3 + i) * n] for i, e in enumerate(sensor_order)})
-    truth.update(q_true=q, qd=qd, qdd=qdd, t_true=t - stamps[0])
-    if held.shape[1] > 4 * n:                          # elastic drive: θ, θ̇ (what a motor-side sensor reads)
-        truth["q_motor"], truth["qd_motor"] = held[:, 4 * n:5 * n], held[:, 5 * n:6 * n]
+    tau_j = drive.sensed_torque(u, t, q, qd, qdd)
+    truth["tau_J_true"] = tau_j
+    sensor_effects = [e for e in config.effects if e.place == "sensor" and not isinstance(e, EncoderNoise)]
+    tau_meas, parts = TorqueSensor(sensor_effects).measure(s, tau_j, rng)
+    truth.update({f"tau_{k}": v for k, v in parts.items()})
+    encoder = next((e for e in config.effects if isinstance(e, EncoderNoise)), None)
+    q_meas = PositionSensor(encoder).measure(q, rng)
+    truth.update(q_true=q, qd=qd, qdd=qdd, t_true=t)
+    if data.shape[1] > 4 * n:                          # elastic drive: θ, θ̇ (what a motor-side sensor reads)
+        truth["q_motor"], truth["qd_motor"] = data[:, 4 * n:5 * n], data[:, 5 * n:6 * n]
     f_ext = _in_batches(lambda d, *x: payload_wrench(d, config.payload, *x), desc, q, qd, qdd)
-    span = float(rows[-1, layout["logger"].start + 3] - rows[0, layout["logger"].start + 3])
+    logged = RobotLogger(config.logger).log(t, q_meas, rng)
+    k, t0 = logged.keep, float(logged.stamps[0])
+    truth = {name: v[k] for name, v in truth.items()}
+    truth["t_true"] = truth["t_true"] - t0
     meta = {**config.meta(), "rate_hz": config.logger.rate_hz, "source": "twin",
-            "channels": list(config.logger.channels), "samples_lost": int(rows.shape[0] - lg.shape[0]),
+            "channels": list(config.logger.channels), "samples_lost": int(t.size - k.size),
             "sim_wall_s": round(wall_s, 3), "sim_cpu_s": round(cpu_s, 3),
-            "real_time_factor": round(span / max(wall_s, 1e-9), 2)}
-    qd_robot = lg[:, 4 + 2 * n:4 + 3 * n] if "qd" in config.logger.channels else None
-    return Recording(t=stamps - stamps[0], q=lg[:, 4:4 + n], tau=lg[:, 4 + n:4 + 2 * n], qd=qd_robot, f_ext=f_ext,
+            "real_time_factor": round(float(t[-1] - t[0]) / max(wall_s, 1e-9), 2)}
+    return Recording(t=logged.stamps - t0, q=q_meas[k], tau=tau_meas[k], qd=logged.qd, f_ext=f_ext[k],
                      truth=truth, meta=json.loads(json.dumps(meta)))
 
 

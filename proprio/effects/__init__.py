@@ -54,10 +54,8 @@ stack encodes causally with a position deadband and ±10° clipping in :mod:`pro
 with a velocity deadband (Schmitt trigger on q̇) so that noise around standstill does not create spurious reversals;
 the travel is measured from the extremum of q reached before the reversal. Stateful effects are evaluated per
 segment between reversals; the values carried across segments follow an affine recursion that is solved with a
-vectorised prefix scan (no per-sample Python loop). Each is one scan with state (``scan(x0, q, q̇, τ) → (x_end,
-τ)``, :func:`proprio.reversals.reversal_scan`): the batch ``torque`` scans a whole motion from rest, the twin's
-:class:`proprio.systems.sensors.TorqueSensorSystem` scans block after block with the state as Drake discrete state
-(tested equal to 1e-12 N·m).
+vectorised prefix scan (no per-sample Python loop). The same laws run sample by sample, with the reversal state as
+Drake discrete state, in :class:`proprio.systems.sensors.TorqueSensorSystem` (tested equal to 1e-9).
 """
 from __future__ import annotations
 

@@ -83,12 +83,7 @@ class TorqueNoise(JointEffect):
         self._check_n(s)
         if rng is None:
             raise ValueError("torque_noise: a seeded rng (np.random.Generator) is required")
-        return self.from_normal(rng.standard_normal(s.q.shape))
-
-    def from_normal(self, z: np.ndarray) -> np.ndarray:
-        """The noise [N·m] for standard-normal draws ``z`` (``[..., n]``): ``std·z``. The batch form draws ``z`` from
-        a numpy generator, the twin's torque-sensor System from Drake's ``RandomSource``."""
-        return z * self.std
+        return rng.standard_normal(s.q.shape) * self.std
 
 
 class EncoderNoise(JointEffect):
@@ -109,12 +104,8 @@ class EncoderNoise(JointEffect):
 
     def measure(self, q: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Measured positions ``[N,n]`` rad for true ``q``."""
-        return self.reading(q, rng.standard_normal(q.shape))
-
-    def reading(self, q: np.ndarray, z: np.ndarray) -> np.ndarray:
-        """The law: ``q + std·z`` for standard-normal draws ``z`` (``[..., n]``), quantised to ``resolution`` (none
-        where it is 0). The batch form draws ``z`` from a numpy generator, the twin's encoder System
-        (:class:`proprio.systems.sensors.EncoderSystem`) block by block."""
-        q_meas = q + z * self.std
+        q_meas = q + rng.standard_normal(q.shape) * self.std
         res = self.resolution
         return np.where(res > 0, np.round(q_meas / np.where(res > 0, res, 1.0)) * res, q_meas)
+
+

@@ -119,11 +119,10 @@ class JointDrive(LeafSystem):
     """Drive + link friction for ``n`` joints (see the module docstring).
 
     Input ports: ``motor_torque`` [n] N·m (the controller's command), ``link_state`` [2n] = [q; q̇] (plant state),
-    ``net_actuation`` [n] N·m (the plant's applied joint torque: closes action/reaction of the elastic drive, and
-    gives τ_J) and ``qdd`` [n] rad/s² (the plant's acceleration, for τ_J of the rigid drive).
+    and for the elastic drive ``net_actuation`` [n] N·m (the plant's applied joint torque, to close action/reaction).
     Output ports: ``actuation`` [n] N·m (the plant's actuation input; feed-forward to the implicit spring when
-    elastic), ``tau_J`` [n] N·m (the transmitted torque the joint torque sensor sees: :meth:`sensed_torque` of the
-    current sample) and, for the elastic drive, ``motor_state`` [2n] = [θ; θ̇] (the plant's desired state).
+    elastic) and, for the elastic drive, ``motor_state`` [2n] = [θ; θ̇] (the plant's desired state). τ_link is a
+    function of the logged t, q, q̇ only, so the twin recomputes it from the log instead of evaluating a second port.
     """
 
     def __init__(self, n: int, link_effects: list[JointEffect], motor: Motor | None = None,
@@ -155,12 +154,8 @@ class JointDrive(LeafSystem):
         self._u_motor = self.DeclareVectorInputPort("motor_torque", n)
         self._u_link = self.DeclareVectorInputPort("link_state", 2 * n)
         uses = {self._u_link.ticket()} | ({self.time_ticket()} if self._general else set())
-        self._u_net = self.DeclareVectorInputPort("net_actuation", n)
-        self._u_qdd = self.DeclareVectorInputPort("qdd", n)
-        self.DeclareVectorOutputPort("tau_J", n, self._calc_tau_j,
-                                     prerequisites_of_calc={self._u_net.ticket(), self._u_link.ticket(),
-                                                            self._u_qdd.ticket(), self.time_ticket()})
         if elasticity is not None:
+            self._u_net = self.DeclareVectorInputPort("net_actuation", n)
             self._state = self.DeclareDiscreteState(2 * n)
             self.DeclarePeriodicDiscreteUpdateEvent(time_step, 0.0, self._update_motor)
             self.DeclareStateOutputPort("motor_state", self._state)
@@ -210,11 +205,6 @@ class JointDrive(LeafSystem):
             output.SetFromVector(-self._link_on_state(context))
         else:
             output.SetFromVector(self._u_motor.Eval(context) - self._link_on_state(context))
-
-    def _calc_tau_j(self, context: Context, output: BasicVector) -> None:
-        x = self._u_link.Eval(context)
-        output.SetFromVector(self.sensed_torque(self._u_net.Eval(context)[None], np.array([context.get_time()]),
-                                                x[None, :self.n], x[None, self.n:], self._u_qdd.Eval(context)[None])[0])
 
     def _update_motor(self, context: Context, discrete_state: DiscreteValues) -> None:
         n, motor = self.n, self.motor

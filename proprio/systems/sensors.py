@@ -1,43 +1,36 @@
 """Sensor models of the twin: the link-side joint torque sensor and the joint position encoder.
 
-Each model is the effect library's laws (:mod:`proprio.effects`), in two forms that call the same code:
+Two forms of the same models (built from the :mod:`proprio.effects` classes the identification and gap
+diagnosis fit):
 
-* :class:`TorqueSensor` — the batch form over a whole motion ``[N, n]`` (the diagnosis' model
-  :meth:`proprio.diagnosis.data.SimModel.predict_parts`, the offline gap benchmark);
-* :class:`TorqueSensorSystem` and :class:`EncoderSystem` — Drake Systems of the twin's Diagram
-  (``proprio.diagrams.twin``). They take the time steps in blocks (:func:`AddSampleBank`: a C++ shift register keeps
-  them, so the Python update runs once per block, not per step — the twin stays ≥ 15× real time): the torque
-  sensor keeps the scan state of the reversal-dependent effects (hysteresis, lost motion:
-  :meth:`~proprio.effects.Hysteresis.scan`) as discrete state and evaluates the memoryless effects (ripple,
-  offset/gain, drift, plugins) by their ``torque`` on the block, the white noise through
-  :meth:`~proprio.effects.TorqueNoise.from_normal`; the encoder is :meth:`~proprio.effects.EncoderNoise.reading`.
-  Random draws are keyed on (seed, stream, block) (:class:`BlockSystem`). Tests: the System's output equals the
-  batch form on the same inputs to 1e-12 N·m.
+* :class:`TorqueSensor` / :class:`PositionSensor` — vectorised over all samples of a logged motion. Neither sensor
+  feeds back into the twin's motion (the tracking controller uses the plant state, as the iiwa's position loop uses
+  its motor encoders), so the twin applies them to its 1 kHz log in one pass: exact and far cheaper than a Python
+  system evaluated every 1 ms step.
+* :class:`TorqueSensorSystem` — the streaming form, a Drake ``LeafSystem`` with the reversal/hysteresis state as
+  discrete state (one vectorised update per step), for live diagrams; :func:`AddTorqueSensor` adds it with Drake's
+  C++ ``RandomSource`` for the white noise. It reproduces :class:`TorqueSensor` sample by sample (tests).
 
 Torque sensor chain (thesis §2.1): ``τ_meas = (1 + g)·(τ_J + τ_hyst + τ_lost + τ_ripple) + o + o_d(t) + noise``,
 i.e. the strain-gauge effects act on the transmitted τ_J, the gain/offset error on everything the gauge sees, a
 drifting offset ``o_d`` (``offset_drift``, on the session clock ``MotionSignals.t``) adds to it, and white noise is
 added last. Sensor-side plugins (:mod:`proprio.effects.plugins`) act with the strain-gauge effects, after the
-library's, on the transmitted τ_J (``s.tau``); in the twin they are evaluated block by block (a sensor-side plugin
-is a function of each sample's t, q, q̇, q̈, τ_J, not of the samples before it). Every contribution is returned
-separately (the twin's ``tau_<effect>`` truth channels).
+library's, on the transmitted τ_J (``s.tau``). Every contribution is returned separately (the twin's
+``tau_<effect>`` truth channels). The streaming :class:`TorqueSensorSystem` models the library's time-invariant
+effects only (it has no session clock) and refuses the others.
 """
 from __future__ import annotations
 
-from typing import Any, Callable
-
 import numpy as np
-import scipy.sparse
-from pydrake.common.value import AbstractValue
-from pydrake.systems.framework import (BasicVector, CacheEntry, Context, DiagramBuilder, LeafSystem, OutputPort,
-                                       ValueProducer)
-from pydrake.systems.primitives import Multiplexer, SparseMatrixGain, ZeroOrderHold
+from pydrake.common import RandomDistribution
+from pydrake.systems.framework import BasicVector, Context, DiagramBuilder, DiscreteValues, LeafSystem
+from pydrake.systems.primitives import Adder, Gain, RandomSource
 
-from proprio.effects import EncoderNoise, JointEffect, OffsetDrift, SensorOffsetGain, TorqueNoise
-from proprio.reversals import reversal_scan
+from proprio.effects import (EncoderNoise, Hysteresis, JointEffect, LostMotion, OffsetDrift, Ripple,
+                             SensorOffsetGain, TorqueNoise)
 from proprio.signals import MotionSignals
 
-__all__ = ["TorqueSensor", "TorqueSensorSystem", "EncoderSystem", "BlockSystem", "AddSampleBank"]
+__all__ = ["TorqueSensor", "PositionSensor", "TorqueSensorSystem", "AddTorqueSensor"]
 
 _GAUGE_ORDER = ("hysteresis", "lost_motion", "ripple")
 _SENSOR_LIBRARY = ("sensor_offset_gain", "offset_drift", "torque_noise")   # library sensor effects past the gauge
@@ -59,15 +52,10 @@ class TorqueSensor:
         self.drift: OffsetDrift | None = by_name.get("offset_drift")
         self.noise: TorqueNoise | None = by_name.get("torque_noise")
 
-    @property
-    def effects(self) -> list[JointEffect]:
-        """All effects in the order they act (gauge, offset/gain, drift, noise)."""
-        return self.gauge + [e for e in (self.offset_gain, self.drift, self.noise) if e is not None]
-
-    def measure(self, s: MotionSignals, tau_j: np.ndarray, rng: np.random.Generator | None = None
+    def measure(self, s: MotionSignals, tau_j: np.ndarray, rng: np.random.Generator
                 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """Measured torque ``[N,n]`` N·m for true link motion ``s`` and true transmitted torque ``tau_j``, and the
-        contribution of each effect (keys = effect names). ``rng`` is needed only with ``torque_noise``."""
+        contribution of each effect (keys = effect names)."""
         s = s.with_tau(tau_j)
         parts: dict[str, np.ndarray] = {}
         seen = tau_j.copy()
@@ -86,179 +74,135 @@ class TorqueSensor:
         return seen, parts
 
 
-def AddSampleBank(builder: DiagramBuilder, ports: list[OutputPort], block_steps: int, time_step: float,
-                  name: str = "sample_bank") -> tuple[OutputPort, int]:
-    """Add a shift register of C++ systems that keeps the last ``block_steps`` samples of ``ports``: a
-    ``ZeroOrderHold`` (period ``time_step``, offset 0: it samples at the discrete plant's own instants, seeing what
-    the plant sees) of ``[B·m]`` fed with ``[its own rows 2 … B; the new sample]`` by a ``SparseMatrixGain``. Between
-    the time steps ``k`` and ``k + 1`` its output holds the samples of steps ``k − B + 1 … k``, oldest first (each
-    ``[m]`` = the ports concatenated). :class:`BlockSystem` s read it once per B steps. Returns ``(output port, m)``."""
-    m = sum(port.size() for port in ports)
-    size = block_steps * m
-    sample = builder.AddSystem(Multiplexer([port.size() for port in ports]))
-    sample.set_name(f"{name}_sample")
-    for k, port in enumerate(ports):
-        builder.Connect(port, sample.get_input_port(k))
-    cat = builder.AddSystem(Multiplexer([size, m]))
-    shift = builder.AddSystem(SparseMatrixGain(scipy.sparse.eye(size, size + m, k=m, format="csc")))
-    hold = builder.AddSystem(ZeroOrderHold(time_step, size))
-    hold.set_name(name)
-    builder.Connect(hold.get_output_port(), cat.get_input_port(0))
-    builder.Connect(sample.get_output_port(), cat.get_input_port(1))
-    builder.Connect(cat.get_output_port(), shift.get_input_port())
-    builder.Connect(shift.get_output_port(), hold.get_input_port())
-    return hold.get_output_port(), m
+class PositionSensor:
+    """The link-side joint position sensor: noise + quantisation (ideal without an ``encoder_noise`` effect)."""
+
+    def __init__(self, encoder: EncoderNoise | None):
+        self.encoder = encoder
+
+    def measure(self, q: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Measured positions ``[N,n]`` rad."""
+        return q.copy() if self.encoder is None else self.encoder.measure(q, rng)
 
 
-class BlockSystem(LeafSystem):
-    """Base of the measurement chain's Systems: they take the time steps of ``time_step`` [s] from ``start_time`` [s]
-    in blocks of ``block_steps`` from an :func:`AddSampleBank`. A block is read half a step after its last step
-    (:meth:`block_time`: between the plant's instants, never tied with them): the System's outputs then hold that
-    block, computed once into a cache entry from the bank, the System's small discrete state (the carried scan state)
-    and the time; a periodic discrete update at the same instants carries the state on. A Diagram's user reads the
-    outputs at the block times. Random draws of a block come from a counter-based generator (Philox) keyed on
-    (``seed``, ``stream``) at the counter of the block's first step: a function of the seed and the block, no hidden
-    state."""
+class TorqueSensorSystem(LeafSystem):
+    """Streaming torque sensor (noise-free part of :class:`TorqueSensor`) for ``n`` joints, sampled every
+    ``time_step``.
 
-    def __init__(self, block_steps: int, time_step: float, start_time: float, seed: int, stream: int):
-        super().__init__()
-        self.block_steps, self.time_step, self.start_time = int(block_steps), float(time_step), float(start_time)
-        self.seed, self.stream = int(seed), int(stream)
-
-    def block_time(self, j: int) -> float:
-        """The instant [s] block ``j`` (steps ``j·B … j·B + B − 1``) is read: half a step after its last step. The
-        same floating-point expression as the update event's time (offset + j·period), so advancing a Simulator to
-        it stops just before that update."""
-        period, offset = self.block_steps * self.time_step, self.start_time + (self.block_steps - 0.5) * self.time_step
-        return offset + j * period
-
-    def declare_block(self, calc: Callable[[Context], Any], state: Any = None) -> CacheEntry:
-        """Declare the cache entry holding ``calc(context)`` (the block's results; ``[0]`` is the state after the
-        block when ``state`` is the index of the System's discrete state group) and, with ``state``, the periodic
-        update that carries the state on at the block times."""
-        entry = self.DeclareCacheEntry("block", ValueProducer(allocate=lambda: AbstractValue.Make(None),
-                                                              calc=lambda context, value: value.set_value(calc(context))))
-        if state is not None:
-            self.DeclarePeriodicDiscreteUpdateEvent(
-                self.block_steps * self.time_step, self.block_time(0),
-                lambda context, discrete_state: discrete_state.set_value(state, entry.Eval(context)[0]))
-        return entry
-
-    def block(self, context: Context) -> tuple[np.ndarray, np.ndarray]:
-        """``(step indices [B], times [B] s)`` of the block read at this context's time."""
-        last = int(round((context.get_time() - self.start_time) / self.time_step - 0.5))
-        steps = last - self.block_steps + 1 + np.arange(self.block_steps)
-        return steps, self.start_time + steps * self.time_step
-
-    def rng(self, steps: np.ndarray) -> np.random.Generator:
-        """The generator of the block starting at step ``steps[0]``."""
-        return np.random.Generator(np.random.Philox(key=[self.seed, self.stream], counter=[int(steps[0]), 0, 0, 0]))
-
-
-class TorqueSensorSystem(BlockSystem):
-    """The twin's joint torque sensor for ``n`` joints: every sensor-side effect of ``effects`` (not the encoder's),
-    block by block (module docstring, :class:`BlockSystem`).
-
-    Input port ``samples`` [B·w]: per time step a row of ``w`` whose columns ``offset … offset + 4n`` (``row = (w,
-    offset)``; default ``(4n, 0)``) are ``[a; q; q̇; q̈]`` — ``a`` the transmitted torque τ_J [N·m] or, with
-    ``transmission``, what ``transmission(a, t, q, q̇, q̈)`` turns into τ_J (the twin: the plant's net actuation and
-    :meth:`proprio.systems.joint_drive.JointDrive.sensed_torque`), link q [rad], q̇ [rad/s], q̈ [rad/s²]. Output
-    ports (the block read at this time, :class:`BlockSystem`): ``tau_measured`` [B·n] N·m and ``record``
-    [B·(2 + k)·n], per time step ``[τ_meas; τ_J; the contribution of each of the k effects in :attr:`names` order]`` N·m. Discrete state: the
-    scan state of the reversal-dependent effects (:meth:`~proprio.effects.Hysteresis.scan`), started at rest at the
-    first sample. The effects see the session clock ``t + session_time_s`` [s]; the noise draws ``z`` are standard
-    normal (stream 0 of ``seed``).
+    Input ports: ``tau_J`` [n] N·m (true transmitted torque), ``link_state`` [2n] = [q; q̇]. Output port:
+    ``tau_measured`` [n] N·m = ``(1+g)(τ_J + hysteresis + lost motion + ripple) + o``. Discrete state per joint
+    (the online form of :func:`~proprio.effects.reversal_travel`): direction d, has-reversed flag,
+    running max/min of q in the current segment, anchor, hysteresis value at the last reversal, and the previous
+    sample's saturation level. The output at a sample uses the state updated with that sample (direct feedthrough).
     """
+    _FIELDS = ("d", "reversed", "hi", "lo", "anchor", "tau_rev", "sat_prev")
 
-    def __init__(self, n: int, effects: list[JointEffect], time_step: float = 1e-3, block_steps: int = 1,
-                 session_time_s: float = 0.0, start_time: float = 0.0, seed: int = 0,
-                 transmission: Callable[..., np.ndarray] | None = None, row: tuple[int, int] | None = None):
-        super().__init__(block_steps, time_step, start_time, seed, stream=0)
-        sensor = TorqueSensor([e for e in effects if e.place == "sensor" and not isinstance(e, EncoderNoise)])
-        self.n, self.sensor = n, sensor
-        self.session_time_s, self.transmission = float(session_time_s), transmission
-        self.names = [e.name for e in sensor.effects]
-        self._stateful = [hasattr(e, "scan") for e in sensor.gauge]
-        sizes = [e.state_size * n if st else 0 for e, st in zip(sensor.gauge, self._stateful)]
-        self._slices = [slice(int(a), int(a + b)) for a, b in zip(np.cumsum([0] + sizes[:-1]), sizes)]
-        self._row = row or (4 * n, 0)                                  # (width of a time step's row, offset)
-        self._samples = self.DeclareVectorInputPort("samples", self.block_steps * self._row[0])
-        self._state = self.DeclareDiscreteState(sum(sizes) + 1)          # + started flag
-        self._block = self.declare_block(self._calc_block, self._state)
-        self.DeclareVectorOutputPort("tau_measured", self.block_steps * n,
-                                     lambda context, out: out.SetFromVector(self._block.Eval(context)[1]),
-                                     prerequisites_of_calc={self._block.ticket()})
-        self.DeclareVectorOutputPort("record", self.block_steps * (2 + len(self.names)) * n,
-                                     lambda context, out: out.SetFromVector(self._block.Eval(context)[2]),
-                                     prerequisites_of_calc={self._block.ticket()})
+    def __init__(self, n: int, effects: list[JointEffect], time_step: float = 1e-3):
+        super().__init__()
+        varying = [e.name for e in effects if e.time_varying]
+        if varying:
+            raise ValueError(f"TorqueSensorSystem: time-varying effect(s) {varying} need the session clock; "
+                             "use the vectorised TorqueSensor")
+        sensor = TorqueSensor([e for e in effects if not isinstance(e, TorqueNoise)])
+        others = [e.name for e in sensor.gauge if e.name not in _GAUGE_ORDER]
+        if others:
+            raise ValueError(f"TorqueSensorSystem: {others} are not library effects; the streaming sensor models "
+                             f"{list(_GAUGE_ORDER) + ['sensor_offset_gain', 'torque_noise']} (plugins: TorqueSensor)")
+        by_type = {type(e): e for e in sensor.gauge}
+        self.n = n
+        self.hysteresis: Hysteresis | None = by_type.get(Hysteresis)
+        self.lost_motion: LostMotion | None = by_type.get(LostMotion)
+        self.ripple: Ripple | None = by_type.get(Ripple)
+        self.offset_gain = sensor.offset_gain
+        eps = [e.reversal_velocity for e in (self.hysteresis, self.lost_motion) if e is not None]
+        if len(eps) == 2 and not np.array_equal(eps[0], eps[1]):
+            raise ValueError("TorqueSensorSystem: hysteresis and lost_motion must share reversal_velocity")
+        self._eps = eps[0] if eps else np.full(n, np.inf)
+        self._tau = self.DeclareVectorInputPort("tau_J", n)
+        self._x = self.DeclareVectorInputPort("link_state", 2 * n)
+        self._state = self.DeclareDiscreteState(len(self._FIELDS) * n)
+        self.DeclarePeriodicDiscreteUpdateEvent(time_step, 0.0, self._update)
+        self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
+        self.DeclareVectorOutputPort("tau_measured", n, self._output)
 
-    def measure_block(self, x: np.ndarray, s: MotionSignals, tau_j: np.ndarray, z: np.ndarray
-                      ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
-        """One block: from state ``x`` (empty or started) and samples ``s`` ``[B, n]`` with τ_J and noise draws
-        ``z``, return ``(state after, τ_meas [B, n], contributions)``; the same laws, in the same order, as
-        :meth:`TorqueSensor.measure`."""
-        x = x.copy()
-        if x[-1] == 0:                                               # first block: start at rest at sample 0
-            for eff, st, sl in zip(self.sensor.gauge, self._stateful, self._slices):
-                if st:
-                    x[sl] = eff.initial_state(s.q[0], s.qd[0], tau_j[0])
-            x[-1] = 1.0
-        s = s.with_tau(tau_j)
-        sensor, parts, travel = self.sensor, [], {}
-        seen = tau_j.copy()
-        for eff, st, sl in zip(sensor.gauge, self._stateful, self._slices):
-            if st:                     # effects with the same deadband share one reversal scan (same tracker state)
-                key = eff.reversal_velocity.tobytes()
-                if key not in travel:
-                    travel[key] = reversal_scan(x[sl][:5 * self.n], s.q, s.qd, eff.reversal_velocity)
-                x[sl], c = eff.scan(x[sl], s.q, s.qd, tau_j, travel[key])
-            else:
-                c = eff.torque(s)
-            parts.append(c)
-            seen = seen + c
-        if sensor.offset_gain is not None:
-            parts.append(sensor.offset_gain.torque(s.with_tau(seen)))
-            seen = seen + parts[-1]
-        if sensor.drift is not None:
-            parts.append(sensor.drift.torque(s))
-            seen = seen + parts[-1]
-        if sensor.noise is not None:
-            parts.append(sensor.noise.from_normal(z))
-            seen = seen + parts[-1]
-        return x, seen, parts
+    def _unpack(self, v: np.ndarray) -> dict[str, np.ndarray]:
+        return {k: v[i * self.n:(i + 1) * self.n] for i, k in enumerate(self._FIELDS)}
 
-    def _calc_block(self, context: Context) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        n, b = self.n, self.block_steps
-        width, first = self._row
-        blk = self._samples.Eval(context).reshape(b, width)[:, first:first + 4 * n]
-        a, q, qd, qdd = (blk[:, k * n:(k + 1) * n] for k in range(4))
-        steps, t = self.block(context)
-        tau_j = a if self.transmission is None else self.transmission(a, t, q, qd, qdd)
-        z = self.rng(steps).standard_normal((b, n))
-        x, seen, parts = self.measure_block(context.get_discrete_state(self._state).value(),
-                                            MotionSignals(t + self.session_time_s, q, qd, qdd), tau_j, z)
-        return x, seen.ravel(), np.hstack([seen, tau_j, *parts]).ravel()
+    def _sat(self, tau: np.ndarray) -> np.ndarray:
+        h = self.hysteresis
+        return h.saturation + h.load_gain * np.abs(tau) if h is not None else np.zeros(self.n)
+
+    def _advance(self, st: dict[str, np.ndarray], q: np.ndarray, qd: np.ndarray, tau: np.ndarray
+                 ) -> dict[str, np.ndarray]:
+        """The state after taking in one sample (q, q̇, τ)."""
+        raw = np.where(qd > self._eps, 1.0, np.where(qd < -self._eps, -1.0, 0.0))
+        d = np.where(raw != 0, raw, st["d"])
+        flip = (d != st["d"]) & (st["d"] != 0)
+        new_anchor = np.where(st["d"] > 0, st["hi"], st["lo"])
+        tau_rev = st["tau_rev"]
+        if self.hysteresis is not None:
+            rho = self.hysteresis.saturation_travel / 3.0
+            target = st["d"] * st["sat_prev"]
+            carried = target + (tau_rev - target) * np.exp(-np.abs(new_anchor - st["anchor"]) / rho)
+            tau_rev = np.where(flip, carried, tau_rev)
+        return {"d": d, "reversed": np.where(flip, 1.0, st["reversed"]),
+                "hi": np.where(flip, q, np.maximum(st["hi"], q)), "lo": np.where(flip, q, np.minimum(st["lo"], q)),
+                "anchor": np.where(flip, new_anchor, st["anchor"]), "tau_rev": tau_rev, "sat_prev": self._sat(tau)}
+
+    def _measure(self, st: dict[str, np.ndarray], q: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        r = q - st["anchor"]
+        seen = tau.copy()
+        if self.hysteresis is not None:
+            d_sat = st["d"] * st["sat_prev"]
+            seen += d_sat + (st["tau_rev"] - d_sat) * np.exp(-np.abs(r) / (self.hysteresis.saturation_travel / 3.0))
+        if self.lost_motion is not None:
+            lm = self.lost_motion
+            amp = lm.amplitude + lm.load_gain * np.abs(tau)
+            seen += -st["d"] * (1.0 + st["reversed"]) * amp * np.exp(-(np.abs(r) / lm.window) ** 6)
+        if self.ripple is not None:
+            ph = self.ripple.harmonic * self.ripple.gear_ratio * q
+            seen += self.ripple.sin_amplitude * np.sin(ph) + self.ripple.cos_amplitude * np.cos(ph)
+        if self.offset_gain is not None:
+            seen = (1.0 + self.offset_gain.gain) * seen + self.offset_gain.offset
+        return seen
+
+    def _inputs(self, context: Context) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        x = self._x.Eval(context)
+        return x[:self.n], x[self.n:], self._tau.Eval(context)
+
+    def _initialize(self, context: Context, discrete_state: DiscreteValues) -> None:
+        q, qd, tau = self._inputs(context)
+        d0 = np.where(qd > self._eps, 1.0, np.where(qd < -self._eps, -1.0, 0.0))
+        z = np.zeros(self.n)
+        # the state *before* the first sample: the first sample then starts segment 0 at q0 without a reversal
+        discrete_state.set_value(self._state, np.concatenate([d0, z, q, q, q, z, self._sat(tau)]))
+
+    def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
+        q, qd, tau = self._inputs(context)
+        st = self._advance(self._unpack(context.get_discrete_state(self._state).value()), q, qd, tau)
+        discrete_state.set_value(self._state, np.concatenate([st[k] for k in self._FIELDS]))
+
+    def _output(self, context: Context, output: BasicVector) -> None:
+        q, qd, tau = self._inputs(context)
+        st = self._advance(self._unpack(context.get_discrete_state(self._state).value()), q, qd, tau)
+        output.SetFromVector(self._measure(st, q, tau))
 
 
-class EncoderSystem(BlockSystem):
-    """The joint position encoder for ``n`` joints: :meth:`~proprio.effects.EncoderNoise.reading` (noise, then
-    quantisation; ideal without an ``encoder``) block by block (:class:`BlockSystem`; draws: stream 1 of ``seed``).
-    Input port ``samples`` [B·w]: per time step a row of ``w`` whose column ``offset …`` holds the link q [rad]
-    (``row = (w, offset)``, default ``(n, 0)``). Output port ``q_measured`` [B·n] rad of the block read at this time
-    (no state)."""
-
-    def __init__(self, n: int, encoder: EncoderNoise | None, time_step: float = 1e-3, block_steps: int = 1,
-                 start_time: float = 0.0, seed: int = 0, row: tuple[int, int] | None = None):
-        super().__init__(block_steps, time_step, start_time, seed, stream=1)
-        self.n, self.encoder = n, encoder
-        self._row = row or (n, 0)
-        self._samples = self.DeclareVectorInputPort("samples", self.block_steps * self._row[0])
-        self.DeclareVectorOutputPort("q_measured", self.block_steps * n, self._calc_measured)
-
-    def _calc_measured(self, context: Context, output: BasicVector) -> None:
-        width, first = self._row
-        q = self._samples.Eval(context).reshape(self.block_steps, width)[:, first:first + self.n]
-        if self.encoder is not None:
-            steps, _ = self.block(context)
-            q = self.encoder.reading(q, self.rng(steps).standard_normal(q.shape))
-        output.SetFromVector(q.ravel())
+def AddTorqueSensor(builder: DiagramBuilder, n: int, effects: list[JointEffect], time_step: float = 1e-3,
+                    name: str = "torque_sensor") -> tuple[TorqueSensorSystem, Adder]:
+    """Add a :class:`TorqueSensorSystem` and, if ``effects`` has ``torque_noise``, Drake's C++ ``RandomSource``
+    (Gaussian, sampled every ``time_step``) scaled by σ and added to its output. Returns ``(sensor, output)``
+    where ``output.get_output_port()`` is the measured torque (seed the noise with
+    ``diagram.SetRandomContext(context, RandomGenerator(seed))``)."""
+    sensor = builder.AddSystem(TorqueSensorSystem(n, effects, time_step))
+    sensor.set_name(name)
+    adder = builder.AddSystem(Adder(2, n))
+    adder.set_name(f"{name}_noise_sum")
+    builder.Connect(sensor.GetOutputPort("tau_measured"), adder.get_input_port(0))
+    noise = next((e for e in effects if isinstance(e, TorqueNoise)), None)
+    std = noise.std if noise is not None else np.zeros(n)
+    source = builder.AddSystem(RandomSource(RandomDistribution.kGaussian, n, time_step))
+    gain = builder.AddSystem(Gain(std))
+    builder.Connect(source.get_output_port(0), gain.get_input_port())
+    builder.Connect(gain.get_output_port(), adder.get_input_port(1))
+    return sensor, adder
