@@ -75,7 +75,7 @@ from proprio.plant import DrakeRobot
 from proprio.recording import Recording
 from proprio.urdf import to_urdf
 from proprio.systems.joint_drive import (
-    AddJointDrive, JointDrive, check_elastic_stability, check_explicit_friction, friction_slope, motor_from_description,
+    AddJointDrive, JointDrive, check_elastic_stability, check_explicit_friction, friction_slope, reflected_inertia,
 )
 from proprio.identification.regressor import drive_identified
 from proprio.effects import Elasticity, EncoderNoise
@@ -108,8 +108,9 @@ class TwinDiagram:
 
 def _robot_plant(desc: RobotDescription, payload: Payload | None, time_step: float,
                  rotor_inertia: np.ndarray | None = None, spring: Elasticity | None = None) -> MultibodyPlant:
-    """The robot as a finalized MultibodyPlant (proprio's URDF, no collision shapes) with reflected rotor inertia,
-    or with each actuator a PD-controlled joint whose gains are the series spring (K, D) of ``spring``.
+    """The robot as a finalized MultibodyPlant (proprio's URDF, no collision shapes) with reflected rotor inertia
+    (per actuator: a coupled drive's diagonal, the rest acts through the JointDrive), or with each actuator a
+    PD-controlled joint whose gains are the series spring (K, D) of ``spring``.
 
     The twin plays planned, collision-free paths and draws nothing, so it needs no SceneGraph: geometry queries
     would cost ~1/3 of a step. Same URDF as ``proprio.plant.AddRobot``. Without a spring the discrete solver is
@@ -135,10 +136,11 @@ def _robot_plant(desc: RobotDescription, payload: Payload | None, time_step: flo
 
 def _effective_inertia(desc: RobotDescription, payload: Payload | None, trajectory: Trajectory,
                        extra: np.ndarray) -> np.ndarray:
-    """Smallest inertia a torque on each joint sees along the trajectory: ``min_t 1/[(M(q)+diag(extra))⁻¹]_jj``."""
+    """Smallest inertia a torque on each joint sees along the trajectory: ``min_t 1/[(M(q)+extra)⁻¹]_jj``
+    (``extra`` [n, n] kg·m², the reflected rotor inertia)."""
     robot = DrakeRobot(desc, payload)
     times = np.linspace(trajectory.start_time(), trajectory.end_time(), 25)
-    inv = [np.diag(np.linalg.inv(robot.mass_matrix(trajectory.value(t).ravel()) + np.diag(extra))) for t in times]
+    inv = [np.diag(np.linalg.inv(robot.mass_matrix(trajectory.value(t).ravel()) + extra)) for t in times]
     return 1.0 / np.max(inv, axis=0)
 
 
@@ -149,16 +151,17 @@ def build_twin_diagram(config: TwinConfig, trajectory: Trajectory) -> TwinDiagra
     """
     desc, n, dt = config.robot, config.robot.n, config.time_step
     link = [e for e in config.effects if e.place == "link"]
-    motor = config.motor
+    motor, coupling = config.motor, config.motor_coupling
     elastic = next((e for e in config.effects if isinstance(e, Elasticity)), None)
-    rotor = motor.motor_inertia if motor is not None else np.zeros(n)
+    reflected = reflected_inertia(motor, coupling) if motor is not None else np.zeros((n, n))
+    rotor = np.diag(reflected).copy()          # Drake's per-actuator rotor inertia; a coupled rest is the drive's
     if elastic is None:
-        check_explicit_friction(friction_slope(link, motor),
-                                _effective_inertia(desc, config.payload, trajectory, rotor), dt)
+        check_explicit_friction(friction_slope(link, motor, coupling),
+                                _effective_inertia(desc, config.payload, trajectory, reflected), dt)
     else:
         # the spring's implicit damping D acts in parallel with the explicit link friction
         check_explicit_friction(friction_slope(link) - elastic.damping,
-                                _effective_inertia(desc, config.payload, trajectory, np.zeros(n)), dt)
+                                _effective_inertia(desc, config.payload, trajectory, np.zeros((n, n))), dt)
         check_elastic_stability(elastic, motor, dt)
 
     builder = DiagramBuilder()
@@ -168,8 +171,11 @@ def build_twin_diagram(config: TwinConfig, trajectory: Trajectory) -> TwinDiagra
     control_plant = _robot_plant(desc, config.payload if config.payload_model else None, 0.0, rotor)
     ctrl = builder.AddSystem(InverseDynamicsController(control_plant, config.kp, config.ki, config.kd, True))
     ctrl.set_name("controller")
+    coupled = coupling is not None and np.any(reflected != np.diag(rotor))
     drive = AddJointDrive(builder, n, link, motor, elastic, dt, session_time_s=config.session_time_s,
-                          drive_offset=np.array(desc.drive.offset) if drive_identified(desc) else None)
+                          drive_offset=np.array(desc.drive.offset) if drive_identified(desc) else None,
+                          coupling=coupling,
+                          model_plant=_robot_plant(desc, config.payload, 0.0, rotor) if coupled else None)
     source = AddTrajectorySource(builder, trajectory)
 
     state = plant.get_state_output_port(instance)

@@ -15,7 +15,7 @@ from proprio.description import DescriptionError, RobotDescription, load_robot, 
 from proprio.effects import Elasticity, JointEffect, Motor, effect_key, make_effects
 from proprio.effects.schema import check_effect_block, check_effects_block
 from proprio.payload import Payload, PayloadBlock
-from proprio.systems.joint_drive import motor_from_description
+from proprio.systems.joint_drive import coupling_from_description, motor_from_description
 from proprio.systems.robot_logger import LoggerConfig
 from proprio.typed_yaml import load_typed, per_joint, read_yaml
 
@@ -85,7 +85,9 @@ class TwinConfigError(ValueError):
 class TwinConfig:
     """One twin: robot, effects and magnitudes, controller gains, rates, payload and seed (see module docstring).
     ``session_time_s`` [s]: the session clock at the run's t = 0 — time-varying effects (``offset_drift``,
-    ``friction_warmup``) see ``t + session_time_s``, and the Recording carries it in ``meta["session_time_s"]``."""
+    ``friction_warmup``) see ``t + session_time_s``, and the Recording carries it in ``meta["session_time_s"]``.
+    ``motor_coupling``: the normalised coupling ``C [n, n]`` of the robot's coupled drive block when the motor side
+    comes from it (no twin ``drive`` block), else ``None`` (:mod:`proprio.systems.joint_drive`)."""
     robot: RobotDescription
     effects: list[JointEffect]
     kp: np.ndarray
@@ -100,6 +102,7 @@ class TwinConfig:
     name: str = "twin"
     raw: dict[str, Any] = field(default_factory=dict)
     session_time_s: float = 0.0
+    motor_coupling: np.ndarray | None = None
 
     @classmethod
     def from_dict(cls, data: dict[str, Any], source: str = "<dict>") -> "TwinConfig":
@@ -139,6 +142,11 @@ class TwinConfig:
             motor = Motor.from_config(spec.drive, n) if spec.drive is not None else motor_from_description(desc)
         except ValueError as exc:
             raise TwinConfigError(f"{source}: drive: {exc}") from exc
+        coupling = coupling_from_description(desc) if spec.drive is None else None
+        if coupling is not None and any(isinstance(e, Elasticity) for e in effects):
+            raise TwinConfigError(f"{source}: effects.elasticity: the robot's drive is coupled (drive.coupling), the "
+                                  "twin simulates coupled drives rigid only; give the twin config its own 'drive' "
+                                  "block")
         if any(isinstance(e, Elasticity) for e in effects) and (motor is None or np.any(motor.motor_inertia <= 0)):
             raise TwinConfigError(f"{source}: effects.elasticity needs a 'drive' block with motor_inertia > 0 on every "
                                   "joint (the motor-side state)")
@@ -148,7 +156,7 @@ class TwinConfig:
             raise TwinConfigError(str(exc) if str(exc).startswith(source) else f"{source}: payload: {exc}") from exc
         return cls(robot=desc, effects=effects, payload_model=ctrl.payload_model, motor=motor, payload=payload,
                    time_step=time_step, logger=logger, seed=spec.seed, name=spec.name or Path(source).stem,
-                   raw=data, session_time_s=session_time_s, **gains)
+                   raw=data, session_time_s=session_time_s, motor_coupling=coupling, **gains)
 
     def effect(self, name: str) -> JointEffect | None:
         return next((e for e in self.effects if e.name == name), None)
@@ -181,7 +189,9 @@ class TwinConfig:
                 "effects": {effect_key(e): {k: v.tolist() for k, v in e.params().items()} for e in self.effects},
                 "controller": {"kp": self.kp.tolist(), "ki": self.ki.tolist(), "kd": self.kd.tolist(),
                                "payload_model": self.payload_model},
-                "drive": None if self.motor is None else {k: v.tolist() for k, v in self.motor.params().items()},
+                "drive": None if self.motor is None else {
+                    **{k: v.tolist() for k, v in self.motor.params().items()},
+                    **({} if self.motor_coupling is None else {"coupling": self.motor_coupling.tolist()})},
                 "payload": None if self.payload is None else dataclasses.asdict(self.payload), "seed": self.seed,
                 "logger": self.logger.to_dict(), "session_time_s": self.session_time_s}
 

@@ -27,9 +27,21 @@ actuation and the motion (:meth:`JointDrive.sensed_torque`).
 
 A robot description with a ``drive`` block (:mod:`proprio.drive_description`) gives the twin its motor side when the
 twin config has no ``drive`` block (:func:`motor_from_description`: rotor inertia → ``motor_inertia``, motor friction;
-uncoupled drives only). When its τ is a drive torque (``tau_kind: drive``), the rigid drive senses what the motor
-delivers instead of τ_J: ``τ = τ_m + τ_0 = u + τ_f,link + τ_f,m(q̇) + τ_0`` (rotor inertia and motor friction
-included, constant drive offsets ``τ_0``).
+:func:`coupling_from_description`: the normalised coupling C of a coupled drive). When its τ is a drive torque
+(``tau_kind: drive``), the rigid drive senses what the motor delivers instead of τ_J:
+``τ = τ_m + τ_0 = u + τ_f,link + τ_f,m + O q̈ + τ_0`` (rotor inertia and motor friction included, constant drive
+offsets ``τ_0``; O below).
+
+**Coupled drives** (a motor turning with several joints, e.g. the TX40's motor 6 with joints 5 and 6, ``v = C q̇``):
+the joints see the rotor inertia ``CᵀI_aC`` and the motor friction ``Cᵀτ_f,m(C q̇)``. Drake's rotor inertia is per
+actuator (a diagonal term of the mass matrix; Drake has no coupled-actuator mechanism), so the plant carries the
+diagonal ``D = diag(CᵀI_aC)`` and the drive the off-diagonal rest ``O = CᵀI_aC − D``, *implicitly*: an explicit
+``−O q̈`` from the last step would lag by one step (an error ~``O·dt·dq̈/dt``) and can be unstable. Each step the drive
+solves the arm's full dynamics at the step's state with a continuous copy of the plant (``model_plant``: same URDF,
+payload and diagonal rotor inertia): ``q̈* = (M(q) + D + O)⁻¹(τ_m − τ_f − b(q, q̇))``, ``b = ID(q, q̇, 0)`` with gravity,
+and applies ``u = τ_m − τ_f − O q̈*``. The discrete plant (TAMSI, no contact) then steps ``(M + D) q̈ = u − b`` with
+the same M and b, so its q̈ is q̈* exactly: the twin moves as the arm with ``M + CᵀI_aC`` (tests: τ equals the
+regressor's drive law to 1e-9 N·m). A coupled drive must be rigid (no ``elasticity``).
 
 Friction acts explicitly (from the state at the start of the step): stable while ``(c_j / m)·dt < 2`` with ``c_j`` the
 friction slope ``F_v + F_c/v_s (+ F_s/v_s)`` (minus the spring's implicit damping D when elastic) and ``m`` the
@@ -40,6 +52,8 @@ smallest inertia the joint's torque sees along the trajectory; the motor side of
 from __future__ import annotations
 
 import numpy as np
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.tree import MultibodyForces
 from pydrake.systems.framework import BasicVector, Context, DiagramBuilder, DiscreteValues, LeafSystem
 
 from proprio import friction_law
@@ -48,29 +62,37 @@ from proprio.effects import Elasticity, JointEffect, Motor, Stribeck, ViscousCou
 from proprio.signals import MotionSignals
 
 __all__ = ["JointDrive", "AddJointDrive", "check_explicit_friction", "check_elastic_stability", "friction_slope",
-           "motor_from_description"]
+           "motor_from_description", "coupling_from_description", "reflected_inertia"]
 
 
 def motor_from_description(desc: RobotDescription) -> Motor | None:
-    """The twin's motor side from ``desc.drive`` (reflected rotor inertia and motor friction per joint), ``None``
-    without a drive block. A coupled drive (a motor turning with several joints, e.g. a wrist) is refused: Drake's
-    rotor inertia is per actuator, and the coupled inertia ``CᵀI_aC`` has off-diagonal terms."""
+    """The twin's motor side from ``desc.drive`` (reflected rotor inertia and motor friction per motor, in joint
+    units), ``None`` without a drive block. A coupled drive also needs :func:`coupling_from_description`."""
     drive = desc.drive
     if drive is None:
         return None
-    if drive.coupled:
-        pairs = [f"motor {k + 1} with joints {', '.join(str(i + 1) for i in np.flatnonzero(row))}"
-                 for k, row in enumerate(drive.normalized_coupling) if np.count_nonzero(row) > 1]
-        raise ValueError(f"robot {desc.name!r}: drive.coupling couples {'; '.join(pairs)}; the twin simulates "
-                         "uncoupled drives only (identify and the observers take the coupling) — give the twin "
-                         "config its own uncoupled 'drive' block")
     return Motor(desc.n, motor_inertia=np.array(drive.rotor_inertia), motor_viscous=np.array(drive.motor_viscous),
                  motor_coulomb=np.array(drive.motor_coulomb))
 
 
-def friction_slope(link_effects: list[JointEffect], motor: Motor | None = None) -> np.ndarray:
+def coupling_from_description(desc: RobotDescription) -> np.ndarray | None:
+    """The normalised coupling ``C [n, n]`` of a coupled drive block (motor velocities ``v = C q̇`` in joint units,
+    :attr:`~proprio.drive_description.DriveDescription.normalized_coupling`), ``None`` for none or an uncoupled one."""
+    drive = desc.drive
+    return drive.normalized_coupling if drive is not None and drive.coupled else None
+
+
+def reflected_inertia(motor: Motor, coupling: np.ndarray | None = None) -> np.ndarray:
+    """The rotor inertia the joints see, ``Cᵀ diag(I_a) C [n, n]`` [kg·m²] (``diag(I_a)`` when uncoupled)."""
+    c = np.eye(motor.n) if coupling is None else np.asarray(coupling, dtype=float)
+    return c.T @ (motor.motor_inertia[:, None] * c)
+
+
+def friction_slope(link_effects: list[JointEffect], motor: Motor | None = None,
+                   coupling: np.ndarray | None = None) -> np.ndarray:
     """Largest ``∂τ_f/∂q̇`` [N·m·s/rad] per joint of the velocity-dependent friction (at q̇ = 0; for other link-side
-    effects, e.g. plugins, the central difference ``|∂τ_j/∂q̇_j|`` at q = 0, q̇ = 0 with a 1e-4 rad/s step)."""
+    effects, e.g. plugins, the central difference ``|∂τ_j/∂q̇_j|`` at q = 0, q̇ = 0 with a 1e-4 rad/s step). A
+    coupled motor's friction (normalised ``coupling`` C) adds the diagonal of ``Cᵀ diag(s_m) C``."""
     slope = 0.0
     for eff in link_effects:
         if isinstance(eff, ViscousCoulomb):
@@ -80,7 +102,8 @@ def friction_slope(link_effects: list[JointEffect], motor: Motor | None = None) 
         else:
             slope = slope + _numeric_slope(eff)
     if motor is not None:
-        slope = slope + friction_law.slope_at_rest(motor.motor_viscous, motor.motor_coulomb, motor.smooth_velocity)
+        s_m = friction_law.slope_at_rest(motor.motor_viscous, motor.motor_coulomb, motor.smooth_velocity)
+        slope = slope + (s_m if coupling is None else (np.asarray(coupling) ** 2).T @ s_m)
     return np.asarray(slope, dtype=float)
 
 
@@ -123,11 +146,15 @@ class JointDrive(LeafSystem):
     Output ports: ``actuation`` [n] N·m (the plant's actuation input; feed-forward to the implicit spring when
     elastic) and, for the elastic drive, ``motor_state`` [2n] = [θ; θ̇] (the plant's desired state). τ_link is a
     function of the logged t, q, q̇ only, so the twin recomputes it from the log instead of evaluating a second port.
+    A coupled drive (``coupling`` C, normalised, n×n) with rotor inertia off the diagonal of ``CᵀI_aC`` needs
+    ``model_plant``, a continuous plant of the twin's arm with the diagonal rotor inertia :attr:`rotor_diagonal`
+    (module docstring).
     """
 
     def __init__(self, n: int, link_effects: list[JointEffect], motor: Motor | None = None,
                  elasticity: Elasticity | None = None, time_step: float = 1e-3, session_time_s: float = 0.0,
-                 drive_offset: np.ndarray | None = None):
+                 drive_offset: np.ndarray | None = None, coupling: np.ndarray | None = None,
+                 model_plant: MultibodyPlant | None = None):
         super().__init__()
         for eff in link_effects:
             if eff.place != "link":
@@ -136,6 +163,8 @@ class JointDrive(LeafSystem):
             raise ValueError("JointDrive: an elastic drive needs a motor with motor_inertia > 0")
         if drive_offset is not None and elasticity is not None:
             raise ValueError("JointDrive: drive-torque sensing (drive_offset) needs a rigid drive")
+        if coupling is not None and (motor is None or elasticity is not None):
+            raise ValueError("JointDrive: a coupled drive needs a motor and a rigid drive (no elasticity)")
         self.drive_offset = None if drive_offset is None else np.asarray(drive_offset, dtype=float)
         self.n = n
         self.link_effects = list(link_effects)
@@ -143,9 +172,20 @@ class JointDrive(LeafSystem):
         self.elasticity = elasticity
         self.time_step = time_step
         self.session_time_s = float(session_time_s)
-        # per-step fast path: the viscous + Coulomb frictions acting on q̇ (link side, and the motor's for a rigid
-        # drive) stacked as rows [k, n] of ONE call of the law (proprio.friction_law, the effects' batch code)
-        on_qd = self.link_effects + ([motor] if motor is not None and elasticity is None else [])
+        self.coupling = None if coupling is None else np.asarray(coupling, dtype=float)
+        # rotor inertia: its diagonal is Drake's (the plant's rotor inertia), the rest acts through _calc_actuation
+        reflected = np.zeros((n, n)) if motor is None else reflected_inertia(motor, self.coupling)
+        self.rotor_diagonal = np.diag(reflected).copy()
+        self._off = reflected - np.diag(self.rotor_diagonal)
+        self._model = None
+        if np.any(self._off != 0.0):
+            if model_plant is None:
+                raise ValueError("JointDrive: a coupled rotor inertia needs model_plant (the twin's plant with the "
+                                 "diagonal rotor inertia, continuous)")
+            self._model = (model_plant, model_plant.CreateDefaultContext(), MultibodyForces(model_plant))
+        # per-step fast path: the viscous + Coulomb frictions acting on q̇ (link side, and an uncoupled motor's for a
+        # rigid drive) stacked as rows [k, n] of ONE call of the law (proprio.friction_law, the effects' batch code)
+        on_qd = self.link_effects + ([motor] if motor is not None and elasticity is None and coupling is None else [])
         rows = [(e.viscous, e.coulomb, e.smooth_velocity) for e in on_qd if isinstance(e, ViscousCoulomb)]
         rows += [(e.motor_viscous, e.motor_coulomb, e.smooth_velocity) for e in on_qd if isinstance(e, Motor)]
         self._vc = tuple(np.array(col) for col in zip(*rows)) if rows else None      # (F_v, F_c, v_s), each [k, n]
@@ -162,6 +202,15 @@ class JointDrive(LeafSystem):
         else:
             uses.add(self._u_motor.ticket())
         self.DeclareVectorOutputPort("actuation", n, self._calc_actuation, prerequisites_of_calc=uses)
+
+    def motor_friction(self, qd: np.ndarray) -> np.ndarray:
+        """The rigid drive's motor friction at the joints [N·m] ``[N, n]`` (or ``[n]``) for link velocities ``qd``
+        [rad/s]: ``Cᵀ τ_f,m(C q̇)`` on the motor velocities ``v = C q̇`` (``τ_f,m(q̇)`` uncoupled)."""
+        if self.motor is None:
+            return np.zeros_like(qd)
+        if self.coupling is None:
+            return self.motor.friction(qd)
+        return self.motor.friction(np.asarray(qd) @ self.coupling.T) @ self.coupling
 
     def link_torque(self, t: np.ndarray, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """τ_link [N·m] ``[N,n]`` at run times ``t`` [s] ``[N]`` (the effects see the session clock ``t +
@@ -180,9 +229,9 @@ class JointDrive(LeafSystem):
         (a drive-torque arm) the motor's torque ``u + τ_link + τ_f,m(q̇) + τ_0`` instead."""
         tau = net_actuation + self.link_torque(t, q, qd)
         if self.drive_offset is not None:
-            return tau + self.drive_offset + (0.0 if self.motor is None else self.motor.friction(qd))
+            return tau + self.drive_offset + self.motor_friction(qd) + qdd @ self._off
         if self.elasticity is None and self.motor is not None:
-            tau = tau - self.motor.motor_inertia * qdd
+            tau = tau - self.rotor_diagonal * qdd
         return tau
 
     def _link_on_state(self, context: Context) -> np.ndarray:
@@ -193,6 +242,8 @@ class JointDrive(LeafSystem):
         tau = np.zeros(self.n) if self._vc is None else friction_law.viscous_coulomb(qd, *self._vc).sum(axis=0)
         for eff in self._stribeck:
             tau = tau + eff.friction(qd)
+        if self.coupling is not None:
+            tau = tau + self.motor_friction(qd)
         if self._general:
             s = MotionSignals(np.array([context.get_time() + self.session_time_s]), q[None], qd[None],
                               np.zeros((1, self.n)))
@@ -203,8 +254,24 @@ class JointDrive(LeafSystem):
     def _calc_actuation(self, context: Context, output: BasicVector) -> None:
         if self.elasticity is not None:
             output.SetFromVector(-self._link_on_state(context))
-        else:
+        elif self._model is None:
             output.SetFromVector(self._u_motor.Eval(context) - self._link_on_state(context))
+        else:
+            output.SetFromVector(self._coupled_actuation(context))
+
+    def _coupled_actuation(self, context: Context) -> np.ndarray:
+        """The actuation that makes the plant (mass matrix ``M(q) + diag(CᵀI_aC)``) move as the arm with the full
+        ``M(q) + CᵀI_aC`` does, implicitly in the same step: ``q̈* = (M_D + O)⁻¹(τ_m − τ_f − b(q, q̇))`` with the
+        off-diagonal rotor inertia ``O`` and the bias ``b = ID(q, q̇, 0)`` (gravity applied) of the model plant at
+        the step's state, and ``u = τ_m − τ_f − O q̈*``; the plant's step then gives ``(M_D)q̈ = u − b``, i.e. q̈ = q̈*
+        (TAMSI, no contact: the same M and b at the start of the step)."""
+        plant, ctx, forces = self._model
+        f = self._u_motor.Eval(context) - self._link_on_state(context)
+        plant.SetPositionsAndVelocities(ctx, self._u_link.Eval(context))
+        plant.CalcForceElementsContribution(ctx, forces)
+        bias = plant.CalcInverseDynamics(ctx, np.zeros(self.n), forces)
+        qdd = np.linalg.solve(plant.CalcMassMatrix(ctx) + self._off, f - bias)
+        return f - self._off @ qdd
 
     def _update_motor(self, context: Context, discrete_state: DiscreteValues) -> None:
         n, motor = self.n, self.motor
@@ -224,9 +291,12 @@ class JointDrive(LeafSystem):
 def AddJointDrive(builder: DiagramBuilder, n: int, link_effects: list[JointEffect], motor: Motor | None = None,
                   elasticity: Elasticity | None = None, time_step: float = 1e-3,
                   name: str = "joint_drive", session_time_s: float = 0.0,
-                  drive_offset: np.ndarray | None = None) -> JointDrive:
+                  drive_offset: np.ndarray | None = None, coupling: np.ndarray | None = None,
+                  model_plant: MultibodyPlant | None = None) -> JointDrive:
     """Add a :class:`JointDrive` to ``builder`` (ports ``motor_torque``, ``link_state`` → ``actuation``;
-    ``session_time_s`` [s]: the session clock at context time 0, for time-varying link effects)."""
-    drive = builder.AddSystem(JointDrive(n, link_effects, motor, elasticity, time_step, session_time_s, drive_offset))
+    ``session_time_s`` [s]: the session clock at context time 0, for time-varying link effects; ``coupling`` and
+    ``model_plant``: a coupled drive, see :class:`JointDrive`)."""
+    drive = builder.AddSystem(JointDrive(n, link_effects, motor, elasticity, time_step, session_time_s, drive_offset,
+                                         coupling, model_plant))
     drive.set_name(name)
     return drive
