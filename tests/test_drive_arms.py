@@ -238,23 +238,67 @@ def test_twin_of_a_drive_arm_logs_the_drive_torque_of_the_regressor_law():
     assert np.max(np.abs(drive_torque(desc, tr["qd"], tr["qdd"], None))) > 0.5     # the drive terms are there
 
 
-def test_twin_refuses_a_coupled_drive_with_a_clear_message():
+def _tx40_motion(duration: float = 0.4):
+    from pydrake.trajectories import PiecewisePolynomial
+    q0 = np.array([0.1, 0.5, -0.2, -1.2, 0.3, 0.7])
+    knots = q0 + np.random.default_rng(0).uniform(-0.4, 0.4, (4, 6))
+    knots[0] = q0
+    return PiecewisePolynomial.CubicShapePreserving(np.linspace(0.0, duration, 4), knots.T, True)
+
+
+def test_twin_simulates_the_coupled_drive_exactly():
+    """The TX40's motor 6 turns with joints 5 and 6: the twin's drive torque equals the exact reference
+    ``M(q)q̈ + c + g + CᵀI_aC q̈ + Cᵀτ_f,m(C q̇) + τ_0`` (inverse dynamics of the logged motion + the regressor's drive
+    law) to 1e-9 N·m, with the off-diagonal rotor inertia (Drake carries only the diagonal) well above that."""
+    from proprio.diagrams.twin import TwinConfig, simulate_twin
+    from proprio.identification.regressor import drive_torque
+
+    desc = load_robot("staubli_tx40")
+    cfg = TwinConfig.from_dict({"robot": "staubli_tx40", "time_step": 2e-4,
+                                "logger": {"rate_hz": 5000, "channels": ["q", "tau"], "stamp_jitter_ms": 0.0,
+                                           "dropout_prob": 0.0}})
+    np.testing.assert_array_equal(cfg.motor_coupling, desc.drive.normalized_coupling)
+    rec = simulate_twin(cfg, _tx40_motion(), progress=False)
+    tr = rec.truth
+    exact = tr["tau_rbd"] + drive_torque(desc, tr["qd"], tr["qdd"], None) + np.array(desc.drive.offset)
+    assert np.max(np.abs(rec.tau - exact)) < 1e-9
+    c, ia = desc.drive.normalized_coupling, np.array(desc.drive.rotor_inertia)
+    off = c.T @ (ia[:, None] * c) - np.diag(np.diag(c.T @ (ia[:, None] * c)))
+    assert np.max(np.abs(tr["qdd"] @ off)) > 0.05                     # the coupled rotor inertia is in it
+    coupled_friction = (np.array(desc.drive.motor_coulomb) * np.tanh(tr["qd"] @ c.T / 0.05))[:, 5]
+    assert np.max(np.abs(coupled_friction)) > 1.0                      # and motor 6's friction on q̇₅ + q̇₆
+
+
+def test_coupled_drive_needs_a_rigid_twin_and_the_tx40_twin_runs(tmp_path, capsys):
+    from proprio.cli import main
     from proprio.diagrams.twin import TwinConfig, TwinConfigError
-    with pytest.raises(TwinConfigError, match="motor 6 with joints 5, 6"):
-        TwinConfig.from_dict({"robot": "staubli_tx40"})
+    from proprio.recording import load_recording
+    from proprio.systems.trajectories import save_trajectory
+
+    with pytest.raises(TwinConfigError, match="coupled drives rigid only"):
+        TwinConfig.from_dict({"robot": "staubli_tx40", "effects": {"elasticity": {"stiffness": 1e4}}})
+    traj = save_trajectory(tmp_path / "motion.npz", _tx40_motion(0.2))
+    out = tmp_path / "tx40_twin.npz"
+    assert main(["simulate", "--twin", "staubli_tx40_twin", "--trajectory", str(traj), "--quiet",
+                 "--out", str(out)]) == 0
+    rec = load_recording(out)
+    assert "staubli_tx40_twin" in capsys.readouterr().out and rec.rate_hz == pytest.approx(5000.0)
+    assert rec.meta["drive"]["coupling"][5] == [0.0, 0.0, 0.0, 0.0, 1.0, 1.0]
 
 
-def test_observers_subtract_the_drive_terms():
-    """A drive arm moving freely: with the drive terms in the torque model (τ_int) both observers see no external
-    torque; without them, the rotor inertia, motor friction and offsets look like contact."""
+@pytest.mark.parametrize("arm", ["iiwa_drive", "staubli_tx40"])
+def test_observers_subtract_the_drive_terms(arm):
+    """A drive arm moving freely (uncoupled, and the TX40's coupled wrist): with the drive terms in the torque model
+    (τ_int) both observers see no external torque; without them, the rotor inertia, motor friction and offsets look
+    like contact."""
     from proprio.diagrams.estimation import RigidBodyTorqueModel
     from proprio.dynamics import inverse_dynamics
     from proprio.systems.momentum_observer import momentum_observer
 
-    desc = _iiwa_drive_arm()
+    desc = _iiwa_drive_arm() if arm == "iiwa_drive" else load_robot(arm)
     dt = 1e-3
     t = np.arange(0.0, 2.0, dt)[:, None]
-    w = np.linspace(1.0, 2.0, 7)
+    w = np.linspace(1.0, 2.0, desc.n)
     q, qd, qdd = 0.5 * np.sin(w * t), 0.5 * w * np.cos(w * t), -0.5 * w ** 2 * np.sin(w * t)
     model = RigidBodyTorqueModel(desc)
     tau = inverse_dynamics(desc, q, qd, qdd) + model.tau_int(q, qd, qdd)      # what the drive arm measures
