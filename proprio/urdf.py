@@ -283,10 +283,16 @@ def robot_from_urdf(path: str | Path, base_link: str | None = None, tip_link: st
     if tip_link is None:
         tips = [j for j in actuated if set(a.name for a in actuated) <= {a.name for a in ancestry(j.child)}]
         if not tips:
+            leaves = [lk for lk in links if lk not in kids and any(j.type != "fixed" for j in ancestry(lk))]
+            paths = [ancestry(lk) for lk in leaves]
+            common = next((k for k in range(min(map(len, paths))) if len({id(pa[k]) for pa in paths}) > 1),
+                          min(map(len, paths)))
+            at = f" at link '{paths[0][common - 1].child}'" if common > 0 else ""
             raise DescriptionError(
-                f"{path}: the actuated joints branch ({', '.join(j.name for j in actuated)}), so the serial "
-                "chain is ambiguous: pass tip_link (and base_link), e.g. in a robot YAML {format: proprio-urdf/v1, "
-                "urdf: FILE, tip_link: LINK}")
+                f"{path}: the actuated joints branch{at} ({', '.join(j.name for j in actuated)}), so the serial "
+                f"chain is ambiguous: pass tip_link (and base_link), one of the candidate tips {', '.join(leaves)} "
+                "or a link on the way to one — on the command line --tip LINK (--base LINK), or in a robot YAML "
+                "{format: proprio-urdf/v1, urdf: FILE, tip_link: LINK}")
         on_path = ancestry(tips[0].child)
     else:
         on_path = ancestry(tip_link)

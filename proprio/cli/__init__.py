@@ -29,7 +29,7 @@ import yaml
 
 from proprio.errors import UserError
 
-__all__ = ["main", "build_parser", "UserError", "check_output", "add_plugin_args", "finite", "nonnegative", "positive",
+__all__ = ["main", "build_parser", "UserError", "check_output", "add_plugin_args", "add_chain_args", "load_robot_arg", "finite", "nonnegative", "positive",
            "positive_int", "nonnegative_int"]
 
 
@@ -94,6 +94,23 @@ def add_plugin_args(p: argparse.ArgumentParser) -> None:
                    help="allow a config (twin YAML, twin_patch.yaml, --effects-config) to use this plugin effect, "
                         "importing its module; repeatable (plugins installed as 'proprio.effects' entry points need "
                         "no flag)")
+
+
+def add_chain_args(p: argparse.ArgumentParser) -> None:
+    """``--base LINK``/``--tip LINK``: select the serial chain of a URDF robot where it is ambiguous (read with
+    :func:`load_robot_arg`)."""
+    p.add_argument("--base", metavar="LINK", default=None,
+                   help="with a URDF robot: the link the serial chain starts at (only needed where it is ambiguous)")
+    p.add_argument("--tip", metavar="LINK", default=None,
+                   help="with a URDF robot: the link the serial chain ends at, e.g. tool0 when a gripper's fingers "
+                        "branch off it (only needed where it is ambiguous)")
+
+
+def load_robot_arg(value: str, args: argparse.Namespace):
+    """The robot description of a ``--robot``/``--model`` value, with the chain of ``--base``/``--tip``."""
+    from proprio.description import load_robot
+
+    return load_robot(value, args.base, args.tip)
 
 
 def check_output(path: str | Path | None, flag: str, kind: str = "file") -> None:

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from proprio.cli import UserError, add_plugin_args, check_output, nonnegative, nonnegative_int
+from proprio.cli import (UserError, add_chain_args, add_plugin_args, check_output, load_robot_arg, nonnegative,
+                         nonnegative_int)
 from proprio.cli._backend import add_backend_args, check_backend_args, clear_state
 
 
@@ -19,6 +20,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--model", required=True,
                    help="simulation model: a built-in robot name (iiwa14_nominal, ...), a robot YAML/URDF, or a "
                    "directory with robot.yaml (e.g. ../shared/data/kuka_lwr4)")
+    add_chain_args(p)
     p.add_argument("--effects", nargs="*", default=[], metavar="EFFECT",
                    help="effects the simulation already has: library names or your own effects as "
                    "'package.module:Class' (at the parameters of --effects-config, else the class defaults)")
@@ -91,12 +93,11 @@ def _effects_config(path: Path, n: int) -> dict:
 
 
 def _model(args: argparse.Namespace):
-    from proprio.description import load_robot
     from proprio.diagnosis.data import SimModel
     from proprio.effects import make_effects
 
     try:
-        robot = load_robot(args.model)
+        robot = load_robot_arg(args.model, args)
     except (FileNotFoundError, KeyError, ValueError) as exc:
         raise UserError(f"--model: cannot load robot {args.model!r} ({exc})") from exc
     config = {}

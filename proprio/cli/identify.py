@@ -5,7 +5,8 @@ import argparse
 import json
 
 import numpy as np
-from proprio.cli import check_output, nonnegative, nonnegative_int, positive, positive_int
+from proprio.cli import (add_chain_args, check_output, load_robot_arg, nonnegative, nonnegative_int, positive,
+                         positive_int)
 
 
 __all__ = ["register"]
@@ -16,7 +17,6 @@ def _identify(args: argparse.Namespace) -> int:
 
     from proprio.conditioning import ConditioningConfig
     from proprio.data_quality import assess, format_findings
-    from proprio.description import load_robot
     from proprio.identification.estimators import torque_error_table
     from proprio.identification.model_io import save_model
     from proprio.identification.recordings import check_tau_kind, identify_recordings, stack_recordings
@@ -24,7 +24,7 @@ def _identify(args: argparse.Namespace) -> int:
     from proprio.recording import load_recording
 
     check_output(args.out, "--out", "file")
-    robot = load_robot(args.robot)
+    robot = load_robot_arg(args.robot, args)
     train = [load_recording(p, robot) for p in args.train]
     validate = [load_recording(p, robot) for p in args.validate]
     check_tau_kind(train + validate, args.train + args.validate, robot)
@@ -106,6 +106,7 @@ def register(subparsers) -> None:
                     "on each validation file (one table per file) and save the model (.npz).")
     p.add_argument("--robot", required=True, help="robot description: built-in name, YAML, URDF or directory "
                                                   "(kinematics + a-priori inertials)")
+    add_chain_args(p)
     p.add_argument("--train", nargs="+", required=True, metavar="REC", help="training recordings (.npz; FloBaRoID "
                                                                             "LWR files accepted)")
     p.add_argument("--validate", nargs="*", default=[], metavar="REC",

@@ -7,11 +7,12 @@ from pathlib import Path
 
 import numpy as np
 
+from proprio.cli import add_chain_args, load_robot_arg
+
 __all__ = ["register"]
 
 
 def _import(args: argparse.Namespace) -> int:
-    from proprio.description import load_robot
     from proprio.importer import import_recording, load_mapping
     from proprio.recording import save_recording, validate_recording
 
@@ -20,10 +21,12 @@ def _import(args: argparse.Namespace) -> int:
         raise ValueError(f"--out {out}: a Recording file must end in .npz")
     if out.is_dir():
         raise ValueError(f"--out {out}: is a directory")
+    if (args.base or args.tip) and not args.robot:
+        raise ValueError("--base/--tip select the chain of the --robot URDF: give --robot too")
     mapping = load_mapping(args.mapping)
     rec = import_recording(mapping, data_dir=args.data_dir, robot_name=args.robot)
     if args.robot:
-        validate_recording(rec, load_robot(args.robot), source=str(args.mapping))   # joint count and limits
+        validate_recording(rec, load_robot_arg(args.robot, args), source=str(args.mapping))   # joint count and limits
     save_recording(rec, out)
     print(f"wrote {out}: {rec.n_samples} samples, {rec.duration:.3f} s at {rec.rate_hz:.6g} Hz, {rec.n_joints} "
           f"joints, tau_kind {rec.meta['tau_kind']}")
@@ -48,4 +51,5 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="folder the mapping's file names are relative to (default: the mapping's folder)")
     p.add_argument("--robot", default=None, help="robot description to record in meta.robot and to validate the "
                                                  "joint count and limits against (default: the mapping's 'robot')")
+    add_chain_args(p)
     p.set_defaults(func=_import)

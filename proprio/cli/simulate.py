@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from proprio.cli import UserError, add_plugin_args, check_output, finite, nonnegative, nonnegative_int, positive
+from proprio.cli import UserError, add_chain_args, add_plugin_args, check_output, finite, nonnegative, nonnegative_int, positive
 
 if TYPE_CHECKING:
     from proprio.diagrams.twin import TwinConfig
@@ -77,8 +77,8 @@ def _simulate(args: argparse.Namespace) -> int:
     if (args.trajectory is None) == (args.replay is None):
         raise UserError("give exactly one of --trajectory (a motion to simulate) and --replay (a recording to replay)")
     try:
-        config = load_twin_config(args.twin, patch=args.patch)
-        base = load_twin_config(args.twin) if args.patch is not None else None
+        config = load_twin_config(args.twin, patch=args.patch, base_link=args.base, tip_link=args.tip)
+        base = load_twin_config(args.twin, base_link=args.base, tip_link=args.tip) if args.patch is not None else None
     except TwinConfigError as exc:
         raise UserError(f"--twin/--patch: {exc}") from exc
     if args.replay is not None:
@@ -137,6 +137,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="trajectory .npz from 'proprio trajectory' (breaks, q, qd) or a Recording whose q(t) is "
                         "replayed")
     p.add_argument("--patch", help="twin patch (twin_patch.yaml from 'proprio diagnose') merged into --twin")
+    add_chain_args(p)
     p.add_argument("--replay", metavar="REC",
                    help="instead of --trajectory: a measured (held-out) recording whose conditioned q is replayed "
                         "through the twin without its noise; writes the twin's Recording and prints the gap "

@@ -99,14 +99,20 @@ def builtin_robots() -> list[str]:
     return sorted(p.name[:-5] for p in resources.files("proprio.robots").iterdir() if p.name.endswith(".yaml"))
 
 
-def load_robot(name_or_path: str | Path) -> RobotDescription:
+def load_robot(name_or_path: str | Path, base_link: str | None = None, tip_link: str | None = None
+               ) -> RobotDescription:
     """Load a shipped robot by name (e.g. ``iiwa14_identified``), a YAML file, a URDF file, or a directory with a
-    ``robot.yaml`` (e.g. ``../shared/data/kuka_lwr4``)."""
+    ``robot.yaml`` (e.g. ``../shared/data/kuka_lwr4``). ``base_link``/``tip_link`` select a URDF file's chain where
+    it is ambiguous (the CLI's ``--base``/``--tip``); for anything else they are an error (a ``proprio-urdf/v1``
+    YAML names them itself)."""
     p = Path(name_or_path)
     if p.is_dir():
         p = p / "robot.yaml"
     if p.suffix.lower() == ".urdf" and p.exists():
-        return robot_from_urdf(p)
+        return robot_from_urdf(p, base_link, tip_link)
+    if base_link is not None or tip_link is not None:
+        raise DescriptionError(f"{name_or_path}: base/tip links select the chain of a URDF file only (this is not a "
+                               ".urdf file); a robot YAML of format proprio-urdf/v1 names them as base_link/tip_link")
     if p.exists() and p.suffix.lower() not in (".yaml", ".yml"):
         raise DescriptionError(f"{p}: not a robot description — give a built-in name ({', '.join(builtin_robots())}), "
                                "a .yaml or .urdf file, or a directory with robot.yaml")

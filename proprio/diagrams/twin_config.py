@@ -105,13 +105,15 @@ class TwinConfig:
     motor_coupling: np.ndarray | None = None
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any], source: str = "<dict>") -> "TwinConfig":
+    def from_dict(cls, data: dict[str, Any], source: str = "<dict>", base_link: str | None = None,
+                  tip_link: str | None = None) -> "TwinConfig":
         """Load the mapping of a twin YAML (``source`` names it in errors): first its shape, strictly
-        (:class:`TwinYaml`: an unknown key names the nearest valid one), then the physics checks."""
+        (:class:`TwinYaml`: an unknown key names the nearest valid one), then the physics checks. ``base_link``/
+        ``tip_link`` select the chain of a URDF ``robot`` (:func:`~proprio.description.load_robot`)."""
         if not isinstance(data, dict):
             raise TwinConfigError(f"{source}: a twin config must be a YAML mapping")
         spec = load_typed(TwinYaml, data, source, TwinConfigError)
-        desc = _robot_of(spec.robot, f"{source}: robot")
+        desc = _robot_of(spec.robot, f"{source}: robot", base_link, tip_link)
         n = desc.n
         check_effects_block(spec.effects, n, f"{source}: effects", TwinConfigError)
         try:
@@ -196,10 +198,14 @@ class TwinConfig:
                 "logger": self.logger.to_dict(), "session_time_s": self.session_time_s}
 
 
-def _robot_of(value: Any, where: str) -> RobotDescription:
-    """The robot of a ``robot:`` entry: a built-in name, a file/directory path or a ``proprio-robot/v1`` mapping."""
+def _robot_of(value: Any, where: str, base_link: str | None = None, tip_link: str | None = None
+              ) -> RobotDescription:
+    """The robot of a ``robot:`` entry: a built-in name, a file/directory path or a ``proprio-robot/v1`` mapping
+    (``base_link``/``tip_link``: the chain of a URDF file)."""
+    if isinstance(value, dict) and (base_link is not None or tip_link is not None):
+        raise TwinConfigError(f"{where}: base/tip links select the chain of a URDF file, the robot is a mapping")
     try:
-        return robot_from_dict(value, where) if isinstance(value, dict) else load_robot(value)
+        return robot_from_dict(value, where) if isinstance(value, dict) else load_robot(value, base_link, tip_link)
     except (DescriptionError, FileNotFoundError, KeyError, TypeError, ValueError) as exc:
         raise TwinConfigError(f"{where}: cannot load robot ({exc})") from exc
 
@@ -270,20 +276,23 @@ def _read_yaml(name_or_path: str | Path, what: str = "twin config") -> tuple[Any
     return read_yaml(text=text, source=source, error=TwinConfigError), source
 
 
-def load_twin_config(name_or_path: str | Path, patch: str | Path | dict[str, Any] | None = None) -> TwinConfig:
+def load_twin_config(name_or_path: str | Path, patch: str | Path | dict[str, Any] | None = None,
+                     base_link: str | None = None, tip_link: str | None = None) -> TwinConfig:
     """Load a twin YAML: a shipped config name (``iiwa14_twin`` or ``iiwa14_twin.yaml``) or a file path; with
-    ``patch`` (a twin-patch file or mapping) merged in by :func:`merge_twin_patch`."""
+    ``patch`` (a twin-patch file or mapping) merged in by :func:`merge_twin_patch`; ``base_link``/``tip_link``
+    select the chain of a URDF ``robot``."""
+    chain = {"base_link": base_link, "tip_link": tip_link}
     data, source = _read_yaml(name_or_path)
     if patch is None:
-        return TwinConfig.from_dict(data, source)
+        return TwinConfig.from_dict(data, source, **chain)
     if not isinstance(data, dict):
         raise TwinConfigError(f"{source}: a twin config must be a YAML mapping")
     if isinstance(patch, dict):
         merged = merge_twin_patch(data, patch)
-        return TwinConfig.from_dict(merged, f"{source} + patch")
+        return TwinConfig.from_dict(merged, f"{source} + patch", **chain)
     path = Path(patch)
     if not path.is_file():
         raise TwinConfigError(f"twin patch '{patch}': no such file")
     pdata, psource = _read_yaml(path, "twin patch")
     merged = merge_twin_patch(data, pdata, psource, path.parent)
-    return TwinConfig.from_dict(merged, f"{source} + {psource}")
+    return TwinConfig.from_dict(merged, f"{source} + {psource}", **chain)
