@@ -170,36 +170,84 @@ def drive_from_dict(d: Any, n: int, where: str = "drive") -> DriveDescription:
         offset=_vector(d, "offset", where, n, default=0.0))
 
 
+def _local(tag: str) -> str:
+    """An XML tag without its namespace (``{http://drake.mit.edu}rotor_inertia`` → ``rotor_inertia``)."""
+    return tag.rsplit("}", 1)[-1]
+
+
+def _child(el: Any, *names: str) -> Any:
+    """The first child of ``el`` whose local tag is one of ``names`` (any namespace), else ``None``."""
+    return next((c for c in el if _local(c.tag) in names), None)
+
+
+def _number(el: Any, what: str, where: str) -> float:
+    """The number of an element's ``value`` attribute or its text; errors name the element."""
+    raw = el.get("value") if el.get("value") is not None else (el.text or "").strip()
+    try:
+        x = float(raw)
+    except (TypeError, ValueError):
+        raise DriveDescriptionError(f"{where}: {what}: {raw!r} is not a number") from None
+    if not np.isfinite(x):
+        raise DriveDescriptionError(f"{where}: {what}: {raw!r} is not finite")
+    return x
+
+
 def drive_from_urdf_element(root: Any, joint_names: list[str], where: str) -> DriveDescription | None:
-    """A drive block from a URDF's ``<transmission>`` elements (``<joint name>``, ``<actuator>`` with
-    ``<mechanicalReduction>``) and ``<joint><dynamics armature=…>`` (reflected rotor inertia [kg·m²]); ``None``
-    when every reduction is 1 and no armature is given (proprio's own URDF export writes unit transmissions). A
-    URDF does not say what the τ channel is: ``tau_kind`` is ``link_sensor`` (the drive terms simulated, not
-    identified); a drive-torque arm says ``tau_kind: drive`` in its YAML, and coupled transmissions need the YAML
-    ``coupling`` field too."""
+    """A drive block from a URDF's transmissions and armature, ``None`` when every reduction is 1 and no rotor
+    inertia is given (proprio's own URDF export writes unit transmissions). Read, per joint of the chain:
+
+    * the gear ratio ``N``: a one-joint ``<transmission>``'s (anywhere in the file, also inside ROS 2's
+      ``<ros2_control>``) ``mechanicalReduction`` (ROS 1: in ``<actuator>``, or the transmission itself in the old
+      PR2 format) or ``mechanical_reduction`` (ROS 2: in ``<joint>`` or ``<actuator>``), or Drake's
+      ``<actuator><drake:gear_ratio value>``;
+    * the reflected rotor inertia ``I_a`` [kg·m², joint side]: Drake's ``<actuator><drake:rotor_inertia value>``
+      (the rotor's own, motor side: ``I_a = N² J_rotor``, as Drake reflects it) or ``<joint><dynamics armature>``
+      (already joint side, MuJoCo's meaning; it wins when both are given).
+
+    A transmission with several joints or actuators (differential, four-bar) is not read (a ``UserWarning`` names
+    it: give ``drive.coupling`` in a robot YAML). A URDF does not say what the τ channel is: ``tau_kind`` is
+    ``link_sensor`` (the drive terms simulated, not identified); a drive-torque arm says ``tau_kind: drive`` in its
+    YAML."""
+    import warnings
+
     n = len(joint_names)
     gear, arm, found = [1.0] * n, [0.0] * n, False
     index = {name: k for k, name in enumerate(joint_names)}
-    for tr in root.findall("transmission"):
-        j = tr.find("joint")
-        name = j.get("name") if j is not None else None
-        if name not in index:
+    for tr in root.iter("transmission"):
+        joints = [c for c in tr if _local(c.tag) == "joint"]
+        actuators = [c for c in tr if _local(c.tag) == "actuator"]
+        names = [j.get("name") for j in joints]
+        if not any(nm in index for nm in names):
             continue
-        red = tr.find("actuator/mechanicalReduction")
+        label = f"{where}: transmission {tr.get('name')!r}"
+        if len(joints) > 1 or len(actuators) > 1:
+            warnings.warn(f"{label} couples joints {names} (several joints/actuators): not read; give the drive's "
+                          "'coupling' (and gear_ratio) in a robot YAML", UserWarning, stacklevel=2)
+            continue
+        k, joint, act = index[names[0]], joints[0], actuators[0] if actuators else None
+        red = _child(joint, "mechanical_reduction")
+        if red is None and act is not None:
+            red = _child(act, "mechanicalReduction", "mechanical_reduction", "gear_ratio")
         if red is None:
-            red = tr.find("mechanicalReduction")
-        if red is not None and (red.text or "").strip():
-            try:
-                gear[index[name]] = float(red.text)
-            except ValueError:
-                raise DriveDescriptionError(f"{where}: transmission of joint '{name}': mechanicalReduction "
-                                            f"{red.text!r} is not a number") from None
-            found = found or gear[index[name]] != 1.0
+            red = _child(tr, "mechanicalReduction")
+        if red is not None:
+            gear[k] = _number(red, f"gear ratio of joint {names[0]!r}", label)
+            if gear[k] == 0.0:
+                raise DriveDescriptionError(f"{label}: gear ratio of joint {names[0]!r} is 0")
+        rotor = _child(act, "rotor_inertia") if act is not None else None
+        if rotor is not None:
+            arm[k] = gear[k] ** 2 * _number(rotor, f"rotor inertia of joint {names[0]!r}", label)
+        found = found or gear[k] != 1.0 or arm[k] != 0.0
     for el in root.findall("joint"):
         dyn = el.find("dynamics")
         if el.get("name") in index and dyn is not None and dyn.get("armature") is not None:
-            arm[index[el.get("name")]] = float(dyn.get("armature"))
-            found = found or arm[index[el.get("name")]] != 0.0
+            k, raw = index[el.get("name")], dyn.get("armature")
+            try:
+                arm[k] = float(raw)
+            except ValueError:
+                raise DriveDescriptionError(f"{where}: joint {el.get('name')!r} <dynamics armature={raw!r}>: not a "
+                                            "number") from None
+            found = found or arm[k] != 0.0
     if not found:
         return None
     return drive_from_dict({"tau_kind": "link_sensor", "gear_ratio": gear, "rotor_inertia": arm}, n, where)

@@ -70,6 +70,61 @@ def test_urdf_transmission_and_armature(tmp_path):
     assert got.drive.tau_kind == "link_sensor"           # a URDF does not say what τ is
 
 
+def _transmissions_urdf() -> str:
+    """The nominal iiwa's URDF with the transmission dialects in the wild: ROS 1 (``<actuator><mechanicalReduction>``),
+    ROS 2 (``<ros2_control>`` with ``<joint><mechanical_reduction>``), Drake's (``<drake:gear_ratio>``,
+    ``<drake:rotor_inertia>``: the motor-side rotor, reflected as N²·J), and a differential (two joints) that is not
+    read."""
+    from proprio.urdf import to_urdf
+    text = to_urdf(load_robot("iiwa14_nominal"), collision=False)
+    text = text.replace('<robot name="iiwa14_nominal">',
+                        '<robot name="iiwa14_nominal" xmlns:drake="http://drake.mit.edu">')
+    for k in range(1, 8):                        # proprio's own unit transmissions out: each dialect sets its joints
+        a = text.index(f'<transmission name="iiwa_joint_{k}_transmission"')
+        text = text[:a] + text[text.index("</transmission>", a) + len("</transmission>"):]
+    ros1 = ('<transmission name="t1"><type>transmission_interface/SimpleTransmission</type><joint name="iiwa_joint_1">'
+            '<hardwareInterface>EffortJointInterface</hardwareInterface></joint><actuator name="m1">'
+            '<mechanicalReduction>160</mechanicalReduction></actuator></transmission>')
+    ros2 = ('<ros2_control name="arm" type="system"><transmission name="t2"><plugin>transmission_interface/'
+            'SimpleTransmission</plugin><actuator name="m2" role="m2"/><joint name="iiwa_joint_2" role="j2">'
+            '<mechanical_reduction>-120</mechanical_reduction></joint></transmission></ros2_control>')
+    drake = ''.join(f'<transmission name="t{k}"><type>transmission_interface/SimpleTransmission</type>'
+                    f'<joint name="iiwa_joint_{k}"><hardwareInterface>EffortJointInterface</hardwareInterface>'
+                    f'</joint><actuator name="iiwa_joint_{k}"><drake:gear_ratio value="{g}"/>'
+                    f'<drake:rotor_inertia value="{j}"/></actuator></transmission>'
+                    for k, g, j in ((3, 100.0, 2e-5), (4, 50.0, 1e-4)))
+    diff = ('<transmission name="wrist_diff"><type>transmission_interface/DifferentialTransmission</type>'
+            '<joint name="iiwa_joint_5"/><joint name="iiwa_joint_6"/><actuator name="m5"/><actuator name="m6"/>'
+            '</transmission>')
+    return text.replace("</robot>", ros1 + ros2 + drake + diff + "</robot>")
+
+
+def test_urdf_transmission_dialects_match_drake(tmp_path):
+    """Gear ratios from ROS 1, ROS 2 and Drake transmissions; the reflected rotor inertia equals what Drake's own
+    URDF parser makes of the same file (``JointActuator.default_reflected_inertia``); a coupled transmission warns."""
+    from pydrake.multibody.parsing import Parser
+    from pydrake.multibody.plant import MultibodyPlant
+    from proprio.description import robot_from_urdf
+
+    path = tmp_path / "arm.urdf"
+    path.write_text(_transmissions_urdf())
+    with pytest.warns(UserWarning, match="transmission 'wrist_diff' couples joints"):
+        got = robot_from_urdf(path)
+    assert got.drive.gear_ratio == (160.0, -120.0, 100.0, 50.0, 1.0, 1.0, 1.0)
+    plant = MultibodyPlant(0.0)
+    Parser(plant).AddModels(str(path))
+    plant.Finalize()
+    reflected = {plant.get_joint_actuator(i).joint().name(): plant.get_joint_actuator(i).default_reflected_inertia()
+                 for i in plant.GetJointActuatorIndices()}
+    assert reflected["iiwa_joint_3"] > 0.1                  # 100² · 2e-5 kg·m²
+    np.testing.assert_allclose(got.drive.rotor_inertia[2:4], [reflected["iiwa_joint_3"], reflected["iiwa_joint_4"]],
+                               rtol=1e-12)
+    bad = path.read_text().replace("<mechanicalReduction>160<", "<mechanicalReduction>fast<")
+    path.write_text(bad)
+    with pytest.raises(ValueError, match="transmission 't1'.*gear ratio of joint 'iiwa_joint_1'.*'fast'"):
+        robot_from_urdf(path)
+
+
 def test_armature_column_equals_drake_rotor_inertia():
     """Uncoupled drive: the armature columns times I_a equal the torque Drake adds for an actuator with rotor inertia
     J and gear ratio N (reflected N²J), to 1e-10."""
