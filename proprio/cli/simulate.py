@@ -132,7 +132,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "only when the simulation finishes (atomic write). --patch merges a twin_patch.yaml from "
                     "'proprio diagnose' into the twin; --replay re-simulates a measured recording and prints the gap.")
     p.add_argument("--twin", default="iiwa14_twin",
-                   help="twin config: a shipped name (iiwa14_twin, iiwa14_nominal_twin, kuka_lwr4_twin) or a YAML path")
+                   help="twin config: a shipped name (iiwa14_twin, iiwa14_nominal_twin, kuka_lwr4_twin, staubli_tx40_twin) "
+                        "or a YAML path")
     p.add_argument("--trajectory",
                    help="trajectory .npz from 'proprio trajectory' (breaks, q, qd) or a Recording whose q(t) is "
                         "replayed")
