@@ -211,14 +211,16 @@ def _robot_of(value: Any, where: str, base_link: str | None = None, tip_link: st
 
 
 def merge_twin_patch(base: dict[str, Any], patch: dict[str, Any], source: str = "<patch>",
-                     base_dir: str | Path | None = None) -> dict[str, Any]:
+                     base_dir: str | Path | None = None, base_link: str | None = None,
+                     tip_link: str | None = None) -> dict[str, Any]:
     """The twin-config mapping ``base`` with ``patch`` merged in (module docstring, "Patches").
 
     ``patch_for`` must name the base's robot (its description's ``name``) and joint count; the patch's effects are
     added to the base's (an effect the base already has is an error: the patch was fitted against a model without
     it); its payload needs a base without one; its ``robot`` replaces the base's robot when it has the same joints.
-    A relative ``robot`` path is taken relative to ``base_dir`` (the patch's folder) when the file is there. Raises
-    :class:`TwinConfigError` naming the offending field."""
+    A relative ``robot`` path is taken relative to ``base_dir`` (the patch's folder) when the file is there.
+    ``base_link``/``tip_link`` select the chain of the base's URDF robot. Raises :class:`TwinConfigError` naming the
+    offending field."""
     if not isinstance(patch, dict):
         raise TwinConfigError(f"{source}: a twin patch must be a YAML mapping")
     if not isinstance(base, dict):
@@ -226,7 +228,7 @@ def merge_twin_patch(base: dict[str, Any], patch: dict[str, Any], source: str = 
     spec = load_typed(TwinPatchYaml, patch, source, TwinConfigError)
     base_spec = load_typed(TwinYaml, base, "base twin", TwinConfigError)
     target = spec.patch_for
-    desc = _robot_of(base_spec.robot, "base twin: robot")
+    desc = _robot_of(base_spec.robot, "base twin: robot", base_link, tip_link)
     if target.robot != desc.name or target.joints != desc.n:
         raise TwinConfigError(f"{source}: patch_for: the patch is for robot '{target.robot}' with "
                               f"{target.joints} joints, the base twin's robot is '{desc.name}' with {desc.n} joints")
@@ -288,11 +290,11 @@ def load_twin_config(name_or_path: str | Path, patch: str | Path | dict[str, Any
     if not isinstance(data, dict):
         raise TwinConfigError(f"{source}: a twin config must be a YAML mapping")
     if isinstance(patch, dict):
-        merged = merge_twin_patch(data, patch)
+        merged = merge_twin_patch(data, patch, **chain)
         return TwinConfig.from_dict(merged, f"{source} + patch", **chain)
     path = Path(patch)
     if not path.is_file():
         raise TwinConfigError(f"twin patch '{patch}': no such file")
     pdata, psource = _read_yaml(path, "twin patch")
-    merged = merge_twin_patch(data, pdata, psource, path.parent)
+    merged = merge_twin_patch(data, pdata, psource, path.parent, **chain)
     return TwinConfig.from_dict(merged, f"{source} + {psource}", **chain)
