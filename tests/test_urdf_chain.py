@@ -50,8 +50,8 @@ def test_branching_urdf_names_the_candidate_tips(two_arms):
 
 
 def test_cli_base_and_tip_select_the_chain(two_arms, tmp_path, capsys):
-    """``simulate`` (the twin's URDF robot) and ``identify`` refuse the ambiguous URDF by naming the tips, and run
-    with ``--tip``; the identified model holds the chosen arm's joints."""
+    """``simulate`` (the twin's URDF robot), ``identify`` and ``diagnose`` refuse the ambiguous URDF by naming the
+    tips; ``simulate`` and ``identify`` run with ``--tip``, and the identified model holds the chosen arm's joints."""
     from pydrake.trajectories import PiecewisePolynomial
 
     from proprio.identification.model_io import load_model
@@ -66,7 +66,8 @@ def test_cli_base_and_tip_select_the_chain(two_arms, tmp_path, capsys):
     rec, model = tmp_path / "rec.npz", tmp_path / "model.npz"
     sim = ["simulate", "--twin", str(tmp_path / "twin.yaml"), "--trajectory", str(traj), "--quiet", "--out", str(rec)]
     ident = ["identify", "--robot", str(two_arms), "--train", str(rec), "--out", str(model)]
-    for args in (sim, ident):
+    diag = ["diagnose", "--model", str(two_arms), "--train", str(rec), "--out", str(tmp_path / "diag")]
+    for args in (sim, ident, diag):
         assert main(args) == 2
         err = capsys.readouterr().err
         assert "candidate tips tool_a, tool_b" in err and "--tip" in err, err
