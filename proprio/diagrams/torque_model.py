@@ -22,6 +22,7 @@ from pydrake.systems.primitives import Adder, Multiplexer
 
 from proprio import friction_law
 from proprio.description import RobotDescription, load_robot
+from proprio.identification.model_io import load_model
 from proprio.identification.regressor import drive_identified, drive_torque
 from proprio.plant import DrakeRobot
 
@@ -104,7 +105,6 @@ def load_rigid_torque_model(spec: str | Path) -> RigidBodyTorqueModel:
     satisfies)."""
     path = Path(spec)
     if path.suffix == ".npz":
-        from proprio.identification.model_io import load_model
         ident = load_model(path)
         model = RigidBodyTorqueModel(ident.description_identified(), ident.coulomb_velocity_scale,
                                      tuple(float(x) for x in ident.offsets))

@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from proprio.collision import CollisionChecker
 from proprio.description import RobotDescription
 from proprio.identification.base_parameters import BaseParameters, base_parameters
 from proprio.identification.regressor import regressor_buffer, regressor_geometry
@@ -332,8 +333,6 @@ def check_collisions(desc: RobotDescription, q: np.ndarray) -> list[tuple[int, s
 
     Pairs already in contact at the zero configuration are treated as modelling artefacts of the primitive
     shapes and ignored. Returns ``(sample index, geometry A, geometry B)`` for every new contact."""
-    from proprio.collision import CollisionChecker
-
     checker = CollisionChecker(desc)
 
     def pairs(qk: np.ndarray) -> set[tuple[str, str]]:
