@@ -13,7 +13,7 @@ For users who drive the estimator from their own loop (KUKA FRI at 1 kHz, a ROS 
 
 It IS the estimation Diagram: :class:`proprio.diagrams.estimation.WrenchEstimator` with a causal conditioning
 stage (:func:`proprio.conditioning.causal_conditioning`), advanced one sample at a time on its own Drake ``Context``
-(the sample on its input ports, the ``estimate`` port evaluated, then the one periodic discrete update applied) —
+(the sample on its input ports, the ``estimate`` port evaluated, then the stages' discrete updates applied) —
 the same Systems and step functions as the replayed Diagram and, vectorised, the offline path, so the numbers are
 the Diagram's (tests: to 1e-10) and there is no second copy of any stage. Inputs are validated at the boundary
 (shape, finiteness, time strictly increasing at the design rate); one estimator serves one robot from one thread.
@@ -149,7 +149,7 @@ class OnlineEstimator:
         self._t_prev = -math.inf
         self._started = False
         self._context = self.estimator.CreateDefaultContext()
-        self._fixed = [(port.FixValue(self._context, part).GetMutableData(), part) for port, part in self._inputs]
+        self._fixed = [(port.FixValue(self._context, part), part) for port, part in self._inputs]
 
     def _check(self, t: float, q: np.ndarray, tau_J: np.ndarray, qd: np.ndarray | None) -> None:
         n, u = self.n, self._sample
@@ -202,13 +202,15 @@ class OnlineEstimator:
         t = float(t)
         self._check(t, q, tau_J, qd)
         context, estimator = self._context, self.estimator
-        for value, part in self._fixed:
-            value.set_value(part)
+        for fixed, part in self._fixed:                         # (GetMutableData tells the dependents)
+            fixed.GetMutableData().get_mutable_value().SetFromVector(part)
         context.SetTime(t)
         if not self._started:
             estimator.set_initial_state(context)
             self._started = True
         v = self._estimate.Eval(context)
+        # every stage's periodic update at the sample (the conditioner's and the momentum filter's LinearSystem, a
+        # hybrid model's ZeroOrderHold), as the Simulator applies it at t_k in the replay
         context.SetDiscreteState(estimator.EvalUniquePeriodicDiscreteUpdate(context))
         self._t_prev = t
         v.flags.writeable = False
