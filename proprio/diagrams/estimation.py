@@ -399,14 +399,21 @@ def estimate_wrench(model: TorqueModel | RobotDescription, rec: Recording, gain:
     :class:`RecordingError` when the Recording does not match the model robot or is too short for the filters."""
     model, rec, sig, edge_s = _prepare(model, rec, conditioning)
     diagram, estimator, logger = build_estimation_diagram(model, sig, gain, mapping)
-    logs = split_estimate(run_estimation_diagram(diagram, estimator, logger, sig["t"][-1], sig["time_step"])
-                          [:rec.n_samples], model.description.n)
+    rows = run_estimation_diagram(diagram, estimator, logger, sig["t"][-1], sig["time_step"])[:rec.n_samples]
+    return _result(model, rec, sig, rows, edge_s, gain, mapping, conditioning, "diagram")
+
+
+def _result(model: TorqueModel, rec: Recording, sig: dict[str, np.ndarray], rows: np.ndarray, edge_s: float,
+            gain: float | np.ndarray, mapping: WrenchMapping, conditioning: ConditioningConfig, engine: str
+            ) -> EstimationResult:
+    """The :class:`EstimationResult` of the ``estimate`` rows over the Recording's samples."""
+    logs = split_estimate(rows, model.description.n)
     return EstimationResult(
         t=rec.t.copy(), q=sig["q"], wrench={o: logs[f"{o}.wrench"] for o in OBSERVERS},
         tau_ext={o: logs[f"{o}.tau_ext"] for o in OBSERVERS},
         manipulability=logs["manipulability"], unreliable=logs["unreliable"] > 0.5,
         f_true=None if rec.f_ext is None else rec.f_ext.copy(), **_skips(gain, edge_s),
-        meta=_meta(model, rec, gain, mapping, conditioning, "diagram"), gap=sig.get("gap"))
+        meta=_meta(model, rec, gain, mapping, conditioning, engine), gap=sig.get("gap"))
 
 
 def estimate_rows(model: TorqueModel, signals: dict[str, np.ndarray], gain: float | np.ndarray = DEFAULT_GAIN,
@@ -437,10 +444,5 @@ def estimate_wrench_offline(model: TorqueModel | RobotDescription, rec: Recordin
     """The same estimates as :func:`estimate_wrench`, sample for sample, from the vectorised form of the same laws
     (:func:`estimate_rows`) instead of stepping the diagram. Tests: equal to the diagram's to 1e-9."""
     model, rec, sig, edge_s = _prepare(model, rec, conditioning)
-    logs = split_estimate(estimate_rows(model, sig, gain, mapping), model.description.n)
-    return EstimationResult(
-        t=rec.t.copy(), q=sig["q"], wrench={o: logs[f"{o}.wrench"] for o in OBSERVERS},
-        tau_ext={o: logs[f"{o}.tau_ext"] for o in OBSERVERS},
-        manipulability=logs["manipulability"], unreliable=logs["unreliable"] > 0.5,
-        f_true=None if rec.f_ext is None else rec.f_ext.copy(), **_skips(gain, edge_s),
-        meta=_meta(model, rec, gain, mapping, conditioning, "offline"), gap=sig.get("gap"))
+    return _result(model, rec, sig, estimate_rows(model, sig, gain, mapping), edge_s, gain, mapping, conditioning,
+                   "offline")
