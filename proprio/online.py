@@ -11,15 +11,12 @@ For users who drive the estimator from their own loop (KUKA FRI at 1 kHz, a ROS 
         w = est.step(t, q, tau_J)                    # or est.step(t, q, tau_J, qd) with velocity="measured"
         f = w.jacobian[:3]                           # N, on the robot at the flange origin, world frame
 
-It runs the stages of :class:`proprio.diagrams.estimation.WrenchEstimator` with a causal conditioning stage
-(:func:`proprio.conditioning.causal_conditioning`): it builds that Diagram and drives its Systems' own step
-functions (the conditioner's and the momentum filter's LTI matrices, the rigid-body terms' ``calc``, the torque
-model's ``step_into``, the wrench map's ``calc_jacobian``), so the numbers equal the Diagram's (tests: to 1e-9) without
-the framework's per-step overhead. One difference in the work, not in the numbers: the rigid-body torque τ_rigid that
-the Diagram's torque model gets from its own C++ ``InverseDynamics`` is M(q) q̈ + ID(q, q̇, 0) from the rigid-body
-terms' plant quantities (one set of kinematics per sample, equal to rounding). Inputs are validated at the boundary
-(shape, finiteness, time strictly increasing at the design rate); buffers are preallocated; one estimator serves
-one robot from one thread.
+It IS the estimation Diagram: :class:`proprio.diagrams.estimation.WrenchEstimator` with a causal conditioning
+stage (:func:`proprio.conditioning.causal_conditioning`), advanced one sample at a time on its own Drake ``Context``
+(the sample on its input ports, the ``estimate`` port evaluated, then the stages' discrete updates applied) —
+the same Systems and step functions as the replayed Diagram and, vectorised, the offline path, so the numbers are
+the Diagram's (tests: to 1e-10) and there is no second copy of any stage. Inputs are validated at the boundary
+(shape, finiteness, time strictly increasing at the design rate); one estimator serves one robot from one thread.
 """
 from __future__ import annotations
 
@@ -101,41 +98,12 @@ class OnlineEstimator:
         self.time_step = design.time_step
         self.max_step_jitter = float(max_step_jitter)
         self._velocity = design.velocity == "measured"
-        # one product per filter and step: [y; x⁺] = [[C, D], [A, B]] [x; u] (the Systems' own matrices)
-        ns = design.A.shape[0]
-        self._cond = np.block([[design.C, design.D], [design.A, design.B]])
-        mom = estimator.momentum.filter
-        self._mom = np.hstack([np.array(mom.A()), np.array(mom.B())])
-        self._xu = np.empty(ns + design.input_size)            # [x; u] of the conditioner
-        self._u = self._xu[ns:]                                # its input [q; (q̇); τ_J]
-        self._u_q, self._u_qd, self._u_tau = self._u[:n], self._u[n:2 * n], self._u[-n:]
-        self._x = self._xu[:ns]
-        self._yx = np.empty(4 * n + ns)                        # its [y; x⁺] = [q̂; q̂̇; q̂̈; τ̂_J; x⁺]
-        self._y, self._tau_f, self._x_next = self._yx[:3 * n], self._yx[3 * n:4 * n], self._yx[4 * n:]
-        self._xmu = np.empty(7 * n)                            # [x; u] of the momentum filter
-        self._r, self._x_mom = self._xmu[:n], self._xmu[:3 * n]
-        self._um = um = self._xmu[3 * n:]                      # its input [p; τ_g + Cᵀq̇; τ_J; τ_int]
-        self._um_terms, self._um_tau, self._um_int = um[:2 * n], um[2 * n:3 * n], um[3 * n:]
-        self._initial_momentum = estimator.momentum.initial_state
-        # the torque model's step on [τ_rigid; q̂; q̂̇; q̂̈], τ_rigid = M q̂̈ + ID(q̂, q̂̇, 0) from the rigid-body terms
-        # (one set of kinematics per sample); its output [τ_dyn; τ_int; next memory] goes to two buffers in turn, so
-        # that the memory read in one step is the other buffer's
-        torque = estimator.torque_model
-        self._torque_step = torque.step_into
-        self._initial_memory = torque.initial_memory
-        self._tm_in = np.empty(4 * n)
-        self._tau_rigid, self._qqdqdd = self._tm_in[:n], self._tm_in[n:]
-        self._qdd_f = self._tm_in[3 * n:]
-        self._outs = [torque.output_buffer() for _ in range(2)]
-        self._state = self._tm_in[n:3 * n]                    # [q̂; q̂̇]
-        terms = estimator.momentum.terms
-        self._terms, self._rigid = terms.calc, terms.inverse_dynamics
-        self._wrench = estimator.wrench.calc_jacobian
-        self._estimate = estimator.wrench.estimate_buffer()
-        rb = terms.terms                                       # its output buffer [p; τ_g + Cᵀq̇; vec(J)]
-        self._rb_terms, self._jac = rb[:2 * n], rb[2 * n:].reshape(6, n)
-        self._tau_ext = np.empty((2, n))
-        self._tau_ext_jac, self._tau_ext_mom = self._tau_ext[0], self._tau_ext[1]
+        self._sample = np.empty(3 * n)                         # the validated sample [q; q̇; τ_J]
+        self._q, self._qd, self._tau = self._sample[:n], self._sample[n:2 * n], self._sample[2 * n:]
+        self._inputs = [(estimator.GetInputPort(name), part) for name, part in
+                        (("q", self._q), ("qd", self._qd), ("tau_meas", self._tau))
+                        if name != "qd" or self._velocity]
+        self._estimate = estimator.GetOutputPort("estimate")
         self.reset()
 
     @classmethod
@@ -176,20 +144,21 @@ class OnlineEstimator:
         return cls(WrenchEstimator(model, conditioning.time_step, gain, mapping, conditioning), max_step_jitter)
 
     def reset(self) -> None:
-        """Forget the past: the next sample restarts the filters (steady state), the observers and the network."""
+        """Forget the past: the next sample restarts the filters (steady state), the observers and the network (a
+        fresh default Context of the Diagram, its inputs fixed to that sample)."""
         self._t_prev = -math.inf
         self._started = False
-        self._memory = self._initial_memory()
-        self._turn = 0
+        self._context = self.estimator.CreateDefaultContext()
+        self._fixed = [(port.FixValue(self._context, part), part) for port, part in self._inputs]
 
     def _check(self, t: float, q: np.ndarray, tau_J: np.ndarray, qd: np.ndarray | None) -> None:
-        n, u = self.n, self._u
+        n, u = self.n, self._sample
         try:
-            self._u_q[:] = q
+            self._q[:] = q
         except (ValueError, TypeError):
             raise OnlineInputError(f"q: expected {n} joint positions [rad], got shape {np.shape(q)}") from None
         try:
-            self._u_tau[:] = tau_J
+            self._tau[:] = tau_J
         except (ValueError, TypeError):
             raise OnlineInputError(f"tau_J: expected {n} joint torques [N·m], got shape {np.shape(tau_J)}") from None
         if self._velocity:
@@ -197,15 +166,17 @@ class OnlineEstimator:
                 raise OnlineInputError("qd: this estimator filters the robot's own velocity (velocity='measured'); "
                                        "pass qd [rad/s]")
             try:
-                self._u_qd[:] = qd
+                self._qd[:] = qd
             except (ValueError, TypeError):
                 raise OnlineInputError(f"qd: expected {n} joint velocities [rad/s], got shape {np.shape(qd)}") \
                     from None
         elif qd is not None:
             raise OnlineInputError("qd: this estimator differentiates q (velocity='q'); build it with "
                                    "velocity='measured' to use the robot's own q̇")
+        if not self._velocity:
+            self._qd[:] = 0.0
         if not math.isfinite(u @ u):
-            for name, part in (("q", u[:n]), ("qd", u[n:2 * n] if self._velocity else None), ("tau_J", u[-n:])):
+            for name, part in (("q", u[:n]), ("qd", u[n:2 * n] if self._velocity else None), ("tau_J", u[2 * n:])):
                 if part is not None and not np.all(np.isfinite(part)):
                     bad = int(np.flatnonzero(~np.isfinite(part))[0])
                     raise OnlineInputError(f"{name}: non-finite value {part[bad]} at joint {bad + 1}")
@@ -224,31 +195,23 @@ class OnlineEstimator:
     def step(self, t: float, q: np.ndarray, tau_J: np.ndarray, qd: np.ndarray | None = None) -> WrenchEstimate:
         """The estimate for one sample: time ``t`` [s], joint positions ``q`` [rad], measured link-side torques
         ``tau_J`` [N·m] and, with ``velocity="measured"``, the robot's own ``qd`` [rad/s]. Raises
-        :class:`OnlineInputError` naming the field for a malformed sample (the state is left as it was)."""
+        :class:`OnlineInputError` naming the field for a malformed sample (the state is left as it was).
+
+        One Diagram step at the sample: its values on the input ports, the ``estimate`` port evaluated from the
+        states before the sample (as the replayed Diagram's logger sees it at t), then the discrete update."""
         t = float(t)
         self._check(t, q, tau_J, qd)
+        context, estimator = self._context, self.estimator
+        for fixed, part in self._fixed:                         # (GetMutableData tells the dependents)
+            fixed.GetMutableData().get_mutable_value().SetFromVector(part)
+        context.SetTime(t)
         if not self._started:
-            self._x[:] = self.design.initial_state(self._u)
-        np.dot(self._cond, self._xu, out=self._yx)                  # [q̂; q̂̇; q̂̈; τ̂_J; x⁺]
-        self._x[:] = self._x_next
-        self._qqdqdd[:] = self._y
-        tau_f = self._tau_f
-        self._terms(self._state)
-        self._tau_rigid[:] = self._rigid(self._qdd_f)
-        out = self._outs[self._turn]
-        self._turn ^= 1
-        self._torque_step(self._memory, self._tm_in, out)
-        _, tau_dyn, tau_int, self._memory = out
-        np.subtract(tau_dyn, tau_f, out=self._tau_ext_jac)
-        self._um_terms[:] = self._rb_terms
-        self._um_tau[:] = tau_f
-        self._um_int[:] = tau_int
-        if not self._started:
-            self._x_mom[:] = self._initial_momentum(self._um)
+            estimator.set_initial_state(context)
             self._started = True
-        self._tau_ext_mom[:] = self._r                              # r_{k−1}: the filter's output before its update
-        self._x_mom[:] = self._mom @ self._xmu
+        v = self._estimate.Eval(context)
+        # every stage's periodic update at the sample (the conditioner's and the momentum filter's LinearSystem, a
+        # hybrid model's ZeroOrderHold), as the Simulator applies it at t_k in the replay
+        context.SetDiscreteState(estimator.EvalUniquePeriodicDiscreteUpdate(context))
         self._t_prev = t
-        v = self._wrench(self._jac, self._tau_ext, self._estimate).copy()
         v.flags.writeable = False
         return WrenchEstimate(t, v)

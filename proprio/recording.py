@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from proprio.description import RobotDescription
+from proprio.description import RobotDescription, load_robot
 from proprio.io import atomic_path
 
 __all__ = ["Recording", "RecordingError", "save_recording", "load_recording", "validate_recording",
@@ -285,8 +285,6 @@ def _lwr4_from_npz(z, path: Path, robot: RobotDescription | None) -> Recording:
 def load_lwr4(data_dir: str | Path, index: int) -> Recording:
     """The real KUKA LWR 4+ recording ``measurements_{index}.npz`` in ``data_dir`` (t starts at 0; q, q̇, q̈ and
     τ as filtered upstream; the ``target_*`` keys are ignored — see that folder's README for their logging bug)."""
-    from proprio.description import load_robot
-
     data_dir = Path(data_dir)
     path = data_dir / f"measurements_{index}.npz"
     if not path.exists():

@@ -44,6 +44,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping, Sequence
 
+import proprio
 from proprio.io import LOCK_NAME, atomic_write_text, locked_dir
 
 __all__ = ["Task", "Shared", "TaskFailure", "TaskRun", "run_tasks", "runtime_env", "import_ray", "init_ray", "BACKENDS",
@@ -118,8 +119,6 @@ def runtime_env(extra: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """Ray runtime environment of proprio's tasks: the ``proprio`` package of this process as ``py_modules`` (so a
     worker runs the same code without having it installed), one BLAS/torch thread per task, plus ``extra`` (e.g.
     ``{"working_dir": "../shared"}`` for data a task reads by relative path)."""
-    import proprio
-
     env: dict[str, Any] = {"py_modules": [str(Path(proprio.__file__).parent)],
                            "excludes": ["__pycache__", "*.pyc"],
                            "env_vars": {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}}

@@ -174,13 +174,14 @@ def test_affine_scan_matches_recursion():
 
 
 def test_config_errors_name_the_problem():
-    with pytest.raises(EffectConfigError, match="unknown joint effect.*valid effects"):
+    with pytest.raises(EffectConfigError, match="effects: hysterisis: unknown joint effect 'hysterisis'; did you "
+                                                 "mean 'hysteresis'"):
         make_effects({"hysterisis": {"saturation": 1.0}}, N_J)
     with pytest.raises(EffectConfigError, match=r"elasticity.stiffness = -5"):
         make_effects({"elasticity": {"stiffness": -5.0}}, N_J)
-    with pytest.raises(EffectConfigError, match=r"viscous_coulomb.coulomb must be a number or a list of 7"):
+    with pytest.raises(EffectConfigError, match=r"viscous_coulomb.coulomb: expected one number or a list of 7 numbers"):
         make_effects({"viscous_coulomb": {"coulomb": [0.1, 0.2]}}, N_J)
-    with pytest.raises(EffectConfigError, match="unknown field.*valid fields"):
+    with pytest.raises(EffectConfigError, match="ripple.amplitud: unknown key; did you mean 'amplitude'"):
         make_effects({"ripple": {"amplitud": 0.1}}, N_J)
     effects = make_effects({"torque_noise": {"std": 0.1}, "viscous_coulomb": {"coulomb": 0.1}}, N_J)
     assert [e.name for e in effects] == ["viscous_coulomb", "torque_noise"]

@@ -231,10 +231,10 @@ def test_payload_table_runs_a_transformer_windowed(tmp_path):
 def test_the_same_config_trains_the_same_model(tmp_path):
     """Initial weights, batch order and training all follow ``train.seed``: whatever the global torch RNG did
     before (another model, another process), the same config gives bit-identical weights."""
-    from proprio.experiments.hybrid import Backbone, train_from_config
+    from proprio.experiments.hybrid import Backbone, train_from_config, training_config
     from proprio.description import load_robot
-    cfg = {"model": {"arch": "lstm2_fcl", "lstm_hidden": 6}, "data": {"window": 20},
-           "train": {"max_epochs": 2, "batch_size": 8, "seed": 3}}
+    cfg = training_config({"model": {"arch": "lstm2_fcl", "lstm_hidden": 6}, "data": {"window": 20},
+                           "train": {"max_epochs": 2, "batch_size": 8, "seed": 3}}, "test")
     backbone = Backbone("toy", load_robot("iiwa14_identified"), _toy_backbone)
     recs = [_recording(3000, s) for s in (0, 1)]
     weights = []

@@ -122,6 +122,24 @@ def test_a_misspelt_excitation_key_names_the_nearest_key():
         load_excitation_config({"optimization": {"starts": 2}})
 
 
+def test_the_excitation_cost_takes_the_one_friction_smoothing(monkeypatch):
+    """No second Coulomb smoothing in the excitation config: the old key is an error, and the optimiser's cost
+    follows :data:`proprio.friction_law.SMOOTH_VELOCITY` (a change there changes the cost)."""
+    from proprio import friction_law
+    from proprio.description import load_robot
+    from proprio.identification.base_parameters import base_parameters
+    from proprio.identification.excitation import _CondCost
+
+    with pytest.raises(ConfigError, match="optimisation.coulomb_velocity_scale: unknown key"):
+        load_excitation_config({"optimisation": {"coulomb_velocity_scale": 0.02}})
+    robot = load_robot("iiwa14_nominal")
+    cost = _CondCost(robot, base_parameters(robot), np.linspace(0, 20, 30, endpoint=False), 5, 0.1 * np.pi)
+    x = np.random.default_rng(0).uniform(-0.3, 0.3, 70)
+    before = cost.value_and_gradient(x)[0]
+    monkeypatch.setattr(friction_law, "SMOOTH_VELOCITY", 0.5)
+    assert abs(cost.value_and_gradient(x)[0] - before) > 1e-6 * before
+
+
 @pytest.mark.parametrize("mutate, field", [
     (lambda d: d["controller"].update(kp="stiff"), "controller.kp"),
     (lambda d: d["controller"].update(kd=[60, 60]), "controller.kd"),
@@ -162,8 +180,13 @@ def test_a_patch_is_an_overlay_on_its_base(tmp_path):
 
 @pytest.mark.parametrize("name", sorted(p.name for p in CONFIGS.iterdir() if p.name.endswith(".yaml")))
 def test_every_shipped_config_loads(name):
-    if name.startswith("train_"):
-        assert load_config(name) == _shipped(name)
+    if name.startswith("train_"):                # each section in its dataclass, with the file's values
+        cfg, raw = load_config(name), _shipped(name)
+        for section in ("model", "data", "train"):
+            for key, value in (raw.get(section) or {}).items():
+                got = getattr(getattr(cfg, section), key)
+                assert got == (tuple(value) if isinstance(got, tuple) else value), (section, key)
+        assert cfg.search == (raw.get("search") or {})
     elif name.endswith("_twin.yaml"):
         cfg = load_twin_config(name)
         assert cfg.robot.n == cfg.kp.size

@@ -6,10 +6,14 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from proprio.cli import UserError, check_output, nonnegative_int, positive_int
 from proprio.cli._backend import add_backend_args, check_backend_args, clear_state
 from proprio.recording import Recording, load_recording
+
+if TYPE_CHECKING:                       # (the training stack imports torch: loaded by the commands that train)
+    from proprio.experiments.hybrid import TrainingConfig
 
 __all__ = ["register"]
 
@@ -34,17 +38,20 @@ def _backbone(spec: str | None, recs: list[Recording]):
         raise UserError(f"--backbone {spec}: {exc}") from exc
 
 
-def _with_device(cfg: dict, device: str | None) -> dict:
-    """``--device`` over the config's ``train.device``; ``cuda`` without a CUDA device is a one-line error."""
-    if device is None:
-        return cfg
+def _check_device(device: str | None) -> None:
+    """``cuda`` without a CUDA device is a one-line error."""
     if device == "cuda":
         import torch
         if not torch.cuda.is_available():
             raise UserError("--device cuda: torch sees no CUDA device (torch.version.cuda = "
                             f"{torch.version.cuda}); install a CUDA build of torch (make cuda-torch) on a GPU machine, "
                             "or use --device auto|cpu")
-    return {**cfg, "train": {**cfg.get("train", {}), "device": device}}
+
+
+def _with_device(cfg: TrainingConfig, device: str | None) -> TrainingConfig:
+    """``--device`` over the config's ``train.device`` (checked by :func:`_check_device`)."""
+    _check_device(device)
+    return cfg if device is None else cfg.with_train(device=device)
 
 
 def _train(args: argparse.Namespace) -> int:
@@ -52,14 +59,13 @@ def _train(args: argparse.Namespace) -> int:
 
     from proprio.learning.evaluation import format_table
     from proprio.experiments.hybrid import load_config, prepare_split, train_from_config
-    from proprio.learning.datasets import DataConfig
     check_output(args.out, "--out", "file")
     torch.set_num_threads(args.threads)
     cfg = _with_device(load_config(args.config), args.device)
     recs, names = _load(args.data)
     tests, tnames = _load(args.test_data or [])
     backbone = _backbone(args.backbone, recs)
-    split = prepare_split(recs, backbone, DataConfig.from_dict(cfg.get("data")), tests, names + tnames)
+    split = prepare_split(recs, backbone, cfg.data, tests, names + tnames)
     print("\n".join(split.conditioning))
     model, result, rows = train_from_config(cfg, recs, backbone, args.out, tests, names + tnames, split=split)
     print(format_table(rows))
@@ -76,7 +82,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     recs, names = _load(args.data)
     tests, tnames = _load(args.test_data or [])
     backbone = _backbone(args.backbone, recs) if args.backbone else None
-    _with_device({}, args.device)                       # cuda without a GPU: a one-line error
+    _check_device(args.device)                          # cuda without a GPU: a one-line error
     print(evaluate_saved(args.model, recs, tests, backbone, names + tnames, device=args.device or "auto"))
     return 0
 
@@ -92,7 +98,7 @@ def _train_grid(args: argparse.Namespace) -> int:
     torch.set_num_threads(args.threads)
     cfg = _with_device(load_config(args.config), args.device)
     if args.epochs is not None:
-        cfg["train"] = {**cfg.get("train", {}), "max_epochs": args.epochs}
+        cfg = cfg.with_train(max_epochs=args.epochs)
     recs, names = _load(args.data)
     tests, tnames = _load(args.test_data or [])
     out = Path(args.out)

@@ -15,8 +15,8 @@ wrench solve), each reading one stacked input port and writing one output. The s
 conditioning path (:mod:`proprio.conditioning`: uniform time base, zero-phase Butterworth per joint with its cutoff from the data's
 noise floor or from the config, central differences), offline, so they are computed before the replay; online, a
 causal conditioning stage (:class:`~proprio.systems.causal_conditioning.CausalConditioner`) takes the raw q, τ_J
-instead (``WrenchEstimator(..., conditioning=causal_conditioning(...))``, and :mod:`proprio.online` for a loop
-without a Simulator). ``tau_dyn`` comes from any :class:`~proprio.diagrams.torque_model.TorqueModel`: the
+instead (``WrenchEstimator(..., conditioning=causal_conditioning(...))``; :mod:`proprio.online` steps that same
+Diagram sample by sample from a user's loop). ``tau_dyn`` comes from any :class:`~proprio.diagrams.torque_model.TorqueModel`: the
 rigid-body model (:class:`~proprio.diagrams.torque_model.TorqueModelSystem`), or the hybrid RBD + learned residual
 (:mod:`proprio.diagrams.hybrid_torque_model`), whose network then runs online in the diagram, one step per sample with its LSTM and r-encoder state carried from
 sample to sample. :func:`estimate_wrench` runs it and returns an :class:`EstimationResult`.
@@ -51,7 +51,7 @@ from proprio.systems.observers import (JacobianWrenchObserver, WrenchMap, Wrench
 __all__ = ["TorqueModel", "RigidBodyTorqueModel", "load_torque_model", "TorqueModelSystem",
            "conditioned_signals", "check_recording_matches", "WrenchEstimator", "split_estimate",
            "build_estimation_diagram", "run_estimation_diagram", "EstimationResult", "estimate_wrench",
-           "estimate_wrench_offline", "OBSERVERS", "DEFAULT_GAIN"]
+           "estimate_rows", "estimate_wrench_offline", "OBSERVERS", "DEFAULT_GAIN"]
 
 OBSERVERS = ("jacobian", "momentum")
 DEFAULT_GAIN = 100.0
@@ -114,9 +114,9 @@ class WrenchEstimator(Diagram):
     default), world frame, N and N·m; ``manipulability``, ``unreliable`` (1 each).
 
     Call :meth:`set_initial_state` once the first sample is on the inputs: it starts the conditioner in that
-    sample's steady state and the momentum observer at r = 0 (:class:`MomentumObserver`). The step functions of the
-    stages (``conditioner.design``, ``torque_model.step_into``, ``momentum.terms.calc`` with ``momentum.filter``'s
-    matrices, ``wrench.calc_jacobian``) are what :class:`proprio.online.OnlineEstimator` drives directly.
+    sample's steady state and the momentum observer at r = 0 (:class:`MomentumObserver`). The replay
+    (:func:`run_estimation_diagram`) advances it with a Simulator, :class:`proprio.online.OnlineEstimator` one sample
+    at a time on its own Context, and :func:`estimate_rows` evaluates the same laws vectorised.
     """
 
     def __init__(self, model: TorqueModel, time_step: float, gain: float | np.ndarray = DEFAULT_GAIN,
@@ -399,14 +399,41 @@ def estimate_wrench(model: TorqueModel | RobotDescription, rec: Recording, gain:
     :class:`RecordingError` when the Recording does not match the model robot or is too short for the filters."""
     model, rec, sig, edge_s = _prepare(model, rec, conditioning)
     diagram, estimator, logger = build_estimation_diagram(model, sig, gain, mapping)
-    logs = split_estimate(run_estimation_diagram(diagram, estimator, logger, sig["t"][-1], sig["time_step"])
-                          [:rec.n_samples], model.description.n)
+    rows = run_estimation_diagram(diagram, estimator, logger, sig["t"][-1], sig["time_step"])[:rec.n_samples]
+    return _result(model, rec, sig, rows, edge_s, gain, mapping, conditioning, "diagram")
+
+
+def _result(model: TorqueModel, rec: Recording, sig: dict[str, np.ndarray], rows: np.ndarray, edge_s: float,
+            gain: float | np.ndarray, mapping: WrenchMapping, conditioning: ConditioningConfig, engine: str
+            ) -> EstimationResult:
+    """The :class:`EstimationResult` of the ``estimate`` rows over the Recording's samples."""
+    logs = split_estimate(rows, model.description.n)
     return EstimationResult(
         t=rec.t.copy(), q=sig["q"], wrench={o: logs[f"{o}.wrench"] for o in OBSERVERS},
         tau_ext={o: logs[f"{o}.tau_ext"] for o in OBSERVERS},
         manipulability=logs["manipulability"], unreliable=logs["unreliable"] > 0.5,
         f_true=None if rec.f_ext is None else rec.f_ext.copy(), **_skips(gain, edge_s),
-        meta=_meta(model, rec, gain, mapping, conditioning, "diagram"), gap=sig.get("gap"))
+        meta=_meta(model, rec, gain, mapping, conditioning, engine), gap=sig.get("gap"))
+
+
+def estimate_rows(model: TorqueModel, signals: dict[str, np.ndarray], gain: float | np.ndarray = DEFAULT_GAIN,
+                  mapping: WrenchMapping = WrenchMapping()) -> np.ndarray:
+    """The :class:`WrenchEstimator`'s ``estimate`` rows ``[N, 14 + 2n]`` (:func:`split_estimate`) for the conditioned
+    ``signals`` (``q, qd, qdd, tau`` ``[N,n]`` and ``time_step``: what the Diagram's torque model and observers see,
+    from a zero-phase or a causal conditioning), from the vectorised form of the same laws instead of stepping the
+    Diagram: the model's batch ``tau_int``, :func:`jacobian_wrench` and :func:`momentum_observer` (the recursion of
+    the momentum System's ``LinearSystem``, :func:`~proprio.systems.momentum_observer.momentum_filter`). As in the
+    Diagram (Drake discrete semantics) the momentum estimate at sample k is r_{k−1} (0 at the first sample)."""
+    desc = model.description
+    q, qd, qdd, tau = signals["q"], signals["qd"], signals["qdd"], signals["tau"]
+    tau_int = model.tau_int(q, qd, qdd)
+    tau_dyn = inverse_dynamics(desc, q, qd, qdd) + tau_int
+    geo = chain_geometry(desc)
+    w_jac, manip, flag = jacobian_wrench(geo, q, tau, tau_dyn, mapping)
+    r = momentum_observer(desc, signals["time_step"], q, qd, tau, tau_int, gain)
+    r = np.vstack([np.zeros((1, desc.n)), r[:-1]])                  # the System's output: r_{k−1}
+    w_mom, _, _ = wrench_from_joint_torque(point_jacobian(geo, q, np.asarray(mapping.contact_point)), r, mapping)
+    return np.hstack([w_jac, w_mom, manip[:, None], flag[:, None].astype(float), tau_dyn - tau, r])
 
 
 def estimate_wrench_offline(model: TorqueModel | RobotDescription, rec: Recording,
@@ -414,23 +441,8 @@ def estimate_wrench_offline(model: TorqueModel | RobotDescription, rec: Recordin
                             mapping: WrenchMapping = WrenchMapping(),
                             conditioning: ConditioningConfig = ConditioningConfig()
                             ) -> EstimationResult:
-    """The same estimates as :func:`estimate_wrench`, sample for sample, from the vectorised form of the same laws:
-    the model's batch ``tau_int``, :func:`jacobian_wrench` and :func:`momentum_observer` (the recursion of the
-    momentum System's ``LinearSystem``, :func:`~proprio.systems.momentum_observer.momentum_filter`) instead of stepping
-    the diagram. As in the diagram (Drake discrete semantics) the momentum estimate at sample k is r_{k−1} (0 at the
-    first sample). Tests: equal to the diagram's to 1e-9."""
+    """The same estimates as :func:`estimate_wrench`, sample for sample, from the vectorised form of the same laws
+    (:func:`estimate_rows`) instead of stepping the diagram. Tests: equal to the diagram's to 1e-9."""
     model, rec, sig, edge_s = _prepare(model, rec, conditioning)
-    desc = model.description
-    q, qd, qdd, tau = sig["q"], sig["qd"], sig["qdd"], sig["tau"]
-    tau_int = model.tau_int(q, qd, qdd)
-    tau_dyn = inverse_dynamics(desc, q, qd, qdd) + tau_int
-    geo = chain_geometry(desc)
-    w_jac, manip, flag = jacobian_wrench(geo, q, tau, tau_dyn, mapping)
-    r = momentum_observer(desc, sig["time_step"], q, qd, tau, tau_int, gain)
-    r = np.vstack([np.zeros((1, desc.n)), r[:-1]])                  # the System's output: r_{k−1}
-    w_mom, _, _ = wrench_from_joint_torque(point_jacobian(geo, q, np.asarray(mapping.contact_point)), r, mapping)
-    return EstimationResult(
-        t=rec.t.copy(), q=q, wrench={"jacobian": w_jac, "momentum": w_mom},
-        tau_ext={"jacobian": tau_dyn - tau, "momentum": r}, manipulability=manip, unreliable=flag,
-        f_true=None if rec.f_ext is None else rec.f_ext.copy(), **_skips(gain, edge_s),
-        meta=_meta(model, rec, gain, mapping, conditioning, "offline"), gap=sig.get("gap"))
+    return _result(model, rec, sig, estimate_rows(model, sig, gain, mapping), edge_s, gain, mapping, conditioning,
+                   "offline")

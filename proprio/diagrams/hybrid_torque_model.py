@@ -149,8 +149,8 @@ class HybridTorqueModelSystem(Diagram):
     [N·m]. The one Python step (:meth:`step_into`) adds the backbone's friction and offsets to the C++ rigid-body
     torque (τ_RBD, the network's input) and runs the network (:class:`~proprio.systems.residual_network.
     ResidualNetworkCore`, the same step as :class:`~proprio.systems.residual_network.ResidualNetworkSystem`); its
-    memory (r-encoder + LSTM state) is held by a C++ ``ZeroOrderHold``, and passed in and out of :meth:`step_into` by
-    the streaming estimator (the interface shared with :class:`~proprio.diagrams.torque_model.TorqueModelSystem`)."""
+    memory (r-encoder + LSTM state) is held by a C++ ``ZeroOrderHold`` (its default, zeros, is the memory before the
+    first sample) and passed in and out of :meth:`step_into` by :class:`HybridTorqueStep`."""
 
     def __init__(self, model: HybridTorqueModel, time_step: float):
         Diagram.__init__(self)
@@ -181,10 +181,6 @@ class HybridTorqueModelSystem(Diagram):
         builder.ExportOutput(split.get_output_port(1), "tau_int")
         builder.BuildInto(self)
         self.set_name("hybrid_torque_model")
-
-    def initial_memory(self) -> MemoryViews:
-        """The network's memory before the first sample, as :meth:`step_into` reads it."""
-        return self.core.memory_views(self.core.initial_memory())
 
     def output_buffer(self) -> tuple:
         """A preallocated output ``[τ_HYB; τ_int; next memory]`` for :meth:`step_into`: ``(vector, τ_HYB view, τ_int

@@ -22,6 +22,7 @@ from pydrake.systems.primitives import Adder, Multiplexer
 
 from proprio import friction_law
 from proprio.description import RobotDescription, load_robot
+from proprio.identification.model_io import load_model
 from proprio.identification.regressor import drive_identified, drive_torque
 from proprio.plant import DrakeRobot
 
@@ -104,7 +105,6 @@ def load_rigid_torque_model(spec: str | Path) -> RigidBodyTorqueModel:
     satisfies)."""
     path = Path(spec)
     if path.suffix == ".npz":
-        from proprio.identification.model_io import load_model
         ident = load_model(path)
         model = RigidBodyTorqueModel(ident.description_identified(), ident.coulomb_velocity_scale,
                                      tuple(float(x) for x in ident.offsets))
@@ -174,27 +174,3 @@ class TorqueModelSystem(Diagram):
         builder.ExportOutput(self.rbd.get_output_port_generalized_force(), "tau_rbd")
         builder.BuildInto(self)
         self.set_name("torque_model")
-
-    def initial_memory(self) -> None:
-        """No state (the streaming interface shared with the hybrid model's System)."""
-        return None
-
-    def output_buffer(self) -> tuple:
-        """A preallocated output ``[τ_dyn; τ_int]`` for :meth:`step_into`: ``(vector, τ_dyn view, τ_int view, None)``
-        (no memory)."""
-        n = self.arm.description.n
-        out = np.empty(2 * n)
-        return out, out[:n], out[n:], None
-
-    def step_into(self, memory: None, inputs: np.ndarray, out: tuple) -> np.ndarray:
-        """``out`` (an :meth:`output_buffer`) gets ``[τ_dyn; τ_int]`` from ``inputs = [τ_rigid; q; q̇; q̈]`` (τ_rigid =
-        ``CalcInverseDynamics`` of the same description, as the C++ ``InverseDynamics`` evaluates it) — the step
-        function without allocating the output (the interface shared with the hybrid model's System); returns its
-        vector."""
-        n = self.arm.description.n
-        vector, tau_dyn, tau_int, _ = out
-        tau_int[:] = self.interaction.calc(inputs[n:2 * n], inputs[2 * n:3 * n], inputs[3 * n:])
-        np.add(inputs[:n], tau_int, out=tau_dyn)
-        return vector
-
-

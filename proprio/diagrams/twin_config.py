@@ -115,10 +115,11 @@ class TwinConfig:
         spec = load_typed(TwinYaml, data, source, TwinConfigError)
         desc = _robot_of(spec.robot, f"{source}: robot", base_link, tip_link)
         n = desc.n
-        check_effects_block(spec.effects, n, f"{source}: effects", TwinConfigError)
         try:
-            effects = make_effects(spec.effects or {}, n)
-        except ValueError as exc:
+            effects = make_effects(spec.effects, n, f"{source}: effects", TwinConfigError)
+        except TwinConfigError:
+            raise
+        except ValueError as exc:                            # a range the effect class refuses
             raise TwinConfigError(f"{source}: effects: {exc}") from exc
         ctrl = spec.controller or ControllerBlock()
         gains = {}

@@ -63,8 +63,9 @@ from proprio.effects.base import EffectConfigError, JointEffect, affine_scan
 from proprio.effects.drive import Elasticity, Motor
 from proprio.effects.friction import SmoothFriction, Stribeck, ViscousCoulomb, robot_friction
 from proprio.effects.hysteresis import Hysteresis, LostMotion
-from proprio.effects.plugins import allow_plugins, effect_key, make_effects, register_plugin, resolve_effect
+from proprio.effects.plugins import allow_plugins, effect_key, register_plugin, resolve_effect
 from proprio.effects.registry import EFFECTS
+from proprio.effects.schema import make_effects
 from proprio.effects.sensor import EncoderNoise, Ripple, SensorOffsetGain, TorqueNoise
 from proprio.effects.time_varying import FrictionWarmup, OffsetDrift
 

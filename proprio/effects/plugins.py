@@ -47,7 +47,7 @@ from proprio.effects.base import EffectConfigError, JointEffect
 from proprio.effects.registry import EFFECTS
 
 __all__ = ["PLUGIN_PLACES", "ENTRY_POINT_GROUP", "ALLOW_ENV", "BUILTIN_PLUGINS", "is_plugin_path", "allow_plugins",
-           "register_plugin", "registered_plugins", "resolve_effect", "effect_key", "make_effects"]
+           "register_plugin", "registered_plugins", "check_consent", "resolve_effect", "effect_key"]
 
 PLUGIN_PLACES = ("link", "sensor")
 ENTRY_POINT_GROUP = "proprio.effects"
@@ -116,7 +116,9 @@ def register_plugin(cls: type[JointEffect]) -> str:
     return key
 
 
-def _check_consent(name: str) -> None:
+def check_consent(name: str) -> None:
+    """Raise :class:`EffectConfigError` unless the plugin path ``name`` may be imported (shipped, registered as an
+    entry point, allowed by the user); imports nothing."""
     _check_path(name)
     if name not in _CLASSES and name not in BUILTIN_PLUGINS and name not in _allowed() and \
             name not in _entry_points():
@@ -160,7 +162,7 @@ def resolve_effect(name: str) -> type[JointEffect]:
         return EFFECTS[name]
     if name in _CLASSES:
         return _CLASSES[name]
-    _check_consent(name)
+    check_consent(name)
     _CLASSES[name] = _validate(_load(name), name)
     return _CLASSES[name]
 
@@ -172,38 +174,3 @@ def effect_key(effect: JointEffect | type[JointEffect]) -> str:
     if EFFECTS.get(cls.name) is cls:
         return cls.name
     return next((k for k, c in _CLASSES.items() if c is cls), f"{cls.__module__}:{cls.__qualname__}")
-
-
-def make_effects(config: dict | None, n: int) -> list[JointEffect]:
-    """Build the effects of a YAML ``effects:`` mapping ``{name: block}``: library effects in registry order, then
-    plugins in the mapping's order.
-
-    The mapping is checked whole before the first plugin is imported: its type, unknown names (an
-    :class:`EffectConfigError` listing the valid ones; the payload and the motor side have the twin's own
-    ``payload`` and ``drive`` blocks), plugins nobody consented to, and every library block."""
-    config = config or {}
-    if not isinstance(config, dict):
-        raise EffectConfigError(f"effects must be a mapping {{name: parameters}}, got {config!r}")
-    unknown = sorted(str(k) for k in config if k not in EFFECTS and not is_plugin_path(str(k)))
-    if unknown:
-        hint = " (the payload has its own top-level 'payload' block)" if "payload" in unknown else ""
-        raise EffectConfigError(f"unknown joint effect(s) {unknown}{hint}; valid effects: {sorted(EFFECTS)} or a "
-                                "registered plugin 'package.module:Class'")
-    paths = [str(k) for k in config if is_plugin_path(str(k))]
-    for p in paths:
-        _check_consent(p)
-    library = [_build(name, cls, config[name], n) for name, cls in EFFECTS.items() if name in config]
-    plugins = {p: resolve_effect(p) for p in paths}
-    names = [cls.name for cls in plugins.values()]
-    twice = sorted({k for k in names if names.count(k) > 1})
-    if twice:
-        raise EffectConfigError(f"plugins {sorted(plugins)}: effect name(s) {twice} given more than once")
-    return library + [_build(p, cls, config[p], n) for p, cls in plugins.items()]
-
-
-def _build(key: str, cls: type[JointEffect], block: Any, n: int) -> JointEffect:
-    """``cls.from_config(block, n)``; a block or a plugin class that cannot make an instance names ``key``."""
-    try:
-        return cls.from_config(block, n)
-    except TypeError as exc:        # e.g. a plugin that does not implement torque(), a field the class lacks
-        raise EffectConfigError(f"{key}: {exc}") from None

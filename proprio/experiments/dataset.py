@@ -21,8 +21,12 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from proprio.diagrams.twin import TwinConfig, load_twin_config, simulate_twin
 from proprio.io import atomic_write_text, locked_dir, remove_stale_temps
+from proprio.payload import Payload
 from proprio.recording import Recording, load_recording, save_recording
+from proprio.systems.rfma import generate_rfma, load_rfma_config
+from proprio.systems.trajectories import truncate_trajectory
 from proprio.tasks import Task, TaskRun, run_tasks, sigterm_as_interrupt
 
 __all__ = ["DatasetSpec", "dataset_tasks", "simulate_dataset_item", "build_dataset", "recording_digest",
@@ -69,11 +73,6 @@ def simulate_dataset_item(twin_config: dict[str, Any], twin_source: str, seed: i
                           twin_seed: int) -> Recording:
     """One task: the RFMA trajectory of ``seed`` on the twin given by its config mapping (shipped to the worker by
     value), simulated with noise seed ``twin_seed`` and the payload; returns the Recording."""
-    from proprio.diagrams.twin import TwinConfig, simulate_twin
-    from proprio.payload import Payload
-    from proprio.systems.rfma import generate_rfma, load_rfma_config
-    from proprio.systems.trajectories import truncate_trajectory
-
     config = dataclasses.replace(TwinConfig.from_dict(twin_config, twin_source), seed=int(twin_seed))
     if log_rate_hz is not None:
         config = config.with_logger(rate_hz=float(log_rate_hz))
@@ -89,8 +88,6 @@ def simulate_dataset_item(twin_config: dict[str, Any], twin_source: str, seed: i
 
 def dataset_tasks(spec: DatasetSpec) -> tuple[list[Task], dict[str, Any]]:
     """The tasks of a dataset and the twin part of its manifest (name, config, digest)."""
-    from proprio.diagrams.twin import load_twin_config
-
     if not spec.seeds or not spec.payloads_kg:
         raise ValueError("dataset: give at least one seed and one payload")
     if spec.scaffolds < 1:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import importlib.resources
 import json
 import time
-from dataclasses import dataclass, fields, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -35,7 +35,7 @@ from proprio.systems.observers import WrenchMapping, jacobian_wrench
 from proprio.tasks import Shared, Task, import_ray, init_ray, run_tasks
 from proprio.typed_yaml import ConfigError, check_keys, load_typed, read_yaml
 
-__all__ = ["load_config", "check_training_config", "TrainingYaml", "GridSection", "Backbone", "resolve_backbone",
+__all__ = ["load_config", "training_config", "TrainingConfig", "TrainingYaml", "GridSection", "Backbone", "resolve_backbone",
            "prepare_split", "train_from_config", "evaluate_saved",
            "train_grid", "train_grid_model", "grid_tag", "search_hyperparameters", "SEARCH_SPACE", "demo_hybrid",
            "payload_table", "GRID_VARIANTS"]
@@ -43,8 +43,9 @@ __all__ = ["load_config", "check_training_config", "TrainingYaml", "GridSection"
 GRID_VARIANTS = ((True, True), (True, False), (False, False), (False, True))   # (hybrid, use_r), Table 5.3 order
 
 
-def load_config(spec: str | Path) -> dict[str, Any]:
-    """A YAML config from a path or a built-in name (``train_lstm2_fcl`` → ``proprio/configs/train_lstm2_fcl.yaml``)."""
+def load_config(spec: str | Path) -> "TrainingConfig":
+    """A training config from a YAML path or a built-in name (``train_lstm2_fcl`` →
+    ``proprio/configs/train_lstm2_fcl.yaml``), loaded strictly into a :class:`TrainingConfig`."""
     path = Path(spec)
     if not path.exists():
         name = str(spec) if str(spec).endswith(".yaml") else f"{spec}.yaml"
@@ -60,8 +61,7 @@ def load_config(spec: str | Path) -> dict[str, Any]:
     cfg = read_yaml(text=text, source=source) or {}
     if not isinstance(cfg, dict):
         raise ConfigError(f"{source}: top level must be a mapping with model/data/train sections")
-    check_training_config(cfg, source)
-    return cfg
+    return training_config(cfg, source)
 
 
 @dataclass(frozen=True)
@@ -84,20 +84,38 @@ class TrainingYaml:
     search: dict[str, list[Any]] | None = None
 
 
-def check_training_config(cfg: dict[str, Any], source: str) -> None:
-    """Check a training-config mapping strictly (:mod:`proprio.typed_yaml`): each section loads into its dataclass
-    and passes its checks; an unknown key is an error naming ``source``, the key path and the nearest valid key."""
+@dataclass(frozen=True)
+class TrainingConfig:
+    """A loaded training config (:func:`load_config`), what the training jobs take: each section in its checked
+    dataclass — ``model`` (:class:`~proprio.learning.models.ModelConfig`), ``data``
+    (:class:`~proprio.learning.datasets.DataConfig`), ``train`` (:class:`~proprio.learning.training.TrainConfig`),
+    ``grid`` (:class:`GridSection`) — and ``search`` (``train:`` key → ``[kind, ...]``, see :data:`SEARCH_SPACE`)."""
+    model: ModelConfig = field(default_factory=ModelConfig)
+    data: DataConfig = field(default_factory=DataConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+    grid: GridSection = GridSection()
+    search: dict[str, list[Any]] = field(default_factory=dict)
+
+    def with_train(self, **changes: Any) -> "TrainingConfig":
+        """A copy with these ``train:`` settings changed, checked as the section is when loaded."""
+        return replace(self, train=TrainConfig.from_dict({**asdict(self.train), **changes}))
+
+
+def training_config(cfg: dict[str, Any], source: str) -> TrainingConfig:
+    """A training-config mapping loaded strictly (:mod:`proprio.typed_yaml`): each section into its dataclass,
+    with its checks; an unknown key is an error naming ``source``, the key path and the nearest valid key."""
     spec = load_typed(TrainingYaml, cfg, source)
     try:
-        ModelConfig.from_dict(spec.model or {})
-        DataConfig.from_dict(spec.data)
-        TrainConfig.from_dict(spec.train)
+        sections = {"model": ModelConfig.from_dict(spec.model or {}), "data": DataConfig.from_dict(spec.data),
+                    "train": TrainConfig.from_dict(spec.train)}
     except ValueError as exc:
         raise ConfigError(f"{source}: {exc}") from exc
     check_keys(spec.search or {}, [f.name for f in fields(TrainConfig)], f"{source}: search")
-    bad = [a for a in (spec.grid.archs if spec.grid else ()) if a not in ARCHS]
+    grid = spec.grid or GridSection()
+    bad = [a for a in grid.archs if a not in ARCHS]
     if bad:
         raise ConfigError(f"{source}: grid.archs: unknown {bad}; choose from {list(ARCHS)}")
+    return TrainingConfig(**sections, grid=grid, search=dict(spec.search or {}))
 
 
 @dataclass
@@ -133,30 +151,30 @@ def prepare_split(train_recs: Sequence[Recording], backbone: Backbone, data: Dat
     return make_split(prep[:len(train_recs)], data, prep[len(train_recs):])
 
 
-def _model_config(cfg: dict[str, Any], data: DataConfig, split: Split, n: int, **override: Any) -> ModelConfig:
-    m = ModelConfig.from_dict({**cfg.get("model", {}), **override})
+def _model_config(cfg: TrainingConfig, split: Split, n: int, **override: Any) -> ModelConfig:
+    data = cfg.data
+    m = ModelConfig.from_dict({**asdict(cfg.model), **override}) if override else cfg.model
     return replace(m, n_joints=n, window=data.window, rate_hz=split.rate_hz,
                    reversal_deadband_deg=data.reversal_deadband_deg, r_max_deg=data.r_max_deg)
 
 
-def train_from_config(cfg: dict[str, Any], train_recs: Sequence[Recording], backbone: Backbone, out: str | Path,
+def train_from_config(cfg: TrainingConfig, train_recs: Sequence[Recording], backbone: Backbone, out: str | Path,
                       test_recs: Sequence[Recording] = (), names: Sequence[str] | None = None,
                       progress: bool = True, split: Split | None = None, **model_override: Any
                       ) -> tuple[HybridModel, TrainResult, list[TableRow]]:
     """Train one model as configured; save it to ``out`` (checkpoint ``out.ckpt`` beside it, resumed if present,
     removed on success). Returns the model, its history and the rows [RBD, model (windowed), model (streaming)]."""
-    data = DataConfig.from_dict(cfg.get("data"))
-    tcfg = TrainConfig.from_dict(cfg.get("train"))
+    data, tcfg = cfg.data, cfg.train
     split = split or prepare_split(train_recs, backbone, data, test_recs, names)
     torch.manual_seed(tcfg.seed)            # the initial weights too come from the config's seed
-    model = HybridModel(_model_config(cfg, data, split, backbone.description.n, **model_override))
+    model = HybridModel(_model_config(cfg, split, backbone.description.n, **model_override))
     out = Path(out)
     ckpt = out.with_name(out.name + ".ckpt")
     result = train_model(model, split, tcfg, checkpoint=ckpt, progress=progress)
     rows = [rbd_row(split), evaluate_model(model, split)]
     if model.cfg.streamable:
         rows.append(streaming_row(model, split))
-    extra = {"data": data.to_dict(), "train": cfg.get("train", {}), "backbone": backbone.spec,
+    extra = {"data": data.to_dict(), "train": asdict(tcfg), "backbone": backbone.spec,
              "history": result.history, "best_epoch": result.best_epoch,
              "mse": {r.name: {"train": r.train.tolist(), "test": r.test.tolist()} for r in rows}}
     save_model(model, out, extra)
@@ -184,7 +202,7 @@ def grid_tag(arch: str, hybrid: bool, use_r: bool) -> str:
     return f"{arch}_{'hybrid' if hybrid else 'standalone'}_{'r' if use_r else 'nor'}"
 
 
-def train_grid_model(cfg: dict[str, Any], split: Split, backbone_spec: str, description: RobotDescription,
+def train_grid_model(cfg: TrainingConfig, split: Split, backbone_spec: str, description: RobotDescription,
                      arch: str, hybrid: bool, use_r: bool, threads: int = 1, out: str | None = None
                      ) -> dict[str, Any]:
     """One grid task: train ``arch`` × (hybrid, use_r) on the prepared ``split`` with ``threads`` torch threads and
@@ -204,7 +222,7 @@ def train_grid_model(cfg: dict[str, Any], split: Split, backbone_spec: str, desc
                 "seconds_per_epoch": result.seconds_per_epoch}
 
 
-def train_grid(cfg: dict[str, Any], train_recs: Sequence[Recording], backbone: Backbone, out_dir: str | Path,
+def train_grid(cfg: TrainingConfig, train_recs: Sequence[Recording], backbone: Backbone, out_dir: str | Path,
                test_recs: Sequence[Recording] = (), names: Sequence[str] | None = None, progress: bool = True,
                backend: str = "local", address: str | None = None, workers: int | None = None, threads: int = 1,
                search: int = 0) -> tuple[list[TableRow], str]:
@@ -221,12 +239,11 @@ def train_grid(cfg: dict[str, Any], train_recs: Sequence[Recording], backbone: B
     (:func:`search_hyperparameters`, ASHA early stopping), whose best ``train:`` settings the model is then trained
     with (``search_<tag>.json``)."""
     out_dir = Path(out_dir)
-    grid = load_typed(GridSection, cfg.get("grid"), "grid")
-    archs, variants = list(grid.archs), list(grid.variants)
+    archs, variants = list(cfg.grid.archs), list(cfg.grid.variants)
     bad = [a for a in archs if a not in ARCHS]
     if bad:
         raise ValueError(f"grid.archs: unknown architecture(s) {bad}; choose from {list(ARCHS)}")
-    data = DataConfig.from_dict(cfg.get("data"))
+    data = cfg.data
     split = prepare_split(train_recs, backbone, data, test_recs, names)
     tasks, reused = [], []
     ray_started = False
@@ -242,13 +259,13 @@ def train_grid(cfg: dict[str, Any], train_recs: Sequence[Recording], backbone: B
             import_ray().shutdown()
 
 
-def _train_grid_tasks(cfg: dict[str, Any], archs: list[str], variants: list[tuple], data: DataConfig, split: Split,
+def _train_grid_tasks(cfg: TrainingConfig, archs: list[str], variants: list[tuple], data: DataConfig, split: Split,
                       backbone: Backbone, out_dir: Path, tasks: list, reused: list[str], backend: str,
                       address: str | None, workers: int | None, threads: int, search: int, progress: bool
                       ) -> tuple[list[TableRow], str]:
     import sys
 
-    tcfg = TrainConfig.from_dict(cfg.get("train"))
+    tcfg = cfg.train
     shared_split = Shared(split)
     gpus: float | str = 1.0 if tcfg.device == "cuda" else ("auto" if tcfg.device == "auto" else 0.0)
     for arch in archs:
@@ -262,13 +279,13 @@ def _train_grid_tasks(cfg: dict[str, Any], archs: list[str], variants: list[tupl
             if search > 0:
                 best = search_hyperparameters(cfg, split, backbone, arch, hybrid, use_r, search, out_dir,
                                               address=address, workers=workers, threads=threads)
-                model_cfg = {**cfg, "train": {**cfg.get("train", {}), **best}}
+                model_cfg = cfg.with_train(**best)
             tasks.append(Task(tag, train_grid_model,
                               {"cfg": model_cfg, "split": shared_split, "backbone_spec": backbone.spec,
                                "description": backbone.description, "arch": arch, "hybrid": hybrid, "use_r": use_r,
                                "threads": threads, "out": str(path) if backend == "local" else None},
                               {"model": tag, "arch": arch, "hybrid": hybrid, "use_r": use_r,
-                               "train": model_cfg.get("train", {}), "model_config": model_cfg.get("model", {}),
+                               "train": asdict(model_cfg.train), "model_config": asdict(model_cfg.model),
                                "data": data.to_dict(), "backbone": backbone.spec, "threads": threads},
                               num_gpus=gpus))
 
@@ -320,21 +337,20 @@ SEARCH_SPACE = {"lr": ("loguniform", 1e-4, 3e-3), "weight_decay": ("loguniform",
 replaces entries, e.g. ``search: {lr: [loguniform, 1.0e-4, 1.0e-2]}``."""
 
 
-def _tune_trial(config: dict[str, Any], cfg: dict[str, Any], split: Split, description: RobotDescription,
+def _tune_trial(config: dict[str, Any], cfg: TrainingConfig, split: Split, description: RobotDescription,
                 arch: str, hybrid: bool, use_r: bool, threads: int) -> None:
     from ray import tune
 
     torch.set_num_threads(int(threads))
-    c = {**cfg, "train": {**cfg.get("train", {}), **config}}
-    data = DataConfig.from_dict(c.get("data"))
-    tcfg = TrainConfig.from_dict(c.get("train"))
+    c = cfg.with_train(**config)
+    tcfg = c.train
     torch.manual_seed(tcfg.seed)
-    model = HybridModel(_model_config(c, data, split, description.n, arch=arch, hybrid=hybrid, use_r=use_r))
+    model = HybridModel(_model_config(c, split, description.n, arch=arch, hybrid=hybrid, use_r=use_r))
     train_model(model, split, tcfg, progress=False,
                 on_epoch_end=lambda epoch, rec: tune.report({"val": rec["val"], "train": rec["train"]}))
 
 
-def search_hyperparameters(cfg: dict[str, Any], split: Split, backbone: Backbone, arch: str, hybrid: bool,
+def search_hyperparameters(cfg: TrainingConfig, split: Split, backbone: Backbone, arch: str, hybrid: bool,
                            use_r: bool, num_samples: int, out_dir: str | Path, address: str | None = None,
                            workers: int | None = None, threads: int = 1) -> dict[str, Any]:
     """Ray Tune search of ``num_samples`` trials over :data:`SEARCH_SPACE` (drawn with the config's ``train.seed``)
@@ -347,8 +363,8 @@ def search_hyperparameters(cfg: dict[str, Any], split: Split, backbone: Backbone
     from ray.tune.search import BasicVariantGenerator
 
     tag = grid_tag(arch, hybrid, use_r)
-    tcfg = TrainConfig.from_dict(cfg.get("train"))
-    space_def = {**SEARCH_SPACE, **(cfg.get("search") or {})}
+    tcfg = cfg.train
+    space_def = {**SEARCH_SPACE, **cfg.search}
     space: dict[str, Any] = {}
     for key, spec in space_def.items():
         kind, *args = spec
@@ -404,15 +420,14 @@ def demo_hybrid(train_recs: Sequence[Recording], test_recs: Sequence[Recording],
     With ``payload_recs`` (label → Recording with ``f_ext``, e.g. {"0 g": ..., "1000 g": ...}) the Table 5.4 force
     errors of RBD and hybrid are appended. Returns ``(model, text)``. Sized for < 60 s on 2 cores with a few
     minutes of data."""
-    cfg = load_config("train_demo")
-    cfg["train"] = {**cfg.get("train", {}), "max_epochs": int(epochs)}
+    cfg = load_config("train_demo").with_train(max_epochs=int(epochs))
     backbone = resolve_backbone(robot)
     model, _, rows = train_from_config(cfg, train_recs, backbone, Path(out_dir) / "hybrid_lstm.pt",
                                        test_recs=test_recs, progress=False)
     text = format_table(rows)
     if payload_recs:
         text += "\n\n" + payload_table({"RBD": None, model.cfg.label(): model}, backbone, payload_recs,
-                                        DataConfig.from_dict(cfg.get("data")), contact_point)
+                                        cfg.data, contact_point)
     return model, text
 
 

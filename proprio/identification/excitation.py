@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from proprio.collision import CollisionChecker
 from proprio.description import RobotDescription
 from proprio.identification.base_parameters import BaseParameters, base_parameters
 from proprio.identification.regressor import regressor_buffer, regressor_geometry
@@ -51,15 +52,15 @@ class LimitSettings:
 @dataclass(frozen=True)
 class OptimisationSettings:
     """``optimisation:`` — ``solver`` (snopt | ipopt), multi-``starts``, ``seed``, ``cost_samples`` and
-    ``constraint_samples`` per period, ``initial_amplitude`` [rad/s], ``coulomb_velocity_scale`` [rad/s],
-    ``max_iterations``."""
+    ``constraint_samples`` per period, ``initial_amplitude`` [rad/s], ``max_iterations``. The cost's Coulomb columns
+    take the one friction law's smoothing (:data:`proprio.friction_law.SMOOTH_VELOCITY`): differentiable, and the
+    law the identification fits."""
     solver: str = "snopt"
     starts: int = 4
     seed: int = 0
     cost_samples: int = 100
     constraint_samples: int = 400
     initial_amplitude: float = 0.3
-    coulomb_velocity_scale: float = 0.02
     max_iterations: int = 300
 
 
@@ -146,10 +147,11 @@ class FourierTrajectory:
         return qa @ self.a.T + qb @ self.b.T, va @ self.a.T + vb @ self.b.T, aa @ self.a.T + ab @ self.b.T
 
 
-def condition_number(desc: RobotDescription, base: BaseParameters, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
-                     coulomb_velocity_scale: float = 0.0) -> float:
-    """``cond(K_b)`` of the stacked base regressor at the samples (unscaled columns, as in eq. 4.12)."""
-    buf = regressor_buffer(desc, q, qd, qdd, coulomb_velocity_scale)
+def condition_number(desc: RobotDescription, base: BaseParameters, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray
+                     ) -> float:
+    """``cond(K_b)`` of the stacked base regressor at the samples (unscaled columns, as in eq. 4.12; the Coulomb
+    columns with the friction law's smoothing, as the optimiser's cost)."""
+    buf = regressor_buffer(desc, q, qd, qdd)
     k_b = buf[:, base.independent, :].transpose(2, 0, 1).reshape(-1, base.n_base)
     return float(np.linalg.cond(k_b))
 
@@ -158,9 +160,8 @@ class _CondCost:
     """cond(K_b(a, b)) and its gradient (see the module docstring)."""
 
     def __init__(self, desc: RobotDescription, base: BaseParameters, t: np.ndarray, harmonics: int,
-                 omega_f: float, coulomb_velocity_scale: float):
+                 omega_f: float):
         self.desc, self.base, self.t, self.L, self.w = desc, base, t, harmonics, omega_f
-        self.scale = coulomb_velocity_scale
         self.geo = regressor_geometry(desc)
         self.basis = FourierTrajectory(np.zeros((desc.n, harmonics)), np.zeros((desc.n, harmonics)),
                                        omega_f).basis(t)
@@ -170,7 +171,7 @@ class _CondCost:
         return FourierTrajectory(x[:n * L].reshape(n, L), x[n * L:].reshape(n, L), self.w).evaluate(self.t)
 
     def _kb(self, q, qd, qdd) -> np.ndarray:
-        buf = regressor_buffer(self.desc, q, qd, qdd, self.scale, self.geo)
+        buf = regressor_buffer(self.desc, q, qd, qdd, None, self.geo)
         return buf[:, self.base.independent, :].transpose(2, 0, 1)          # [T, n, r]
 
     def value_and_gradient(self, x: np.ndarray) -> tuple[float, np.ndarray]:
@@ -223,7 +224,7 @@ def optimise_excitation(desc: RobotDescription, config: ExcitationConfig | None 
     base = base or base_parameters(desc)
     period = 2 * math.pi / w
     t_cost = np.linspace(0.0, period, op.cost_samples, endpoint=False)
-    cost = _CondCost(desc, base, t_cost, L, w, op.coulomb_velocity_scale)
+    cost = _CondCost(desc, base, t_cost, L, w)
     t_con = np.linspace(0.0, period, op.constraint_samples, endpoint=False)
     qa, qb, va, vb, _, _ = FourierTrajectory(np.zeros((n, L)), np.zeros((n, L)), w).basis(t_con)
     qa0, qb0, va0, vb0, aa0, ab0 = FourierTrajectory(np.zeros((n, L)), np.zeros((n, L)), w).basis(np.zeros(1))
@@ -332,8 +333,6 @@ def check_collisions(desc: RobotDescription, q: np.ndarray) -> list[tuple[int, s
 
     Pairs already in contact at the zero configuration are treated as modelling artefacts of the primitive
     shapes and ignored. Returns ``(sample index, geometry A, geometry B)`` for every new contact."""
-    from proprio.collision import CollisionChecker
-
     checker = CollisionChecker(desc)
 
     def pairs(qk: np.ndarray) -> set[tuple[str, str]]:

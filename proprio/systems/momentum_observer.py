@@ -5,10 +5,10 @@ With p = M(q) q̇ and Ṁ = C + Cᵀ, the link dynamics give ṗ = τ_J − τ_i
 
     r = K_O ( p(t) − p(0) − ∫₀ᵗ (τ_J − τ_int + τ_g + Cᵀq̇ + r) ds )    obeys    ṙ = K_O (τ_ext − r),
 
-a first-order low-pass of τ_ext with time constant 1/K_O per joint. One law, two forms: the recursion as a discrete
-LTI system (:func:`momentum_filter`, the matrices of the C++ ``LinearSystem`` in :class:`MomentumObserver` and of
-the streaming estimator's step) and its vectorised form over samples (:func:`momentum_observer`, the same recursion
-by ``lfilter``; tests: equal to 1e-8). τ_g is Drake's gravity generalised force (the *applied* gravity torque) and
+a first-order low-pass of τ_ext with time constant 1/K_O per joint. The law is written once, as a discrete LTI
+system (:func:`momentum_filter`): its matrices are the C++ ``LinearSystem`` of :class:`MomentumObserver` (the
+Diagram, offline replay and the streaming :mod:`proprio.online` alike), and the batch form over samples
+(:func:`momentum_observer`) evaluates the same matrices' recursion vectorised (:func:`filter_response`). τ_g is Drake's gravity generalised force (the *applied* gravity torque) and
 Cᵀq̇ = Ṁq̇ − Cq̇ (a central difference of M along q̇ plus Drake's bias term).
 """
 from __future__ import annotations
@@ -26,8 +26,8 @@ from proprio.dynamics import inverse_dynamics
 from proprio.kinematics import chain_geometry
 from proprio.plant import DrakeRobot
 
-__all__ = ["DrakeArm", "momentum_terms", "momentum_observer", "momentum_filter", "RigidBodyTermsSystem",
-           "MomentumObserver"]
+__all__ = ["DrakeArm", "momentum_terms", "momentum_observer", "momentum_initial_state", "filter_response",
+           "momentum_filter", "RigidBodyTermsSystem", "MomentumObserver"]
 
 
 _FD_STEP = 1e-5   # [rad] central-difference step of M(q) along q̇ for Ṁq̇
@@ -41,7 +41,6 @@ class DrakeArm(DrakeRobot):
     def __init__(self, desc: RobotDescription):
         super().__init__(desc)
         self._zero = np.zeros(self.plant.num_velocities())
-        self._mass = self._bias = None             # M(q) and ID(q, q̇, 0) of the last momentum_terms (in order)
 
     def momentum_terms(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``p = M(q)q̇`` [N·m·s] and ``τ_g(q) + C(q,q̇)ᵀq̇`` [N·m] for one sample (Cᵀq̇ = Ṁq̇ − Cq̇)."""
@@ -67,25 +66,10 @@ class DrakeArm(DrakeRobot):
         else:
             beta_out[:] = 0.0
         plant.SetPositionsAndVelocities(ctx, state)
-        self._mass = plant.CalcMassMatrix(ctx)
-        np.dot(self._mass, qd, out=p_out)
+        np.dot(plant.CalcMassMatrix(ctx), qd, out=p_out)
         plant.CalcForceElementsContribution(ctx, self._forces)       # gravity
         # τ_g − C q̇ = −ID(q, q̇, 0) with gravity applied: one call instead of CalcGravity… + CalcBiasTerm
-        self._bias = plant.CalcInverseDynamics(ctx, self._zero, self._forces)
-        beta_out -= self._bias
-
-    def inverse_dynamics_here(self, qdd: np.ndarray) -> np.ndarray:
-        """τ_rigid = ID(q, q̇, q̈) with gravity [N·m] at the q, q̇ of the last :meth:`momentum_terms` /
-        :meth:`rigid_body_terms_into` call, for the accelerations ``qdd [n]`` [rad/s²], from what that call computed:
-        ``M(q) q̈ + ID(q, q̇, 0)`` (equal to :meth:`inverse_dynamics` to rounding, without a Drake call)."""
-        if not self._in_order:
-            self.plant.CalcForceElementsContribution(self.context, self._forces)
-            a = np.zeros(self.plant.num_velocities())
-            a[self._v_index] = qdd
-            return self.plant.CalcInverseDynamics(self.context, a, self._forces)[self._v_index]
-        tau = self._mass @ qdd
-        tau += self._bias
-        return tau
+        beta_out -= plant.CalcInverseDynamics(ctx, self._zero, self._forces)
 
     def rigid_body_terms_into(self, state: np.ndarray, p_flange: np.ndarray, p_out: np.ndarray,
                               beta_out: np.ndarray, jac_out: np.ndarray) -> None:
@@ -150,13 +134,16 @@ def _gains(gain: float | np.ndarray, n: int) -> np.ndarray:
 def momentum_observer(desc: RobotDescription, time_step: float, q: np.ndarray, qd: np.ndarray,
                       tau_meas: np.ndarray, tau_int: np.ndarray | None = None, gain: float | np.ndarray = 100.0
                       ) -> np.ndarray:
-    """Offline generalised-momentum observer over uniformly sampled data: τ̂_ext ``[N,n]`` [N·m].
-
-    The residual is updated as the exact discretisation of ṙ = K_O(τ_ext − r) with the mean τ_ext over each sample
-    interval taken from the momentum balance (no accelerations):
+    """Offline generalised-momentum observer over uniformly sampled data: τ̂_ext ``[N,n]`` [N·m] — the recursion of
+    :func:`momentum_filter` (the matrices the Diagram's ``LinearSystem`` steps), evaluated over all samples at once
+    from its initial state :func:`momentum_initial_state` (:func:`filter_response`):
 
         u_k = (p_k − p_{k−1})/Δt − ½(β_k + β_{k−1}),   β = τ_J − τ_int + τ_g + Cᵀq̇,
-        r_k = γ r_{k−1} + (1 − γ) u_k,   γ = exp(−K_O Δt),   r_0 = 0.
+        r_k = γ r_{k−1} + (1 − γ) u_k,   γ = exp(−K_O Δt),   r_0 = 0,
+
+    the exact discretisation of ṙ = K_O(τ_ext − r) with the mean τ_ext over each sample interval taken from the
+    momentum balance (no accelerations). Row k is the filter's state r after sample k (the Diagram outputs it one
+    sample later, Drake's discrete semantics).
 
     Args:
         desc: model description (rigid-body part). time_step: Δt [s]. q, qd: ``[N,n]`` [rad, rad/s].
@@ -164,13 +151,36 @@ def momentum_observer(desc: RobotDescription, time_step: float, q: np.ndarray, q
         gain: K_O [1/s], scalar or per joint.
     """
     q = np.atleast_2d(np.asarray(q, float))
-    k = _gains(gain, q.shape[1])
+    n = q.shape[1]
     p, beta = momentum_terms(desc, q, qd)
-    beta = beta + np.asarray(tau_meas, float) - (0.0 if tau_int is None else np.asarray(tau_int, float))
-    u = np.zeros_like(p)
-    u[1:] = np.diff(p, axis=0) / time_step - 0.5 * (beta[1:] + beta[:-1])
-    gamma = np.exp(-k * time_step)
-    return np.stack([lfilter([1.0 - gamma[j]], [1.0, -gamma[j]], u[:, j]) for j in range(q.shape[1])], axis=1)
+    tau_int = np.zeros_like(p) if tau_int is None else np.broadcast_to(np.asarray(tau_int, float), p.shape)
+    u = np.hstack([p, beta, np.broadcast_to(np.asarray(tau_meas, float), p.shape), tau_int])
+    return filter_response(momentum_filter(n, time_step, gain), u, momentum_initial_state(u[0]))
+
+
+def momentum_initial_state(u0: np.ndarray) -> np.ndarray:
+    """The filter state ``[0; p_0; −β_0]`` (3n) for the first input ``u0 = [p; τ_g + Cᵀq̇; τ_J; τ_int]`` (4n) of
+    :func:`momentum_filter`: u_0 = 0, so r starts at 0 (the Diagram's :meth:`MomentumObserver.set_initial_state` and
+    the batch :func:`momentum_observer` alike)."""
+    n = u0.shape[0] // 4
+    return np.concatenate((np.zeros(n), u0[:n], -(u0[n:2 * n] + u0[2 * n:3 * n] - u0[3 * n:])))
+
+
+def filter_response(abcd: tuple[np.ndarray, ...], u: np.ndarray, x0: np.ndarray) -> np.ndarray:
+    """The residual states ``r [N,n]`` after each input row ``u [N,4n]`` of the discrete system
+    ``abcd = momentum_filter(...)`` started at ``x0`` — its recursion vectorised over samples. Its structure makes this
+    exact: the rows of A past r are zero (the states ``[p_{k−1}; β_{k−1}] = B_d u_{k−1}`` hold the previous input),
+    and A's r block is diagonal (the poles γ), so ``r_{k+1} = γ r_k + B_r u_k + A_rd B_d u_{k−1}``: one first-order
+    ``lfilter`` per joint."""
+    a, b = abcd[0], abcd[1]
+    n = a.shape[0] // 3
+    gamma = np.diag(a[:n, :n]).copy()
+    if a[n:].any() or np.any(a[:n, :n] != np.diag(gamma)):
+        raise ValueError("filter_response: not the momentum filter's structure (diagonal poles, delayed inputs)")
+    delayed = np.vstack([x0[None, n:], u[:-1] @ b[n:].T])                # [p_{k−1}; β_{k−1}] at each sample
+    drive = u @ b[:n].T + delayed @ a[:n, n:].T
+    return np.stack([lfilter([1.0], [1.0, -gamma[j]], drive[:, j], zi=[gamma[j] * x0[j]])[0] for j in range(n)],
+                    axis=1)
 
 
 class RigidBodyTermsSystem(LeafSystem):
@@ -195,13 +205,6 @@ class RigidBodyTermsSystem(LeafSystem):
         buffer (:attr:`terms`, valid until the next call), which is returned."""
         self._arm.rigid_body_terms_into(state, self._contact, self._p, self._beta, self._jac)
         return self.terms
-
-    def inverse_dynamics(self, qdd: np.ndarray) -> np.ndarray:
-        """τ_rigid [N·m] = ID(q, q̇, q̈) with gravity at the q, q̇ of the last :meth:`calc`, for ``qdd [n]`` [rad/s²],
-        from what that call computed (:meth:`DrakeArm.inverse_dynamics_here`): what the streaming estimator takes as
-        the torque model's rigid-body torque of the same sample (the C++ ``InverseDynamics`` of the Diagram gives the
-        same numbers to rounding)."""
-        return self._arm.inverse_dynamics_here(qdd)
 
     def _calc(self, context, output) -> None:
         output.SetFromVector(self.calc(self._state.Eval(context)))
@@ -270,13 +273,8 @@ class MomentumObserver(Diagram):
         builder.BuildInto(self)
         self.set_name("momentum_observer")
 
-    def initial_state(self, u0: np.ndarray) -> np.ndarray:
-        """The filter state ``[0; p_0; −β_0]`` for the first input ``u0 = [p; τ_g + Cᵀq̇; τ_J; τ_int]``."""
-        n = self.n
-        return np.concatenate((np.zeros(n), u0[:n], -(u0[n:2 * n] + u0[2 * n:3 * n] - u0[3 * n:])))
-
     def set_initial_state(self, context: Context) -> None:
         """Set the filter state from the inputs ``context`` (this System's context) sees now: the first sample."""
         u0 = np.asarray(self._mux.get_output_port().Eval(self.GetSubsystemContext(self._mux, context)))
         self.GetMutableSubsystemContext(self.filter, context).get_mutable_discrete_state_vector().SetFromVector(
-            self.initial_state(u0))
+            momentum_initial_state(u0))
