@@ -1,14 +1,18 @@
 # The two set-up commands: `make demo` and `make test`. Both create/reuse .venv and install what they need.
-# `make test` runs every module, command and demo stage on reduced sizes and every notebook (est. 5–7 min, 2 cores);
+# `make test` runs every module, command and demo stage on reduced sizes and every notebook, on every core
+# (pytest-xdist, one test module or notebook per worker at a time: module fixtures such as the demo are built once);
 # `make test-all` adds the full-size runs (pytest --full: the tests marked slow, the demo at its own sizes).
+# TEST_WORKERS=1 runs it in one process. One BLAS/OpenMP thread per worker: the workers already fill the cores.
 # `make lab` (extra): JupyterLab in the same environment with the notebooks open (LAB_ARGS, e.g. --no-browser).
 PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 CKSUM  := $(shell cat pyproject.toml | cksum | cut -d' ' -f1)
 STAMP  := $(VENV)/.installed-$(CKSUM)
-LAB_STAMP := $(VENV)/.lab-installed-$(CKSUM)
 LAB_ARGS ?=
+TEST_WORKERS ?= auto
+PYTEST := MPLBACKEND=Agg OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 \
+          $(PY) -m pytest -q tests --nbmake notebooks -n $(TEST_WORKERS) --dist loadscope
 LAB_ROOT  := $(if $(filter 0,$(shell id -u)),--allow-root,)   # containers often run as root
 
 .PHONY: demo test test-all venv clean benchmarks lab cuda-torch
@@ -27,21 +31,17 @@ venv: $(STAMP)
 demo: $(STAMP)
 	$(VENV)/bin/proprio demo --out demo_output
 
-$(LAB_STAMP): $(STAMP)
-	$(PY) -m pip install -q -e ".[lab]"
-	rm -f $(VENV)/.lab-installed-*
-	touch $(LAB_STAMP)
-
-lab: $(LAB_STAMP)
+# the test extra holds the lab extra (jupyterlab, ipywidgets): `make lab` runs in the .venv that `make test` made
+lab: $(STAMP)
 	$(VENV)/bin/jupyter lab --ServerApp.ip=localhost $(LAB_ROOT) $(LAB_ARGS) notebooks/*.ipynb
 
 test: $(STAMP)
 	$(VENV)/bin/lint-imports
-	MPLBACKEND=Agg $(PY) -m pytest -q tests --nbmake notebooks
+	$(PYTEST)
 
 test-all: $(STAMP)
 	$(VENV)/bin/lint-imports
-	MPLBACKEND=Agg $(PY) -m pytest -q tests --nbmake notebooks --full
+	$(PYTEST) --full
 
 benchmarks: $(STAMP)
 	for f in benchmarks/bench_*.py; do echo "== $$f"; OPENBLAS_NUM_THREADS=1 $(PY) $$f || exit 1; done

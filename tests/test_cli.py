@@ -204,10 +204,38 @@ def demo_dir(tmp_path_factory, full) -> Path:
     return out
 
 
+def _readable_as_its_kind(path: Path) -> None:
+    """A demo output opens as what its suffix says: PNG signature, a pickle-free .npz of arrays, a YAML/JSON mapping,
+    an HTML page, a Graphviz digraph, a torch zip archive, text."""
+    import zipfile
+
+    import yaml
+    data = path.read_bytes()
+    assert data, path
+    kind = path.suffix
+    if kind == ".png":
+        assert data.startswith(b"\x89PNG\r\n\x1a\n"), path
+    elif kind == ".npz":
+        with np.load(path, allow_pickle=False) as z:
+            assert z.files and all(z[k].size > 0 for k in z.files), (path, z.files)
+    elif kind == ".yaml":
+        assert isinstance(yaml.safe_load(data), dict), path
+    elif kind == ".json":
+        assert isinstance(json.loads(data), dict), path
+    elif kind == ".html":
+        assert b"<html" in data[:2000].lower() and b"</html>" in data[-2000:].lower(), path
+    elif kind == ".dot":
+        assert data.lstrip().startswith(b"digraph"), path
+    elif kind == ".pt":
+        assert zipfile.is_zipfile(path), path
+    else:
+        assert data.decode("utf-8").strip(), path
+
+
 def test_demo_writes_every_stage_output(demo_dir):
     for path in demo_dir.rglob("*"):
         if path.is_file():
-            assert path.stat().st_size > 0, path
+            _readable_as_its_kind(path)
     for name in ("rfma_demo.npz", "rfma_demo.png", "twin_rfma.npz", "twin_rfma.png", "twin_diagram.dot",
                  "twin_excitation.npz", "identified_model.npz", "identification.txt", "payload_rbd/table.txt",
                  "diagnosis/report.html", "diagnosis/twin_patch.yaml", "hybrid_lstm.pt", "hybrid.txt",

@@ -123,18 +123,20 @@ def test_plugins_act_in_the_twin_and_are_logged_as_truth():
     assert [e.name for e in make_effects(rec.meta["effects"], 7)] == ["hose_spring", "gauge_cross_talk"]
 
 
-def _twin_recording(cfg: TwinConfig, seed: int) -> Recording:
-    """20 s of the benchmark's RFMA-like motion played by the twin (200 Hz log: q and τ only)."""
-    t, q, qd, _, _ = rfma_like_motion(cfg.robot, seed, 20.0, rate_hz=50.0)
+def _twin_recording(cfg: TwinConfig, seed: int, seconds: float) -> Recording:
+    """``seconds`` of the benchmark's RFMA-like motion played by the twin (200 Hz log: q and τ only)."""
+    t, q, qd, _, _ = rfma_like_motion(cfg.robot, seed, seconds, rate_hz=50.0)
     rec = simulate_twin(cfg, PiecewisePolynomial.CubicHermite(t, q.T, qd.T), progress=False)
     return Recording(t=rec.t, q=rec.q, tau=rec.tau, meta={"robot": cfg.robot.name, "source": "test"})
 
 
-def test_diagnosis_names_a_withheld_plugin_effect():
+def test_diagnosis_names_a_withheld_plugin_effect(full):
+    """3 twin runs of 20 s (``--full``) or 10 s: at 10 s the spring is still fitted to 0.1 % (bound 10 %) and removes
+    98 % of joint 1's held-out RMSE (bound 80 %)."""
     k = np.zeros(7)
     k[0] = K1
     cfg = twin_config({SPRING: {"stiffness": k.tolist()}, "torque_noise": {"std": 0.05}})
-    recs = [_twin_recording(cfg, seed) for seed in (1, 2, 3)]
+    recs = [_twin_recording(cfg, seed, 20.0 if full else 10.0) for seed in (1, 2, 3)]
     model = SimModel(load_robot("iiwa14_identified").without_friction(), tuple(make_effects({"torque_noise": {
         "std": 0.05}}, 7)))
     att = attribute(model, recs[:2], recs[2:], plugins=[SPRING])
