@@ -113,7 +113,8 @@ def _model(args: argparse.Namespace):
 
 
 # candidates of the diagnosis that are not joint effects (proprio.diagnosis.candidates.candidate_set)
-_NON_EFFECT_CANDIDATES = ("rigid_body", "payload", "signal_lag", "sensor_offset", "sensor_gain")
+_NON_EFFECT_CANDIDATES = ("rigid_body", "payload", "signal_lag", "sensor_offset", "sensor_gain", "rotor_inertia",
+                          "motor_friction", "drive_offset")     # the last three: drive-torque arms only
 
 
 def _diagnose(args: argparse.Namespace) -> int:
@@ -124,6 +125,7 @@ def _diagnose(args: argparse.Namespace) -> int:
     from proprio.diagnosis.report import diagnose
     from proprio.effects import EFFECTS, allow_plugins, resolve_effect
     from proprio.effects.plugins import is_plugin_path
+    from proprio.identification.recordings import check_tau_kind
     from proprio.recording import load_recording
 
     check_output(args.out, "--out", "dir")
@@ -157,6 +159,10 @@ def _diagnose(args: argparse.Namespace) -> int:
                             f"'{model.robot.name}' ({model.robot.n} joints)")
     train = [load_recording(p, model.robot) for p in args.train]
     hold = [load_recording(p, model.robot) for p in args.holdout]
+    try:                                           # what τ is decides the candidates: the Recordings must agree
+        check_tau_kind(train + hold, list(args.train) + list(args.holdout), model.robot)
+    except ValueError as exc:
+        raise UserError(str(exc)) from exc
     bar = tqdm(desc="diagnose", bar_format="{desc}: {elapsed} {postfix}")
     try:
         d = diagnose(model, train, hold, args.out, candidates=args.candidates, trim_s=args.trim,
