@@ -57,6 +57,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "on short RFMA trajectories, logged at 200 Hz with jittered stamps); covers the twin's effects "
                    "(viscous_coulomb, hysteresis, lost_motion, ripple, sensor_offset_gain, torque_noise, "
                    "encoder_noise) and payload; slower (~30 s of CPU per case)")
+    b.add_argument("--drive", action="store_true",
+                   help="the drive-torque family instead: an arm without joint-torque sensors (τ = drive torque) "
+                   "through the twin, withheld rotor inertia, pre-sliding friction, motor friction or drive offsets, "
+                   "logged at 100 Hz and 1 kHz with jittered stamps (proprio.diagnosis.benchmark_drive)")
     b.add_argument("--quick", action="store_true", help="one magnitude per effect type, 2 null, 1 two-effect case "
                    "(with --twin: 4 effect types, 1 null, 1 two-effect case), 1 out-of-library and 1 time-varying "
                    "case")
@@ -196,7 +200,11 @@ def _benchmark(args: argparse.Namespace) -> int:
 
     check_output(args.out, "--out", "dir")
     check_backend_args(args)
-    cases = select_cases(make_cases(quick=args.quick, seed=args.seed, twin=args.twin), args.cases)
+    if args.drive:
+        from proprio.diagnosis.benchmark_drive import drive_cases
+        cases = select_cases(drive_cases(quick=args.quick, seed=args.seed), args.cases)
+    else:
+        cases = select_cases(make_cases(quick=args.quick, seed=args.seed, twin=args.twin), args.cases)
     results = run_benchmark(cases, workers=args.workers, backend=args.backend, address=args.address,
                             state_dir=clear_state(args.out / "cases", args.restart))
     _, text = write_results(results, args.out)
