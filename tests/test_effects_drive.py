@@ -184,3 +184,19 @@ def test_drive_candidates_follow_the_coupled_law_and_patch():
     tau_plain = SimModel(dataclasses.replace(model.robot, drive=None)).predict(s)
     np.testing.assert_allclose(tau_model - tau_plain, drive_torque(model.robot, s.qd, s.qdd, None) + 0.1,
                                rtol=0, atol=1e-9)
+
+
+def test_diagnose_refuses_recordings_of_the_other_tau_kind(tmp_path, capsys):
+    """``proprio diagnose``: a Recording whose ``meta.tau_kind`` contradicts the robot description (drive torques
+    against a link-sensor model) is refused before any diagnosis, naming the file and what to change."""
+    from proprio.cli import main
+    from proprio.diagnosis.benchmark_cases import rfma_like_motion
+    from proprio.recording import Recording, save_recording
+
+    robot = load_robot("iiwa14_identified")
+    t, q, _, _, _ = rfma_like_motion(robot, 3, 4.0)
+    path = save_recording(Recording(t=t, q=q, tau=np.zeros_like(q), meta={"robot": robot.name, "tau_kind": "drive"}),
+                          tmp_path / "drive.npz")
+    rc = main(["diagnose", "--model", "iiwa14_identified", "--train", str(path), "--out", str(tmp_path / "d")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "drive.npz: meta.tau_kind is 'drive'" in err and "tau_kind: drive" in err
