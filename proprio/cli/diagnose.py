@@ -59,6 +59,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "on short RFMA trajectories, logged at 200 Hz with jittered stamps); covers the twin's effects "
                    "(viscous_coulomb, hysteresis, lost_motion, ripple, sensor_offset_gain, torque_noise, "
                    "encoder_noise) and payload; slower (~30 s of CPU per case)")
+    b.add_argument("--drive", action="store_true",
+                   help="the drive-torque family instead: an arm without joint-torque sensors (τ = drive torque) "
+                   "through the twin, withheld rotor inertia, pre-sliding friction, motor friction or drive offsets, "
+                   "logged at 100 Hz and 1 kHz with jittered stamps (proprio.diagnosis.benchmark_drive)")
     b.add_argument("--quick", action="store_true", help="one magnitude per effect type, 2 null, 1 two-effect case "
                    "(with --twin: 4 effect types, 1 null, 1 two-effect case), 1 out-of-library and 1 time-varying "
                    "case")
@@ -114,7 +118,8 @@ def _model(args: argparse.Namespace):
 
 
 # candidates of the diagnosis that are not joint effects (proprio.diagnosis.candidates.candidate_set)
-_NON_EFFECT_CANDIDATES = ("rigid_body", "payload", "signal_lag", "sensor_offset", "sensor_gain")
+_NON_EFFECT_CANDIDATES = ("rigid_body", "payload", "signal_lag", "sensor_offset", "sensor_gain", "rotor_inertia",
+                          "motor_friction", "drive_offset")     # the last three: drive-torque arms only
 
 
 def _diagnose(args: argparse.Namespace) -> int:
@@ -125,6 +130,7 @@ def _diagnose(args: argparse.Namespace) -> int:
     from proprio.diagnosis.report import diagnose
     from proprio.effects import EFFECTS, allow_plugins, resolve_effect
     from proprio.effects.plugins import is_plugin_path
+    from proprio.identification.recordings import check_tau_kind
     from proprio.recording import load_recording
 
     check_output(args.out, "--out", "dir")
@@ -158,6 +164,10 @@ def _diagnose(args: argparse.Namespace) -> int:
                             f"'{model.robot.name}' ({model.robot.n} joints)")
     train = [load_recording(p, model.robot) for p in args.train]
     hold = [load_recording(p, model.robot) for p in args.holdout]
+    try:                                           # what τ is decides the candidates: the Recordings must agree
+        check_tau_kind(train + hold, list(args.train) + list(args.holdout), model.robot)
+    except ValueError as exc:
+        raise UserError(str(exc)) from exc
     bar = tqdm(desc="diagnose", bar_format="{desc}: {elapsed} {postfix}")
     try:
         d = diagnose(model, train, hold, args.out, candidates=args.candidates, trim_s=args.trim,
@@ -191,7 +201,11 @@ def _benchmark(args: argparse.Namespace) -> int:
 
     check_output(args.out, "--out", "dir")
     check_backend_args(args)
-    cases = select_cases(make_cases(quick=args.quick, seed=args.seed, twin=args.twin), args.cases)
+    if args.drive:
+        from proprio.diagnosis.benchmark_drive import drive_cases
+        cases = select_cases(drive_cases(quick=args.quick, seed=args.seed), args.cases)
+    else:
+        cases = select_cases(make_cases(quick=args.quick, seed=args.seed, twin=args.twin), args.cases)
     results = run_benchmark(cases, workers=args.workers, backend=args.backend, address=args.address,
                             state_dir=clear_state(args.out / "cases", args.restart))
     _, text = write_results(results, args.out)

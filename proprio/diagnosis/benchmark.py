@@ -26,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from proprio.diagnosis.benchmark_cases import (PROCESSING_TYPES, BenchmarkCase, generate_case_data, is_open_world,
-                                               is_time_varying)
+from proprio.diagnosis.benchmark_cases import (PROCESSING_TYPES, BenchmarkCase, generate_case_data, is_drive_case,
+                                               is_open_world, is_time_varying)
 from proprio.effects import EFFECTS
 from proprio.io import atomic_write_text
 
@@ -210,6 +210,15 @@ def summarise(results: list[CaseResult]) -> tuple[dict[str, Any], str]:
                    if timed else float("nan"),
                    "time_dependence_on_static_cases": float(np.mean([r.time_dependent for r in static])) if static
                    else float("nan")}
+    drive = [r for r in library if is_drive_case(r.case) and not r.error]
+    drive_single = [r for r in drive if len(r.case.withheld) == 1]
+    drive_null = [r for r in drive if not r.case.withheld]
+    open_scores.update({
+        "drive_cases": len(drive),
+        "drive_top1": float(np.mean([bool(r.top) and r.top[0] == r.case.withheld[0] for r in drive_single]))
+        if drive_single else float("nan"),
+        "drive_null_false_positive_rate": float(np.mean([bool(r.steps) for r in drive_null])) if drive_null
+        else float("nan")})
     scores = {"cases": len(results), "single": len(single), "null": len(null), "pairs": len(pair),
               "failed": len(failed), "top1": float(top1), "top1_physical": float(top1_phys), "top2": float(top2), "null_false_positive_rate":
               float(null_fp), "pairs_both_found": float(pair_both),
@@ -248,6 +257,10 @@ def summarise(results: list[CaseResult]) -> tuple[dict[str, Any], str]:
               + (f"; withheld effect named first: {pct(open_scores['time_varying_top1'])}" if timed else ""),
               f"  time dependence reported on cases without any (false alarms): "
               + (f"{pct(open_scores['time_dependence_on_static_cases'])} of {len(static)}" if static else "n/a")]
+    if drive:
+        lines.append(f"drive-torque family (no joint-torque sensor): {len(drive_single)} single-effect cases, top-1 "
+                     f"{pct(open_scores['drive_top1'])} (wanted ≥ 90 %); {len(drive_null)} null cases, false-positive "
+                     f"rate {pct(open_scores['drive_null_false_positive_rate'])} (wanted 0 %)")
     if open_w:
         lines += ["", "out-of-library case".ljust(34) + "expected  structured  library steps (gain)".ljust(56)
                   + "hints on the joint"]

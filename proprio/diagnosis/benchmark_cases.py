@@ -59,7 +59,7 @@ from proprio.signals import MotionSignals
 __all__ = ["BenchmarkCase", "CaseData", "make_cases", "time_varying_cases", "select_cases", "generate_case_data",
            "generate_twin_case_data", "twin_case_config", "rfma_like_motion", "EFFECT_TYPES", "TWIN_EFFECT_TYPES",
            "PROCESSING_TYPES", "TIME_TYPES", "RATE_HZ", "OPEN_WORLD_TYPES", "open_world_cases", "is_open_world",
-           "is_time_varying"]
+           "is_time_varying", "is_drive_case", "twin_recordings"]
 
 RATE_HZ = 200.0
 NOISE_STD = 0.05                 # background torque-sensor noise [N·m] (present in data AND model unless withheld)
@@ -178,6 +178,11 @@ class BenchmarkCase:
 def is_open_world(case: BenchmarkCase) -> bool:
     """An out-of-library case: its withheld effect is a plugin (no library candidate can express it)."""
     return any(is_plugin_path(k) for k in case.withheld)
+
+
+def is_drive_case(case: BenchmarkCase) -> bool:
+    """A case of the drive-torque family (:mod:`proprio.diagnosis.benchmark_drive`)."""
+    return case.name.startswith("drive:")
 
 
 def is_time_varying(case: BenchmarkCase) -> bool:
@@ -364,6 +369,9 @@ def generate_case_data(case: BenchmarkCase, robot: RobotDescription | None = Non
     Twin cases (``case.twin``) go through :func:`generate_twin_case_data` (``robot`` is then ignored).
     ``omit_withheld``: the same data (motion, noise, modelled effects, seeds) without the withheld effects — what a
     model that had them would leave (the measured floor of the shrinkage)."""
+    if is_drive_case(case):
+        from proprio.diagnosis.benchmark_drive import generate_drive_case_data
+        return generate_drive_case_data(case, omit_withheld)
     if case.twin:
         return generate_twin_case_data(case, omit_withheld)
     robot = robot or load_robot("iiwa14_nominal")
@@ -461,30 +469,38 @@ def generate_twin_case_data(case: BenchmarkCase, omit_withheld: bool = False) ->
     collision-free reach is replaced by a derived one), logged at 200 Hz like a robot (q, τ; f_ext is dropped). Model:
     ``iiwa14_identified`` without
     friction + the modelled effects + the background torque and encoder noise (``_model``)."""
-    from proprio.diagrams.twin import simulate_twin
-    from proprio.systems.rfma import RfmaError, generate_rfma, load_rfma_config
-
     configs = [twin_case_config(case, omit_withheld, k)[0] for k in range(3)]    # one per session (recording)
     config, modelled = twin_case_config(case, omit_withheld)
     robot = config.robot.without_friction()
-    n = robot.n
-    model_effects, model_params = _model(modelled, "torque_noise" in case.withheld, n)
+    model_effects, model_params = _model(modelled, "torque_noise" in case.withheld, robot.n)
+    recs = twin_recordings(case, configs)
+    return CaseData(robot, model_effects, model_params, recs[:2], recs[2:])
+
+
+def twin_recordings(case: BenchmarkCase, configs: list[Any], meta: dict[str, Any] | None = None) -> list[Recording]:
+    """The case's 3 recordings through the twin (``configs``: one ``TwinConfig`` per recording): short RFMA
+    trajectories (2 scaffolds, 600–800 waypoints per exploration, own seed per recording; a seed for which RFMA finds
+    no collision-free reach is replaced by a derived one), logged by each config's logger (q, τ; f_ext dropped);
+    ``meta`` is added to each Recording's."""
+    from proprio.diagrams.twin import simulate_twin
+    from proprio.systems.rfma import RfmaError, generate_rfma, load_rfma_config
+
     recs = []
     for k in range(3):
         seed = (case.seed + 7919 * k) % (1 << 31)
         for attempt in range(5):                # RFMA may find no collision-free reach: next seed
             try:
                 _, timed = generate_rfma(load_rfma_config(scaffolds=2, seed=seed, waypoints=(600, 800)),
-                                         config.robot)
+                                         configs[k].robot)
                 break
             except RfmaError:
                 if attempt == 4:
                     raise
                 seed = (seed + 104729) % (1 << 31)
         rec = simulate_twin(replace(configs[k], seed=seed), timed.trajectory, progress=False)
-        meta = {**rec.meta, "source": "gap-benchmark (twin)"}
-        recs.append(Recording(t=rec.t, q=rec.q, tau=rec.tau, truth=rec.truth, meta=meta))
-    return CaseData(robot, model_effects, model_params, recs[:2], recs[2:])
+        meta_k = {**rec.meta, "source": "gap-benchmark (twin)", **(meta or {})}
+        recs.append(Recording(t=rec.t, q=rec.q, tau=rec.tau, truth=rec.truth, meta=meta_k))
+    return recs
 
 
 def select_cases(cases: list[BenchmarkCase], names: list[str] | None) -> list[BenchmarkCase]:

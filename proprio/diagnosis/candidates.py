@@ -3,6 +3,7 @@ an unmodelled payload, signal lag, encoder noise and elasticity (see :mod:`propr
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -14,11 +15,13 @@ from proprio.diagnosis.data import DiagnosisError, GapData, SimModel
 from proprio.diagnosis.localisation import peak_orders
 from proprio.dynamics import inverse_dynamics
 from proprio.effects import EFFECTS, JointEffect, effect_key, register_plugin, resolve_effect
-from proprio.identification.regressor import PARAMS_PER_JOINT, n_parameters, parameter_names, regressor
+from proprio.identification.regressor import (PARAMS_PER_JOINT, drive_columns, drive_identified, n_parameters,
+                                              parameter_names, regressor)
 from proprio.signals import MotionSignals
 
 __all__ = ["Candidate", "EffectCandidate", "RigidBodyCandidate", "PayloadCandidate", "SignalLagCandidate",
-           "EncoderNoiseCandidate", "ElasticityCandidate", "ripple_candidate", "candidate_set"]
+           "EncoderNoiseCandidate", "ElasticityCandidate", "ripple_candidate", "candidate_set", "DriveCandidate",
+           "DRIVE_CANDIDATES", "GAUGE_ONLY", "DRIVE_ONLY", "tau_kind"]
 
 
 class Candidate:
@@ -72,7 +75,7 @@ class EffectCandidate(Candidate):
     (:mod:`proprio.effects.plugins`); the candidate is named by the class' ``name``. Linear effects are fitted through
     their own ``regressor``; nonlinear ones start from the class defaults with every torque-amplitude parameter
     (default 0) set to a fraction of the residual's RMS per joint (two starts)."""
-    AMPLITUDE_KEYS = ("static", "saturation", "amplitude", "offset")
+    AMPLITUDE_KEYS = ("static", "saturation", "amplitude", "offset", "level")
 
     def __init__(self, effect: str | type[JointEffect], n: int, keys: Sequence[str] | None = None,
                  label: str | None = None, **settings: Any):
@@ -403,11 +406,89 @@ class SignalLagCandidate(Candidate):
         return np.arange(n)
 
 
+DRIVE_CANDIDATES = ("rotor_inertia", "motor_friction", "drive_offset")
+"""The drive's terms the model may lack, as candidates (:class:`DriveCandidate`)."""
+
+GAUGE_ONLY = ("hysteresis", "lost_motion", "ripple", "sensor_offset")
+"""Candidates of a joint-torque sensor's strain gauge (its loop, its lost motion, its ripple, its zero): not
+candidates when τ is a drive torque (current × torque constant × gear ratio has no gauge; a drive's constant bias is
+``drive_offset``). A gain error stays a candidate for both kinds (a drive torque's is a torque-constant error)."""
+
+DRIVE_ONLY = DRIVE_CANDIDATES + ("presliding",)
+"""Candidates only a drive torque sees: rotor inertia, the motor's friction and the drive's offsets sit before a
+link-side torque sensor, and pre-sliding friction is, in τ, the Dahl law of the gauge's hysteresis (one law, the
+same function of the reversal travel: :mod:`proprio.effects.dahl`), which a link sensor's diagnosis names
+hysteresis."""
+
+
+def tau_kind(robot: RobotDescription) -> str:
+    """What the model's τ channel is: ``drive`` when the description's drive block says ``tau_kind: drive`` (its
+    drive terms are in the model), else ``link_sensor`` (:mod:`proprio.drive_description`)."""
+    return "drive" if drive_identified(robot) else "link_sensor"
+
+
+class DriveCandidate(Candidate):
+    """A drive term a drive-torque arm's model lacks (``robot.drive.tau_kind == 'drive'``), linear in its
+    parameters, on the law of :func:`proprio.identification.regressor.drive_columns` (the identification's, with the
+    description's coupling ``C``): ``rotor_inertia`` ``Cᵀ(I_a ⊙ C q̈)`` (I_a [kg·m²] per motor), ``motor_friction``
+    ``Cᵀ(F_v,m ⊙ C q̇ + F_c,m ⊙ sgn_s(C q̇))`` ([N·m·s/rad], [N·m] per motor: a motor shared by coupled joints brakes
+    each of them through Cᵀ) and ``drive_offset`` τ_0 [N·m] per joint. The fit is the part the model lacks: the
+    patch adds it to the description's drive block."""
+    place = "motor"
+
+    def __init__(self, robot: RobotDescription, group: str):
+        if group not in DRIVE_CANDIDATES:
+            raise DiagnosisError(f"drive candidate {group!r}: must be one of {DRIVE_CANDIDATES}")
+        if not drive_identified(robot):
+            raise DiagnosisError(f"drive candidate {group}: the robot description {robot.name!r} has no drive block "
+                                 "with tau_kind: drive")
+        self.robot, self.name, n = robot, group, robot.n
+        self._cols = {"rotor_inertia": np.arange(n), "motor_friction": np.arange(n, 3 * n)}.get(group)
+
+    def param_names(self) -> list[str]:
+        keys = {"rotor_inertia": ("I_a",), "motor_friction": ("F_v,m", "F_c,m"), "drive_offset": ("offset",)}
+        return [f"{k}[{j + 1}]" for k in keys[self.name] for j in range(self.robot.n)]
+
+    def design(self, data: GapData) -> np.ndarray:
+        if self._cols is None:
+            return data.stack([np.broadcast_to(np.eye(s.n), s.q.shape + (s.n,)) for s in data.signals])
+        drive = self.robot.drive
+        return data.stack([np.moveaxis(drive_columns(drive, s.qd.T, s.qdd.T, None), -1, 0)[..., self._cols]
+                           for s in data.signals])
+
+    def joint_of_param(self, n: int) -> np.ndarray:
+        if self._cols is None or not self.robot.drive.coupled:
+            return np.tile(np.arange(n), self.n_params // n)
+        return -np.ones(self.n_params, dtype=int)
+
+    def patch(self, theta: np.ndarray) -> dict[str, Any] | None:
+        """``{"robot": <description mapping>}`` with the fit added to its drive block's parameters."""
+        drive = self.robot.drive
+        theta = np.asarray(theta, dtype=float)
+        p, offset = drive.parameters(), np.asarray(drive.offset, dtype=float)
+        if self._cols is None:
+            offset = offset + theta
+        else:
+            p[self._cols] += theta
+        lo = np.zeros_like(p)
+        self.patch_note = ""
+        if np.any(p < lo):
+            self.patch_note = (f"{self.name}: a fitted drive parameter below zero (rotor inertia and motor friction "
+                               f"are not negative), clipped to 0 in the patch")
+            p = np.maximum(p, lo)
+        desc = replace(self.robot, drive=drive.with_parameters(p, offset)).to_dict()
+        desc["name"] = self.robot.name
+        return {"robot": desc}
+
+
 def candidate_set(model: SimModel, train: GapData, names: Sequence[str] | None = None,
                   plugins: Sequence[str | type[JointEffect]] = (), time_varying: bool = False) -> list[Candidate]:
     """All deterministic candidates the model lacks (or only ``names``, which must be among them), plus the user's
     ``plugins`` (plugin paths ``"package.module:Class"`` or ``JointEffect`` subclasses, tested alongside; a plugin
-    path in ``names`` counts as one). The time-varying library effects are offered only when ``time_varying`` (the
+    path in ``names`` counts as one). What τ is decides the rest (:func:`tau_kind`): for drive torques the drive's
+    terms (:data:`DRIVE_CANDIDATES`; an uncoupled motor's friction only when the model has link friction, else it is
+    the ``viscous_coulomb`` candidate) and pre-sliding friction, never the gauge's effects (:data:`GAUGE_ONLY`); for a
+    link-side torque sensor never those of :data:`DRIVE_ONLY`. The time-varying library effects are offered only when ``time_varying`` (the
     residual depends on the session time, :mod:`proprio.diagnosis.time_variation`) or when named. Raises
     :class:`DiagnosisError` for a plugin that cannot be resolved or that the model already has."""
     n = model.robot.n
@@ -435,13 +516,22 @@ def candidate_set(model: SimModel, train: GapData, names: Sequence[str] | None =
         available["sensor_gain"] = lambda: EffectCandidate("sensor_offset_gain", n, ("gain",), "sensor_gain")
     names = None if names is None else [x for k in names for x in
                                         (("sensor_offset", "sensor_gain") if k == "sensor_offset_gain" else (k,))]
+    kind = tau_kind(model.robot)
+    if kind == "drive":
+        available.update({k: (lambda k=k: DriveCandidate(model.robot, k)) for k in DRIVE_CANDIDATES})
+        if not model.robot.drive.coupled and "viscous_coulomb" in available:
+            del available["motor_friction"]         # an uncoupled motor's friction is the viscous_coulomb candidate
+    unseen = GAUGE_ONLY if kind == "drive" else DRIVE_ONLY
+    for k in unseen:
+        available.pop(k, None)
     available["rigid_body"] = lambda: RigidBodyCandidate.of(model.robot, train)
     available["payload"] = lambda: PayloadCandidate(model.robot)
     available["signal_lag"] = lambda: SignalLagCandidate(n)
     if names is not None:
         unknown = [k for k in names if k not in available and k != "torque_noise"]
         if unknown:
-            why = [f"{k} (already in the model)" if k in present else f"{k} (unknown)" for k in unknown]
+            why = [f"{k} (already in the model)" if k in present else f"{k} (a {kind} τ cannot show it)"
+                   if k in unseen else f"{k} (unknown)" for k in unknown]
             raise DiagnosisError(f"candidates: cannot test {', '.join(why)}; available: {sorted(available)} or a "
                                  "plugin 'package.module:Class'")
         chosen = [k for k in names if k in available]

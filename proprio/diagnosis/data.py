@@ -18,6 +18,7 @@ import numpy as np
 from proprio.description import RobotDescription
 from proprio.dynamics import inverse_dynamics
 from proprio.effects import JointEffect, ViscousCoulomb, resolve_effect, robot_friction
+from proprio.identification.regressor import drive_identified, drive_torque
 from proprio.conditioning import ConditionedSignals, ConditioningConfig, condition
 from proprio.recording import Recording
 from proprio.signals import MotionSignals
@@ -94,6 +95,8 @@ class SimModel:
     def predict_parts(self, s: MotionSignals) -> tuple[np.ndarray, np.ndarray]:
         """``(link-side torque, sensor output)`` the model predicts, each ``[N,n]`` N·m."""
         tau = self.rigid_torque(s.q, s.qd, s.qdd)
+        if drive_identified(self.robot):
+            tau = tau + np.asarray(self.robot.drive.offset)          # a drive arm's constant drive offsets τ_0
         for eff in self.effects:
             if eff.place != "sensor":
                 tau = tau + eff.torque(s)
@@ -105,8 +108,10 @@ class SimModel:
         return tau, out
 
     def rigid_torque(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
-        """Rigid body + the description's link friction [N·m] (what the processing error propagates through)."""
-        tau = inverse_dynamics(self.robot, q, qd, qdd)
+        """Rigid body + the description's link friction [N·m] (what the processing error propagates through); for a
+        drive-torque arm (``drive.tau_kind: drive``) also its drive terms, rotor inertia on q̈ and motor friction on
+        the coupled motor velocity (:func:`proprio.identification.regressor.drive_torque`, the identification's law)."""
+        tau = inverse_dynamics(self.robot, q, qd, qdd) + drive_torque(self.robot, qd, qdd, None)
         friction = self.robot_friction
         return tau if friction is None else tau + friction.friction(qd)
 

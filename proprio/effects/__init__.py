@@ -15,6 +15,10 @@ effect (YAML key)             place   model / calibration source
                                       viscous 0.10–0.37 N·m·s/rad, ``proprio/robots/iiwa14_identified.yaml``)
 ``stribeck``                  link    extra static friction ``F_s exp(−(q̇/v_st)²) tanh(q̇/v_s)``; low-speed
                                       friction of harmonic drives (not in the thesis; off in the calibrated twin)
+``presliding``                link    pre-sliding friction of the drive: the Dahl law of ``hysteresis`` over
+                                      tenths of a degree of travel since the last reversal, rate-independent
+                                      (``proprio.effects.dahl``; off in the calibrated twin, whose τ_J is a
+                                      link-side sensor's: offered to the diagnosis for drive torques)
 ``hysteresis``                sensor  Dahl law in the reversal-travel domain, saturating ≈95 % after 6° (§2.1,
                                       Fig. 2.5); amplitude scaled with load on joints 2/4
 ``lost_motion``               sensor  a ≈1° window after each reversal in which the direction-dependent torque
@@ -48,7 +52,7 @@ Effects beyond this library are *plugins*: a :class:`JointEffect` subclass in an
 imports anything: :mod:`proprio.effects.plugins`, :func:`resolve_effect`); :mod:`proprio.effects.open_world` ships
 four, which the gap benchmark reaches only that way.
 
-Hysteresis and lost motion share one state, the *reversal travel* ``r`` (signed joint travel since the last
+Hysteresis, pre-sliding friction and lost motion share one state, the *reversal travel* ``r`` (signed joint travel since the last
 direction reversal, :func:`reversal_travel`) — the quantity behind the thesis' feature ``r`` (§4.2), which the learning
 stack encodes causally with a position deadband and ±10° clipping in :mod:`proprio.learning.features`. Reversals are detected
 with a velocity deadband (Schmitt trigger on q̇) so that noise around standstill does not create spurious reversals;
@@ -60,6 +64,7 @@ Drake discrete state, in :class:`proprio.systems.sensors.TorqueSensorSystem` (te
 from __future__ import annotations
 
 from proprio.effects.base import EffectConfigError, JointEffect, affine_scan
+from proprio.effects.dahl import PreSliding
 from proprio.effects.drive import Elasticity, Motor
 from proprio.effects.friction import SmoothFriction, Stribeck, ViscousCoulomb, robot_friction
 from proprio.effects.hysteresis import Hysteresis, LostMotion
@@ -70,7 +75,7 @@ from proprio.effects.sensor import EncoderNoise, Ripple, SensorOffsetGain, Torqu
 from proprio.effects.time_varying import FrictionWarmup, OffsetDrift
 
 __all__ = ["JointEffect", "EffectConfigError", "affine_scan", "SmoothFriction", "ViscousCoulomb", "Stribeck",
-           "robot_friction", "Hysteresis",
+           "robot_friction", "Hysteresis", "PreSliding",
            "LostMotion", "Ripple", "SensorOffsetGain", "TorqueNoise", "EncoderNoise", "Motor", "Elasticity",
            "OffsetDrift", "FrictionWarmup", "EFFECTS", "make_effects", "resolve_effect", "effect_key", "register_plugin",
            "allow_plugins"]

@@ -5,7 +5,8 @@ import math
 
 import numpy as np
 
-from proprio.effects.base import INF, TINY, JointEffect, affine_scan
+from proprio.effects.base import INF, TINY, JointEffect
+from proprio.effects.dahl import dahl_batch
 from proprio.reversals import ReversalTravel, reversal_travel
 from proprio.signals import MotionSignals
 
@@ -19,7 +20,7 @@ has 2 %, Fig. 2.5's gravity-loaded joints); a fit beyond it is a light joint's l
 class Hysteresis(JointEffect):
     """Torque-sensor hysteresis vs. joint travel since the last reversal (thesis §2.1, Fig. 2.5).
 
-    A Dahl law in the travel domain (the rate-independent solution of ``dτ/dr = σ(1 − τ/(d·τ_sat))``):
+    The Dahl law of :mod:`proprio.effects.dahl` (the rate-independent solution of ``dτ/dr = σ(1 − τ/(d·τ_sat))``):
     ``τ_h = d·τ_sat + (τ_rev − d·τ_sat)·exp(−|r| / ρ)`` with ``d`` the segment's direction, ``r`` the reversal
     travel and ``τ_rev`` the value at the reversal (continuous across reversals; a fresh start is the virgin
     state τ_rev = 0). ``ρ = saturation_travel / 3`` so τ_h is within 5 % of saturation after ``saturation_travel``
@@ -42,20 +43,7 @@ class Hysteresis(JointEffect):
                travel: ReversalTravel | None = None) -> np.ndarray:
         self._check_n(s)
         rt = travel or reversal_travel(s.q, s.qd, self.reversal_velocity)
-        sat = self._load_scale(s, self.saturation, self.load_gain)
-        rho = self.saturation_travel / 3.0
-        out = np.empty_like(s.q)
-        for j in range(self.n):
-            st, anc, sd = rt.starts[j], rt.anchors[j], rt.seg_direction[j]
-            ends = np.concatenate([st[1:] - 1, [s.q.shape[0] - 1]])
-            # value carried into each segment: the law of segment k evaluated at the next anchor
-            e = np.exp(-np.abs(anc[1:] - anc[:-1]) / rho[j])
-            target = sd[:-1] * sat[ends[:-1], j]
-            tau_rev = affine_scan(e, (1.0 - e) * target, 0.0)
-            seg = rt.segment[:, j]
-            d_sat = rt.direction[:, j] * sat[:, j]
-            out[:, j] = d_sat + (tau_rev[seg] - d_sat) * np.exp(-np.abs(rt.r[:, j]) / rho[j])
-        return out
+        return dahl_batch(rt, self._load_scale(s, self.saturation, self.load_gain), self.saturation_travel / 3.0)
 
 
 class LostMotion(JointEffect):

@@ -5,6 +5,7 @@ This module knows only the library; effects beyond it (plugins, their consent an
 from __future__ import annotations
 
 from proprio.effects.base import JointEffect
+from proprio.effects.dahl import PreSliding
 from proprio.effects.drive import Elasticity
 from proprio.effects.friction import Stribeck, ViscousCoulomb
 from proprio.effects.hysteresis import Hysteresis, LostMotion
@@ -15,4 +16,4 @@ __all__ = ["EFFECTS"]
 
 EFFECTS: dict[str, type[JointEffect]] = {cls.name: cls for cls in (
     ViscousCoulomb, Stribeck, Hysteresis, LostMotion, Ripple, SensorOffsetGain, TorqueNoise, EncoderNoise, Elasticity,
-    OffsetDrift, FrictionWarmup)}
+    OffsetDrift, FrictionWarmup, PreSliding)}

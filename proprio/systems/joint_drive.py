@@ -19,7 +19,8 @@ Link-side effects other than the library's friction (user plugins, :mod:`proprio
 friction: each step the drive evaluates their ``torque`` on the current state ``(t, q, q̇)`` with ``q̈ = 0`` and no
 torque (a link-side effect may depend on t, q and q̇ only) and subtracts it from the actuation. Their time is the
 session clock, the context time plus ``session_time_s`` [s] (a time-varying friction such as ``friction_warmup``
-reads it).
+reads it). Pre-sliding friction (:class:`~proprio.effects.PreSliding`) depends on the travel since the last
+reversal: the drive keeps its reversal state as discrete state and applies the per-step form of its law.
 
 Either way the plant's net actuation ``u`` satisfies ``τ_J = u + τ_f,link [− B q̈ for the rigid drive]``, and the link
 dynamics give ``τ_J = τ_rbd(q, q̇, q̈) + τ_f,link − Jᵀ f_ext``; the twin recovers the true τ_J from the logged net
@@ -58,7 +59,8 @@ from pydrake.systems.framework import BasicVector, Context, DiagramBuilder, Disc
 
 from proprio import friction_law
 from proprio.description import RobotDescription
-from proprio.effects import Elasticity, JointEffect, Motor, Stribeck, ViscousCoulomb
+from proprio.effects import Elasticity, JointEffect, Motor, PreSliding, Stribeck, ViscousCoulomb
+from proprio.effects.dahl import DahlState
 from proprio.signals import MotionSignals
 
 __all__ = ["JointDrive", "AddJointDrive", "check_explicit_friction", "check_elastic_stability", "friction_slope",
@@ -190,7 +192,9 @@ class JointDrive(LeafSystem):
         rows += [(e.motor_viscous, e.motor_coulomb, e.smooth_velocity) for e in on_qd if isinstance(e, Motor)]
         self._vc = tuple(np.array(col) for col in zip(*rows)) if rows else None      # (F_v, F_c, v_s), each [k, n]
         self._stribeck = [e for e in on_qd if isinstance(e, Stribeck)]
-        self._general = [e for e in self.link_effects if not isinstance(e, (ViscousCoulomb, Stribeck))]
+        # pre-sliding friction keeps its reversal state (per-step law of proprio.effects.dahl) as discrete state
+        self._presliding = [e for e in self.link_effects if isinstance(e, PreSliding)]
+        self._general = [e for e in self.link_effects if not isinstance(e, (ViscousCoulomb, Stribeck, PreSliding))]
         self._u_motor = self.DeclareVectorInputPort("motor_torque", n)
         self._u_link = self.DeclareVectorInputPort("link_state", 2 * n)
         uses = {self._u_link.ticket()} | ({self.time_ticket()} if self._general else set())
@@ -201,6 +205,11 @@ class JointDrive(LeafSystem):
             self.DeclareStateOutputPort("motor_state", self._state)
         else:
             uses.add(self._u_motor.ticket())
+        if self._presliding:
+            self._dahl = self.DeclareDiscreteState(6 * n * len(self._presliding))
+            self.DeclarePeriodicDiscreteUpdateEvent(time_step, 0.0, self._update_presliding)
+            self.DeclareInitializationDiscreteUpdateEvent(self._start_presliding)
+            uses.add(self.discrete_state_ticket(self._dahl))
         self.DeclareVectorOutputPort("actuation", n, self._calc_actuation, prerequisites_of_calc=uses)
 
     def motor_friction(self, qd: np.ndarray) -> np.ndarray:
@@ -211,6 +220,23 @@ class JointDrive(LeafSystem):
         if self.coupling is None:
             return self.motor.friction(qd)
         return self.motor.friction(np.asarray(qd) @ self.coupling.T) @ self.coupling
+
+    def _presliding_step(self, context: Context) -> tuple[list[DahlState], np.ndarray]:
+        """The pre-sliding states advanced by the current link state, and their summed torque [n] N·m."""
+        x = self._u_link.Eval(context)
+        q, qd = x[:self.n], x[self.n:]
+        old = np.split(context.get_discrete_state(self._dahl).value(), len(self._presliding))
+        out = [eff.step(DahlState.from_vector(v), q, qd) for eff, v in zip(self._presliding, old)]
+        return [st for st, _ in out], np.sum([tau for _, tau in out], axis=0)
+
+    def _start_presliding(self, context: Context, discrete_state: DiscreteValues) -> None:
+        x = self._u_link.Eval(context)
+        starts = [eff.start(x[:self.n], x[self.n:]).vector() for eff in self._presliding]
+        discrete_state.set_value(self._dahl, np.concatenate(starts))
+
+    def _update_presliding(self, context: Context, discrete_state: DiscreteValues) -> None:
+        states, _ = self._presliding_step(context)
+        discrete_state.set_value(self._dahl, np.concatenate([st.vector() for st in states]))
 
     def link_torque(self, t: np.ndarray, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """τ_link [N·m] ``[N,n]`` at run times ``t`` [s] ``[N]`` (the effects see the session clock ``t +
@@ -244,6 +270,8 @@ class JointDrive(LeafSystem):
             tau = tau + eff.friction(qd)
         if self.coupling is not None:
             tau = tau + self.motor_friction(qd)
+        if self._presliding:
+            tau = tau + self._presliding_step(context)[1]
         if self._general:
             s = MotionSignals(np.array([context.get_time() + self.session_time_s]), q[None], qd[None],
                               np.zeros((1, self.n)))

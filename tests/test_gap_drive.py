@@ -1,0 +1,65 @@
+"""The gap benchmark's drive-torque family (:mod:`proprio.diagnosis.benchmark_drive`): its cases, the arm and model
+each case withholds from, and the drive arm's twin — whose τ is the drive torque with the diagnosis' own laws."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from proprio.diagnosis.benchmark_drive import DRIVE_TYPES, drive_case_config, drive_cases
+
+
+def test_family_cases():
+    quick = drive_cases(quick=True)
+    assert len(quick) == 2 * (len(DRIVE_TYPES) + 1)
+    assert {dict(c.logger)["rate_hz"] for c in quick} == {100.0, 1000.0}
+    assert all(c.twin and c.name.startswith("drive:") for c in quick)
+    assert sum(not c.withheld for c in quick) == 2
+    full = drive_cases()
+    assert len(full) == 2 * (2 * len(DRIVE_TYPES) + 2) and len({c.name for c in full}) == len(full)
+
+
+@pytest.mark.parametrize("kind", DRIVE_TYPES)
+def test_each_case_withholds_its_effect_only(kind):
+    case = next(c for c in drive_cases(quick=True) if c.withheld == (kind,))
+    config, model, params = drive_case_config(case)
+    floor, model_again, _ = drive_case_config(case, omit_withheld=True)
+    arm = config.robot.drive
+    assert config.robot.drive.in_tau and model.drive.in_tau and "viscous_coulomb" in params
+    assert model_again == model                                   # the same model either way
+    assert floor.robot.drive == model.drive                       # the floor's arm is what the model says
+    differ = {k for k in ("rotor_inertia", "motor_viscous", "motor_coulomb", "offset")
+              if not np.allclose(getattr(arm, k), getattr(model.drive, k))}
+    want = {"rotor_inertia": {"rotor_inertia"}, "motor_friction": {"motor_viscous", "motor_coulomb"},
+            "drive_offset": {"offset"}, "presliding": set()}[kind]
+    assert differ == want
+    assert any(e.name == "presliding" for e in config.effects) == (kind == "presliding")
+    assert not any(e.name == "presliding" for e in floor.effects)
+
+
+def test_drive_arm_twin_senses_the_drive_laws():
+    """Through the twin, the drive arm's τ (less its noise) is the diagnosis' model of the arm — rigid body, rotor
+    inertia, link and motor friction, offsets (:class:`proprio.diagnosis.data.SimModel`) — plus the batch law of the
+    pre-sliding friction the drive applied per step, on the true motion, to 1e-6 N·m."""
+    from pydrake.trajectories import PiecewisePolynomial
+
+    from proprio.diagnosis.data import SimModel
+    from proprio.diagrams.twin import simulate_twin
+    from proprio.effects import EFFECTS, PreSliding
+    from proprio.signals import MotionSignals
+
+    case = next(c for c in drive_cases(quick=True) if c.withheld == ("presliding",))
+    config, model_robot, params = drive_case_config(case)
+    config = config.with_logger(rate_hz=1000.0, stamp_jitter_ms=0.0, dropout_prob=0.0)
+    n = config.robot.n
+    rng = np.random.default_rng(0)
+    t = np.linspace(0.0, 1.2, 7)
+    q = 0.3 * rng.uniform(-1, 1, (7, n)) + 0.02 * np.sin(40 * t)[:, None]
+    rec = simulate_twin(config, PiecewisePolynomial.CubicShapePreserving(t, q.T, True), progress=False)
+    tr = rec.truth
+    s = MotionSignals(tr["t_true"], tr["q_true"], tr["qd"], tr["qdd"])
+    model = SimModel(model_robot, (EFFECTS["viscous_coulomb"](n, **params["viscous_coulomb"]),))
+    pre = next(e for e in config.effects if isinstance(e, PreSliding))
+    expected = model.predict(s) + pre.torque(s)
+    assert np.abs(pre.torque(s)).max() > 0.2
+    np.testing.assert_allclose(rec.tau - tr["tau_torque_noise"], expected, rtol=0, atol=1e-6)
+    assert rec.meta["robot_description"]["drive"]["tau_kind"] == "drive"
