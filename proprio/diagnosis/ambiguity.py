@@ -8,8 +8,8 @@ effects (its *context*, fitted alongside every time):
 
 * ``g(x)``: the relative held-out gain of ``C + x`` over ``C`` (the weighted block SSE of
   :func:`proprio.diagnosis.selection._block_gain`), for ``x = s`` and for every *alternative* — any other physical
-  candidate whose step-1 gain alone is at least :data:`ALT_MIN_SHARE` of ``s``'s (at most
-  :data:`MAX_ALTERNATIVES`, the strongest first); an alternative the selection also named leaves the context ``C``
+  candidate whose step-1 gain alone is within a factor :data:`ALT_MIN_SHARE` of ``s``'s either way (at most
+  :data:`MAX_ALTERNATIVES`, the strongest first; none when ``s`` itself gains less than ``min_gain`` in its place); an alternative the selection also named leaves the context ``C``
   for the comparison (both were named: can one do the other's work?);
 * ``share = g(alt) / g(s)``: how much of ``s``'s held-out gain the alternative explains when swapped in;
 * ``correlation``: the weighted correlation of the two held-out torque predictions (``C + x`` minus ``C``);
@@ -38,7 +38,7 @@ from proprio.diagnosis.fitting import Fit, fit_candidates, predict_candidates
 
 __all__ = ["Alternative", "AmbiguitySet", "ambiguity_sets", "ambiguity_markdown", "tied_sets", "ALT_MIN_SHARE", "TIE_SHARE", "MAX_ALTERNATIVES"]
 
-ALT_MIN_SHARE = 0.3      # an alternative is tested when its step-1 gain alone is ≥ 30 % of the effect's
+ALT_MIN_SHARE = 0.3      # an alternative is tested when its step-1 gain alone is 30–333 % of the effect's
 TIE_SHARE = 0.5          # ... and tied when it explains ≥ 50 % of the effect's gain in its place (and the block test
 #                          cannot tell them apart) or ≥ 90 % of it
 MAX_ALTERNATIVES = 3
@@ -102,6 +102,8 @@ class AmbiguitySet:
             a = max(self.alternatives, key=lambda x: x.share)
             return (f"{nm(self.effect)} is preferred over {nm(a.name)} (which explains {100 * a.share:.0f} % of its "
                     f"held-out gain in its place; block t = {a.t_stat:.1f}).")
+        if self.gain < 0.02:
+            return f"{nm(self.effect)} adds little once the other named effects are in: no alternative tested."
         return f"No other candidate takes the place of {nm(self.effect)} on these data."
 
     def to_dict(self) -> dict[str, Any]:
@@ -174,9 +176,11 @@ def ambiguity_sets(selected: Sequence[Candidate], physical: Sequence[bool], cand
         say(f"ambiguity: {s.name}")
         context = [c for c in selected if c is not s]
         g_s = gain(context, [s])[1]
-        pool = sorted((c for c in cands if c is not s and not c.processing
-                       and alone.get(c.name, 0.0) >= max(min_gain, ALT_MIN_SHARE * alone.get(s.name, g_s))),
-                      key=lambda c: -alone.get(c.name, 0.0))[:MAX_ALTERNATIVES]
+        a_s = alone.get(s.name, g_s)
+        pool = [] if g_s < min_gain else sorted(
+            (c for c in cands if c is not s and not c.processing
+             and max(min_gain, ALT_MIN_SHARE * a_s) <= alone.get(c.name, 0.0) <= a_s / ALT_MIN_SHARE),
+            key=lambda c: -alone.get(c.name, 0.0))[:MAX_ALTERNATIVES]
         alts = []
         for c in pool:
             ctx = [x for x in context if x is not c]        # a selected alternative leaves the context
