@@ -15,7 +15,7 @@ effects (its *context*, fitted alongside every time):
 * ``correlation``: the weighted correlation of the two held-out torque predictions (``C + x`` minus ``C``);
 * ``t``: the paired one-sided block t-test of ``s`` against the alternative (log-ratio differences, as the
   selection's tie test). The alternative is **tied** with ``s`` when its share is at least :data:`TIE_SHARE` and
-  ``s`` is not significantly better (5 %), or when it explains as much (share ≥ 0.9).
+  ``s`` is not significantly better (5 %) — the selection's own tie rule, applied in the effect's place.
 
 A tied set ``S`` (``s`` and its tied alternatives) is fitted jointly over the selected effects outside it, ``g(S)``;
 the **exclusive** share of a member
@@ -39,10 +39,9 @@ from proprio.diagnosis.fitting import Fit, fit_candidates, predict_candidates
 __all__ = ["Alternative", "AmbiguitySet", "ambiguity_sets", "ambiguity_markdown", "tied_sets", "ALT_MIN_SHARE", "TIE_SHARE", "MAX_ALTERNATIVES"]
 
 ALT_MIN_SHARE = 0.3      # an alternative is tested when its step-1 gain alone is 30–333 % of the effect's
-TIE_SHARE = 0.5          # ... and tied when it explains ≥ 50 % of the effect's gain in its place (and the block test
-#                          cannot tell them apart) or ≥ 90 % of it
+TIE_SHARE = 0.5          # ... and tied when it explains ≥ 50 % of the effect's gain in its place and the block test
+#                          cannot tell them apart
 MAX_ALTERNATIVES = 3
-SAME_SHARE = 0.9
 
 
 @dataclass
@@ -188,7 +187,7 @@ def ambiguity_sets(selected: Sequence[Candidate], physical: Sequence[bool], cand
             lb_c, gc, d_c = gain(ctx, [c])
             share = gc / gs if gs > 0 else 0.0
             t = _t_stat(lb_s - lb_c)
-            tied = bool(gc >= min_gain and ((share >= TIE_SHARE and t < t_tie) or share >= SAME_SHARE))
+            tied = bool(gc >= min_gain and share >= TIE_SHARE and t < t_tie)
             alts.append(Alternative(c.name, gc, share, _corr(d_s, d_c, w), t, tied))
         members = [s.name] + [a.name for a in alts if a.tied]
         mem = [s] + [by_name[k] for k in members[1:]]
@@ -234,6 +233,6 @@ def ambiguity_markdown(sets: Sequence[AmbiguitySet]) -> str:
                         f"{x.correlation:.2f} | {x.t_stat:.1f} | {'yes' if x.tied else 'no'} |")
     head = ("Each alternative is fitted in the named effect's place (with the other named effects) on the training "
             "data and scored on the held-out data; tied: it explains at least half of the effect's gain and the "
-            "block test cannot tell them apart, or it explains 90 % of it.")
+            "block test cannot tell them apart.")
     tied = [a.text() for a in tied_sets(sets)] or ["No tie: every named effect is preferred over its alternatives."]
     return "\n\n".join([head, "\n".join(rows)] + tied)
