@@ -281,8 +281,11 @@ def _confusable(args: argparse.Namespace) -> int:
 
     cases = select_cases(confusable_cases(seed=args.seed, magnitudes=(1.0,) if args.quick else (0.5, 1.0, 2.0),
                                           twin=args.twin), args.cases)
+    results = []
     with ProcessPoolExecutor(max_workers=args.workers or 1) as pool:
-        results = list(pool.map(run_confusable_case, cases))
+        for r in pool.map(run_confusable_case, cases):          # in order; each case printed as it is done
+            results.append(r)
+            print(summarise_confusable([r])[1].splitlines()[1], flush=True)
     scores, text = summarise_confusable(results)
     atomic_write_text(args.out / "confusable.txt", text + "\n")
     atomic_write_text(args.out / "confusable.json", json.dumps({"scores": scores,
