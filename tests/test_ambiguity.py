@@ -100,7 +100,16 @@ def test_rediagnosis_with_the_experiment_names_the_true_effect(tie):
 
 def test_confusable_family_lists_the_pairs_and_scores_before_and_after():
     cases = confusable_cases(seed=3)
-    assert [c.withheld[0] for c in cases] == [t for t, _ in CONFUSABLE_PAIRS]
+    assert [c.withheld[0] for c in cases] == [t for t, _, _ in CONFUSABLE_PAIRS]
+    short = next(c for c in cases if c.name.startswith("confusable:hysteresis/short"))
+    from proprio.diagnosis.benchmark_cases import generate_case_data
+    from proprio.diagnosis.benchmark_confusable import _overrides
+    ov = _overrides(short, 7)
+    assert np.allclose(ov["hysteresis"]["saturation_travel"], np.radians(0.5))
+    assert _overrides(cases[0], 7) == {}
+    made = generate_case_data(short, overrides=ov)
+    plain = generate_case_data(short)
+    assert not np.allclose(made.holdout[0].tau, plain.holdout[0].tau)     # the variant reaches the data
     assert len({c.seed for c in cases}) == len(cases) and all(c.name.startswith("confusable:") for c in cases)
     results = [ConfusableResult("a", "hysteresis", "viscous_coulomb", ["viscous_coulomb", "hysteresis"],
                                 top_after="hysteresis"),
@@ -109,3 +118,20 @@ def test_confusable_family_lists_the_pairs_and_scores_before_and_after():
     scores, text = summarise_confusable(results)
     assert scores["before_right_or_tie"] == pytest.approx(2 / 3) and scores["top1_before"] == pytest.approx(1 / 3)
     assert scores["top1_after"] == pytest.approx(2 / 3) and "top-1 after" in text
+
+
+def test_cli_refuses_a_bad_resolve_twin_and_a_short_experiment_before_any_diagnosis(tmp_path, capsys):
+    from proprio.cli import main
+    from proprio.recording import save_recording
+
+    robot = load_robot("iiwa14_nominal")
+    train, hold = _recs(robot, [], seeds=(1, 2), duration=3.0)
+    paths = [save_recording(r, tmp_path / f"r{k}.npz") for k, r in enumerate(train + hold)]
+    base = ["diagnose", "--model", "iiwa14_nominal", "--train", str(paths[0]), "--holdout", str(paths[1]),
+            "--out", str(tmp_path / "out")]
+    assert main(base + ["--resolve", str(tmp_path / "no_twin.yaml")]) == 2
+    assert "--resolve" in capsys.readouterr().err
+    one = Recording(t=np.array([0.0]), q=np.zeros((1, robot.n)), tau=np.zeros((1, robot.n)))
+    with pytest.raises(ValueError, match="split"):
+        split_passes(one)
+    assert not (tmp_path / "out" / "report.md").exists()

@@ -207,7 +207,7 @@ def _resolve_twin(name: str, model):
 
     try:
         twin = load_twin_config(name)
-    except TwinConfigError as exc:
+    except (TwinConfigError, OSError) as exc:
         raise UserError(f"--resolve: {exc}") from exc
     if twin.robot.n != model.robot.n:
         raise UserError(f"--resolve: the twin's robot has {twin.robot.n} joints, --model {model.robot.n}")

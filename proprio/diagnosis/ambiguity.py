@@ -9,18 +9,18 @@ effects (its *context*, fitted alongside every time):
 * ``g(x)``: the relative held-out gain of ``C + x`` over ``C`` (the weighted block SSE of
   :func:`proprio.diagnosis.selection._block_gain`), for ``x = s`` and for every *alternative* — any other physical
   candidate whose step-1 gain alone is within a factor :data:`ALT_MIN_SHARE` of ``s``'s either way (at most
-  :data:`MAX_ALTERNATIVES`, the strongest first; none when ``s`` itself gains less than ``min_gain`` in its place); an alternative the selection also named leaves the context ``C``
-  for the comparison (both were named: can one do the other's work?);
+  :data:`MAX_ALTERNATIVES`, the strongest first; none when ``s`` itself gains less than ``min_gain`` in its
+  place); an alternative the selection also named leaves the context ``C`` for the comparison (both were named:
+  can one do the other's work?);
 * ``share = g(alt) / g(s)``: how much of ``s``'s held-out gain the alternative explains when swapped in;
 * ``correlation``: the weighted correlation of the two held-out torque predictions (``C + x`` minus ``C``);
 * ``t``: the paired one-sided block t-test of ``s`` against the alternative (log-ratio differences, as the
   selection's tie test). The alternative is **tied** with ``s`` when its share is at least :data:`TIE_SHARE` and
   ``s`` is not significantly better (5 %) — the selection's own tie rule, applied in the effect's place.
 
-A tied set ``S`` (``s`` and its tied alternatives) is fitted jointly over the selected effects outside it, ``g(S)``;
-the **exclusive** share of a member
-``x`` is ``(g(S) − g(S∖x)) / g(S)`` (what only it explains), the **shared** share ``1 − Σ exclusive`` (what any of
-them explains). The fits of every member in ``s``'s place are kept (:attr:`AmbiguitySet.fits`): the designed
+A tied set ``S`` (``s`` and its tied alternatives) is fitted jointly over the selected effects outside it,
+``g(S)``; the **exclusive** share of a member ``x`` is ``(g(S) − g(S∖x)) / g(S)`` (what only it explains), the
+**shared** share ``1 − Σ exclusive`` (what any of them explains). The fits of every member in ``s``'s place are kept (:attr:`AmbiguitySet.fits`): the designed
 experiment (:mod:`proprio.diagnosis.discriminate`) predicts each hypothesis on a new motion with them.
 """
 from __future__ import annotations
@@ -36,7 +36,8 @@ from proprio.diagnosis.candidates import Candidate
 from proprio.diagnosis.data import GapData
 from proprio.diagnosis.fitting import Fit, fit_candidates, predict_candidates
 
-__all__ = ["Alternative", "AmbiguitySet", "ambiguity_sets", "ambiguity_markdown", "tied_sets", "ALT_MIN_SHARE", "TIE_SHARE", "MAX_ALTERNATIVES"]
+__all__ = ["Alternative", "AmbiguitySet", "ambiguity_sets", "ambiguity_markdown", "tied_sets", "ALT_MIN_SHARE",
+           "TIE_SHARE", "MAX_ALTERNATIVES"]
 
 ALT_MIN_SHARE = 0.3      # an alternative is tested when its step-1 gain alone is 30–333 % of the effect's
 TIE_SHARE = 0.5          # ... and tied when it explains ≥ 50 % of the effect's gain in its place and the block test

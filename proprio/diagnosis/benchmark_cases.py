@@ -359,19 +359,23 @@ def _model(modelled: dict[str, dict[str, Any]], torque_noise_withheld: bool, n: 
 
 
 def generate_case_data(case: BenchmarkCase, robot: RobotDescription | None = None,
-                       omit_withheld: bool = False, motions: Sequence[tuple] = ()) -> CaseData:
+                       omit_withheld: bool = False, motions: Sequence[tuple] = (),
+                       overrides: dict[str, dict[str, Any]] | None = None) -> CaseData:
     """Training (2 recordings) and held-out (1) data of a case, and the model's effect list (module docstring).
     Twin cases (``case.twin``) go through :func:`generate_twin_case_data` (``robot`` is then ignored).
     ``omit_withheld``: the same data (motion, noise, modelled effects, seeds) without the withheld effects — what a
     model that had them would leave (the measured floor of the shrinkage). ``motions``: ``(t, q, q̇, q̈, segment)``
     of further recordings of the same robot (a designed experiment, offline only), made instead (recordings 3, 4,
-    …: own noise seeds), all returned as training recordings."""
+    …: own noise seeds), all returned as training recordings. ``overrides``: ``{effect: {parameter: value}}`` set
+    over the drawn parameters of a withheld effect (offline only; e.g. a hysteresis that saturates within 0.5°)."""
     if case.twin:
         return generate_twin_case_data(case, omit_withheld)
     robot = robot or load_robot("iiwa14_nominal")
     n = robot.n
     rng = np.random.default_rng(case.seed)
     params = {k: _draw(k, n, case.magnitude, rng, case.open_joint) for k in case.withheld}
+    for k, v in (overrides or {}).items():
+        params[k] = {**params[k], **v}
     modelled = {k: _draw(k, n, 1.0, rng) for k in case.modelled}
     if omit_withheld:
         params = {k: v for k, v in params.items() if k == "torque_noise"}

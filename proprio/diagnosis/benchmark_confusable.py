@@ -16,6 +16,7 @@ Pre-sliding friction against lost motion is not in the family yet: the library h
 """
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -25,10 +26,18 @@ import numpy as np
 from proprio.diagnosis.benchmark_cases import RATE_HZ, BenchmarkCase, generate_case_data, twin_case_config
 from proprio.effects import EFFECTS
 
-__all__ = ["CONFUSABLE_PAIRS", "CONFUSABLE_CANDIDATES", "ConfusableResult", "confusable_cases", "run_confusable_case", "summarise_confusable"]
+__all__ = ["CONFUSABLE_PAIRS", "CONFUSABLE_CANDIDATES", "VARIANTS", "ConfusableResult", "confusable_cases",
+           "run_confusable_case", "summarise_confusable"]
 
-CONFUSABLE_PAIRS = (("hysteresis", "viscous_coulomb"), ("viscous_coulomb", "hysteresis"),
-                    ("lost_motion", "hysteresis"), ("sensor_offset_gain", "rigid_body"), ("payload", "rigid_body"))
+CONFUSABLE_PAIRS = (("hysteresis", "viscous_coulomb", ""), ("hysteresis", "viscous_coulomb", "short"),
+                    ("viscous_coulomb", "hysteresis", ""), ("lost_motion", "hysteresis", ""),
+                    ("sensor_offset_gain", "rigid_body", ""), ("payload", "rigid_body", ""))
+"""``(truth, impostor, variant)``: a variant sets parameters of the truth over the benchmark's draw
+(:data:`VARIANTS`)."""
+
+VARIANTS = {"short": {"hysteresis": {"saturation_travel": math.radians(0.5)}}}
+"""``short``: a hysteresis that saturates within 0.5° — the "Coulomb step in disguise" of issue #25's real log (the
+benchmark draws 4–8°). Offline only (the twin mode draws its own)."""
 
 CONFUSABLE_CANDIDATES = ("viscous_coulomb", "hysteresis", "lost_motion", "sensor_offset_gain", "rigid_body", "payload")
 """The candidates the family's diagnoses choose among: every effect of the pairs (the library-wide choice is the main
@@ -62,11 +71,20 @@ class ConfusableResult:
 
 def confusable_cases(seed: int = 0, magnitudes: tuple[float, ...] = (1.0,), twin: bool = False,
                      duration_s: float = 20.0) -> list[BenchmarkCase]:
-    """One case per :data:`CONFUSABLE_PAIRS` truth and magnitude, named ``confusable:<truth>@<m>``."""
+    """One case per :data:`CONFUSABLE_PAIRS` entry and magnitude, named ``confusable:<truth>[/<variant>]@<m>``
+    (twin mode: the entries without a variant)."""
     rng = np.random.default_rng([seed, 25])
-    return [BenchmarkCase(f"{'twin:' if twin else ''}confusable:{truth}@{m:g}", (truth,), m,
+    prefix = "twin:confusable:" if twin else "confusable:"
+    return [BenchmarkCase(f"{prefix}{truth}{'/' + var if var else ''}@{m:g}", (truth,), m,
                           int(rng.integers(1 << 30)), duration_s=duration_s, twin=twin)
-            for truth, _ in CONFUSABLE_PAIRS for m in magnitudes]
+            for truth, _, var in CONFUSABLE_PAIRS for m in magnitudes if not (twin and var)]
+
+
+def _overrides(case: BenchmarkCase, n: int) -> dict[str, dict[str, Any]]:
+    """The case's variant (``.../<variant>@m`` in its name) as parameter overrides for ``n`` joints."""
+    head = case.name.rpartition("@")[0]
+    var = head.rpartition("/")[2] if "/" in head else ""
+    return {k: {p: np.full(n, v) for p, v in ps.items()} for k, ps in VARIANTS.get(var, {}).items()}
 
 
 def _top(att) -> tuple[str, list[str]]:
@@ -86,7 +104,8 @@ def _experiment_recording(case: BenchmarkCase, trajectory):
         from proprio.diagrams.twin import simulate_twin
         return simulate_twin(twin_case_config(case, recording=2)[0], trajectory, progress=False)
     t, q, qd, qdd = sample_trajectory(trajectory, RATE_HZ)
-    return generate_case_data(case, motions=[(t - t[0], q, qd, qdd, np.zeros(len(t)))]).train[0]
+    return generate_case_data(case, motions=[(t - t[0], q, qd, qdd, np.zeros(len(t)))],
+                              overrides=_overrides(case, q.shape[1])).train[0]
 
 
 def run_confusable_case(case: BenchmarkCase) -> ConfusableResult:
@@ -96,7 +115,7 @@ def run_confusable_case(case: BenchmarkCase) -> ConfusableResult:
     from proprio.diagnosis.selection import attribute
 
     t0 = time.perf_counter()
-    data = generate_case_data(case)
+    data = generate_case_data(case, overrides=None if case.twin else _overrides(case, 7))
     n = data.robot.n
     model = SimModel(data.robot, tuple(EFFECTS[k](n, **data.model_params[k]) for k in data.model_effects))
     truth = case.withheld[0]

@@ -110,9 +110,10 @@ def _legs(q0: np.ndarray, offsets: Sequence[np.ndarray], vf: float) -> list[Phas
             if np.any(a != b)]
 
 
-def _family(q0: np.ndarray, room: np.ndarray, n: int) -> list[tuple[str, str, list[list[Phase]], Any]]:
-    """``(family, label, units, mirror)``: each unit a list of phases from ``q0`` back to ``q0``; ``mirror(sign)``
-    rebuilds the units with the offsets times ``sign``. ``room [n]`` rad: the largest offset per joint."""
+def _family(q0: np.ndarray, room: np.ndarray, n: int) -> list[tuple[str, str, Any]]:
+    """``(family, label, build)`` per member: ``build(sign)`` gives its units (each a list of phases from ``q0`` back
+    to ``q0``) with the offsets times ``sign`` (−1: the mirrored pass). ``room [n]`` rad: the largest offset per
+    joint (a member the room clips to the same motion as an earlier one of its family is left out)."""
     out = []
     alt = np.where(np.arange(n) % 2 == 0, 1.0, -1.0)
 
@@ -144,6 +145,8 @@ def _family(q0: np.ndarray, room: np.ndarray, n: int) -> list[tuple[str, str, li
         out.append(("dwell_reverse", f"±2° reversals at loads of ±{load_deg:g}°", dwell))
     for reach_deg in (30.0, 60.0):
         r = amp(math.radians(reach_deg)) * alt
+        if reach_deg > 30.0 and np.allclose(r, amp(math.radians(30.0)) * alt):
+            continue
 
         def poses(sign, r=r):
             return [_legs(q0, [sign * r, -sign * r], vf) for vf in (0.1, 0.4)]
