@@ -20,8 +20,9 @@ effects (its *context*, fitted alongside every time):
 
 A tied set ``S`` (``s`` and its tied alternatives) is fitted jointly over the selected effects outside it,
 ``g(S)``; the **exclusive** share of a member ``x`` is ``(g(S) − g(S∖x)) / g(S)`` (what only it explains), the
-**shared** share ``1 − Σ exclusive`` (what any of them explains). The fits of every member in ``s``'s place are kept (:attr:`AmbiguitySet.fits`): the designed
-experiment (:mod:`proprio.diagnosis.discriminate`) predicts each hypothesis on a new motion with them.
+**shared** share ``1 − Σ exclusive`` (what any of them explains). The fits of every member in ``s``'s place are
+kept (:attr:`AmbiguitySet.fits`): the designed experiment (:mod:`proprio.diagnosis.discriminate`) predicts each
+hypothesis on a new motion with them.
 """
 from __future__ import annotations
 
