@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 from proprio.diagnosis.ambiguity import tied_sets
 from proprio.diagnosis.data import SimModel
-from proprio.diagnosis.discriminate import Experiment, Resolution, design_experiment, resolution, split_passes
+from proprio.diagnosis.discriminate import Experiment, Resolution, design_experiment, split_passes
 from proprio.diagnosis.selection import Attribution
 from proprio.io import atomic_write_text
 from proprio.recording import Recording
@@ -89,6 +89,3 @@ def write_resolution(path: str | Path, designed: Sequence[DesignedExperiment],
            "resolutions": [r.to_dict() for r in resolutions]}
     atomic_write_text(Path(path), json.dumps(doc, indent=1))
     return doc
-
-
-__all__ += ["resolution"]
