@@ -44,6 +44,18 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "path): replay the held-out recordings through it and through it + twin_patch.yaml, and report the "
                    "gap through the twin next to the offline prediction (needs --holdout)")
     p.add_argument("--out", required=True, type=Path, help="output directory for the report and twin_patch.yaml")
+    p.add_argument("--design-experiment", action="store_true",
+                   help="for every tied set of effects (the report's ambiguity section) design the motion that "
+                   "separates them (≤ 60 s, within the limits, collision-checked) and write it to "
+                   "OUT/experiment_<A>_vs_<B>.npz, the format of 'proprio trajectory': run it on the robot, then "
+                   "diagnose again with --experiment REC")
+    p.add_argument("--experiment", nargs="+", default=[], type=Path, metavar="REC",
+                   help="recordings of designed experiments: each is cut between its two mirrored passes (at its "
+                   "middle); the first pass joins the training recordings, the second the held-out ones")
+    p.add_argument("--resolve", metavar="TWIN",
+                   help="twin data: design the experiments (--design-experiment), run them on this twin config (the "
+                   "twin that made the data), diagnose again with the old recordings plus the new ones into "
+                   "OUT/resolved/ and say which tied sets are resolved (OUT/resolution.json)")
     add_plugin_args(p)
     p.set_defaults(func=_diagnose)
 
@@ -72,6 +84,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--out", required=True, type=Path,
                    help="directory for benchmark.txt / benchmark.json; OUT/cases/ keeps one result file per finished "
                    "case, so a rerun (after a kill) runs only the missing cases")
+    b.add_argument("--confusable", action="store_true",
+                   help="the confusable-pairs family instead (hysteresis vs Coulomb, lost motion vs hysteresis, "
+                   "sensor gain vs rigid body, payload vs rigid body): each case is diagnosed, the experiment of "
+                   "every tied set designed and recorded, and diagnosed again; prints the share right or tied before "
+                   "and top-1 after (OUT/confusable.txt, OUT/confusable.json)")
     b.add_argument("--seed", type=nonnegative_int, default=0, help="seed of the case list (default 0)")
     add_backend_args(b, "os.cpu_count() for local, the Ray cluster's CPUs for ray")
     add_plugin_args(b)
@@ -162,12 +179,20 @@ def _diagnose(args: argparse.Namespace) -> int:
         if twin.robot.name != model.robot.name or twin.robot.n != model.robot.n:
             raise UserError(f"--twin: the twin's robot is '{twin.robot.name}' ({twin.robot.n} joints), --model is "
                             f"'{model.robot.name}' ({model.robot.n} joints)")
+    resolve_twin = _resolve_twin(args.resolve, model) if args.resolve else None
     train = [load_recording(p, model.robot) for p in args.train]
     hold = [load_recording(p, model.robot) for p in args.holdout]
     try:                                           # what τ is decides the candidates: the Recordings must agree
         check_tau_kind(train + hold, list(args.train) + list(args.holdout), model.robot)
     except ValueError as exc:
         raise UserError(str(exc)) from exc
+    if args.experiment:
+        from proprio.diagnosis.resolve import with_experiments
+
+        try:
+            train, hold = with_experiments(train, hold, [load_recording(p, model.robot) for p in args.experiment])
+        except ValueError as exc:
+            raise UserError(f"--experiment: {exc}") from exc
     bar = tqdm(desc="diagnose", bar_format="{desc}: {elapsed} {postfix}")
     try:
         d = diagnose(model, train, hold, args.out, candidates=args.candidates, trim_s=args.trim,
@@ -182,7 +207,51 @@ def _diagnose(args: argparse.Namespace) -> int:
         print(d.replay.text())
     print(f"twin patch: {d.files['twin_patch']}")
     print(f"report: {d.files['report_html']}")
+    if args.design_experiment or resolve_twin is not None:
+        _experiments(args, model, d, train, hold, conditioning, resolve_twin)
     return 0
+
+
+def _resolve_twin(name: str, model):
+    """The twin config of ``--resolve`` (its robot must be the model's)."""
+    from proprio.diagrams.twin import TwinConfigError, load_twin_config
+
+    try:
+        twin = load_twin_config(name)
+    except (TwinConfigError, OSError) as exc:
+        raise UserError(f"--resolve: {exc}") from exc
+    if twin.robot.n != model.robot.n:
+        raise UserError(f"--resolve: the twin's robot has {twin.robot.n} joints, --model {model.robot.n}")
+    return twin
+
+
+def _experiments(args: argparse.Namespace, model, d, train, hold, conditioning, twin) -> None:
+    """--design-experiment / --resolve: the experiments of the tied sets, and with a twin the re-diagnosis."""
+    from proprio.diagnosis.discriminate import resolution
+    from proprio.diagnosis.report import diagnose
+    from proprio.diagnosis.resolve import design_experiments, run_on_twin, with_experiments, write_resolution
+
+    designed = design_experiments(model, d.attribution, args.out)
+    if not designed:
+        print("no tied effects: no experiment needed")
+        return
+    for de in designed:
+        print(f"experiment: {de.text()}")
+    resolutions = []
+    if twin is not None:
+        recs = run_on_twin(twin, designed)
+        if recs:
+            train2, hold2 = with_experiments(train, hold, recs, [de.experiment.split_s for de in designed
+                                                                 if de.recording is not None])
+            d2 = diagnose(model, train2, hold2, args.out / "resolved", candidates=args.candidates, trim_s=args.trim,
+                          conditioning=conditioning, plugins=args.candidate)
+            resolutions = resolution(d.attribution.ambiguity, d2.attribution.ambiguity)
+            print(f"with the experiment(s): {d2.verdict}")
+            for r in resolutions:
+                print(f"resolution: {r.text}")
+            print(f"report after the experiment(s): {d2.files['report_html']}")
+    print(f"experiments: {args.out / 'resolution.json'}")
+    write_resolution(args.out / "resolution.json", designed, resolutions)
 
 
 def _positive_float(text: str, flag: str) -> float:
@@ -201,6 +270,8 @@ def _benchmark(args: argparse.Namespace) -> int:
 
     check_output(args.out, "--out", "dir")
     check_backend_args(args)
+    if args.confusable:
+        return _confusable(args)
     if args.drive:
         from proprio.diagnosis.benchmark_drive import drive_cases
         cases = select_cases(drive_cases(quick=args.quick, seed=args.seed), args.cases)
@@ -209,5 +280,30 @@ def _benchmark(args: argparse.Namespace) -> int:
     results = run_benchmark(cases, workers=args.workers, backend=args.backend, address=args.address,
                             state_dir=clear_state(args.out / "cases", args.restart))
     _, text = write_results(results, args.out)
+    print(text)
+    return 0
+
+
+def _confusable(args: argparse.Namespace) -> int:
+    """``gap-benchmark --confusable``: the confusable-pairs family, before and after the designed experiment."""
+    import json
+    from concurrent.futures import ProcessPoolExecutor
+    from dataclasses import asdict
+
+    from proprio.diagnosis.benchmark_cases import select_cases
+    from proprio.diagnosis.benchmark_confusable import confusable_cases, run_confusable_case, summarise_confusable
+    from proprio.io import atomic_write_text
+
+    cases = select_cases(confusable_cases(seed=args.seed, magnitudes=(1.0,) if args.quick else (0.5, 1.0, 2.0),
+                                          twin=args.twin), args.cases)
+    results = []
+    with ProcessPoolExecutor(max_workers=args.workers or 1) as pool:
+        for r in pool.map(run_confusable_case, cases):          # in order; each case printed as it is done
+            results.append(r)
+            print(summarise_confusable([r])[1].splitlines()[1], flush=True)
+    scores, text = summarise_confusable(results)
+    atomic_write_text(args.out / "confusable.txt", text + "\n")
+    atomic_write_text(args.out / "confusable.json", json.dumps({"scores": scores,
+                                                                "cases": [asdict(r) for r in results]}, indent=1))
     print(text)
     return 0

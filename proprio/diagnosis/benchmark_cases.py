@@ -43,7 +43,7 @@ What is scored there is whether the diagnosis says the gap depends on time (``At
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 from scipy import signal
@@ -364,11 +364,15 @@ def _model(modelled: dict[str, dict[str, Any]], torque_noise_withheld: bool, n: 
 
 
 def generate_case_data(case: BenchmarkCase, robot: RobotDescription | None = None,
-                       omit_withheld: bool = False) -> CaseData:
+                       omit_withheld: bool = False, motions: Sequence[tuple] = (),
+                       overrides: dict[str, dict[str, Any]] | None = None) -> CaseData:
     """Training (2 recordings) and held-out (1) data of a case, and the model's effect list (module docstring).
     Twin cases (``case.twin``) go through :func:`generate_twin_case_data` (``robot`` is then ignored).
     ``omit_withheld``: the same data (motion, noise, modelled effects, seeds) without the withheld effects — what a
-    model that had them would leave (the measured floor of the shrinkage)."""
+    model that had them would leave (the measured floor of the shrinkage). ``motions``: ``(t, q, q̇, q̈, segment)``
+    of further recordings of the same robot (a designed experiment, offline only), made instead (recordings 3, 4,
+    …: own noise seeds), all returned as training recordings. ``overrides``: ``{effect: {parameter: value}}`` set
+    over the drawn parameters of a withheld effect (offline only; e.g. a hysteresis that saturates within 0.5°)."""
     if is_drive_case(case):
         from proprio.diagnosis.benchmark_drive import generate_drive_case_data
         return generate_drive_case_data(case, omit_withheld)
@@ -378,6 +382,8 @@ def generate_case_data(case: BenchmarkCase, robot: RobotDescription | None = Non
     n = robot.n
     rng = np.random.default_rng(case.seed)
     params = {k: _draw(k, n, case.magnitude, rng, case.open_joint) for k in case.withheld}
+    for k, v in (overrides or {}).items():
+        params[k] = {**params[k], **v}
     modelled = {k: _draw(k, n, 1.0, rng) for k in case.modelled}
     if omit_withheld:
         params = {k: v for k, v in params.items() if k == "torque_noise"}
@@ -393,8 +399,9 @@ def generate_case_data(case: BenchmarkCase, robot: RobotDescription | None = Non
     effects = {k: resolve_effect(k)(n, **v) for k, v in present.items()}
     model_effects, model_params = _model(modelled, "torque_noise" in params, n)
     recs = []
-    for k in range(3):
-        t, q, qd, qdd, seg = rfma_like_motion(robot, case.seed + 7919 * k, case.duration_s)
+    for k in range(3, 3 + len(motions)) if motions else range(3):
+        t, q, qd, qdd, seg = motions[k - 3] if motions else rfma_like_motion(robot, case.seed + 7919 * k,
+                                                                              case.duration_s)
         s = MotionSignals(t + _session(case, k), q, qd, qdd)          # effects see the session clock
         tau = inverse_dynamics(data_robot, q, qd, qdd)
         for name in ("viscous_coulomb", "stribeck", "friction_warmup"):
@@ -422,7 +429,7 @@ def generate_case_data(case: BenchmarkCase, robot: RobotDescription | None = Non
         recs.append(Recording(t=t, q=q_rec, tau=tau_meas, truth={"segment": seg},
                               meta={"robot": robot.name, "rate_hz": RATE_HZ, "source": "gap-benchmark (offline)",
                                     "session_time_s": _session(case, k)}))
-    return CaseData(robot, model_effects, model_params, recs[:2], recs[2:])
+    return CaseData(robot, model_effects, model_params, recs if motions else recs[:2], [] if motions else recs[2:])
 
 
 def twin_case_config(case: BenchmarkCase, omit_withheld: bool = False, recording: int = 0

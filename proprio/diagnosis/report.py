@@ -16,6 +16,7 @@ import numpy as np
 from proprio.data_quality import assess, findings_markdown
 from proprio.description import RobotDescription
 from proprio.conditioning import ConditioningConfig
+from proprio.diagnosis.ambiguity import ambiguity_markdown
 from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, DiagnosisError, SimModel, session_motion, session_time,
                                     signals_of)
 from proprio.diagnosis.localisation import (
@@ -219,6 +220,7 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
         ("Which effect: candidates ranked by held-out gain (each alone, step 1)", rank),
         ("How far it shrinks: held-out RMSE per joint [N·m] (% of signal RMS) after each added effect",
          shr + "\n\n![before/after](before_after.png)"),
+        ("Which effects could take each other's place (ambiguity)", ambiguity_markdown(att.ambiguity)),
         ("Fitted parameters (final joint fit, 95 % CI from the fit Jacobian, autocorrelation-corrected)", par),
         ("What remains unexplained", "\n".join(resid)),
         ("The twin patch", _patch_text(entries, patch_files)),
@@ -266,6 +268,7 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
                           "params": {k: {"names": nm, "value": th.tolist(), "ci95": ci.tolist()}
                                      for k, (th, ci, nm) in s.params.items()}} for s in att.steps],
                "ranking": att.ranking, "noise": [{"name": f.name, "rms": f.rms.tolist()} for f in att.noise],
+               "ambiguity": [a.to_dict() for a in att.ambiguity],
                "processing": att.processing_findings,
                "encoder_floor": att.encoder.to_dict() if att.encoder is not None else None,
                "residual_white": rs.white, "hints": [h.to_dict() for h in att.hints], "verdict": verdict,

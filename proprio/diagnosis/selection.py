@@ -181,6 +181,7 @@ class Attribution:
     hints: list[Hint] = field(default_factory=list)
     time_variation: TimeVariation | None = None
     encoder: EncoderFloor | None = None
+    ambiguity: list[Any] = field(default_factory=list)   # AmbiguitySet per named effect (diagnosis.ambiguity)
 
     @property
     def physical_steps(self) -> list[Step]:
@@ -502,10 +503,13 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
     parts = [np.stack([predict_candidates([c], fit, d) for c in selected], axis=2) if selected and len(structured)
              else None for d in (train, hold)]
     hints = find_hints(train, hold, r_tr, r_h, structured, blk, parts[0], parts[1], alpha=alpha)
+    from proprio.diagnosis.ambiguity import ambiguity_sets     # it imports this module
+    amb = ambiguity_sets(selected, [not st.processing for st in steps], cands, ranking, train, hold, w, blk,
+                         with_nuisance, structure.rmse, min_gain, say)
     return Attribution(model.robot.joint_names, steps, ranking, rmse0, sig, structure, noise,
                        [c.name for c in cands], _split(e_h, hold), _split(pred_h, hold), hold.times, proc_sigma,
                        sorted({cs.describe() for cs in hold.conditioned + train.conditioned}), data_seconds, block_s,
-                       fitted={c.name: c for c in selected}, hints=hints, time_variation=tv)
+                       fitted={c.name: c for c in selected}, hints=hints, time_variation=tv, ambiguity=amb)
 
 
 def _noise_findings(model: SimModel, structure: ResidualStructure, hold: GapData,

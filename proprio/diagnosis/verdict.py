@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from proprio.diagnosis.ambiguity import tied_sets
 from proprio.diagnosis.localisation import GapMap
 from proprio.diagnosis.selection import Attribution
 
@@ -56,6 +57,7 @@ def verdict_text(att: Attribution, gm: GapMap) -> str:
         parts.append(f"With {len(att.physical_steps)} effect(s) added the gap is {float(np.sqrt((fin ** 2).mean())):.3g} "
                      f"N·m RMS ({100 * (1 - float((fin ** 2).sum()) / float((rmse0 ** 2).sum())):.0f} % less "
                      "squared error).")
+        parts += [a.text(PLAIN) for a in tied_sets(att.ambiguity)]
     else:
         parts.append("No physical candidate shrinks the held-out gap significantly beyond what the signal "
                      "processing explains: the model explains the data as well as any of the candidates can.")
