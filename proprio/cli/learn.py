@@ -63,6 +63,8 @@ def _train(args: argparse.Namespace) -> int:
     print("\n".join(split.conditioning))
     model, result, rows = train_from_config(cfg, recs, backbone, args.out, tests, names + tnames, split=split)
     print(format_table(rows))
+    if result.fallback_line():
+        print(result.fallback_line())
     print(f"saved {args.out} (best epoch {result.best_epoch + 1} of {len(result.history)}, "
           f"{result.seconds_per_epoch:.2f} s/epoch)")
     return 0
