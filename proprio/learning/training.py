@@ -8,8 +8,8 @@ suffer); or ``inv_std`` — e_j²/σ_j, in between: on 203 min of twin data it g
 0.026 vs 0.032 N·m² for nm2 with LSTM-2-FCL (README, "Hybrid models on the twin"). The learning-rate scheduler and
 early stopping watch the validation loss; the weights of the best validation epoch are restored at the end.
 
-A hybrid never ends worse than its backbone on the validation split: τ_RBD alone (the untrained hybrid's output,
-:meth:`~proprio.learning.models.HybridModel.zero_output`) is the score to beat from the start, so when no epoch beats
+A hybrid never ends worse than its backbone on the validation split: τ_RBD alone (what
+:meth:`~proprio.learning.models.HybridModel.zero_output` makes of a hybrid) is the score to beat from the start, so when no epoch beats
 it the model falls back to the backbone exactly (``TrainResult.fallback`` = "all"); otherwise, where the network has
 a separate output row per joint, each joint whose validation MSE is not below the backbone's is zeroed (falls back
 to τ_RBD; ``fallback`` lists those joints). The validation split is part of the training data, never the test split.
