@@ -9,10 +9,11 @@ suffer); or ``inv_std`` — e_j²/σ_j, in between: on 203 min of twin data it g
 early stopping watch the validation loss; the weights of the best validation epoch are restored at the end.
 
 A hybrid never ends worse than its backbone on the validation split: τ_RBD alone (what
-:meth:`~proprio.learning.models.HybridModel.zero_output` makes of a hybrid) is the score to beat from the start, so when no epoch beats
-it the model falls back to the backbone exactly (``TrainResult.fallback`` = "all"); otherwise, where the network has
-a separate output row per joint, each joint whose validation MSE is not below the backbone's is zeroed (falls back
-to τ_RBD; ``fallback`` lists those joints). The validation split is part of the training data, never the test split.
+:meth:`~proprio.learning.models.HybridModel.zero_output` makes of a hybrid) is the score to beat from the start, so
+when no epoch beats it the model falls back to the backbone exactly (``TrainResult.fallback`` = "all"); otherwise,
+where the network has a separate output row per joint, each joint whose validation MSE is not below the backbone's
+is zeroed (falls back to τ_RBD; ``fallback`` lists those joints). The validation split is part of the training data,
+never the test split.
 
 The checkpoint (written atomically after each epoch) holds the model, optimizer, scheduler, epoch, best weights,
 history and every RNG state (torch global, the batch-order generator, CUDA), so a resumed run continues exactly where
