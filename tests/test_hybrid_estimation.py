@@ -41,6 +41,9 @@ def _model_file(tmp_path, desc, arch="lstm2_fcl"):
     cfg = ModelConfig(arch=arch, window=20, lstm_hidden=6, mlp_hidden=8, tf_d_model=8, tf_heads=2, tf_layers=1,
                       tf_ff=16, rate_hz=RATE / DATA.decimate)
     model = HybridModel(cfg)
+    with torch.no_grad():                     # as if trained: an untrained hybrid predicts τ_RBD exactly
+        for p in model.net.parameters():
+            p.copy_(0.3 * torch.randn_like(p))
     prep = prepare_recording(_recording(desc, seed=5), rbd_provider(desc), DATA)
     model.set_normalisation(prep.features, prep.tau)
     return save_model(model, tmp_path / f"{arch}.pt", {"backbone": desc.name, "data": DATA.to_dict()})

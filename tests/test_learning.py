@@ -133,6 +133,15 @@ def test_normalisation_comes_from_the_training_split_only():
 
 
 # -- models ---------------------------------------------------------------------------------------------------------
+def _as_trained(model: HybridModel) -> HybridModel:
+    """Random weights everywhere: an untrained hybrid's output is exactly τ_RBD (its last layer starts at zero),
+    which would make the checks below on the network's output trivial."""
+    with torch.no_grad():
+        for p in model.net.parameters():
+            p.copy_(0.3 * torch.randn_like(p))
+    return model
+
+
 def _small(arch: str, hybrid: bool = True, use_r: bool = True, window: int = 20) -> ModelConfig:
     return ModelConfig(arch=arch, hybrid=hybrid, use_r=use_r, window=window, mlp_hidden=8, lstm_hidden=6,
                        tf_d_model=8, tf_heads=2, tf_layers=1, tf_ff=16)
@@ -142,7 +151,7 @@ def _small(arch: str, hybrid: bool = True, use_r: bool = True, window: int = 20)
 def test_saved_and_loaded_model_predicts_identically(arch, tmp_path):
     split, _, _ = _split()
     torch.manual_seed(0)
-    model = HybridModel(_small(arch, hybrid=arch != "mlp7", use_r=arch != "lstm2"))
+    model = _as_trained(HybridModel(_small(arch, hybrid=arch != "mlp7", use_r=arch != "lstm2")))
     model.set_normalisation(split.train.features, split.train.tau)
     path = save_model(model, tmp_path / "m.pt", {"note": "test"})
     loaded, extra = load_model(path)
@@ -159,11 +168,14 @@ def test_hybrid_adds_tau_rbd_and_standalone_ignores_it():
     hyb, alone = HybridModel(_small("lstm2_fcl")), HybridModel(_small("lstm2_fcl", hybrid=False))
     assert hyb.cfg.n_inputs == 35 and alone.cfg.n_inputs == 28 and HybridModel(_small("mlp7", use_r=False)).cfg.n_inputs == 28
     torch.testing.assert_close(alone(x2), alone(x))
+    torch.testing.assert_close(hyb(x), x[..., :N_J], rtol=0, atol=0)   # an untrained residual is exactly zero
+    torch.nn.init.normal_(hyb.net.fcl.weight)                           # as after training
     assert not torch.allclose(hyb(x2) - hyb(x), torch.ones(1))   # τ_RBD also enters the network
 
 
 def test_mlp7_nets_are_independent_per_joint():
     model = HybridModel(_small("mlp7"))
+    torch.nn.init.normal_(model.net.w2)                  # the zero start would hide w1's gradients
     x = torch.randn(4, 3, 35)
     out = model(x)
     out[..., 2].sum().backward()
@@ -174,7 +186,7 @@ def test_mlp7_nets_are_independent_per_joint():
 @pytest.mark.parametrize("arch", ["lstm2", "lstm2_fcl", "transformer"])
 def test_sequence_models_are_causal(arch):
     torch.manual_seed(1)
-    model = HybridModel(_small(arch)).eval()
+    model = _as_trained(HybridModel(_small(arch))).eval()
     x = torch.randn(1, 20, 35)
     x2 = x.clone()
     x2[:, 12:] += 1.0
@@ -218,7 +230,7 @@ def test_payload_table_runs_a_transformer_windowed(tmp_path):
     models = {}
     for arch in ("lstm2_fcl", "transformer"):
         torch.manual_seed(0)
-        models[arch] = HybridModel(_small(arch))
+        models[arch] = _as_trained(HybridModel(_small(arch)))
         prep = prepare_recording(rec, _toy_backbone, cfg)
         models[arch].set_normalisation(prep.features, prep.tau)
     text = payload_table({"RBD": None, **models}, Backbone("toy", load_robot("iiwa14_identified"), _toy_backbone),
@@ -285,7 +297,7 @@ def _sequence(n: int = 200, seed: int = 0) -> np.ndarray:
 def test_streaming_system_equals_offline_model(arch):
     x = _sequence()
     torch.manual_seed(2)
-    model = HybridModel(_small(arch, hybrid=arch != "lstm2"))
+    model = _as_trained(HybridModel(_small(arch, hybrid=arch != "lstm2")))
     model.set_normalisation(x, x[:, :N_J] + np.random.default_rng(1).normal(0, 0.3, (len(x), N_J)))
     model = model.double()
     offline = predict_streaming(model, x)

@@ -60,6 +60,8 @@ def _train(args: argparse.Namespace) -> int:
     from proprio.learning.evaluation import format_table
     from proprio.experiments.hybrid import load_config, prepare_split, train_from_config
     check_output(args.out, "--out", "file")
+    if args.curve:
+        check_output(args.curve, "--curve", "file")
     torch.set_num_threads(args.threads)
     cfg = _with_device(load_config(args.config), args.device)
     recs, names = _load(args.data)
@@ -69,6 +71,11 @@ def _train(args: argparse.Namespace) -> int:
     print("\n".join(split.conditioning))
     model, result, rows = train_from_config(cfg, recs, backbone, args.out, tests, names + tnames, split=split)
     print(format_table(rows))
+    if result.fallback_line():
+        print(result.fallback_line())
+    if args.curve:
+        from proprio.plots.experiments import plot_learning_curve
+        print(f"learning curve: {plot_learning_curve(args.curve, result.history, result.backbone_val)}")
     print(f"saved {args.out} (best epoch {result.best_epoch + 1} of {len(result.history)}, "
           f"{result.seconds_per_epoch:.2f} s/epoch)")
     return 0
@@ -138,6 +145,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "train_transformer, train_demo; default train_lstm2_fcl)")
     _common(p)
     p.add_argument("--out", required=True, metavar="MODEL", help="model file to write (.pt)")
+    p.add_argument("--curve", metavar="PNG", default=None,
+                   help="also plot the learning curve (train/validation loss per epoch, the backbone's validation "
+                        "loss as a line) to this PNG")
     p.set_defaults(func=_train)
 
     p = subparsers.add_parser(

@@ -176,6 +176,7 @@ def train_from_config(cfg: TrainingConfig, train_recs: Sequence[Recording], back
         rows.append(streaming_row(model, split))
     extra = {"data": data.to_dict(), "train": asdict(tcfg), "backbone": backbone.spec,
              "history": result.history, "best_epoch": result.best_epoch,
+             "backbone_val": result.backbone_val, "fallback": result.fallback,
              "mse": {r.name: {"train": r.train.tolist(), "test": r.test.tolist()} for r in rows}}
     save_model(model, out, extra)
     ckpt.unlink(missing_ok=True)
@@ -422,9 +423,9 @@ def demo_hybrid(train_recs: Sequence[Recording], test_recs: Sequence[Recording],
     minutes of data."""
     cfg = load_config("train_demo").with_train(max_epochs=int(epochs))
     backbone = resolve_backbone(robot)
-    model, _, rows = train_from_config(cfg, train_recs, backbone, Path(out_dir) / "hybrid_lstm.pt",
+    model, result, rows = train_from_config(cfg, train_recs, backbone, Path(out_dir) / "hybrid_lstm.pt",
                                        test_recs=test_recs, progress=False)
-    text = format_table(rows)
+    text = "\n".join([format_table(rows), *filter(None, [result.fallback_line()])])
     if payload_recs:
         text += "\n\n" + payload_table({"RBD": None, model.cfg.label(): model}, backbone, payload_recs,
                                         cfg.data, contact_point)

@@ -8,6 +8,13 @@ suffer); or ``inv_std`` — e_j²/σ_j, in between: on 203 min of twin data it g
 0.026 vs 0.032 N·m² for nm2 with LSTM-2-FCL (README, "Hybrid models on the twin"). The learning-rate scheduler and
 early stopping watch the validation loss; the weights of the best validation epoch are restored at the end.
 
+A hybrid never ends worse than its backbone on the validation split: τ_RBD alone (what
+:meth:`~proprio.learning.models.HybridModel.zero_output` makes of a hybrid) is the score to beat from the start, so
+when no epoch beats it the model falls back to the backbone exactly (``TrainResult.fallback`` = "all"); otherwise,
+where the network has a separate output row per joint, each joint whose validation MSE is not below the backbone's
+is zeroed (falls back to τ_RBD; ``fallback`` lists those joints). The validation split is part of the training data,
+never the test split.
+
 The checkpoint (written atomically after each epoch) holds the model, optimizer, scheduler, epoch, best weights,
 history and every RNG state (torch global, the batch-order generator, CUDA), so a resumed run continues exactly where
 the interrupted one stopped and ends with the same weights as an uninterrupted run (on CPU, bit for bit).
@@ -67,8 +74,20 @@ class TrainConfig:
 @dataclass
 class TrainResult:
     history: list[dict[str, float]] = field(default_factory=list)   # per epoch: epoch, train, val, lr, seconds
-    best_epoch: int = -1
+    best_epoch: int = -1            # -1: no epoch beat the backbone (a hybrid) or none ran
     stopped_early: bool = False
+    backbone_val: float = float("nan")   # validation loss of τ_RBD alone (a hybrid; NaN for a standalone model)
+    fallback: str | list[int] = field(default_factory=list)   # "all" or the joints (0-based) that predict τ_RBD
+
+    def fallback_line(self) -> str:
+        """One line saying whether and where the residual fell back to its backbone (empty for no fallback)."""
+        if self.fallback == "all":
+            return (f"residual not kept: no epoch beat the backbone on the validation split (loss "
+                    f"{self.backbone_val:.4g}); the saved hybrid predicts τ_RBD exactly")
+        if self.fallback:
+            return (f"residual zeroed on joint(s) {', '.join(str(j + 1) for j in self.fallback)}: not better than the "
+                    "backbone on the validation split there; those joints predict τ_RBD exactly")
+        return ""
 
     @property
     def seconds_per_epoch(self) -> float:
@@ -93,6 +112,15 @@ def _loss(model: HybridModel, x: torch.Tensor, tau: torch.Tensor, kind: str) -> 
     err = model(x) - tau
     power = _LOSS_WEIGHT_POWER[kind]
     return ((err if power == 0 else err / model.y_std ** (0.5 * power)) ** 2).mean()
+
+
+@torch.no_grad()
+def _joint_mse(pred: Callable[[torch.Tensor], torch.Tensor], x: torch.Tensor, tau: torch.Tensor, batch: int
+               ) -> torch.Tensor:
+    """Per-joint validation MSE [N·m²] of ``pred(x)`` against ``tau``."""
+    sq = sum(((pred(x[i:i + batch]) - tau[i:i + batch]) ** 2).reshape(-1, tau.shape[-1]).sum(0)
+             for i in range(0, len(x), batch))
+    return sq / max(tau.shape[0] * tau.shape[1], 1)
 
 
 @torch.no_grad()
@@ -127,6 +155,11 @@ def train_model(model: HybridModel, split: Split, cfg: TrainConfig, checkpoint: 
     sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, patience=cfg.lr_patience, factor=cfg.lr_factor)
     gen = torch.Generator().manual_seed(cfg.seed)
     result, start, best_val, best_state, bad = TrainResult(), 0, float("inf"), None, 0
+    n, hybrid = model.cfg.n_joints, model.cfg.hybrid
+    backbone = lambda xb: xb[..., :n]  # noqa: E731  # τ_RBD, the first feature block
+    if hybrid:
+        base = _joint_mse(backbone, x_va, y_va, 4 * cfg.batch_size)
+        best_val = result.backbone_val = float((base / model.y_std ** _LOSS_WEIGHT_POWER[cfg.loss]).mean())
     fingerprint = _fingerprint(model, cfg, split)
 
     ckpt = Path(checkpoint) if checkpoint is not None else None
@@ -187,5 +220,14 @@ def train_model(model: HybridModel, split: Split, cfg: TrainConfig, checkpoint: 
     bar.close()
     if best_state is not None:
         model.load_state_dict(best_state)
+    if hybrid and best_state is None:
+        model.zero_output()
+        result.fallback = "all"
+    elif hybrid and model.per_joint_output:
+        model.eval()
+        worse = (_joint_mse(model, x_va, y_va, 4 * cfg.batch_size) >= base).nonzero().flatten().tolist()
+        if worse:
+            model.zero_output(worse)
+        result.fallback = worse
     model.to("cpu").eval()
     return result

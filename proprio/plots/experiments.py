@@ -8,7 +8,7 @@ import numpy as np
 
 from proprio.plots.figure import pyplot, save_figure
 
-__all__ = ["plot_model_grid", "plot_payload_errors"]
+__all__ = ["plot_model_grid", "plot_payload_errors", "plot_learning_curve"]
 
 
 def plot_model_grid(path: str | Path, names: Sequence[str], train_mse: np.ndarray, test_mse: np.ndarray) -> Path:
@@ -48,3 +48,22 @@ def plot_payload_errors(path: str | Path, masses: Sequence[float], rmse: Mapping
     fig.suptitle(title)
     fig.tight_layout()
     return save_figure(fig, path)
+
+
+def plot_learning_curve(path: str | Path, history: Sequence[Mapping[str, float]], backbone_val: float) -> Path:
+    """Training and validation loss per epoch (``history`` records with ``epoch``, ``train``, ``val``; the
+    config's loss, N·m² for ``nm2``), log scale, with the backbone's (τ_RBD alone) validation loss as a dashed line
+    when finite — the level a hybrid must beat to be kept."""
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(7, 4))
+    epochs = np.array([h["epoch"] for h in history]) + 1
+    ax.plot(epochs, [h["train"] for h in history], label="train")
+    ax.plot(epochs, [h["val"] for h in history], label="validation")
+    if np.isfinite(backbone_val):
+        ax.axhline(backbone_val, color="k", ls="--", lw=1, label="backbone alone (validation)")
+    ax.set_yscale("log")
+    ax.set_xlabel("epoch")
+    ax.set_ylabel("loss")
+    ax.legend()
+    fig.tight_layout()
+    return save_figure(fig, path, dpi=120)
