@@ -13,7 +13,6 @@ import os
 import subprocess
 import tempfile
 import time
-from pathlib import Path
 
 
 def _noop(i: int) -> int:

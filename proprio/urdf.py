@@ -333,7 +333,7 @@ def robot_from_urdf(path: str | Path, base_link: str | None = None, tip_link: st
 
     bodies = [base_name] + [j.child for j in chain]
     groups = [welded(b) for b in bodies]
-    data_joints, data_links = [], []
+    data_joints = []
     for k, j in enumerate(chain):
         pose_in_prev = dict(groups[k])
         if j.parent not in pose_in_prev:

@@ -255,7 +255,7 @@ def summarise(results: list[CaseResult]) -> tuple[dict[str, Any], str]:
               + (f"{pct(open_scores['time_dependence_detected'])} of {len(tested)} (wanted ≥ 80 %)" if tested
                  else "not computed (result files written before the time-variation test)" if timed else "n/a")
               + (f"; withheld effect named first: {pct(open_scores['time_varying_top1'])}" if timed else ""),
-              f"  time dependence reported on cases without any (false alarms): "
+              "  time dependence reported on cases without any (false alarms): "
               + (f"{pct(open_scores['time_dependence_on_static_cases'])} of {len(static)}" if static else "n/a")]
     if drive:
         lines.append(f"drive-torque family (no joint-torque sensor): {len(drive_single)} single-effect cases, top-1 "
