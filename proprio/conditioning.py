@@ -21,7 +21,15 @@ Steps, all vectorised over samples and joints:
    white-noise floor ``P_0`` (mean over the upper half of the band: encoder noise and quantisation) give the
    estimated error of ``q̈`` for a cutoff ``f_c``: the signal the filter's magnitude ``G`` removes,
    ``∫ (2πf)⁴ (P_q − P_0)⁺ (1 − G)²``, plus the noise it passes, ``∫ (2πf)⁴ P_0 G²``; the cutoff minimises the sum
-   (a Wiener-style trade-off) within ``[min_cutoff_hz, max_cutoff_fraction · rate]``.
+   (a Wiener-style trade-off) within ``[min_cutoff_hz, min(max_cutoff_fraction · rate, max_motion_hz)]``.
+   ``max_motion_hz`` (40 Hz) is the physical bound of a manipulator's rigid-body motion: what ``q`` holds above it
+   (drive and structure vibration, servo chatter of a 5 kHz log) is counted neither as motion to keep nor as
+   motion the filter distorts, so a fast log's cutoff and its error estimate follow the arm, not its vibrations.
+   **Decimation** (``decimate``, on in the diagnosis): when the grid rate exceeds ``oversampling ×`` the motion band
+   (the largest of the cutoffs and ``max_motion_hz``) by a factor ``M ≥ 2``, ``q``, ``τ`` (and the robot's ``q̇``)
+   are decimated by ``M`` with a zero-phase polyphase FIR anti-alias filter (``scipy.signal.resample_poly``)
+   before the low-pass: 20 s of 5 kHz become 20 s of ≈200 Hz, and an hour of logs stays tractable. White τ noise
+   of density ``P`` keeps its density: its variance drops by ``M`` (``tau_gain``).
 3. **Zero-phase low-pass, then differentiation.** A Butterworth low-pass (``order``, forward–backward with
    ``scipy.signal.sosfiltfilt``, odd padding over ``edge_cycles`` periods of the cutoff) of ``q`` (or of the robot's
    own ``q̇`` when ``velocity: measured``), then second-order central differences (``np.gradient``) for ``q̇`` and
@@ -49,7 +57,7 @@ from proprio.signals import MotionSignals
 
 __all__ = ["ConditioningConfig", "ConditionedSignals", "condition", "zero_phase_lowpass", "auto_cutoff",
            "uniform_time_base", "gap_steps", "measured_segments", "clock_stamps", "processing_torque_sigma",
-           "noise_floor_dof"]
+           "noise_floor_dof", "tau_white_level"]
 
 
 @dataclass(frozen=True)
@@ -59,9 +67,12 @@ class ConditioningConfig:
     ``cutoff_hz``: ``"auto"`` (per joint from the noise floor, module docstring), one number [Hz] or one per joint.
     ``velocity``: ``"q"`` (default) differentiates ``q`` — zero phase, whatever the robot did to its own q̇ (the LWR 4+
     files' q̇ lags by ≈3 ms, ``proprio inspect`` says so); ``"auto"`` uses the robot's own ``q̇`` when the Recording has
-    one (its ``q̈`` still comes from our filter), ``"measured"`` requires it. A Recording's ``qdd`` is
+    one and it is better — no lag, no more noise than ``d/dt q`` (``velocity_source`` says which and why; its ``q̈``
+    still comes from our filter); ``"measured"`` requires it. A Recording's ``qdd`` is
     never used: no robot measures it. ``tau_filter``: apply the same low-pass to τ (default) or leave it raw.
-    ``time_base``: ``auto``, ``stamps`` or ``clock`` (module docstring, step 1).
+    ``time_base``: ``auto``, ``stamps`` or ``clock`` (module docstring, step 1). ``max_motion_hz`` [Hz]: the
+    physical bound of the arm's motion band for the auto cutoff; ``decimate`` / ``oversampling``: decimation of a log
+    sampled far faster than its motion band (module docstring, step 2).
     """
     cutoff_hz: str | float | tuple[float, ...] = "auto"
     order: int = 2
@@ -72,6 +83,9 @@ class ConditioningConfig:
     tau_filter: bool = True
     max_gap_s: float = 0.02
     time_base: str = "auto"
+    max_motion_hz: float = 40.0
+    decimate: bool = False
+    oversampling: float = 10.0
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None, where: str = "conditioning") -> "ConditioningConfig":
@@ -95,6 +109,8 @@ class ConditioningConfig:
             raise ValueError(f"{where}.cutoff_hz: must be > 0 Hz, got {c}")
         if self.order < 1 or self.edge_cycles < 0 or self.min_cutoff_hz <= 0 or self.max_gap_s <= 0:
             raise ValueError(f"{where}: order >= 1, edge_cycles >= 0, min_cutoff_hz > 0 and max_gap_s > 0 required")
+        if not self.max_motion_hz > self.min_cutoff_hz or not self.oversampling >= 4:
+            raise ValueError(f"{where}: max_motion_hz > min_cutoff_hz and oversampling >= 4 required")
         if not 0 < self.max_cutoff_fraction < 0.5:
             raise ValueError(f"{where}.max_cutoff_fraction must be in (0, 0.5) of the sample rate")
         if self.velocity not in ("auto", "q", "measured"):
@@ -114,7 +130,8 @@ class ConditionedSignals:
     of ``sigma_q²``, :func:`noise_floor_dof`) and the estimated errors of the derivatives (``sigma_qd``,
     ``sigma_qdd [n]``), ``velocity_source``,
     ``tau_gain [n]`` (the factor by which the τ low-pass scales the variance of white noise: compare a noise level
-    with the conditioned τ through it) and ``notes`` (what was done to the time base)."""
+    with the conditioned τ through it), ``notes`` (what was done to the time base) and ``sigma_tau [n]`` N·m: the
+    white noise of the raw τ at the log's own rate and stamps, robustly (:func:`tau_white_level`)."""
     t: np.ndarray
     q: np.ndarray
     qd: np.ndarray
@@ -133,6 +150,7 @@ class ConditionedSignals:
     notes: list[str] = field(default_factory=list)
     source: Recording | None = None
     gap: np.ndarray | None = None
+    sigma_tau: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.gap is None:
@@ -150,7 +168,7 @@ class ConditionedSignals:
                                   self.rate_hz, self.cutoff_hz, self.sigma_q, self.sigma_q_dof, self.sigma_qd,
                                   self.sigma_qdd,
                                   self.velocity_source, self.auto_cutoff, self.tau_gain, list(self.notes), None,
-                                  self.gap[sl])
+                                  self.gap[sl], self.sigma_tau)
 
     def motion(self, tau: np.ndarray | None = None) -> MotionSignals:
         """The conditioned motion as the effect library's :class:`MotionSignals` (``tau`` defaults to the conditioned
@@ -329,7 +347,7 @@ def noise_floor_dof(n_samples: int) -> float:
     return float(nu * k ** 2 / r[lag].sum())
 
 
-def _spectra(q: np.ndarray, rate_hz: float, t: np.ndarray | None = None
+def _spectra(q: np.ndarray, rate_hz: float, t: np.ndarray | None = None, band_hz: float = np.inf
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Frequencies ``f [F]``, the q̈ signal spectrum ``S [F,n]`` and the q̈ noise spectrum ``N [F,n]`` [(rad/s²)²/Hz],
     and the white floor of q ``P_0 [n]`` [rad²/Hz].
@@ -338,7 +356,8 @@ def _spectra(q: np.ndarray, rate_hz: float, t: np.ndarray | None = None
     from the large low-frequency content of q does not pose as high-frequency signal), taken at the log's own time
     stamps ``t`` when given (a resampled log's interpolated stretches would hide the noise): its white-noise part has the
     known shape ``P_0 · 16 sin⁴(π f h) / h⁴``, whose level ``P_0`` is the mean over the upper half of the band;
-    signal is counted only below the floor's band and in bins at least three times the floor."""
+    signal is counted only below the floor's band, below ``band_hz`` (the motion's physical band) and in bins at least
+    three times the floor."""
     h = 1.0 / rate_hz
     d2 = _second_difference(q, rate_hz, t)
     nper = _welch_length(d2.shape[0])
@@ -353,21 +372,23 @@ def _spectra(q: np.ndarray, rate_hz: float, t: np.ndarray | None = None
     floor = np.mean(p[top] / shape[top, None], axis=0)             # the mean: unbiased for white noise
     noise = floor[None, :] * (2 * np.pi * f[:, None]) ** 4          # q̈ noise through ideal differentiation
     white = floor[None, :] * shape[:, None]
-    clear = (p > 3.0 * white) & (f[:, None] < 0.25 * rate_hz)     # chance bins of averaged noise stay below 3×
+    clear = (p > 3.0 * white) & (f[:, None] < min(0.25 * rate_hz, band_hz))   # chance bins of noise stay below 3×
     signal = np.where(clear, p - white, 0.0)                        # only bins clearly above the floor
     return f, signal, noise, floor
 
 
 def auto_cutoff(q: np.ndarray, rate_hz: float, min_hz: float = 1.0, max_fraction: float = 0.2,
-                t: np.ndarray | None = None, order: int = 2) -> tuple[np.ndarray, np.ndarray]:
+                t: np.ndarray | None = None, order: int = 2, max_motion_hz: float = 40.0
+                ) -> tuple[np.ndarray, np.ndarray]:
     """Per-joint cutoff [Hz] minimising the estimated q̈ error (module docstring, step 2) and the white noise σ of q
     [rad] implied by the floor (``σ² = P_0 · rate / 2``); ``q`` at its own stamps ``t`` [s] when given.
 
     The error of a cutoff ``f_c`` uses the zero-phase Butterworth's magnitude ``G(f) = 1 / (1 + (f/f_c)^{2·order})``:
-    ``Σ_f S(f) (1 − G(f))² + N(f) G(f)²`` over 120 log-spaced candidates in ``[min_hz, max_fraction · rate]``."""
-    f, signal, noise, floor = _spectra(q, rate_hz, t)
+    ``Σ_f S(f) (1 − G(f))² + N(f) G(f)²`` over 120 log-spaced candidates in ``[min_hz, min(max_fraction · rate,
+    max_motion_hz)]``; signal above ``max_motion_hz`` (vibration, not arm motion) is not counted."""
+    f, signal, noise, floor = _spectra(q, rate_hz, t, max_motion_hz)
     sigma_q = np.sqrt(floor * rate_hz / 2.0)
-    hi = max_fraction * rate_hz
+    hi = min(max_fraction * rate_hz, max_motion_hz)
     if hi <= min_hz:
         return np.full(q.shape[1], hi), sigma_q
     cands = np.geomspace(min_hz, hi, 120)
@@ -389,11 +410,11 @@ def _chain_gains(rate_hz: float, cutoff: float, order: int, edge_cycles: float) 
 
 
 def _lost_power(q: np.ndarray, rate_hz: float, cutoff: np.ndarray, power: int, t: np.ndarray | None = None,
-                order: int = 2) -> np.ndarray:
+                order: int = 2, band_hz: float = np.inf) -> np.ndarray:
     """RMS of the ``power``-th derivative's signal that the low-pass distorts: ``Σ S(f) (1 − G(f))²`` with the
     zero-phase Butterworth's magnitude ``G`` (the signal term of the cutoff's error model, step 2: it counts the
-    attenuation below the cutoff as well as the signal removed above it)."""
-    f, signal, _, _ = _spectra(q, rate_hz, t)
+    attenuation below the cutoff as well as the signal removed above it; only motion below ``band_hz``)."""
+    f, signal, _, _ = _spectra(q, rate_hz, t, band_hz)
     s = signal * (2 * np.pi * np.maximum(f[:, None], 1e-9)) ** (2 * power - 4)
     g = 1.0 / (1.0 + (f[:, None] / cutoff[None, :]) ** (2 * order))
     return np.sqrt(np.sum(s * (1.0 - g) ** 2, axis=0) * (f[1] - f[0]))
@@ -432,6 +453,9 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
     t_u, valid, h, notes = uniform_time_base(rec.t, config.max_gap_s)
     rate = 1.0 / h
     t_src = _time_base(rec, t_u, h, config, notes)
+    dup = rec.meta.get("duplicate_stamps")
+    if isinstance(dup, dict) and dup.get("stamps"):
+        notes.append(f"{dup['stamps']} duplicated stamps ({dup.get('samples', '?')} rows) merged at import")
     q = _resample(t_src, rec.q, t_u)
     tau = _resample(t_src, rec.tau, t_u)
     if config.velocity == "measured" and rec.qd is None:
@@ -442,13 +466,25 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
             raise RecordingError(f"recording: {q.shape[0]} samples are too few to estimate the noise floor "
                                  "(conditioning.cutoff_hz = auto needs ≥ 64); give cutoff_hz explicitly")
         cutoff, sigma_q = auto_cutoff(rec.q, rate, config.min_cutoff_hz, config.max_cutoff_fraction, t_src,
-                                      config.order)
+                                      config.order, config.max_motion_hz)
     else:
         cutoff = np.broadcast_to(np.asarray(config.cutoff_hz, dtype=float), (n,)).copy()
         sigma_q = auto_cutoff(rec.q, rate, t=t_src)[1] if q.shape[0] >= 64 else np.zeros(n)
     if np.any(cutoff >= 0.5 * rate):
         raise RecordingError(f"recording: cutoff {cutoff.max():g} Hz is not below the Nyquist frequency "
                              f"{0.5 * rate:.6g} Hz of its {rate:.6g} Hz time base")
+    lost = [_lost_power(rec.q, rate, cutoff, p, t_src, config.order, config.max_motion_hz) if q.shape[0] >= 64
+            else np.zeros(n) for p in (1, 2)]
+    qd_raw = _resample(t_src, rec.qd, t_u) if use_qd else None
+    m = _decimation(rate, cutoff, config) if q.shape[0] >= 64 else 1
+    if m > 1:
+        q, tau = _decimate(q, m), _decimate(tau, m)
+        qd_raw = _decimate(qd_raw, m) if use_qd else None
+        valid = _decimate_valid(valid, m)
+        t_u = t_u[::m][:q.shape[0]]
+        h, rate = h * m, rate / m
+        notes.append(f"decimated ×{m} to {rate:.4g} Hz (motion band ≤ {max(cutoff.max(), config.max_motion_hz):.3g}"
+                     " Hz)")
     need = int(np.ceil(3 * (config.order + 1))) + 1
     longest = int(np.ceil(rate / cutoff.min())) + 1
     if q.shape[0] < max(need, longest):
@@ -456,29 +492,82 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
                              f"of the {cutoff.min():.3g} Hz cutoff; the derivative filter needs ≥ {max(need, longest)}")
     lp = lambda x: zero_phase_lowpass(x, rate, cutoff, config.order, config.edge_cycles)  # noqa: E731
     q_f = lp(q)
-    if use_qd:
-        qd = lp(_resample(t_src, rec.qd, t_u))
-        velocity_source = "the robot's q̇ (low-passed)"
-    else:
-        qd = np.gradient(q_f, h, axis=0)
-        velocity_source = "q"
-    qdd = np.gradient(qd, h, axis=0)
     gains = np.array([_chain_gains(rate, c, config.order, config.edge_cycles) for c in cutoff])     # [n, 3]
-    lost_qd = _lost_power(rec.q, rate, cutoff, 1, t_src, config.order) if q.shape[0] >= 64 else np.zeros(n)
-    lost_qdd = _lost_power(rec.q, rate, cutoff, 2, t_src, config.order) if q.shape[0] >= 64 else np.zeros(n)
+    sigma_grid = sigma_q ** 2 / m              # white noise keeps its density: σ² ∝ rate (step 2, decimation)
+    qd = np.gradient(q_f, h, axis=0)
+    velocity_source = "q"
+    if use_qd:
+        qd_robot = lp(qd_raw)
+        better, why = (True, "") if config.velocity == "measured" else _robot_velocity_better(
+            qd_robot, qd, h, tau_white_level(rec.qd) ** 2 / m * gains[:, 0], sigma_grid * gains[:, 1])
+        if better:
+            qd, velocity_source = qd_robot, "the robot's q̇ (low-passed)" + (f"; {why}" if why else "")
+        else:
+            velocity_source = f"q ({why})"
+    qdd = np.gradient(qd, h, axis=0)
     gap = ~valid
     valid = _settled(gap, rate / float(cutoff.min()), int(np.ceil(config.edge_cycles * rate / float(cutoff.min()))),
                      notes)
-    sigma_qd = np.sqrt(sigma_q ** 2 * gains[:, 1] + lost_qd ** 2)
-    sigma_qdd = np.sqrt(sigma_q ** 2 * gains[:, 2] + lost_qdd ** 2)
+    sigma_qd = np.sqrt(sigma_grid * gains[:, 1] + lost[0] ** 2)
+    sigma_qdd = np.sqrt(sigma_grid * gains[:, 2] + lost[1] ** 2)
+    tau_gain = (gains[:, 0] if config.tau_filter else np.ones(n)) / m
     return ConditionedSignals(t=t_u, q=q_f, qd=qd, qdd=qdd, tau=lp(tau) if config.tau_filter else tau, valid=valid,
                               rate_hz=rate, cutoff_hz=cutoff, sigma_q=sigma_q,
-                              sigma_q_dof=noise_floor_dof(rec.n_samples) if q.shape[0] >= 64 else 0.0,
+                              sigma_q_dof=noise_floor_dof(rec.n_samples) if rec.n_samples >= 64 else 0.0,
                               sigma_qd=sigma_qd,
                               sigma_qdd=sigma_qdd, velocity_source=velocity_source,
                               auto_cutoff=config.cutoff_hz == "auto",
-                              tau_gain=gains[:, 0] if config.tau_filter else np.ones(n), notes=notes, source=rec,
-                              gap=gap)
+                              tau_gain=tau_gain, notes=notes, source=rec, gap=gap,
+                              sigma_tau=tau_white_level(rec.tau))
+
+
+def _robot_velocity_better(qd_robot: np.ndarray, qd_q: np.ndarray, h: float, noise_robot: np.ndarray,
+                           noise_q: np.ndarray) -> tuple[bool, str]:
+    """Whether the robot's own low-passed q̇ ``[N, n]`` rad/s is better than ``d/dt`` of the low-passed q (``velocity:
+    auto``), and why: it must not lag (the median over joints of the least-squares delay ``δ`` of
+    ``q̇_robot(t) ≈ q̇_q(t − δ) ≈ q̇_q − δ q̈_q``, within half a step ``h`` [s]) and its white noise after the filter
+    (``noise_robot [n]``, (rad/s)²) must not exceed that of the derivative (``noise_q [n]``) on average."""
+    edge = slice(len(qd_q) // 20, len(qd_q) - len(qd_q) // 20)     # away from the filter's ends
+    slope = np.gradient(qd_q, h, axis=0)[edge]
+    lag = float(np.median(np.sum((qd_q[edge] - qd_robot[edge]) * slope, axis=0)
+                          / np.maximum(np.sum(slope ** 2, axis=0), 1e-300)))
+    if abs(lag) > 0.5 * h:
+        return False, f"the robot's q̇ {'lags' if lag > 0 else 'leads'} by {1e3 * abs(lag):.2g} ms"
+    if float(np.mean(noise_robot)) > float(np.mean(noise_q)):
+        return False, "the robot's q̇ is noisier than d/dt q"
+    return True, "no lag, no more noise than d/dt q"
+
+
+def tau_white_level(tau: np.ndarray) -> np.ndarray:
+    """Per-joint σ [N·m] of the white noise of a raw τ log ``[N, n]`` at its own rate: ``1.4826 · MAD(Δ²τ) / √6``
+    (the second difference of white noise has variance ``6σ²``; the median ignores the bursts of fast motion and
+    reversals, and ``Δ²`` the smooth torque of the motion). The level a noise finding may claim for the sensor."""
+    d2 = np.diff(np.asarray(tau, dtype=float), n=2, axis=0)
+    if d2.shape[0] < 1:
+        return np.zeros(np.shape(tau)[1])
+    return 1.4826 * np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0) / np.sqrt(6.0)
+
+
+def _decimation(rate_hz: float, cutoff: np.ndarray, config: ConditioningConfig) -> int:
+    """The decimation factor ``M ≥ 1`` of a grid at ``rate_hz`` (module docstring, step 2): the largest integer with
+    ``rate / M ≥ oversampling × max(cutoffs, max_motion_hz)``; 1 unless ``config.decimate``."""
+    if not config.decimate:
+        return 1
+    band = max(float(cutoff.max()), config.max_motion_hz)
+    return max(1, int(np.floor(rate_hz / (config.oversampling * band))))
+
+
+def _decimate(x: np.ndarray, m: int) -> np.ndarray:
+    """``x [N, ...]`` decimated by ``m`` (samples ``0, m, 2m, …``) behind a zero-phase polyphase FIR anti-alias
+    filter (``scipy.signal.resample_poly``, its edges padded by a line fit)."""
+    return scipy.signal.resample_poly(np.asarray(x, dtype=float), 1, m, axis=0, padtype="line")
+
+
+def _decimate_valid(valid: np.ndarray, m: int) -> np.ndarray:
+    """The gap flags on the decimated grid: a decimated sample is valid only when every fine sample within ``m`` of it
+    is (the anti-alias filter's main lobe reaches that far)."""
+    bad = np.convolve((~valid).astype(float), np.ones(2 * m + 1), mode="same") > 0
+    return ~bad[::m]
 
 
 def _settled(gap: np.ndarray, period: float, reach: int, notes: list[str]) -> np.ndarray:

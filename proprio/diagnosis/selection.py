@@ -77,6 +77,8 @@ from proprio.recording import Recording, validate_recording
 __all__ = ["Step", "NoiseFinding", "ResidualStructure", "CrossValidation", "Attribution", "attribute"]
 
 MAX_BLOCK_S = 2.0
+WHITE_ALPHA = 0.01          # Ljung–Box level below which a residual is autocorrelated
+WHITE_R2 = 0.05             # held-out R² against the motion state above which a residual is predictable
 
 
 def _n_eff_factor(r: np.ndarray, max_lag: int = 200) -> float:
@@ -131,17 +133,45 @@ class ResidualStructure:
     residual decimated to ≥ 0.05 s spacing), held-out R² of the residual against state features, and a verdict.
     ``within_processing [n]``: the residual's non-white part (its variance less the white part estimated from
     first differences) is within 1.5× the torque error the conditioning explains, so a joint's structure is not
-    taken for an effect outside the candidate set."""
+    taken for an effect outside the candidate set. ``white_rms [n]`` N·m: the white part of the residual (from its
+    first differences)."""
     rmse: np.ndarray
     ljung_box_p: np.ndarray
     r2_state: np.ndarray
     structured_time: np.ndarray
     structured_state: np.ndarray
     within_processing: np.ndarray
+    white_rms: np.ndarray
+
+    @property
+    def white_joints(self) -> np.ndarray:
+        """``bool [n]``: joints whose residual passes *both* whiteness tests (Ljung–Box p ≥ α and held-out R² against
+        the state ≤ 0.05) — a structured residual within the processing error is not white."""
+        return (self.ljung_box_p >= WHITE_ALPHA) & (self.r2_state <= WHITE_R2)
 
     @property
     def white(self) -> bool:
-        return not (self.structured_time.any() or self.structured_state.any())
+        """Every joint's residual is white by both tests (:attr:`white_joints`)."""
+        return bool(self.white_joints.all())
+
+
+@dataclass
+class Undecided:
+    """The selection stopped while a physical candidate still lowered the held-out error by ``gain`` (≥ the minimum
+    gain) with a t statistic ``t_stat`` below the significance bound ``t_crit`` over ``n_blocks`` blocks of
+    ``block_s`` [s]: too little held-out data to decide. ``more_s`` [s]: the held-out seconds to add for the same
+    effect to reach the bound (``t`` grows as √blocks)."""
+    name: str
+    gain: float
+    t_stat: float
+    t_crit: float
+    n_blocks: int
+    block_s: float
+
+    @property
+    def more_s(self) -> float:
+        need = self.n_blocks * (self.t_crit / max(self.t_stat, 1e-9)) ** 2
+        return float(max(need - self.n_blocks, 1.0) * self.block_s)
 
 
 @dataclass
@@ -160,7 +190,9 @@ class Attribution:
     """Result of :func:`attribute`. ``fitted``: the selected candidates by name (their final parameters are the last
     step's ``params``), for :func:`proprio.diagnosis.patch.twin_patch`. ``encoder``: the data's position-noise floor
     against the model's encoder noise (:mod:`proprio.diagnosis.encoder_floor`; a data-path comparison over all the
-    recordings)."""
+    recordings). ``undecided``: the physical candidate still leading, without significance, where the selection
+    stopped (:class:`Undecided`); ``below_floor``: ``(name, gain, rms)`` of physical candidates that won a step with a
+    held-out torque (``rms`` N·m) within the processing error — not named, not filed as data path."""
     joint_names: list[str]
     steps: list[Step]
     ranking: list[dict[str, Any]]
@@ -181,6 +213,8 @@ class Attribution:
     hints: list[Hint] = field(default_factory=list)
     time_variation: TimeVariation | None = None
     encoder: EncoderFloor | None = None
+    undecided: Undecided | None = None
+    below_floor: list[tuple[str, float, float]] = field(default_factory=list)
 
     @property
     def physical_steps(self) -> list[Step]:
@@ -269,8 +303,8 @@ def _residual_structure(r_h: np.ndarray, r_tr: np.ndarray, train: GapData, hold:
         max(sum(len(s) - 1 for s in series), 1)
     structured_rms = np.sqrt(np.maximum((r_h ** 2).mean(axis=0) - white_var, 0.0))
     within = structured_rms <= 1.5 * proc_sigma
-    return ResidualStructure(np.sqrt((r_h ** 2).mean(axis=0)), lb, r2, (lb < 0.01) & ~within, (r2 > 0.05) & ~within,
-                             within)
+    return ResidualStructure(np.sqrt((r_h ** 2).mean(axis=0)), lb, r2, (lb < WHITE_ALPHA) & ~within,
+                             (r2 > WHITE_R2) & ~within, within, np.sqrt(white_var))
 
 
 def _split(x: np.ndarray, data: GapData) -> list[np.ndarray]:
@@ -434,14 +468,17 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
     n_blk = int(blk.max()) + 1
     sig = np.sqrt((hold.stack(hold.tau) ** 2).mean(axis=0))
     rmse0 = np.sqrt((e_h ** 2).mean(axis=0))
-    proc_sigma = processing_torque_sigma(model.rigid_torque, hold.conditioned)
+    proc_sigma = processing_torque_sigma(model.smooth_torque, hold.conditioned)
 
     selected: list[Candidate] = []
     fit = Fit({}, {})
     pred_h = np.zeros_like(e_h)
     steps: list[Step] = []
     ranking: list[dict[str, Any]] = []
+    below_floor: list[tuple[str, float, float]] = []
+    undecided: Undecided | None = None
     remaining = list(cands)
+    first = True
     while remaining and len(steps) < max_steps:
         r_s = e_h - pred_h
         scored = []
@@ -454,12 +491,18 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
             scored.append((c, f_c, db, g if raw > 0 else min(g, 0.0), _t_stat(db), delta))
         k_test = len(scored)
         t_crit = stats.t.ppf(1 - alpha / k_test, n_blk - 1)
-        if not steps:
-            ranking = [{"name": c.name, "gain": g, "t": t, "n_params": c.n_params, "processing": c.processing,
-                        "significant": bool(g >= min_gain and t >= t_crit)} for c, _, _, g, t, _ in scored]
+        if first:
+            first = False
+            ranking = [{"name": c.name, "gain": max(g, 0.0), "t": t, "n_params": c.n_params,
+                        "processing": c.processing, "significant": bool(g >= min_gain and t >= t_crit)}
+                       for c, _, _, g, t, _ in scored]
             ranking.sort(key=lambda x: -x["gain"])
         sig_ok = [x for x in scored if x[3] >= min_gain and x[4] >= t_crit]
         if not sig_ok:
+            lead = [x for x in scored if not x[0].processing and x[3] >= min_gain and x[4] > 0]
+            if lead:
+                best = max(lead, key=lambda x: x[3])
+                undecided = Undecided(best[0].name, best[3], best[4], float(t_crit), n_blk, block_s)
             break
         sig_ok.sort(key=lambda x: -x[3])
         best = sig_ok[0]
@@ -469,14 +512,12 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
         chosen = group[0]
         c, f_c = chosen[0], chosen[1]
         rms_delta = np.sqrt((chosen[5] ** 2).mean(axis=0))
-        if c.processing:
-            processing, reason = True, "describes the data path (filtering, derivative noise), not the robot"
-        elif np.all(rms_delta <= proc_sigma):
-            processing = True
-            reason = (f"its held-out torque (≤ {rms_delta.max():.2g} N·m RMS) stays within the error the signal "
-                      f"conditioning itself explains (σ up to {proc_sigma.max():.2g} N·m)")
-        else:
-            processing, reason = False, ""
+        if not c.processing and np.all(rms_delta <= proc_sigma):     # not named, and not data path either
+            below_floor.append((c.name, chosen[3], float(rms_delta.max())))
+            remaining = [x for x in remaining if x is not c]
+            continue
+        processing = c.processing
+        reason = "describes the data path (filtering, derivative noise), not the robot" if processing else ""
         selected.append(c)
         remaining = [x for x in remaining if x is not c]     # tied partners stay: they may still add later
         fit = fit_candidates(with_nuisance(selected), train, w, f_c.thetas, sweeps=3) \
@@ -505,20 +546,28 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
     return Attribution(model.robot.joint_names, steps, ranking, rmse0, sig, structure, noise,
                        [c.name for c in cands], _split(e_h, hold), _split(pred_h, hold), hold.times, proc_sigma,
                        sorted({cs.describe() for cs in hold.conditioned + train.conditioned}), data_seconds, block_s,
-                       fitted={c.name: c for c in selected}, hints=hints, time_variation=tv)
+                       fitted={c.name: c for c in selected}, hints=hints, time_variation=tv, undecided=undecided,
+                       below_floor=below_floor)
 
 
 def _noise_findings(model: SimModel, structure: ResidualStructure, hold: GapData,
                     r_h: np.ndarray) -> list[NoiseFinding]:
-    """Unmodelled noise: the remaining residual is white in time and state, and larger than the model's own noise
-    (variance ratio beyond the χ² 99.9 % bound of the sample variance, plus 20 % of slack)."""
+    """Unmodelled noise: the remaining residual is white by both tests (:attr:`ResidualStructure.white_joints`; a
+    structured residual is never noise, whatever its size) and larger than the model's own noise (variance ratio
+    beyond the χ² 99.9 % bound of the sample variance, plus 20 % of slack). Its level is the residual's white part
+    (first differences) less the model's noise, brought back to the log's own rate through ``tau_gain`` (a decimated
+    τ keeps its noise density, not its variance), and never above the raw τ's own white level at that rate
+    (``ConditionedSignals.sigma_tau``): a residual white on the conditioned grid but smooth in the raw log is
+    unmodelled motion, not sensor noise: it is no finding when the raw level is below half of it, and a patch adds
+    at most what a τ sample at the robot's rate has."""
     present = model.effect_names
     out = []
-    white_j = ~(structure.structured_time | structure.structured_state)
+    white_j = structure.white_joints
     if not white_j.any():
         return out
+    gain = np.mean([cs.tau_gain for cs in hold.conditioned], axis=0)
     expected = np.mean([model.noise_variance(s) * cs.tau_gain for s, cs in zip(hold.signals, hold.conditioned)],
-                       axis=0)          # through the same low-pass as the conditioned τ
+                       axis=0)          # through the same processing as the conditioned τ
     var = (r_h ** 2).mean(axis=0)
     m = len(r_h)
     bound = expected * 1.2 * stats.chi2.ppf(0.999, m) / m + 1e-12
@@ -526,6 +575,14 @@ def _noise_findings(model: SimModel, structure: ResidualStructure, hold: GapData
     if not excess.any():
         return out
     if "torque_noise" not in present and "torque_noise" in EFFECTS:
-        out.append(NoiseFinding("torque_noise", np.where(excess, np.sqrt(np.maximum(var - expected, 0.0)), 0.0),
+        level = np.sqrt(np.maximum(np.minimum(var, structure.white_rms ** 2) - expected, 0.0) / gain)
+        raw = [cs.sigma_tau for cs in hold.conditioned if cs.sigma_tau is not None]
+        if raw:
+            raw_level = np.sqrt(np.mean(np.square(raw), axis=0))
+            excess &= raw_level >= 0.5 * level          # the raw τ must carry the noise the residual shows
+            level = np.minimum(level, raw_level)
+        if not excess.any():
+            return out
+        out.append(NoiseFinding("torque_noise", np.where(excess, level, 0.0),
                                 "white residual above the model's noise level"))
     return out
