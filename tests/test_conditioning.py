@@ -4,8 +4,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from proprio.conditioning import (ConditioningConfig, auto_cutoff, clock_stamps, condition, noise_floor_dof,
-                                 processing_torque_sigma, zero_phase_lowpass)
+from proprio.conditioning import ConditioningConfig, condition, processing_torque_sigma, zero_phase_lowpass
+from proprio.cutoff import auto_cutoff, noise_floor_dof
+from proprio.time_base import clock_stamps
 from proprio.recording import Recording, RecordingError
 
 AMP = np.array([0.4, 0.3, 0.5])
