@@ -141,25 +141,3 @@ def test_diagnose_model_takes_an_identified_model_file(tmp_path):
     pred = model.predict(MotionSignals(np.arange(len(q)) / 100.0, q, qd, qdd, tau))
     np.testing.assert_allclose(pred[moving], ident.torque(q, qd, qdd)[moving], atol=1e-6 * np.abs(tau).max() + 1e-6)
     np.testing.assert_allclose(pred[moving], tau[moving], atol=0.05)       # and it is the robot that made the data
-
-
-def test_the_default_trim_is_the_filters_settling(robot):
-    """A short held-out part is not cut by a margin its filters do not need: the default trim is 3 periods of the
-    lowest cutoff (the TX40's 3 s held-out tail lost 1 s to the old fixed 0.5 s per end, too short for the test)."""
-    import dataclasses
-
-    from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING, DiagnosisError, condition_all, kept, settling_s
-
-    conditioning = dataclasses.replace(DIAGNOSIS_CONDITIONING, cutoff_hz=10.0)
-    recs = _recs(robot, [], (1, 2, 3), 12.0, 0.05)
-    hold = [recs[2].slice(0, int(3.4 * RATE))]
-    (cs,) = condition_all(hold, conditioning, "holdout")
-    assert settling_s(cs) == pytest.approx(0.3)                      # 3 periods of 10 Hz
-    k = kept(cs)
-    assert cs.t[k][0] == pytest.approx(0.3, abs=1.0 / RATE)
-    assert cs.t[-1] - cs.t[k][-1] == pytest.approx(0.3, abs=1.0 / RATE)
-    att = attribute(SimModel(robot), recs[:2], hold, candidates=["sensor_offset_gain"], conditioning=conditioning)
-    assert att.data_seconds[1] == pytest.approx(3.4 - 0.6, abs=0.02)  # 10 blocks of 0.28 s
-    with pytest.raises(DiagnosisError, match="too short"):            # the old default left 2.4 s
-        attribute(SimModel(robot), recs[:2], hold, candidates=["sensor_offset_gain"], trim_s=0.5,
-                  conditioning=conditioning)

@@ -24,14 +24,13 @@ from proprio.recording import Recording
 from proprio.signals import MotionSignals
 
 __all__ = ["DiagnosisError", "SimModel", "GapData", "signals_of", "condition_all", "kept", "session_time",
-           "session_motion", "NOISE_EFFECTS", "DIAGNOSIS_CONDITIONING", "identified_robot", "settling_s", "MAX_TRIM_S"]
+           "session_motion", "NOISE_EFFECTS", "DIAGNOSIS_CONDITIONING", "identified_robot"]
 
 
 NOISE_EFFECTS = ("torque_noise", "encoder_noise")
 MIN_BLOCKS = 10
 MIN_BLOCK_S = 0.25
 MAX_FIT_SAMPLES = 4000
-MAX_TRIM_S = 0.5
 
 
 DIAGNOSIS_CONDITIONING = ConditioningConfig(tau_filter=False, decimate=True, velocity="auto")
@@ -162,18 +161,10 @@ def signals_of(rec: Recording, config: ConditioningConfig = DIAGNOSIS_CONDITIONI
         raise DiagnosisError(str(exc)) from exc
 
 
-def settling_s(cs: ConditionedSignals, config: ConditioningConfig = DIAGNOSIS_CONDITIONING) -> float:
-    """The zero-phase low-pass's settling at a recording's ends [s]: ``edge_cycles`` periods of its lowest cutoff
-    (the reach of the filter's padding), at most :data:`MAX_TRIM_S` — the default trim of the diagnosis, so that a
-    fast arm's short held-out part is not cut by a margin its filters do not need."""
-    return float(min(MAX_TRIM_S, config.edge_cycles / float(np.min(cs.cutoff_hz))))
-
-
-def kept(cs: ConditionedSignals, trim_s: float | None = None) -> np.ndarray:
+def kept(cs: ConditionedSignals, trim_s: float) -> np.ndarray:
     """``bool [N]``: the samples of a conditioned recording the diagnosis uses — ``trim_s`` [s] of filter start-up
-    dropped at both ends (``None``: :func:`settling_s`), and none inside a gap of the log."""
-    trim = settling_s(cs) if trim_s is None else trim_s
-    return (cs.t >= cs.t[0] + trim) & (cs.t <= cs.t[-1] - trim) & cs.valid
+    dropped at both ends, and none inside a gap of the log."""
+    return (cs.t >= cs.t[0] + trim_s) & (cs.t <= cs.t[-1] - trim_s) & cs.valid
 
 
 def session_time(rec: Recording, role: str = "recording") -> float:

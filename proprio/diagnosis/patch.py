@@ -8,7 +8,7 @@ the final joint fit (the last step's ``params``): library effects as ``effects:`
 parameter error as a corrected robot description (physically consistent inertials, written as a robot YAML next
 to the patch and named by its ``robot:`` key). An unmodelled white noise adds a ``torque_noise`` block — only on
 joints whose residual passes both whiteness tests, at the level the raw τ itself carries at the robot's rate
-(:func:`proprio.diagnosis.residual.noise_findings`): a structured residual is never patched as noise. Data-path
+(:func:`proprio.diagnosis.selection.attribute`'s noise finding): a structured residual is never patched as noise. Data-path
 (processing) steps never go into a patch; the comments at the top say what was left out and why, and give each
 entry's held-out gain and fitted parameters with their 95 % CI.
 """

@@ -16,8 +16,8 @@ import numpy as np
 from proprio.data_quality import assess, findings_markdown
 from proprio.description import RobotDescription
 from proprio.conditioning import ConditioningConfig
-from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, DiagnosisError, SimModel, kept, session_motion,
-                                    session_time, signals_of)
+from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, DiagnosisError, SimModel, session_motion, session_time,
+                                    signals_of)
 from proprio.diagnosis.localisation import (
     GapMap,
     Spectra,
@@ -52,14 +52,14 @@ class Diagnosis:
     replay: ReplayGap | None = None           # the held-out gap through the twin (``diagnose(twin=...)``)
 
 
-def _localise(model: SimModel, recs: Sequence[Recording], trim_s: float | None,
+def _localise(model: SimModel, recs: Sequence[Recording], trim_s: float,
               conditioning: ConditioningConfig) -> tuple[GapMap, Spectra]:
     es, fams, taus, qs, qds = [], [], [], [], []
     rob = model.robot
     for raw in recs:
         cs = signals_of(raw, conditioning)
         rec, s = cs.as_recording(), session_motion(cs, session_time(raw))
-        keep = kept(cs, trim_s)
+        keep = (rec.t >= rec.t[0] + trim_s) & (rec.t <= rec.t[-1] - trim_s) & cs.valid
         e = (rec.tau - model.predict(s))[keep]
         fam = regime_families(s.q, s.qd, rob.lower, rob.upper, rob.velocity_limits, rec)
         fams.append([type(f)(f.name, f.names, f.labels[keep]) for f in fam])
@@ -158,7 +158,7 @@ def _md_to_html_table(md: str) -> str:
 
 def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording],
              holdout_recs: Sequence[Recording], out_dir: str | Path, candidates: Sequence[str] | None = None,
-             trim_s: float | None = None, progress: Callable[[str], None] | None = None,
+             trim_s: float = 0.5, progress: Callable[[str], None] | None = None,
              conditioning: ConditioningConfig = DIAGNOSIS_CONDITIONING, twin: TwinConfig | None = None,
              plugins: Sequence[str | type] = ()) -> Diagnosis:
     """Diagnose the torque gap of ``model`` on measured recordings and write the report to ``out_dir``.
@@ -273,8 +273,7 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
                "processing_sigma": att.processing_sigma.tolist(),
                "undecided": None if att.undecided is None else {
                    "name": att.undecided.name, "gain": att.undecided.gain, "t": att.undecided.t_stat,
-                   "t_crit": att.undecided.t_crit, "more_holdout_s": att.undecided.more_s},
-               "hints": [h.to_dict() for h in att.hints], "verdict": verdict,
+                   "t_crit": att.undecided.t_crit, "more_holdout_s": att.undecided.more_s}, "hints": [h.to_dict() for h in att.hints], "verdict": verdict,
                "time_variation": None if att.time_variation is None else {
                    "detected": att.time_variation.detected, "joints": att.time_variation.joints.tolist(),
                    "p_value": att.time_variation.p_value.tolist(), "kind": att.time_variation.kind,

@@ -102,8 +102,8 @@ def verdict_text(att: Attribution, gm: GapMap) -> str:
 def undecided_text(att: Attribution) -> str:
     """The sentence for a selection that stopped for want of held-out data (:class:`Undecided`)."""
     u = att.undecided
-    more = " whether more effects add" if att.physical_steps else ""
-    return (f"Undecided: the held-out data are too few to decide{more}. The provisional leader is {PLAIN.get(u.name, u.name)}, lowering the held-out error by "
+    return (f"Undecided: the held-out data are too few to decide{' whether more effects add' if att.physical_steps else ''}"
+            f". The provisional leader is {PLAIN.get(u.name, u.name)}, lowering the held-out error by "
             f"{100 * u.gain:.0f} % (t = {u.t_stat:.2g} over {u.n_blocks} blocks of {u.block_s:.2g} s, where "
             f"t ≥ {u.t_crit:.2g} is needed); about {u.more_s:.0f} s more held-out data of the same kind would decide.")
 
