@@ -17,11 +17,12 @@ Steps, all vectorised over samples and joints:
    samples within ``edge_cycles`` periods of the lowest cutoff — the zero-phase filters of step 3 carry the fill that
    far. Every later stage drops the invalid samples. Duplicate stamps cannot reach this point: a Recording's time is
    strictly increasing (:func:`proprio.recording.recording_from_csv` averages duplicated stamps at import).
-2. **Cutoff per joint.** From the config, or ``auto``: the Welch spectrum ``P_q(f)`` of each joint's ``q`` and its
-   white-noise floor ``P_0`` (mean over the upper half of the band: encoder noise and quantisation) give the
-   estimated error of ``q̈`` for a cutoff ``f_c``: the signal the filter's magnitude ``G`` removes,
-   ``∫ (2πf)⁴ (P_q − P_0)⁺ (1 − G)²``, plus the noise it passes, ``∫ (2πf)⁴ P_0 G²``; the cutoff minimises the sum
-   (a Wiener-style trade-off) within ``[min_cutoff_hz, max_cutoff_fraction · rate]``.
+2. **Cutoff per joint** (:mod:`proprio.cutoff`). From the config, or ``auto``: the cutoff that minimises the
+   estimated error of ``q̈`` (the signal the filter distorts plus the white floor it passes), bounded by the arm's
+   physical motion band ``max_motion_hz``. **Decimation** (``decimate``, on in the diagnosis): a grid sampled more
+   than ``oversampling ×`` faster than that band is decimated by the integer ``M`` behind a zero-phase anti-alias
+   filter, ``q``, ``τ`` and the robot's ``q̇`` alike, before the low-pass; white τ noise keeps its density, so its
+   variance drops by ``M`` (``tau_gain``).
 3. **Zero-phase low-pass, then differentiation.** A Butterworth low-pass (``order``, forward–backward with
    ``scipy.signal.sosfiltfilt``, odd padding over ``edge_cycles`` periods of the cutoff) of ``q`` (or of the robot's
    own ``q̇`` when ``velocity: measured``), then second-order central differences (``np.gradient``) for ``q̇`` and
@@ -41,15 +42,16 @@ from dataclasses import dataclass, field, fields
 from typing import Any, Sequence
 
 import numpy as np
-import scipy.interpolate
 import scipy.signal
 
+from proprio.cutoff import (auto_cutoff, decimate, decimate_valid, decimation_factor, lost_power, noise_floor_dof,
+                            spectra, tau_white_level)
 from proprio.recording import Recording, RecordingError
+from proprio.time_base import clock_stamps, resample, uniform_time_base
 from proprio.signals import MotionSignals
 
-__all__ = ["ConditioningConfig", "ConditionedSignals", "condition", "zero_phase_lowpass", "auto_cutoff",
-           "uniform_time_base", "gap_steps", "measured_segments", "clock_stamps", "processing_torque_sigma",
-           "noise_floor_dof"]
+__all__ = ["ConditioningConfig", "ConditionedSignals", "condition", "zero_phase_lowpass",
+           "processing_torque_sigma"]
 
 
 @dataclass(frozen=True)
@@ -59,9 +61,12 @@ class ConditioningConfig:
     ``cutoff_hz``: ``"auto"`` (per joint from the noise floor, module docstring), one number [Hz] or one per joint.
     ``velocity``: ``"q"`` (default) differentiates ``q`` — zero phase, whatever the robot did to its own q̇ (the LWR 4+
     files' q̇ lags by ≈3 ms, ``proprio inspect`` says so); ``"auto"`` uses the robot's own ``q̇`` when the Recording has
-    one (its ``q̈`` still comes from our filter), ``"measured"`` requires it. A Recording's ``qdd`` is
+    one and it is better — no lag, no more noise than ``d/dt q`` (``velocity_source`` says which and why; its ``q̈``
+    still comes from our filter); ``"measured"`` requires it. A Recording's ``qdd`` is
     never used: no robot measures it. ``tau_filter``: apply the same low-pass to τ (default) or leave it raw.
-    ``time_base``: ``auto``, ``stamps`` or ``clock`` (module docstring, step 1).
+    ``time_base``: ``auto``, ``stamps`` or ``clock`` (module docstring, step 1). ``max_motion_hz`` [Hz]: the
+    physical bound of the arm's motion band for the auto cutoff; ``decimate`` / ``oversampling``: decimation of a log
+    sampled far faster than its motion band (module docstring, step 2).
     """
     cutoff_hz: str | float | tuple[float, ...] = "auto"
     order: int = 2
@@ -72,6 +77,9 @@ class ConditioningConfig:
     tau_filter: bool = True
     max_gap_s: float = 0.02
     time_base: str = "auto"
+    max_motion_hz: float = 40.0
+    decimate: bool = False
+    oversampling: float = 10.0
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None, where: str = "conditioning") -> "ConditioningConfig":
@@ -95,6 +103,8 @@ class ConditioningConfig:
             raise ValueError(f"{where}.cutoff_hz: must be > 0 Hz, got {c}")
         if self.order < 1 or self.edge_cycles < 0 or self.min_cutoff_hz <= 0 or self.max_gap_s <= 0:
             raise ValueError(f"{where}: order >= 1, edge_cycles >= 0, min_cutoff_hz > 0 and max_gap_s > 0 required")
+        if not self.max_motion_hz > self.min_cutoff_hz or not self.oversampling >= 4:
+            raise ValueError(f"{where}: max_motion_hz > min_cutoff_hz and oversampling >= 4 required")
         if not 0 < self.max_cutoff_fraction < 0.5:
             raise ValueError(f"{where}.max_cutoff_fraction must be in (0, 0.5) of the sample rate")
         if self.velocity not in ("auto", "q", "measured"):
@@ -114,7 +124,8 @@ class ConditionedSignals:
     of ``sigma_q²``, :func:`noise_floor_dof`) and the estimated errors of the derivatives (``sigma_qd``,
     ``sigma_qdd [n]``), ``velocity_source``,
     ``tau_gain [n]`` (the factor by which the τ low-pass scales the variance of white noise: compare a noise level
-    with the conditioned τ through it) and ``notes`` (what was done to the time base)."""
+    with the conditioned τ through it), ``notes`` (what was done to the time base) and ``sigma_tau [n]`` N·m: the
+    white noise of the raw τ at the log's own rate and stamps, robustly (:func:`tau_white_level`)."""
     t: np.ndarray
     q: np.ndarray
     qd: np.ndarray
@@ -133,6 +144,7 @@ class ConditionedSignals:
     notes: list[str] = field(default_factory=list)
     source: Recording | None = None
     gap: np.ndarray | None = None
+    sigma_tau: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.gap is None:
@@ -150,7 +162,7 @@ class ConditionedSignals:
                                   self.rate_hz, self.cutoff_hz, self.sigma_q, self.sigma_q_dof, self.sigma_qd,
                                   self.sigma_qdd,
                                   self.velocity_source, self.auto_cutoff, self.tau_gain, list(self.notes), None,
-                                  self.gap[sl])
+                                  self.gap[sl], self.sigma_tau)
 
     def motion(self, tau: np.ndarray | None = None) -> MotionSignals:
         """The conditioned motion as the effect library's :class:`MotionSignals` (``tau`` defaults to the conditioned
@@ -167,8 +179,8 @@ class ConditionedSignals:
         if src is not None:
             t_src = src.t - src.t[0]
             if src.f_ext is not None:
-                extra["f_ext"] = _resample(t_src, src.f_ext, self.t)
-            extra["truth"] = {k: _resample(t_src, v, self.t) if np.issubdtype(v.dtype, np.floating) else v
+                extra["f_ext"] = resample(t_src, src.f_ext, self.t)
+            extra["truth"] = {k: resample(t_src, v, self.t) if np.issubdtype(v.dtype, np.floating) else v
                               for k, v in src.truth.items() if v.shape[:1] == src.t.shape}
         return Recording(t=self.t, q=self.q, tau=self.tau, qd=self.qd, qdd=self.qdd, meta=meta, **extra)
 
@@ -188,85 +200,6 @@ class ConditionedSignals:
                  f"q̇ from {self.velocity_source}, q̈ by central differences",
                  f"est. error σ(q̇) ≤ {self.sigma_qd.max():.2g} rad/s, σ(q̈) ≤ {self.sigma_qdd.max():.2g} rad/s²"]
         return "conditioning: " + "; ".join(parts)
-
-
-# ---- the time base ----------------------------------------------------------------------------------------------------
-
-def clock_stamps(t: np.ndarray, h: float) -> np.ndarray | None:
-    """The stamps ``t`` [s] moved to a regular clock of step ≈ ``h``: ``c + h' · round((t − c) / h')``; None when two
-    samples would share a tick (then the stamps cannot be receive-time jitter around that clock).
-
-    The clock's step ``h'`` and phase ``c`` are refined by least squares on the ticks over a window growing 4× at a
-    time from the first 256 samples, so that a step error of 1e-8 s cannot drift the ticks apart over a long log."""
-    t = np.asarray(t, dtype=float)
-    m = min(t.size, 256)
-    while True:
-        c = h * np.angle(np.mean(np.exp(2j * np.pi * t[:m] / h))) / (2 * np.pi)
-        h, c = np.polyfit(np.round((t[:m] - c) / h), t[:m], 1)
-        if m == t.size:
-            break
-        m = min(t.size, 4 * m)
-    ticks = np.round((t - c) / h)
-    return c + ticks * h if np.all(np.diff(ticks) >= 1) else None
-
-
-def uniform_time_base(t: np.ndarray, max_gap_s: float) -> tuple[np.ndarray, np.ndarray, float, list[str]]:
-    """The uniform grid ``t_u`` [s, from 0] at the nominal step of ``t``, the ``valid [len(t_u)]`` flags (False inside
-    steps longer than ``max_gap_s``), the step [s] and notes on what was found (jitter, gaps).
-
-    The nominal step is the mean of the steps up to 1.5× their median: robust to lost samples, and right for a log
-    whose steps alternate (the twin's "150 Hz" log of 6 and 7 ms steps has a 6.67 ms period, not a median one)."""
-    t = np.asarray(t, dtype=float) - float(t[0])
-    dt = np.diff(t)
-    h = _nominal_step(dt)
-    notes: list[str] = []
-    jitter = float(np.max(np.abs(dt - h)))
-    if jitter <= 1e-6 * h + 1e-12:
-        return t, np.ones(t.size, dtype=bool), h, notes
-    t_u = np.arange(int(np.floor(t[-1] / h + 1e-9)) + 1) * h
-    valid = np.ones(t_u.size, dtype=bool)
-    gaps = gap_steps(t, max_gap_s)
-    if gaps.size:
-        lo = np.searchsorted(t_u, t[gaps], side="right")
-        hi = np.searchsorted(t_u, t[gaps + 1], side="left")
-        mark = np.zeros(t_u.size + 1, dtype=int)
-        np.add.at(mark, lo, 1)
-        np.add.at(mark, hi, -1)
-        valid = np.cumsum(mark[:-1]) == 0
-        notes.append(f"{gaps.size} gap(s) > {1e3 * max_gap_s:.3g} ms, {int((~valid).sum())} samples flagged")
-    notes.append(f"resampled from steps {1e3 * dt.min():.3g}–{1e3 * dt.max():.3g} ms")
-    return t_u, valid, h, notes
-
-
-def _nominal_step(dt: np.ndarray) -> float:
-    return float(np.mean(dt[dt <= 1.5 * np.median(dt)]))
-
-
-def gap_steps(t: np.ndarray, max_gap_s: float) -> np.ndarray:
-    """Indices ``k`` of the steps ``t[k] → t[k+1]`` [s] that are gaps of the log (dropouts): longer than
-    ``max(max_gap_s, 1.5 × the nominal step)`` — the rule of :func:`uniform_time_base`."""
-    dt = np.diff(np.asarray(t, dtype=float))
-    if dt.size == 0:
-        return np.zeros(0, dtype=int)
-    return np.flatnonzero(dt > max(max_gap_s, 1.5 * _nominal_step(dt)))
-
-
-def measured_segments(rec: Recording, max_gap_s: float) -> list[tuple[int, int]]:
-    """``[(i0, i1), ...]``: the sample ranges ``rec.t[i0:i1]`` between the gaps of the log (:func:`gap_steps`), in
-    order; one range covering everything when there is no gap. A stage that must not bridge a gap (a replay through
-    the twin, which would otherwise move the arm through motion nobody measured) works on each range alone."""
-    cuts = gap_steps(rec.t, max_gap_s) + 1
-    bounds = np.r_[0, cuts, rec.n_samples]
-    return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
-
-
-def _resample(t: np.ndarray, x: np.ndarray, t_u: np.ndarray) -> np.ndarray:
-    """Cubic-spline interpolation of ``x [N, ...]`` from ``t`` onto ``t_u`` (both from 0), vectorised over channels.
-    Cubic, not linear: a linear segment across a long step puts kinks into q whose second difference would pose as
-    acceleration (interpolation error ``≈ h⁴/384 · |q⁗|`` instead of ``h²/8 · |q̈|``)."""
-    if t.shape == t_u.shape and np.array_equal(t, t_u):
-        return np.asarray(x, dtype=float)
-    return scipy.interpolate.make_interp_spline(t, np.asarray(x, dtype=float), k=3, axis=0)(t_u)
 
 
 # ---- filtering ----------------------------------------------------------------------------------------------------
@@ -289,91 +222,14 @@ def zero_phase_lowpass(x: np.ndarray, rate_hz: float, cutoff_hz: float | np.ndar
     return out
 
 
-def _second_difference(q: np.ndarray, rate_hz: float, t: np.ndarray | None) -> np.ndarray:
-    """``Δ²q / h²`` [rad/s²] at the samples' own stamps ``t`` (the three-point formula for unequal steps), or on the
-    uniform grid of ``rate_hz`` when ``t`` is None."""
-    if t is None:
-        return np.diff(q, n=2, axis=0) * rate_hz ** 2
-    h = np.diff(np.asarray(t, dtype=float))[:, None]
-    dq = np.diff(q, axis=0) / h
-    return 2.0 * np.diff(dq, axis=0) / (h[1:] + h[:-1])
 
 
-def _welch_length(m: int) -> int:
-    """Welch segment length of the noise-floor spectrum of ``m`` second differences: ≈ m/8, a power of two ≥ 256."""
-    return int(min(m, max(256, 2 ** int(np.floor(np.log2(max(m // 8, 2)))))))
 
 
-def noise_floor_dof(n_samples: int) -> float:
-    """Equivalent χ² degrees of freedom ``D`` of the white floor ``P_0`` (hence of ``σ_q²``) estimated from
-    ``n_samples`` samples of q (:func:`auto_cutoff`): ``D·σ̂²/σ² ~ χ²_D``, so a confidence bound of the floor follows.
-
-    Counted from the spectral estimate itself: each Welch bin (periodic Hann, 50 % overlap, ``M`` segments) has
-    ``ν = 2M / (1 + 2 Σ_k (1 − k/M) ρ_k²)`` degrees of freedom (Welch 1967; ``ρ_k`` the overlap correlation of the
-    window), and the mean over the ``K`` bins of the upper half of the band counts ``K_eff = K² / Σ_{i,l} r_{|i−l|}``
-    independent bins (``r_l`` the correlation of periodogram ordinates ``l`` bins apart, ``|Σ w² e^{−2πi l n/L}|²`` /
-    ``(Σ w²)²``); ``D = ν · K_eff`` (≈ n/2, the bound of 2 per independent frequency of the band)."""
-    m = n_samples - 2
-    if m < 4:
-        return 0.0
-    nper = _welch_length(m)
-    step = nper - nper // 2
-    segs = 1 + (m - nper) // step
-    w = scipy.signal.get_window("hann", nper)
-    lags = np.arange(1, segs)
-    rho = np.array([float(w[k * step:] @ w[:nper - k * step]) for k in lags if k * step < nper]) / float(w @ w)
-    nu = 2.0 * segs / (1.0 + 2.0 * float(np.sum((1.0 - lags[:rho.size] / segs) * rho ** 2)))
-    r = np.abs(np.fft.fft(w ** 2)) ** 2 / float(w @ w) ** 2          # r_l at l = 0 .. nper-1 (r_0 = 1)
-    k = int(np.sum(np.fft.rfftfreq(nper) >= 0.25))                  # bins f ≥ rate/4, as in _spectra
-    lag = np.abs(np.arange(k)[:, None] - np.arange(k)[None, :])
-    return float(nu * k ** 2 / r[lag].sum())
 
 
-def _spectra(q: np.ndarray, rate_hz: float, t: np.ndarray | None = None
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Frequencies ``f [F]``, the q̈ signal spectrum ``S [F,n]`` and the q̈ noise spectrum ``N [F,n]`` [(rad/s²)²/Hz],
-    and the white floor of q ``P_0 [n]`` [rad²/Hz].
-
-    Estimated from the Welch spectrum of the raw second difference ``Δ²q / h²`` (pre-whitened, so the window's leakage
-    from the large low-frequency content of q does not pose as high-frequency signal), taken at the log's own time
-    stamps ``t`` when given (a resampled log's interpolated stretches would hide the noise): its white-noise part has the
-    known shape ``P_0 · 16 sin⁴(π f h) / h⁴``, whose level ``P_0`` is the mean over the upper half of the band;
-    signal is counted only below the floor's band and in bins at least three times the floor."""
-    h = 1.0 / rate_hz
-    d2 = _second_difference(q, rate_hz, t)
-    nper = _welch_length(d2.shape[0])
-    f, p = scipy.signal.welch(d2, fs=rate_hz, nperseg=nper, detrend="constant", axis=0)
-    if t is None:
-        shape = 16.0 * np.sin(np.pi * f * h) ** 4 / h ** 4                 # |Δ²/h²|² at f
-    else:   # unequal steps colour the noise: its shape from unit white noise at the same stamps (fixed seed)
-        unit = np.random.default_rng(0).standard_normal((q.shape[0], 16))
-        shape = scipy.signal.welch(_second_difference(unit, rate_hz, t), fs=rate_hz, nperseg=nper,
-                                   detrend="constant", axis=0)[1].mean(axis=1) / (2.0 / rate_hz)
-    top = f >= 0.25 * rate_hz
-    floor = np.mean(p[top] / shape[top, None], axis=0)             # the mean: unbiased for white noise
-    noise = floor[None, :] * (2 * np.pi * f[:, None]) ** 4          # q̈ noise through ideal differentiation
-    white = floor[None, :] * shape[:, None]
-    clear = (p > 3.0 * white) & (f[:, None] < 0.25 * rate_hz)     # chance bins of averaged noise stay below 3×
-    signal = np.where(clear, p - white, 0.0)                        # only bins clearly above the floor
-    return f, signal, noise, floor
 
 
-def auto_cutoff(q: np.ndarray, rate_hz: float, min_hz: float = 1.0, max_fraction: float = 0.2,
-                t: np.ndarray | None = None, order: int = 2) -> tuple[np.ndarray, np.ndarray]:
-    """Per-joint cutoff [Hz] minimising the estimated q̈ error (module docstring, step 2) and the white noise σ of q
-    [rad] implied by the floor (``σ² = P_0 · rate / 2``); ``q`` at its own stamps ``t`` [s] when given.
-
-    The error of a cutoff ``f_c`` uses the zero-phase Butterworth's magnitude ``G(f) = 1 / (1 + (f/f_c)^{2·order})``:
-    ``Σ_f S(f) (1 − G(f))² + N(f) G(f)²`` over 120 log-spaced candidates in ``[min_hz, max_fraction · rate]``."""
-    f, signal, noise, floor = _spectra(q, rate_hz, t)
-    sigma_q = np.sqrt(floor * rate_hz / 2.0)
-    hi = max_fraction * rate_hz
-    if hi <= min_hz:
-        return np.full(q.shape[1], hi), sigma_q
-    cands = np.geomspace(min_hz, hi, 120)
-    g = 1.0 / (1.0 + (f[None, :] / cands[:, None]) ** (2 * order))            # [C, F]
-    err = ((1.0 - g) ** 2) @ signal + (g ** 2) @ noise                         # [C, n]
-    return cands[np.argmin(err, axis=0)], sigma_q
 
 
 def _chain_gains(rate_hz: float, cutoff: float, order: int, edge_cycles: float) -> tuple[float, float, float]:
@@ -388,15 +244,6 @@ def _chain_gains(rate_hz: float, cutoff: float, order: int, edge_cycles: float) 
     return float((lp ** 2).sum()), float((d1 ** 2).sum()), float((d2 ** 2).sum())
 
 
-def _lost_power(q: np.ndarray, rate_hz: float, cutoff: np.ndarray, power: int, t: np.ndarray | None = None,
-                order: int = 2) -> np.ndarray:
-    """RMS of the ``power``-th derivative's signal that the low-pass distorts: ``Σ S(f) (1 − G(f))²`` with the
-    zero-phase Butterworth's magnitude ``G`` (the signal term of the cutoff's error model, step 2: it counts the
-    attenuation below the cutoff as well as the signal removed above it)."""
-    f, signal, _, _ = _spectra(q, rate_hz, t)
-    s = signal * (2 * np.pi * np.maximum(f[:, None], 1e-9)) ** (2 * power - 4)
-    g = 1.0 / (1.0 + (f[:, None] / cutoff[None, :]) ** (2 * order))
-    return np.sqrt(np.sum(s * (1.0 - g) ** 2, axis=0) * (f[1] - f[0]))
 
 
 # ---- the path ----------------------------------------------------------------------------------------------------
@@ -414,8 +261,8 @@ def _time_base(rec: Recording, t_u: np.ndarray, h: float, config: ConditioningCo
                                  f"tick of the {1e3 * h:.4g} ms clock; use 'stamps'")
         return t
     if config.time_base == "auto" and rec.n_samples >= 64:
-        floor_stamps = _spectra(rec.q, 1.0 / h, t)[3]
-        floor_clock = _spectra(rec.q, 1.0 / h, clock)[3]
+        floor_stamps = spectra(rec.q, 1.0 / h, t)[3]
+        floor_clock = spectra(rec.q, 1.0 / h, clock)[3]
         if not np.sum(floor_clock) < 0.8 * np.sum(floor_stamps):
             return t
     elif config.time_base == "auto":
@@ -432,8 +279,11 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
     t_u, valid, h, notes = uniform_time_base(rec.t, config.max_gap_s)
     rate = 1.0 / h
     t_src = _time_base(rec, t_u, h, config, notes)
-    q = _resample(t_src, rec.q, t_u)
-    tau = _resample(t_src, rec.tau, t_u)
+    dup = rec.meta.get("duplicate_stamps")
+    if isinstance(dup, dict) and dup.get("stamps"):
+        notes.append(f"{dup['stamps']} duplicated stamps ({dup.get('samples', '?')} rows) merged at import")
+    q = resample(t_src, rec.q, t_u)
+    tau = resample(t_src, rec.tau, t_u)
     if config.velocity == "measured" and rec.qd is None:
         raise RecordingError("recording: conditioning.velocity = 'measured' but the Recording has no 'qd' channel")
     use_qd = rec.qd is not None and config.velocity in ("auto", "measured")
@@ -442,13 +292,26 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
             raise RecordingError(f"recording: {q.shape[0]} samples are too few to estimate the noise floor "
                                  "(conditioning.cutoff_hz = auto needs ≥ 64); give cutoff_hz explicitly")
         cutoff, sigma_q = auto_cutoff(rec.q, rate, config.min_cutoff_hz, config.max_cutoff_fraction, t_src,
-                                      config.order)
+                                      config.order, config.max_motion_hz)
     else:
         cutoff = np.broadcast_to(np.asarray(config.cutoff_hz, dtype=float), (n,)).copy()
         sigma_q = auto_cutoff(rec.q, rate, t=t_src)[1] if q.shape[0] >= 64 else np.zeros(n)
     if np.any(cutoff >= 0.5 * rate):
         raise RecordingError(f"recording: cutoff {cutoff.max():g} Hz is not below the Nyquist frequency "
                              f"{0.5 * rate:.6g} Hz of its {rate:.6g} Hz time base")
+    lost = [lost_power(rec.q, rate, cutoff, p, t_src, config.order, config.max_motion_hz) if q.shape[0] >= 64
+            else np.zeros(n) for p in (1, 2)]
+    qd_raw = resample(t_src, rec.qd, t_u) if use_qd else None
+    m = decimation_factor(rate, cutoff, config.max_motion_hz, config.oversampling) \
+        if config.decimate and q.shape[0] >= 64 else 1
+    if m > 1:
+        q, tau = decimate(q, m), decimate(tau, m)
+        qd_raw = decimate(qd_raw, m) if use_qd else None
+        valid = decimate_valid(valid, m)
+        t_u = t_u[::m][:q.shape[0]]
+        h, rate = h * m, rate / m
+        notes.append(f"decimated ×{m} to {rate:.4g} Hz (motion band ≤ {max(cutoff.max(), config.max_motion_hz):.3g}"
+                     " Hz)")
     need = int(np.ceil(3 * (config.order + 1))) + 1
     longest = int(np.ceil(rate / cutoff.min())) + 1
     if q.shape[0] < max(need, longest):
@@ -456,29 +319,58 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
                              f"of the {cutoff.min():.3g} Hz cutoff; the derivative filter needs ≥ {max(need, longest)}")
     lp = lambda x: zero_phase_lowpass(x, rate, cutoff, config.order, config.edge_cycles)  # noqa: E731
     q_f = lp(q)
-    if use_qd:
-        qd = lp(_resample(t_src, rec.qd, t_u))
-        velocity_source = "the robot's q̇ (low-passed)"
-    else:
-        qd = np.gradient(q_f, h, axis=0)
-        velocity_source = "q"
-    qdd = np.gradient(qd, h, axis=0)
     gains = np.array([_chain_gains(rate, c, config.order, config.edge_cycles) for c in cutoff])     # [n, 3]
-    lost_qd = _lost_power(rec.q, rate, cutoff, 1, t_src, config.order) if q.shape[0] >= 64 else np.zeros(n)
-    lost_qdd = _lost_power(rec.q, rate, cutoff, 2, t_src, config.order) if q.shape[0] >= 64 else np.zeros(n)
+    sigma_grid = sigma_q ** 2 / m              # white noise keeps its density: σ² ∝ rate (step 2, decimation)
+    qd = np.gradient(q_f, h, axis=0)
+    velocity_source = "q"
+    if use_qd:
+        qd_robot = lp(qd_raw)
+        better, why = (True, "") if config.velocity == "measured" else _robot_velocity_better(
+            qd_robot, qd, h, tau_white_level(rec.qd) ** 2 / m * gains[:, 0], sigma_grid * gains[:, 1])
+        if better:
+            qd, velocity_source = qd_robot, "the robot's q̇ (low-passed)" + (f"; {why}" if why else "")
+        else:
+            velocity_source = f"q ({why})"
+    qdd = np.gradient(qd, h, axis=0)
     gap = ~valid
     valid = _settled(gap, rate / float(cutoff.min()), int(np.ceil(config.edge_cycles * rate / float(cutoff.min()))),
                      notes)
-    sigma_qd = np.sqrt(sigma_q ** 2 * gains[:, 1] + lost_qd ** 2)
-    sigma_qdd = np.sqrt(sigma_q ** 2 * gains[:, 2] + lost_qdd ** 2)
+    sigma_qd = np.sqrt(sigma_grid * gains[:, 1] + lost[0] ** 2)
+    sigma_qdd = np.sqrt(sigma_grid * gains[:, 2] + lost[1] ** 2)
+    tau_gain = (gains[:, 0] if config.tau_filter else np.ones(n)) / m
     return ConditionedSignals(t=t_u, q=q_f, qd=qd, qdd=qdd, tau=lp(tau) if config.tau_filter else tau, valid=valid,
                               rate_hz=rate, cutoff_hz=cutoff, sigma_q=sigma_q,
-                              sigma_q_dof=noise_floor_dof(rec.n_samples) if q.shape[0] >= 64 else 0.0,
+                              sigma_q_dof=noise_floor_dof(rec.n_samples) if rec.n_samples >= 64 else 0.0,
                               sigma_qd=sigma_qd,
                               sigma_qdd=sigma_qdd, velocity_source=velocity_source,
                               auto_cutoff=config.cutoff_hz == "auto",
-                              tau_gain=gains[:, 0] if config.tau_filter else np.ones(n), notes=notes, source=rec,
-                              gap=gap)
+                              tau_gain=tau_gain, notes=notes, source=rec, gap=gap,
+                              sigma_tau=tau_white_level(rec.tau))
+
+
+def _robot_velocity_better(qd_robot: np.ndarray, qd_q: np.ndarray, h: float, noise_robot: np.ndarray,
+                           noise_q: np.ndarray) -> tuple[bool, str]:
+    """Whether the robot's own low-passed q̇ ``[N, n]`` rad/s is better than ``d/dt`` of the low-passed q (``velocity:
+    auto``), and why: it must not lag (the median over joints of the least-squares delay ``δ`` of
+    ``q̇_robot(t) ≈ q̇_q(t − δ) ≈ q̇_q − δ q̈_q``, within half a step ``h`` [s]) and its white noise after the filter
+    (``noise_robot [n]``, (rad/s)²) must not exceed that of the derivative (``noise_q [n]``) on average."""
+    edge = slice(len(qd_q) // 20, len(qd_q) - len(qd_q) // 20)     # away from the filter's ends
+    slope = np.gradient(qd_q, h, axis=0)[edge]
+    lag = float(np.median(np.sum((qd_q[edge] - qd_robot[edge]) * slope, axis=0)
+                          / np.maximum(np.sum(slope ** 2, axis=0), 1e-300)))
+    if abs(lag) > 0.5 * h:
+        return False, f"the robot's q̇ {'lags' if lag > 0 else 'leads'} by {1e3 * abs(lag):.2g} ms"
+    if float(np.mean(noise_robot)) > float(np.mean(noise_q)):
+        return False, "the robot's q̇ is noisier than d/dt q"
+    return True, "no lag, no more noise than d/dt q"
+
+
+
+
+
+
+
+
 
 
 def _settled(gap: np.ndarray, period: float, reach: int, notes: list[str]) -> np.ndarray:

@@ -4,8 +4,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from proprio.conditioning import (ConditioningConfig, auto_cutoff, clock_stamps, condition, noise_floor_dof,
-                                 processing_torque_sigma, zero_phase_lowpass)
+from proprio.conditioning import ConditioningConfig, condition, processing_torque_sigma, zero_phase_lowpass
+from proprio.cutoff import auto_cutoff, noise_floor_dof
+from proprio.time_base import clock_stamps
 from proprio.recording import Recording, RecordingError
 
 AMP = np.array([0.4, 0.3, 0.5])
@@ -158,3 +159,84 @@ def test_receive_time_jitter_is_put_back_on_the_clock_and_irregular_sampling_is_
     with pytest.raises(RecordingError, match="same tick"):
         condition(Recording(t=np.cumsum(np.tile([1e-3, 0.2e-3, 1.8e-3], 100)), q=np.zeros((300, 1)),
                             tau=np.zeros((300, 1))), ConditioningConfig(time_base="clock", cutoff_hz=20.0))
+
+
+def _fast_log(rate: float, seconds: float, seed: int = 0) -> tuple[np.ndarray, Recording]:
+    """A drive log at ``rate``: the slow motion of :func:`_motion` plus a 2e-6 rad structural vibration of q at 180 Hz
+    (what a 5 kHz motor encoder sees; below Nyquist at 0.4 × the rate), encoder noise, and τ = 2 q + white noise of
+    0.05 N·m."""
+    t = np.arange(int(rate * seconds)) / rate
+    rng = np.random.default_rng(seed)
+    q, _, _ = _motion(t)
+    f_vib = min(180.0, 0.4 * rate)
+    q_meas = q + 2e-6 * np.sin(2 * np.pi * f_vib * t)[:, None] + rng.normal(0.0, 1e-6, q.shape)
+    return t, Recording(t=t, q=q_meas, tau=2.0 * q + rng.normal(0.0, 0.05, q.shape))
+
+
+@pytest.mark.parametrize("rate", [100.0, 200.0, 1000.0, 5000.0])
+def test_auto_cutoff_follows_the_arm_not_its_vibration_at_every_rate(rate):
+    t, rec = _fast_log(rate, 12.0)
+    cs = condition(rec, ConditioningConfig(tau_filter=False))
+    assert np.all(cs.cutoff_hz <= 40.0) and np.all(cs.cutoff_hz >= 1.0)
+    _, _, qdd = _motion(cs.t)
+    inner = (cs.t > 1.0) & (cs.t < cs.t[-1] - 1.0)
+    err = np.sqrt(np.mean((cs.qdd - qdd)[inner] ** 2, axis=0))
+    assert np.all(err < 0.02 * np.sqrt(np.mean(qdd ** 2, axis=0)))      # q̈ within 2 % of its RMS
+    assert np.all(cs.sigma_qdd < 0.1)                                   # and its error estimate is no alarm
+
+
+def test_a_fast_log_is_decimated_to_its_motion_band_with_the_noise_density_kept():
+    t, rec = _fast_log(5000.0, 12.0)
+    full = condition(rec, ConditioningConfig(tau_filter=False))
+    dec = condition(rec, ConditioningConfig(tau_filter=False, decimate=True))
+    assert full.rate_hz == pytest.approx(5000.0) and dec.rate_hz == pytest.approx(5000.0 / 12)
+    assert any("decimated ×12" in n for n in dec.notes)
+    _, _, qdd = _motion(dec.t)
+    inner = (dec.t > 1.0) & (dec.t < dec.t[-1] - 1.0)
+    assert np.all(np.sqrt(np.mean((dec.qdd - qdd)[inner] ** 2, axis=0)) < 0.02 * np.sqrt(np.mean(qdd ** 2, axis=0)))
+    # τ's white noise keeps its density: variance / 12 on the 417 Hz grid, and tau_gain says so
+    noise = (dec.tau - 2.0 * _motion(dec.t)[0])[inner]
+    np.testing.assert_allclose(dec.tau_gain, 1 / 12)
+    np.testing.assert_allclose(noise.std(axis=0), 0.05 * np.sqrt(dec.tau_gain), rtol=0.15)
+    np.testing.assert_allclose(dec.sigma_tau, 0.05, rtol=0.1)          # the raw τ's own white level
+
+
+def test_decimation_keeps_the_gaps_flagged():
+    t, rec = _fast_log(1000.0, 12.0)
+    keep = (t < 5.0) | (t > 5.2)                                       # a 200 ms dropout
+    rec = Recording(t=t[keep], q=rec.q[keep], tau=rec.tau[keep])
+    cs = condition(rec, ConditioningConfig(tau_filter=False, decimate=True))
+    assert cs.rate_hz == pytest.approx(500.0)
+    inside = (cs.t > 5.0) & (cs.t < 5.2)
+    assert inside.any() and not cs.valid[inside].any()
+    assert cs.valid[(cs.t < 4.8) | (cs.t > 5.4)].all()                    # beyond the filters' reach (0.15 s)
+
+
+def test_the_processing_floor_ignores_the_models_own_coulomb_jump():
+    from dataclasses import replace
+
+    from proprio.description import load_robot
+    from proprio.diagnosis.data import SimModel
+
+    robot = load_robot("iiwa14_nominal")
+    t = np.arange(1000) / 100.0
+    q = 0.3 * np.sin(2 * np.pi * 0.5 * t)[:, None] * np.ones(robot.n)
+    cs = condition(Recording(t=t, q=q + np.random.default_rng(0).normal(0, 1e-4, q.shape),
+                             tau=np.zeros_like(q)), ConditioningConfig(tau_filter=False))
+    plain = SimModel(robot)
+    coulomb = SimModel(replace(robot, friction_viscous=(0.0,) * robot.n, friction_coulomb=(13.0,) * robot.n))
+    a = processing_torque_sigma(plain.smooth_torque, [cs])
+    b = processing_torque_sigma(coulomb.smooth_torque, [cs])
+    np.testing.assert_allclose(a, b)
+    assert np.all(b < 1.0)              # a q̇ error flipping sign(q̇) would add up to 2 × 13 N·m near reversals
+
+
+def test_auto_velocity_takes_the_robots_qd_only_when_it_does_not_lag():
+    t = np.arange(0.0, 12.0, 5e-3)
+    q, qd, _ = _motion(t)
+    q_meas = q + np.random.default_rng(2).normal(0.0, 1e-4, q.shape)          # a coarse encoder: d/dt q is noisy
+    good = condition(Recording(t=t, q=q_meas, tau=q, qd=qd), ConditioningConfig(velocity="auto"))
+    assert good.velocity_source.startswith("the robot's q̇")
+    lagged = np.vstack([qd[:1]] * 3 + [qd[:-3]])                            # the robot's filter: 15 ms late
+    late = condition(Recording(t=t, q=q_meas, tau=q, qd=lagged), ConditioningConfig(velocity="auto"))
+    assert late.velocity_source.startswith("q (the robot's q̇ lags by 15 ms")

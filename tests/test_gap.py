@@ -93,7 +93,15 @@ def test_coulomb_friction_is_found_and_recovered(robot, tmp_path):
     # only the noise and the error of derivatives from encoder q (the diagnosis' own estimate) are left ...
     # (the processing σ is an estimate good to about a factor 2: test_conditioning measures it against truth)
     assert np.all(after < 1.5 * np.sqrt(NOISE ** 2 + (2 * att.processing_sigma) ** 2))
-    assert att.residual.white                                  # ... and it is white
+    # ... so what remains is white, or structured only within that error: at 100 Hz the q̈ error through joint 2's
+    # inertia is autocorrelated (Ljung–Box p ≈ 0.01; residual with the true derivatives: white noise), and such a joint
+    # is neither called white noise nor taken for an effect
+    rs = att.residual
+    assert not (rs.structured_time.any() or rs.structured_state.any())
+    assert np.all(rs.white_joints | rs.within_processing)
+    if not rs.white:
+        assert "What remains is white" not in d.verdict and "is not white" in d.verdict
+    assert not any(np.any(f.rms[~rs.white_joints] > 0) for f in att.noise)
     for key in ("report_md", "report_html", "gap_map_png", "before_after_png"):
         assert d.files[key].exists() and d.files[key].stat().st_size > 0
     assert "viscous + Coulomb friction" in d.verdict

@@ -18,8 +18,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "recordings, score each by the reduction of the residual on the held-out recordings, add the best while "
         "the gain is significant, and write report.html / report.md to --out.")
     p.add_argument("--model", required=True,
-                   help="simulation model: a built-in robot name (iiwa14_nominal, ...), a robot YAML/URDF, or a "
-                   "directory with robot.yaml (e.g. ../shared/data/kuka_lwr4)")
+                   help="simulation model: a built-in robot name (iiwa14_nominal, ...), a robot YAML/URDF, a "
+                   "directory with robot.yaml (e.g. ../shared/data/kuka_lwr4), or an identified model .npz written "
+                   "by `proprio identify` (its inertials, friction and offsets)")
     add_chain_args(p)
     p.add_argument("--effects", nargs="*", default=[], metavar="EFFECT",
                    help="effects the simulation already has: library names or your own effects as "
@@ -114,17 +115,19 @@ def _effects_config(path: Path, n: int) -> dict:
 
 
 def _model(args: argparse.Namespace):
-    from proprio.diagnosis.data import SimModel
+    from proprio.diagnosis.data import SimModel, identified_robot
     from proprio.effects import make_effects
 
+    config: dict = {}
     try:
-        robot = load_robot_arg(args.model, args)
+        robot, identified = identified_robot(args.model) if str(args.model).endswith(".npz") else \
+            (load_robot_arg(args.model, args), {})
     except (FileNotFoundError, KeyError, ValueError) as exc:
         raise UserError(f"--model: cannot load robot {args.model!r} ({exc})") from exc
-    config = {}
     if args.effects_config:
         config = _effects_config(args.effects_config, robot.n)
     chosen = {k: config.get(k) for k in args.effects}
+    chosen.update({k: v for k, v in identified.items() if k not in chosen})     # the identified offsets
     if robot.has_friction and "viscous_coulomb" in chosen:
         raise UserError(f"friction given twice: the robot file of --model {args.model!r} already has link friction "
                         "(friction.viscous / friction.coulomb) and --effects names viscous_coulomb; drop one")

@@ -15,7 +15,7 @@ The checks and their thresholds (:class:`QualityThresholds`, units stated there)
     ``jitter_warn_fraction`` (1 %) of the steps are that long or a step is shorter than half the median.
 ``gap`` (t)
     Steps longer than ``max(conditioning.max_gap_s, 1.5 × median)`` — the same rule by which
-    :func:`proprio.conditioning.uniform_time_base` flags samples invalid, so the finding says what conditioning
+    :func:`proprio.time_base.uniform_time_base` flags samples invalid, so the finding says what conditioning
     drops: count, missing time and where. *warning*; *problem* when more than ``gap_problem_fraction`` (10 %) of
     the duration is missing.
 ``duplicates`` (t)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
@@ -24,7 +25,7 @@ from proprio.recording import Recording
 from proprio.signals import MotionSignals
 
 __all__ = ["DiagnosisError", "SimModel", "GapData", "signals_of", "condition_all", "kept", "session_time",
-           "session_motion", "NOISE_EFFECTS", "DIAGNOSIS_CONDITIONING"]
+           "session_motion", "NOISE_EFFECTS", "DIAGNOSIS_CONDITIONING", "identified_robot"]
 
 
 NOISE_EFFECTS = ("torque_noise", "encoder_noise")
@@ -33,9 +34,12 @@ MIN_BLOCK_S = 0.25
 MAX_FIT_SAMPLES = 4000
 
 
-DIAGNOSIS_CONDITIONING = ConditioningConfig(tau_filter=False)
+DIAGNOSIS_CONDITIONING = ConditioningConfig(tau_filter=False, decimate=True, velocity="auto")
 """The diagnosis conditions the motion (q̇, q̈ for the rigid body) but compares the raw τ_J: its effect candidates
-(ripple, noise, hysteresis steps) model τ's whole band, and a zero-phase filter would only hide it."""
+(ripple, noise, hysteresis steps) model τ's whole band, and a zero-phase filter would only hide it. A log sampled far
+faster than the arm moves (1–5 kHz) is decimated to ≈10× its motion band first (anti-aliased, zero phase:
+:mod:`proprio.conditioning`), which keeps every candidate's band and makes long logs tractable. The robot's own q̇
+is used where it logs one that is better than d/dt q (no lag, no more noise); the conditioning line says which."""
 
 
 class DiagnosisError(ValueError):
@@ -115,6 +119,16 @@ class SimModel:
         friction = self.robot_friction
         return tau if friction is None else tau + friction.friction(qd)
 
+    def smooth_torque(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """Rigid body + the description's viscous friction [N·m]: the smooth part of the model, through which the
+        conditioning's derivative errors propagate (the processing floor). The Coulomb term ``F_c sign(q̇)`` is left
+        out: its jump at a reversal is the model's own discontinuity, and a q̇ error flipping it would inflate the
+        floor by ``2 F_c`` where the conditioning is not at fault."""
+        tau = inverse_dynamics(self.robot, q, qd, qdd)
+        if self.robot.has_friction:
+            tau = tau + np.asarray(self.robot.friction_viscous) * qd
+        return tau
+
     def noise_variance(self, s: MotionSignals, seed: int = 0) -> np.ndarray:
         """Variance per joint [(N·m)²] of the torque the model's noise effects add (0 without noise effects)."""
         var = np.zeros(self.robot.n)
@@ -123,6 +137,24 @@ class SimModel:
             if eff.name == "torque_noise":
                 var += np.var(eff.torque(s, rng=rng), axis=0)
         return var
+
+
+def identified_robot(path: str | Path) -> tuple[RobotDescription, dict[str, dict[str, Any]]]:
+    """An identified model ``.npz`` written by ``proprio identify`` (:mod:`proprio.identification.model_io`) as a
+    simulation model under diagnosis: the robot description with the identified link inertials and viscous/Coulomb
+    friction, and — when the identification fitted per-joint torque offsets [N·m] — the effect configuration
+    ``{"sensor_offset_gain": {"offset": [...]}}`` that adds them (``{}`` otherwise). A file that is not such a model,
+    or whose parameters are not a physical rigid body, raises :class:`DiagnosisError` naming the file."""
+    from proprio.identification.model_io import load_model
+
+    try:
+        ident = load_model(path)
+        robot = ident.description_identified()
+    except (OSError, KeyError, ValueError) as exc:
+        raise DiagnosisError(f"--model {path}: not a usable identified model ({exc}); a model that is not physically "
+                             "consistent cannot be simulated: identify it with the SDP estimator") from exc
+    offsets = np.asarray(ident.offsets, dtype=float)
+    return robot, ({"sensor_offset_gain": {"offset": offsets.tolist()}} if np.any(offsets != 0) else {})
 
 
 def signals_of(rec: Recording, config: ConditioningConfig = DIAGNOSIS_CONDITIONING) -> ConditionedSignals:

@@ -5,7 +5,7 @@ band-limited random noise that no candidate predicts on held-out blocks. It is f
 
 * **measured**: the white floor of ``Δ²q`` that the conditioning estimates per joint (``ConditionedSignals.sigma_q``,
   from the upper half of the band, where arm motion has no power) with its χ² degrees of freedom ``D_k``
-  (:func:`proprio.conditioning.noise_floor_dof`), pooled over the recordings: ``σ̂² = Σ D_k σ̂_k² / Σ D_k``,
+  (:func:`proprio.cutoff.noise_floor_dof`), pooled over the recordings: ``σ̂² = Σ D_k σ̂_k² / Σ D_k``,
   ``D = Σ D_k``, and ``D σ̂² / σ² ~ χ²_D`` gives its 95 % confidence interval;
 * **modelled**: what the model's ``encoder_noise`` effect predicts for the same floor, ``σ² = std² + res²/12``
   (white noise, then rounding to the resolution ``res``); a model without that effect states no encoder at all.

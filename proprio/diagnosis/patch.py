@@ -6,7 +6,9 @@ Each selected *physical* step contributes its candidate's :meth:`~proprio.diagno
 the final joint fit (the last step's ``params``): library effects as ``effects:`` blocks (``sensor_offset`` and
 ``sensor_gain`` merge into one ``sensor_offset_gain`` block), an unmodelled payload as ``payload:``, a rigid-body
 parameter error as a corrected robot description (physically consistent inertials, written as a robot YAML next
-to the patch and named by its ``robot:`` key). An unmodelled white noise adds a ``torque_noise`` block. Data-path
+to the patch and named by its ``robot:`` key). An unmodelled white noise adds a ``torque_noise`` block — only on
+joints whose residual passes both whiteness tests, at the level the raw τ itself carries at the robot's rate
+(:func:`proprio.diagnosis.selection.attribute`'s noise finding): a structured residual is never patched as noise. Data-path
 (processing) steps never go into a patch; the comments at the top say what was left out and why, and give each
 entry's held-out gain and fitted parameters with their 95 % CI.
 """
@@ -109,6 +111,8 @@ def patch_entries(att: Attribution) -> list[PatchEntry]:
         if f.name != "torque_noise":
             continue
         std = np.asarray(f.rms, dtype=float)
+        if not np.any(std > 0):
+            continue
         out.append(PatchEntry(f.name, {"effects": {"torque_noise": {"std": std.tolist()}}},
                               [f"torque_noise: {f.explanation}; σ = {np.array2string(std, precision=3)} N·m "
                                "(white: no held-out gain by construction)"]))

@@ -11,7 +11,7 @@ base twin with a diagnosis' patch), compared with the measured torque.
   ``encoder_noise`` effects and logs at its own step, exact stamps, nothing lost. What remains of the gap is then the
   data's own noise plus whatever the twin still lacks.
 * **Log gaps.** A recording is replayed piece by piece: each stretch between two gaps of its log (dropouts longer
-  than the conditioning's ``max_gap_s``, :func:`proprio.conditioning.measured_segments`) is conditioned and replayed
+  than the conditioning's ``max_gap_s``, :func:`proprio.time_base.measured_segments`) is conditioned and replayed
   on its own, the twin starting on that stretch's trajectory. A replay never bridges a gap — that would move the twin
   through motion nobody measured and compare it with torques nobody measured. The replayed Recording holds the
   stretches on the recording's clock with the gaps left empty (``meta.segments_s``). Splitting rather than refusing:
@@ -29,7 +29,8 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from proprio.conditioning import ConditionedSignals, ConditioningConfig, measured_segments
+from proprio.conditioning import ConditionedSignals, ConditioningConfig
+from proprio.time_base import measured_segments
 from proprio.description import RobotDescription
 from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, NOISE_EFFECTS, DiagnosisError, condition_all, kept,
                                     session_time)

@@ -201,7 +201,8 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
     rs = att.residual
     resid = ["| joint | RMSE [N·m] | Ljung–Box p | held-out R² vs state | verdict |", "|---|---|---|---|---|"]
     for j, nm in enumerate(att.joint_names):
-        v = "structured" if rs.structured_time[j] or rs.structured_state[j] else "white"
+        v = "white" if rs.white_joints[j] else ("structured" if rs.structured_time[j] or rs.structured_state[j]
+                                                 else "structured, within the conditioning error")
         resid.append(f"| {nm} | {rs.rmse[j]:.3f} | {rs.ljung_box_p[j]:.3g} | {rs.r2_state[j]:.3f} | {v} |")
     freq = ["| joint | dominant frequency [Hz] | strongest order [cycles/rev] | variance share of that order |",
             "|---|---|---|---|"]
@@ -271,7 +272,11 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
                "ambiguity": [a.to_dict() for a in att.ambiguity],
                "processing": att.processing_findings,
                "encoder_floor": att.encoder.to_dict() if att.encoder is not None else None,
-               "residual_white": rs.white, "hints": [h.to_dict() for h in att.hints], "verdict": verdict,
+               "residual_white": rs.white, "white_joints": rs.white_joints.tolist(),
+               "processing_sigma": att.processing_sigma.tolist(),
+               "undecided": None if att.undecided is None else {
+                   "name": att.undecided.name, "gain": att.undecided.gain, "t": att.undecided.t_stat,
+                   "t_crit": att.undecided.t_crit, "more_holdout_s": att.undecided.more_s}, "hints": [h.to_dict() for h in att.hints], "verdict": verdict,
                "time_variation": None if att.time_variation is None else {
                    "detected": att.time_variation.detected, "joints": att.time_variation.joints.tolist(),
                    "p_value": att.time_variation.p_value.tolist(), "kind": att.time_variation.kind,

@@ -35,7 +35,8 @@ case stays clean.
 A candidate that lowers the weighted error but raises the unweighted held-out SSE counts as no gain.
 
 **Noise.** Torque noise cannot shrink a held-out error. After the deterministic steps, an unmodelled
-``torque_noise`` is reported when the remaining residual is white (Ljung–Box and state R²) and its variance
+``torque_noise`` is reported when the remaining residual is white (Ljung–Box and state R² agree:
+:mod:`proprio.diagnosis.residual`) and its variance
 exceeds the noise the model already predicts. Encoder noise *can* be predicted: its signature is the change of the
 modelled torque when the measured motion is de-noised (``EncoderNoiseCandidate``, for a model without encoder noise).
 Past the low-pass that signature is mostly unpredictable band-limited noise, so encoder noise is also compared by
@@ -61,7 +62,6 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from scipy import stats
 
-from proprio import friction_law
 from proprio.description import RobotDescription
 from proprio.diagnosis.candidates import Candidate, candidate_set
 from proprio.conditioning import ConditionedSignals, ConditioningConfig, processing_torque_sigma
@@ -69,9 +69,10 @@ from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, MIN_BLOCK_S, MIN_BLO
                                     SimModel, condition_all, kept, session_motion, session_time)
 from proprio.diagnosis.encoder_floor import EncoderFloor, encoder_floor
 from proprio.diagnosis.fitting import Fit, fit_candidates, predict_candidates
+from proprio.diagnosis.residual import (NoiseFinding, ResidualStructure, noise_findings, residual_structure,
+                                        split_by_recording)
 from proprio.diagnosis.hints import Hint, find_hints, shifted_joints
 from proprio.diagnosis.time_variation import TimeTrendNuisance, TimeVariation, time_variation
-from proprio.effects import EFFECTS
 from proprio.recording import Recording, validate_recording
 
 __all__ = ["Step", "NoiseFinding", "ResidualStructure", "CrossValidation", "Attribution", "attribute"]
@@ -117,31 +118,22 @@ class Step:
 
 
 @dataclass
-class NoiseFinding:
-    """Unmodelled white noise: ``rms [n]`` N·m per joint (0 on joints where the residual is structured or within
-    the model's own noise)."""
+class Undecided:
+    """The selection stopped while a physical candidate still lowered the held-out error by ``gain`` (≥ the minimum
+    gain) with a t statistic ``t_stat`` below the significance bound ``t_crit`` over ``n_blocks`` blocks of
+    ``block_s`` [s]: too little held-out data to decide. ``more_s`` [s]: the held-out seconds to add for the same
+    effect to reach the bound (``t`` grows as √blocks)."""
     name: str
-    rms: np.ndarray
-    explanation: str
-
-
-@dataclass
-class ResidualStructure:
-    """What stays unexplained on the held-out data: per joint RMSE [N·m], Ljung–Box p-value (lags 1..20 of the
-    residual decimated to ≥ 0.05 s spacing), held-out R² of the residual against state features, and a verdict.
-    ``within_processing [n]``: the residual's non-white part (its variance less the white part estimated from
-    first differences) is within 1.5× the torque error the conditioning explains, so a joint's structure is not
-    taken for an effect outside the candidate set."""
-    rmse: np.ndarray
-    ljung_box_p: np.ndarray
-    r2_state: np.ndarray
-    structured_time: np.ndarray
-    structured_state: np.ndarray
-    within_processing: np.ndarray
+    gain: float
+    t_stat: float
+    t_crit: float
+    n_blocks: int
+    block_s: float
 
     @property
-    def white(self) -> bool:
-        return not (self.structured_time.any() or self.structured_state.any())
+    def more_s(self) -> float:
+        need = self.n_blocks * (self.t_crit / max(self.t_stat, 1e-9)) ** 2
+        return float(max(need - self.n_blocks, 1.0) * self.block_s)
 
 
 @dataclass
@@ -160,7 +152,9 @@ class Attribution:
     """Result of :func:`attribute`. ``fitted``: the selected candidates by name (their final parameters are the last
     step's ``params``), for :func:`proprio.diagnosis.patch.twin_patch`. ``encoder``: the data's position-noise floor
     against the model's encoder noise (:mod:`proprio.diagnosis.encoder_floor`; a data-path comparison over all the
-    recordings)."""
+    recordings). ``undecided``: the physical candidate still leading, without significance, where the selection
+    stopped (:class:`Undecided`); ``below_floor``: ``(name, gain, rms)`` of physical candidates that won a step with a
+    held-out torque (``rms`` N·m) within the processing error — not named, not filed as data path."""
     joint_names: list[str]
     steps: list[Step]
     ranking: list[dict[str, Any]]
@@ -181,6 +175,8 @@ class Attribution:
     hints: list[Hint] = field(default_factory=list)
     time_variation: TimeVariation | None = None
     encoder: EncoderFloor | None = None
+    undecided: Undecided | None = None
+    below_floor: list[tuple[str, float, float]] = field(default_factory=list)
     ambiguity: list[Any] = field(default_factory=list)   # AmbiguitySet per named effect (diagnosis.ambiguity)
 
     @property
@@ -234,58 +230,6 @@ def _t_stat(x: np.ndarray) -> float:
     if sd <= 0:
         return math.inf if x.mean() > 0 else -math.inf
     return float(x.mean() / (sd / math.sqrt(len(x))))
-
-
-def _residual_structure(r_h: np.ndarray, r_tr: np.ndarray, train: GapData, hold: GapData,
-                        rate: float, proc_sigma: np.ndarray) -> ResidualStructure:
-    n = r_h.shape[1]
-    step = max(1, int(round(0.05 * rate)))
-    lb = np.ones(n)
-    for j in range(n):
-        ps = []
-        for e_k in _series(r_h[:, j], hold):
-            x = e_k[::step] - e_k[::step].mean()
-            m = min(20, len(x) // 5)
-            if m < 2 or x @ x <= 0:
-                continue
-            rho = np.array([x[:-k] @ x[k:] for k in range(1, m + 1)]) / (x @ x)
-            q = len(x) * (len(x) + 2) * np.sum(rho ** 2 / (len(x) - np.arange(1, m + 1)))
-            ps.append(stats.chi2.sf(q, m))
-        lb[j] = min(ps) if ps else 1.0
-
-    def feats(data: GapData) -> np.ndarray:
-        f = [np.concatenate([s.q, s.qd, friction_law.smooth_sign(s.qd), s.qdd, np.sin(s.q), np.cos(s.q)], axis=1)
-             for s in data.signals]
-        f = data.stack(f)
-        return np.concatenate([np.ones((len(f), 1)), f], axis=1)
-
-    ft, fh = feats(train), feats(hold)
-    r2 = np.zeros(n)
-    for j in range(n):
-        coef, *_ = np.linalg.lstsq(ft, r_tr[:, j], rcond=1e-8)
-        res = r_h[:, j] - fh @ coef
-        r2[j] = 1.0 - float(res @ res) / max(float(r_h[:, j] @ r_h[:, j]), 1e-300)
-    series = _series(r_h, hold)
-    white_var = sum((np.diff(s, axis=0) ** 2).sum(axis=0) / 2 for s in series) / \
-        max(sum(len(s) - 1 for s in series), 1)
-    structured_rms = np.sqrt(np.maximum((r_h ** 2).mean(axis=0) - white_var, 0.0))
-    within = structured_rms <= 1.5 * proc_sigma
-    return ResidualStructure(np.sqrt((r_h ** 2).mean(axis=0)), lb, r2, (lb < 0.01) & ~within, (r2 > 0.05) & ~within,
-                             within)
-
-
-def _split(x: np.ndarray, data: GapData) -> list[np.ndarray]:
-    sizes = np.cumsum([len(i) for i in data.fit_index])[:-1]
-    return np.split(x, sizes)
-
-
-def _series(x: np.ndarray, data: GapData) -> list[np.ndarray]:
-    """``x`` per source recording: pieces cut from one recording (cross-validation blocks) joined in time order."""
-    parts = _split(x, data)
-    groups: dict[int, list[np.ndarray]] = {}
-    for g, part in zip(data.groups, parts):
-        groups.setdefault(g, []).append(part)
-    return [np.concatenate(v) for v in groups.values()]
 
 
 def _correlation_time(model: SimModel, conditioned: Sequence[ConditionedSignals], keep: Sequence[np.ndarray],
@@ -435,14 +379,17 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
     n_blk = int(blk.max()) + 1
     sig = np.sqrt((hold.stack(hold.tau) ** 2).mean(axis=0))
     rmse0 = np.sqrt((e_h ** 2).mean(axis=0))
-    proc_sigma = processing_torque_sigma(model.rigid_torque, hold.conditioned)
+    proc_sigma = processing_torque_sigma(model.smooth_torque, hold.conditioned)
 
     selected: list[Candidate] = []
     fit = Fit({}, {})
     pred_h = np.zeros_like(e_h)
     steps: list[Step] = []
     ranking: list[dict[str, Any]] = []
+    below_floor: list[tuple[str, float, float]] = []
+    undecided: Undecided | None = None
     remaining = list(cands)
+    first = True
     while remaining and len(steps) < max_steps:
         r_s = e_h - pred_h
         scored = []
@@ -455,12 +402,18 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
             scored.append((c, f_c, db, g if raw > 0 else min(g, 0.0), _t_stat(db), delta))
         k_test = len(scored)
         t_crit = stats.t.ppf(1 - alpha / k_test, n_blk - 1)
-        if not steps:
-            ranking = [{"name": c.name, "gain": g, "t": t, "n_params": c.n_params, "processing": c.processing,
-                        "significant": bool(g >= min_gain and t >= t_crit)} for c, _, _, g, t, _ in scored]
+        if first:
+            first = False
+            ranking = [{"name": c.name, "gain": max(g, 0.0), "t": t, "n_params": c.n_params,
+                        "processing": c.processing, "significant": bool(g >= min_gain and t >= t_crit)}
+                       for c, _, _, g, t, _ in scored]
             ranking.sort(key=lambda x: -x["gain"])
         sig_ok = [x for x in scored if x[3] >= min_gain and x[4] >= t_crit]
         if not sig_ok:
+            lead = [x for x in scored if not x[0].processing and x[3] >= min_gain and x[4] > 0]
+            if lead:
+                best = max(lead, key=lambda x: x[3])
+                undecided = Undecided(best[0].name, best[3], best[4], float(t_crit), n_blk, block_s)
             break
         sig_ok.sort(key=lambda x: -x[3])
         best = sig_ok[0]
@@ -470,14 +423,12 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
         chosen = group[0]
         c, f_c = chosen[0], chosen[1]
         rms_delta = np.sqrt((chosen[5] ** 2).mean(axis=0))
-        if c.processing:
-            processing, reason = True, "describes the data path (filtering, derivative noise), not the robot"
-        elif np.all(rms_delta <= proc_sigma):
-            processing = True
-            reason = (f"its held-out torque (≤ {rms_delta.max():.2g} N·m RMS) stays within the error the signal "
-                      f"conditioning itself explains (σ up to {proc_sigma.max():.2g} N·m)")
-        else:
-            processing, reason = False, ""
+        if not c.processing and np.all(rms_delta <= proc_sigma):     # not named, and not data path either
+            below_floor.append((c.name, chosen[3], float(rms_delta.max())))
+            remaining = [x for x in remaining if x is not c]
+            continue
+        processing = c.processing
+        reason = "describes the data path (filtering, derivative noise), not the robot" if processing else ""
         selected.append(c)
         remaining = [x for x in remaining if x is not c]     # tied partners stay: they may still add later
         fit = fit_candidates(with_nuisance(selected), train, w, f_c.thetas, sweeps=3) \
@@ -495,8 +446,8 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
     r_h = e_h - pred_h
     r_tr = e_tr - predict_candidates(selected, fit, train)
     rate = float(np.median([cs.rate_hz for cs in hold.conditioned]))
-    structure = _residual_structure(r_h, r_tr, train, hold, rate, proc_sigma)
-    noise = _noise_findings(model, structure, hold, r_h)
+    structure = residual_structure(r_h, r_tr, train, hold, rate, proc_sigma)
+    noise = noise_findings(model, structure, hold, r_h)
     say("hints on the remaining residual")
     structured = np.flatnonzero(structure.structured_time | structure.structured_state
                                 | (shifted_joints(r_h, blk, alpha) & ~structure.within_processing))
@@ -507,29 +458,7 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
     amb = ambiguity_sets(selected, [not st.processing for st in steps], cands, ranking, train, hold, w, blk,
                          with_nuisance, structure.rmse, min_gain, say)
     return Attribution(model.robot.joint_names, steps, ranking, rmse0, sig, structure, noise,
-                       [c.name for c in cands], _split(e_h, hold), _split(pred_h, hold), hold.times, proc_sigma,
+                       [c.name for c in cands], split_by_recording(e_h, hold), split_by_recording(pred_h, hold), hold.times, proc_sigma,
                        sorted({cs.describe() for cs in hold.conditioned + train.conditioned}), data_seconds, block_s,
-                       fitted={c.name: c for c in selected}, hints=hints, time_variation=tv, ambiguity=amb)
-
-
-def _noise_findings(model: SimModel, structure: ResidualStructure, hold: GapData,
-                    r_h: np.ndarray) -> list[NoiseFinding]:
-    """Unmodelled noise: the remaining residual is white in time and state, and larger than the model's own noise
-    (variance ratio beyond the χ² 99.9 % bound of the sample variance, plus 20 % of slack)."""
-    present = model.effect_names
-    out = []
-    white_j = ~(structure.structured_time | structure.structured_state)
-    if not white_j.any():
-        return out
-    expected = np.mean([model.noise_variance(s) * cs.tau_gain for s, cs in zip(hold.signals, hold.conditioned)],
-                       axis=0)          # through the same low-pass as the conditioned τ
-    var = (r_h ** 2).mean(axis=0)
-    m = len(r_h)
-    bound = expected * 1.2 * stats.chi2.ppf(0.999, m) / m + 1e-12
-    excess = white_j & (var > bound)
-    if not excess.any():
-        return out
-    if "torque_noise" not in present and "torque_noise" in EFFECTS:
-        out.append(NoiseFinding("torque_noise", np.where(excess, np.sqrt(np.maximum(var - expected, 0.0)), 0.0),
-                                "white residual above the model's noise level"))
-    return out
+                       fitted={c.name: c for c in selected}, hints=hints, time_variation=tv, undecided=undecided,
+                       below_floor=below_floor, ambiguity=amb)

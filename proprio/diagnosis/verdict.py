@@ -8,7 +8,7 @@ from proprio.diagnosis.ambiguity import tied_sets
 from proprio.diagnosis.localisation import GapMap
 from proprio.diagnosis.selection import Attribution
 
-__all__ = ["PLAIN", "verdict_text"]
+__all__ = ["PLAIN", "verdict_text", "undecided_text", "data_and_processing_text"]
 
 PLAIN = {"viscous_coulomb": "viscous + Coulomb friction", "stribeck": "Stribeck (static) friction",
          "hysteresis": "torque-sensor hysteresis", "lost_motion": "lost motion after reversals",
@@ -58,15 +58,23 @@ def verdict_text(att: Attribution, gm: GapMap) -> str:
                      f"N·m RMS ({100 * (1 - float((fin ** 2).sum()) / float((rmse0 ** 2).sum())):.0f} % less "
                      "squared error).")
         parts += [a.text(PLAIN) for a in tied_sets(att.ambiguity)]
-    else:
+    elif att.undecided is None:
         parts.append("No physical candidate shrinks the held-out gap significantly beyond what the signal "
                      "processing explains: the model explains the data as well as any of the candidates can.")
+    if att.undecided is not None:
+        parts.append(undecided_text(att))
     tv = att.time_variation
     if tv is not None and tv.detected:
         parts.append(tv.text[0].upper() + tv.text[1:] + ".")
     rs = att.residual
     if rs.white:
         parts.append("What remains is white (no autocorrelation, no dependence on the motion state): noise.")
+    elif not (rs.structured_time.any() or rs.structured_state.any()):
+        joints = [att.joint_names[j] for j in np.flatnonzero(~rs.white_joints)]
+        parts.append(f"What remains on {', '.join(joints)} is not white (Ljung–Box p down to "
+                     f"{float(rs.ljung_box_p.min()):.2g}, held-out R² against the motion state up to "
+                     f"{float(rs.r2_state.max()):.2f}) but its structured part stays within the error the signal "
+                     "conditioning explains: neither noise nor a named effect.")
     else:
         jt = [att.joint_names[j] for j in np.flatnonzero(rs.structured_time)]
         js = [att.joint_names[j] for j in np.flatnonzero(rs.structured_state)]
@@ -93,6 +101,15 @@ def verdict_text(att: Attribution, gm: GapMap) -> str:
     return " ".join(parts)
 
 
+def undecided_text(att: Attribution) -> str:
+    """The sentence for a selection that stopped for want of held-out data (:class:`Undecided`)."""
+    u = att.undecided
+    return (f"Undecided: the held-out data are too few to decide{' whether more effects add' if att.physical_steps else ''}"
+            f". The provisional leader is {PLAIN.get(u.name, u.name)}, lowering the held-out error by "
+            f"{100 * u.gain:.0f} % (t = {u.t_stat:.2g} over {u.n_blocks} blocks of {u.block_s:.2g} s, where "
+            f"t ≥ {u.t_crit:.2g} is needed); about {u.more_s:.0f} s more held-out data of the same kind would decide.")
+
+
 def data_and_processing_text(att: Attribution) -> str:
     """The data path, apart from the physics: the conditioning of every recording, how much data there was and how
     the held-out test was made (and, for one cross-validated recording, how well the folds agree), the torque error
@@ -110,12 +127,21 @@ def data_and_processing_text(att: Attribution) -> str:
                      f"fold 2 names {tops[1]} — {sure} ({100 * att.cv.agreement:.0f} % agreement). "
                      "The verdict is fold 1's.")
     parts += att.conditioning
-    parts.append("Torque error the conditioning itself explains (derivative errors through the rigid body), per "
-                 "joint: " + ", ".join(f"{x:.2g}" for x in att.processing_sigma) + " N·m RMS; a physical effect "
-                 "must exceed it to be named.")
+    ratio = att.processing_sigma / np.maximum(att.rmse_before, 1e-12)
+    parts.append("Torque error the conditioning itself explains (derivative errors through the rigid body and viscous "
+                 "friction; the model's own Coulomb jump is not counted), per joint: "
+                 + ", ".join(f"{x:.2g}" for x in att.processing_sigma) + " N·m RMS, against the model's held-out "
+                 "gap before any candidate of " + ", ".join(f"{x:.2g}" for x in att.rmse_before) + " N·m RMS"
+                 + (f" — on {', '.join(att.joint_names[j] for j in np.flatnonzero(ratio >= 0.5))} the derivatives "
+                    "make up half the gap or more: take the verdict there with care" if np.any(ratio >= 0.5) else "")
+                 + "; a physical effect must exceed it to be named.")
     for st in att.processing_steps:
         parts.append(f"Data path: {PLAIN.get(st.name, st.name)} lowers the held-out error by "
                      f"{100 * st.gain:.0f} % — not a property of the robot: it {st.reason}.")
+    for name, gain, rms in att.below_floor:
+        parts.append(f"Within the conditioning error: {PLAIN.get(name, name)} lowers the held-out error by "
+                     f"{100 * gain:.0f} %, but its held-out torque (≤ {rms:.2g} N·m RMS) stays within the error the "
+                     "signal conditioning explains — not named, and not a data-path finding either.")
     if att.encoder is not None:
         parts.append(att.encoder.text(att.joint_names))
     return "\n\n".join(parts)

@@ -240,7 +240,7 @@ class EstimationResult:
     and the filters' edge) and ``skip_end_s`` at the end (the zero-phase filters' edge).
 
     ``gap [N]`` (bool): grid samples inside a gap of the log (a dropout longer than the conditioning's ``max_gap_s``,
-    :func:`proprio.conditioning.uniform_time_base`). Nothing was measured there, so every per-sample value at those
+    :func:`proprio.time_base.uniform_time_base`). Nothing was measured there, so every per-sample value at those
     samples (``q``, wrenches, ``tau_ext``, ``manipulability``, ``f_true``) is NaN — never an estimate from
     interpolated signals — and :meth:`valid` also drops the transients around each gap, as at the ends.
     """

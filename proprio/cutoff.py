@@ -1,0 +1,159 @@
+"""The motion's band in a log of encoder ``q``: the white-noise floor, the per-joint low-pass cutoff that minimises
+the error of ``q̈``, the error the cutoff leaves, and the decimation of a log sampled far faster than the arm moves
+(step 2 of :mod:`proprio.conditioning`, which applies them).
+
+**Cutoff per joint** (:func:`auto_cutoff`). The Welch spectrum ``P_q(f)`` of each joint's ``Δ²q`` and its
+white-noise floor ``P_0`` (mean over the upper half of the band: encoder noise and quantisation) give the estimated
+error of ``q̈`` for a cutoff ``f_c``: the signal the filter's magnitude ``G`` removes, ``∫ (2πf)⁴ (P_q − P_0)⁺
+(1 − G)²``, plus the noise it passes, ``∫ (2πf)⁴ P_0 G²``; the cutoff minimises the sum (a Wiener-style trade-off)
+within ``[min_cutoff_hz, min(max_cutoff_fraction · rate, max_motion_hz)]``. ``max_motion_hz`` (40 Hz) is the
+physical bound of a manipulator's rigid-body motion: what ``q`` holds above it (drive and structure vibration, servo
+chatter of a 5 kHz log) is counted neither as motion to keep nor as motion the filter distorts, so a fast log's
+cutoff and its error estimate (:func:`lost_power`) follow the arm, not its vibrations.
+
+**Decimation** (:func:`decimation_factor`, :func:`decimate`): when the grid rate exceeds ``oversampling ×`` the
+motion band (the largest of the cutoffs and ``max_motion_hz``) by a factor ``M ≥ 2``, the signals are decimated by
+``M`` behind a zero-phase polyphase FIR anti-alias filter (``scipy.signal.resample_poly``): 20 s of 5 kHz become
+20 s of ≈200 Hz, and an hour of logs stays tractable. White noise of density ``P`` keeps its density: its variance
+drops by ``M``.
+
+**The τ noise level** (:func:`tau_white_level`): the white noise of a raw τ log at its own rate, robust to motion.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.signal
+
+__all__ = ["auto_cutoff", "spectra", "lost_power", "noise_floor_dof", "decimation_factor", "decimate",
+           "decimate_valid", "tau_white_level"]
+
+
+def _second_difference(q: np.ndarray, rate_hz: float, t: np.ndarray | None) -> np.ndarray:
+    """``Δ²q / h²`` [rad/s²] at the samples' own stamps ``t`` (the three-point formula for unequal steps), or on the
+    uniform grid of ``rate_hz`` when ``t`` is None."""
+    if t is None:
+        return np.diff(q, n=2, axis=0) * rate_hz ** 2
+    h = np.diff(np.asarray(t, dtype=float))[:, None]
+    dq = np.diff(q, axis=0) / h
+    return 2.0 * np.diff(dq, axis=0) / (h[1:] + h[:-1])
+
+
+def _welch_length(m: int) -> int:
+    """Welch segment length of the noise-floor spectrum of ``m`` second differences: ≈ m/8, a power of two ≥ 256."""
+    return int(min(m, max(256, 2 ** int(np.floor(np.log2(max(m // 8, 2)))))))
+
+
+def noise_floor_dof(n_samples: int) -> float:
+    """Equivalent χ² degrees of freedom ``D`` of the white floor ``P_0`` (hence of ``σ_q²``) estimated from
+    ``n_samples`` samples of q (:func:`auto_cutoff`): ``D·σ̂²/σ² ~ χ²_D``, so a confidence bound of the floor follows.
+
+    Counted from the spectral estimate itself: each Welch bin (periodic Hann, 50 % overlap, ``M`` segments) has
+    ``ν = 2M / (1 + 2 Σ_k (1 − k/M) ρ_k²)`` degrees of freedom (Welch 1967; ``ρ_k`` the overlap correlation of the
+    window), and the mean over the ``K`` bins of the upper half of the band counts ``K_eff = K² / Σ_{i,l} r_{|i−l|}``
+    independent bins (``r_l`` the correlation of periodogram ordinates ``l`` bins apart, ``|Σ w² e^{−2πi l n/L}|²`` /
+    ``(Σ w²)²``); ``D = ν · K_eff`` (≈ n/2, the bound of 2 per independent frequency of the band)."""
+    m = n_samples - 2
+    if m < 4:
+        return 0.0
+    nper = _welch_length(m)
+    step = nper - nper // 2
+    segs = 1 + (m - nper) // step
+    w = scipy.signal.get_window("hann", nper)
+    lags = np.arange(1, segs)
+    rho = np.array([float(w[k * step:] @ w[:nper - k * step]) for k in lags if k * step < nper]) / float(w @ w)
+    nu = 2.0 * segs / (1.0 + 2.0 * float(np.sum((1.0 - lags[:rho.size] / segs) * rho ** 2)))
+    r = np.abs(np.fft.fft(w ** 2)) ** 2 / float(w @ w) ** 2          # r_l at l = 0 .. nper-1 (r_0 = 1)
+    k = int(np.sum(np.fft.rfftfreq(nper) >= 0.25))                  # bins f ≥ rate/4, as in _spectra
+    lag = np.abs(np.arange(k)[:, None] - np.arange(k)[None, :])
+    return float(nu * k ** 2 / r[lag].sum())
+
+
+def spectra(q: np.ndarray, rate_hz: float, t: np.ndarray | None = None, band_hz: float = np.inf
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Frequencies ``f [F]``, the q̈ signal spectrum ``S [F,n]`` and the q̈ noise spectrum ``N [F,n]`` [(rad/s²)²/Hz],
+    and the white floor of q ``P_0 [n]`` [rad²/Hz].
+
+    Estimated from the Welch spectrum of the raw second difference ``Δ²q / h²`` (pre-whitened, so the window's leakage
+    from the large low-frequency content of q does not pose as high-frequency signal), taken at the log's own time
+    stamps ``t`` when given (a resampled log's interpolated stretches would hide the noise): its white-noise part has the
+    known shape ``P_0 · 16 sin⁴(π f h) / h⁴``, whose level ``P_0`` is the mean over the upper half of the band;
+    signal is counted only below the floor's band, below ``band_hz`` (the motion's physical band) and in bins at least
+    three times the floor."""
+    h = 1.0 / rate_hz
+    d2 = _second_difference(q, rate_hz, t)
+    nper = _welch_length(d2.shape[0])
+    f, p = scipy.signal.welch(d2, fs=rate_hz, nperseg=nper, detrend="constant", axis=0)
+    if t is None:
+        shape = 16.0 * np.sin(np.pi * f * h) ** 4 / h ** 4                 # |Δ²/h²|² at f
+    else:   # unequal steps colour the noise: its shape from unit white noise at the same stamps (fixed seed)
+        unit = np.random.default_rng(0).standard_normal((q.shape[0], 16))
+        shape = scipy.signal.welch(_second_difference(unit, rate_hz, t), fs=rate_hz, nperseg=nper,
+                                   detrend="constant", axis=0)[1].mean(axis=1) / (2.0 / rate_hz)
+    top = f >= 0.25 * rate_hz
+    floor = np.mean(p[top] / shape[top, None], axis=0)             # the mean: unbiased for white noise
+    noise = floor[None, :] * (2 * np.pi * f[:, None]) ** 4          # q̈ noise through ideal differentiation
+    white = floor[None, :] * shape[:, None]
+    clear = (p > 3.0 * white) & (f[:, None] < min(0.25 * rate_hz, band_hz))   # chance bins of noise stay below 3×
+    signal = np.where(clear, p - white, 0.0)                        # only bins clearly above the floor
+    return f, signal, noise, floor
+
+
+def auto_cutoff(q: np.ndarray, rate_hz: float, min_hz: float = 1.0, max_fraction: float = 0.2,
+                t: np.ndarray | None = None, order: int = 2, max_motion_hz: float = 40.0
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Per-joint cutoff [Hz] minimising the estimated q̈ error (module docstring) and the white noise σ of q
+    [rad] implied by the floor (``σ² = P_0 · rate / 2``); ``q`` at its own stamps ``t`` [s] when given.
+
+    The error of a cutoff ``f_c`` uses the zero-phase Butterworth's magnitude ``G(f) = 1 / (1 + (f/f_c)^{2·order})``:
+    ``Σ_f S(f) (1 − G(f))² + N(f) G(f)²`` over 120 log-spaced candidates in ``[min_hz, min(max_fraction · rate,
+    max_motion_hz)]``; signal above ``max_motion_hz`` (vibration, not arm motion) is not counted."""
+    f, signal, noise, floor = spectra(q, rate_hz, t, max_motion_hz)
+    sigma_q = np.sqrt(floor * rate_hz / 2.0)
+    hi = min(max_fraction * rate_hz, max_motion_hz)
+    if hi <= min_hz:
+        return np.full(q.shape[1], hi), sigma_q
+    cands = np.geomspace(min_hz, hi, 120)
+    g = 1.0 / (1.0 + (f[None, :] / cands[:, None]) ** (2 * order))            # [C, F]
+    err = ((1.0 - g) ** 2) @ signal + (g ** 2) @ noise                         # [C, n]
+    return cands[np.argmin(err, axis=0)], sigma_q
+
+
+def lost_power(q: np.ndarray, rate_hz: float, cutoff: np.ndarray, power: int, t: np.ndarray | None = None,
+                order: int = 2, band_hz: float = np.inf) -> np.ndarray:
+    """RMS of the ``power``-th derivative's signal that the low-pass distorts: ``Σ S(f) (1 − G(f))²`` with the
+    zero-phase Butterworth's magnitude ``G`` (the signal term of the cutoff's error model, step 2: it counts the
+    attenuation below the cutoff as well as the signal removed above it; only motion below ``band_hz``)."""
+    f, signal, _, _ = spectra(q, rate_hz, t, band_hz)
+    s = signal * (2 * np.pi * np.maximum(f[:, None], 1e-9)) ** (2 * power - 4)
+    g = 1.0 / (1.0 + (f[:, None] / cutoff[None, :]) ** (2 * order))
+    return np.sqrt(np.sum(s * (1.0 - g) ** 2, axis=0) * (f[1] - f[0]))
+
+
+def tau_white_level(tau: np.ndarray) -> np.ndarray:
+    """Per-joint σ [N·m] of the white noise of a raw τ log ``[N, n]`` at its own rate: ``1.4826 · MAD(Δ²τ) / √6``
+    (the second difference of white noise has variance ``6σ²``; the median ignores the bursts of fast motion and
+    reversals, and ``Δ²`` the smooth torque of the motion). The level a noise finding may claim for the sensor."""
+    d2 = np.diff(np.asarray(tau, dtype=float), n=2, axis=0)
+    if d2.shape[0] < 1:
+        return np.zeros(np.shape(tau)[1])
+    return 1.4826 * np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0) / np.sqrt(6.0)
+
+
+def decimation_factor(rate_hz: float, cutoff: np.ndarray, max_motion_hz: float, oversampling: float) -> int:
+    """The decimation factor ``M ≥ 1`` of a grid at ``rate_hz`` [Hz] (module docstring): the largest integer with
+    ``rate / M ≥ oversampling × max(cutoffs, max_motion_hz)`` (cutoffs [Hz] per joint)."""
+    band = max(float(np.max(cutoff)), max_motion_hz)
+    return max(1, int(np.floor(rate_hz / (oversampling * band))))
+
+
+def decimate(x: np.ndarray, m: int) -> np.ndarray:
+    """``x [N, ...]`` decimated by ``m`` (samples ``0, m, 2m, …``) behind a zero-phase polyphase FIR anti-alias
+    filter (``scipy.signal.resample_poly``, its edges padded by a line fit)."""
+    return scipy.signal.resample_poly(np.asarray(x, dtype=float), 1, m, axis=0, padtype="line")
+
+
+def decimate_valid(valid: np.ndarray, m: int) -> np.ndarray:
+    """The gap flags on the decimated grid: a decimated sample is valid only when every fine sample within ``m`` of it
+    is (the anti-alias filter's main lobe reaches that far)."""
+    bad = np.convolve((~valid).astype(float), np.ones(2 * m + 1), mode="same") > 0
+    return ~bad[::m]
