@@ -193,6 +193,7 @@ def test_real_lwr_identification_beats_flobaroid(lwr_dir, tmp_path, capsys):
     head = printed[:printed.index("OLS on")]             # data quality of each file first: warnings only
     assert head.count("data quality of ") == 3 and head.count("tau_filtered") == 3 and "INFO" not in head
     assert head.count("  conditioning: 200 Hz") == 3 and "measurements_1.npz (validate)" in head
+    assert printed.count("conditioning: ") == 3             # each file's line once: not again above the tables
     model = load_model(out)
     assert model.base.n_base == 57
     val = load_recording(lwr_dir / "measurements_1.npz").slice(500, -500)

@@ -43,8 +43,9 @@ def _identify(args: argparse.Namespace) -> int:
     conditioning = ConditioningConfig() if args.cutoff_hz is None else ConditioningConfig(cutoff_hz=args.cutoff_hz)
     offsets = args.offsets or drive_identified(robot)
     for role, paths, recs in (("train", args.train, train), ("validate", val_names, validate)):
-        for path, rec in zip(paths, recs):          # warnings and problems only, and the conditioning line
-            print(format_findings(assess(rec, robot), "warning", title=f"data quality of {path} ({role}):"))
+        for path, rec in zip(paths, recs):          # warnings and problems only, and the conditioning line (once)
+            print(format_findings(assess(rec, robot, conditioning=conditioning), "warning",
+                                  title=f"data quality of {path} ({role}):"))
     model, text = identify_recordings(train, [], robot, args.method, args.trim, offsets,
                                       args.coulomb_velocity_scale, conditioning)
     print(f"{args.method.upper()} on {model.n_train_samples} samples: {model.phi_b.size} parameters "
@@ -52,10 +53,10 @@ def _identify(args: argparse.Namespace) -> int:
           f"{' + offsets' if offsets else ''})")
     if args.show_parameters:
         print(model.parameter_table())
-    print(text)
+    print(text.split("\n\n", 1)[1])                # the tables: their conditioning lines were printed above
     for path, rec in zip(val_names, validate):      # one table per held-out file: runs are not pooled
-        (q, qd, qdd, tau), (cs,) = stack_recordings([rec], args.trim, conditioning)
-        print(f"\n{cs.describe()}\n" + torque_error_table(tau, model.torque(q, qd, qdd), f"validation: {path}")[0])
+        (q, qd, qdd, tau), _ = stack_recordings([rec], args.trim, conditioning)
+        print("\n" + torque_error_table(tau, model.torque(q, qd, qdd), f"validation: {path}")[0])
     save_model(model, args.out)
     print(f"wrote {args.out}")
     return 0

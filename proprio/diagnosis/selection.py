@@ -428,7 +428,7 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
             remaining = [x for x in remaining if x is not c]
             continue
         processing = c.processing
-        reason = "describes the data path (filtering, derivative noise), not the robot" if processing else ""
+        reason = "describes the data path (filtering, derivative noise)" if processing else ""
         selected.append(c)
         remaining = [x for x in remaining if x is not c]     # tied partners stay: they may still add later
         fit = fit_candidates(with_nuisance(selected), train, w, f_c.thetas, sweeps=3) \
