@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from proprio.experiments.hybrid import Backbone, resolve_backbone, train_from_config
+from proprio.experiments.hybrid import Backbone, resolve_backbone, train_from_config, training_config
 from proprio.learning.evaluation import predict_windowed
 from proprio.learning.models import ARCHS, HybridModel, ModelConfig, load_model
 from proprio.recording import Recording
@@ -69,7 +69,8 @@ def test_a_residual_that_cannot_help_falls_back_to_the_backbone(tmp_path):
            "train": {"max_epochs": 4, "batch_size": 4, "lr": 0.3, "seed": 0}}   # lr far too high: it only overfits
     recs = [_noise_recording(s) for s in (0, 1)]
     split = prepare_split(recs, backbone, DataConfig.from_dict(cfg["data"]), [_noise_recording(2)])
-    model, result, rows = train_from_config(cfg, recs, backbone, tmp_path / "m.pt", progress=False, split=split)
+    model, result, rows = train_from_config(training_config(cfg, "test"), recs, backbone, tmp_path / "m.pt",
+                                            progress=False, split=split)
     saved, extra = load_model(tmp_path / "m.pt")
     assert result.fallback == "all" and extra["fallback"] == "all" and result.best_epoch == -1
     assert "residual not kept" in result.fallback_line()
@@ -79,7 +80,8 @@ def test_a_residual_that_cannot_help_falls_back_to_the_backbone(tmp_path):
 
 
 def _held_out_check(recs, tests, backbone, cfg, tmp_path) -> None:
-    _, result, rows = train_from_config(cfg, recs, backbone, tmp_path / "m.pt", test_recs=tests, progress=False)
+    _, result, rows = train_from_config(training_config(cfg, "test"), recs, backbone, tmp_path / "m.pt",
+                                        test_recs=tests, progress=False)
     saved, extra = load_model(tmp_path / "m.pt")
     assert extra["fallback"] == result.fallback and np.isfinite(extra["backbone_val"])
     rbd, hybrid = rows[0].test.mean(), rows[1].test.mean()
