@@ -28,6 +28,7 @@ from pydrake.systems.primitives import Adder, Gain, RandomSource
 
 from proprio.effects import (EncoderNoise, Hysteresis, JointEffect, LostMotion, OffsetDrift, Ripple,
                              SensorOffsetGain, TorqueNoise)
+from proprio.effects.dahl import DahlState, dahl_advance, dahl_start, dahl_value
 from proprio.signals import MotionSignals
 
 __all__ = ["TorqueSensor", "PositionSensor", "TorqueSensorSystem", "AddTorqueSensor"]
@@ -118,6 +119,9 @@ class TorqueSensorSystem(LeafSystem):
         if len(eps) == 2 and not np.array_equal(eps[0], eps[1]):
             raise ValueError("TorqueSensorSystem: hysteresis and lost_motion must share reversal_velocity")
         self._eps = eps[0] if eps else np.full(n, np.inf)
+        # the hysteresis' Dahl law (ρ a third of its saturation travel); without one its level is 0 and ρ = ∞
+        # leaves the carried value, 0, unchanged
+        self._rho = self.hysteresis.saturation_travel / 3.0 if self.hysteresis is not None else np.full(n, np.inf)
         self._tau = self.DeclareVectorInputPort("tau_J", n)
         self._x = self.DeclareVectorInputPort("link_state", 2 * n)
         self._state = self.DeclareDiscreteState(len(self._FIELDS) * n)
@@ -135,26 +139,21 @@ class TorqueSensorSystem(LeafSystem):
     def _advance(self, st: dict[str, np.ndarray], q: np.ndarray, qd: np.ndarray, tau: np.ndarray
                  ) -> dict[str, np.ndarray]:
         """The state after taking in one sample (q, q̇, τ)."""
-        raw = np.where(qd > self._eps, 1.0, np.where(qd < -self._eps, -1.0, 0.0))
-        d = np.where(raw != 0, raw, st["d"])
-        flip = (d != st["d"]) & (st["d"] != 0)
-        new_anchor = np.where(st["d"] > 0, st["hi"], st["lo"])
-        tau_rev = st["tau_rev"]
-        if self.hysteresis is not None:
-            rho = self.hysteresis.saturation_travel / 3.0
-            target = st["d"] * st["sat_prev"]
-            carried = target + (tau_rev - target) * np.exp(-np.abs(new_anchor - st["anchor"]) / rho)
-            tau_rev = np.where(flip, carried, tau_rev)
-        return {"d": d, "reversed": np.where(flip, 1.0, st["reversed"]),
-                "hi": np.where(flip, q, np.maximum(st["hi"], q)), "lo": np.where(flip, q, np.minimum(st["lo"], q)),
-                "anchor": np.where(flip, new_anchor, st["anchor"]), "tau_rev": tau_rev, "sat_prev": self._sat(tau)}
+        new = dahl_advance(self._dahl(st), q, qd, self._sat(tau), self._rho, self._eps)
+        flip = (new.d != st["d"]) & (st["d"] != 0)
+        return {"d": new.d, "reversed": np.where(flip, 1.0, st["reversed"]), "hi": new.hi, "lo": new.lo,
+                "anchor": new.anchor, "tau_rev": new.tau_rev, "sat_prev": new.level_prev}
+
+    @staticmethod
+    def _dahl(st: dict[str, np.ndarray]) -> DahlState:
+        """The hysteresis' share of the state: the Dahl law's reversal state (:mod:`proprio.effects.dahl`)."""
+        return DahlState(st["d"], st["hi"], st["lo"], st["anchor"], st["tau_rev"], st["sat_prev"])
 
     def _measure(self, st: dict[str, np.ndarray], q: np.ndarray, tau: np.ndarray) -> np.ndarray:
         r = q - st["anchor"]
         seen = tau.copy()
         if self.hysteresis is not None:
-            d_sat = st["d"] * st["sat_prev"]
-            seen += d_sat + (st["tau_rev"] - d_sat) * np.exp(-np.abs(r) / (self.hysteresis.saturation_travel / 3.0))
+            seen += dahl_value(self._dahl(st), q, self._rho)
         if self.lost_motion is not None:
             lm = self.lost_motion
             amp = lm.amplitude + lm.load_gain * np.abs(tau)
@@ -172,10 +171,10 @@ class TorqueSensorSystem(LeafSystem):
 
     def _initialize(self, context: Context, discrete_state: DiscreteValues) -> None:
         q, qd, tau = self._inputs(context)
-        d0 = np.where(qd > self._eps, 1.0, np.where(qd < -self._eps, -1.0, 0.0))
-        z = np.zeros(self.n)
         # the state *before* the first sample: the first sample then starts segment 0 at q0 without a reversal
-        discrete_state.set_value(self._state, np.concatenate([d0, z, q, q, q, z, self._sat(tau)]))
+        st = dahl_start(q, qd, self._sat(tau), self._eps)
+        discrete_state.set_value(self._state, np.concatenate([st.d, np.zeros(self.n), st.hi, st.lo, st.anchor,
+                                                              st.tau_rev, st.level_prev]))
 
     def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
         q, qd, tau = self._inputs(context)
