@@ -6,7 +6,8 @@
 Every stage evaluates friction through these functions — the twin's joint drive (per step, on ``q̇ [n]``), the
 effects (``viscous_coulomb``, ``stribeck``, ``friction_warmup``, the motor's friction), the diagnosis' model, its
 candidates and features, the identification regressor, the learning backbone and the estimator (batches
-``[N, n]``). The per-step and the batch forms are the same code: numpy broadcasting over any leading shape.
+``[N, n]``). The per-step and the batch forms are the same code: numpy broadcasting over any leading shape; the twin's
+C++ drive evaluates the same code traced once on symbolic velocities (``pydrake.symbolic``).
 
 **One smoothing.** :data:`SMOOTH_VELOCITY` is the library default of ``v_s``; a call with ``smooth_velocity=None``
 reads it at call time, and the friction effects take it as their ``smooth_velocity`` setting's default when they are
@@ -52,8 +53,12 @@ def smooth_sign(qd: np.ndarray, smooth_velocity: float | np.ndarray | None = Non
 def viscous_coulomb(qd: np.ndarray, viscous: float | np.ndarray, coulomb: float | np.ndarray,
                     smooth_velocity: float | np.ndarray | None = None) -> np.ndarray:
     """Friction torque ``F_v q̇ + F_c tanh(q̇ / v_s)`` [N·m] (dissipative: ``τ_f q̇ ≥ 0``) for velocities ``qd``
-    [rad/s] of any shape, viscous ``F_v`` [N·m·s/rad] and Coulomb ``F_c`` [N·m] scalars or per joint ``[n]``."""
-    qd = np.asarray(qd, dtype=float)
+    [rad/s] of any shape, viscous ``F_v`` [N·m·s/rad] and Coulomb ``F_c`` [N·m] scalars or per joint ``[n]``. ``qd``
+    may hold ``pydrake.symbolic`` variables (an object array): the result is then the law as symbolic expressions,
+    which the twin's drive evaluates in C++ (:class:`proprio.systems.joint_drive.FrictionDrive`)."""
+    qd = np.asarray(qd)
+    if qd.dtype != object:               # an object array holds Drake symbolic Expressions (a System traced from it)
+        qd = qd.astype(float, copy=False)
     return viscous * qd + coulomb * smooth_sign(qd, smooth_velocity)
 
 

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from pydrake.systems.framework import DiagramBuilder
 
 from proprio import friction_law
 from proprio.description import load_robot
@@ -20,7 +21,7 @@ from proprio.effects import Motor, ViscousCoulomb, robot_friction
 from proprio.identification.regressor import regressor_buffer
 from proprio.learning.features import rbd_provider
 from proprio.signals import MotionSignals
-from proprio.systems.joint_drive import JointDrive
+from proprio.systems.joint_drive import AddJointDrive, FrictionDrive, JointDrive
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -38,21 +39,26 @@ def _motion(n: int, rng: np.random.Generator, size: int = 40):
     return q, qd, rng.uniform(-1.0, 1.0, (size, n))
 
 
-def _twin_step_friction(robot, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The twin's link friction with the description's coefficients: per step (the JointDrive's actuation output for
-    zero motor torque, one sample at a time) and in batch (``link_torque``). The effect is built by the twin's own
-    config loader from a block that sets no smooth_velocity."""
+def _twin_step_friction(robot, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The twin's link friction with the description's coefficients: per step (the drive's actuation output for zero
+    motor torque, one sample at a time) by the drive the twin builds for it (the C++ :class:`FrictionDrive`) and by
+    the Python :class:`JointDrive` (the drive of twins with plugins, pre-sliding, coupled or elastic drives), and in
+    batch (``link_torque``). The effect is built by the twin's own config loader from a block that sets no
+    smooth_velocity."""
     config = TwinConfig.from_dict({"robot": robot.name, "effects": {"viscous_coulomb": {
         "viscous": list(robot.friction_viscous), "coulomb": list(robot.friction_coulomb)}}}, "test")
     link = [e for e in config.effects if e.place == "link"]
-    drive = JointDrive(robot.n, link)
-    ctx = drive.CreateDefaultContext()
-    drive.GetInputPort("motor_torque").FixValue(ctx, np.zeros(robot.n))
+    twin_drive = AddJointDrive(DiagramBuilder(), robot.n, link)
+    assert isinstance(twin_drive, FrictionDrive)
     per_step = []
-    for qk, qdk in zip(q, qd):
-        drive.GetInputPort("link_state").FixValue(ctx, np.concatenate([qk, qdk]))
-        per_step.append(-drive.GetOutputPort("actuation").Eval(ctx))
-    return np.array(per_step), drive.link_torque(np.zeros(len(q)), q, qd)
+    for drive in (twin_drive, JointDrive(robot.n, link)):
+        ctx = drive.CreateDefaultContext()
+        drive.GetInputPort("motor_torque").FixValue(ctx, np.zeros(robot.n))
+        per_step.append([])
+        for qk, qdk in zip(q, qd):
+            drive.GetInputPort("link_state").FixValue(ctx, np.concatenate([qk, qdk]))
+            per_step[-1].append(-drive.GetOutputPort("actuation").Eval(ctx))
+    return np.array(per_step[0]), np.array(per_step[1]), twin_drive.link_torque(np.zeros(len(q)), q, qd)
 
 
 def _every_stage(robot, q, qd, qdd) -> dict[str, np.ndarray]:
@@ -60,14 +66,15 @@ def _every_stage(robot, q, qd, qdd) -> dict[str, np.ndarray]:
     fv, fc = np.asarray(robot.friction_viscous), np.asarray(robot.friction_coulomb)
     rigid = inverse_dynamics(robot, q, qd, qdd)
     s = MotionSignals(np.zeros(len(q)), q, qd, qdd)
-    twin_step, twin_batch = _twin_step_friction(robot, q, qd)
+    twin_step, python_step, twin_batch = _twin_step_friction(robot, q, qd)
     estimator = RigidBodyTorqueModel(robot)
     step = estimator.tau_int_step()
     candidate = EffectCandidate("viscous_coulomb", robot.n).proto.regressor(s)
     buf = regressor_buffer(robot, q, qd, qdd)
     jj = np.arange(robot.n)
     return {
-        "twin per step": twin_step,
+        "twin per step (C++ drive)": twin_step,
+        "twin per step (Python drive)": python_step,
         "twin batch": twin_batch,
         "diagnosis model": SimModel(robot).rigid_torque(q, qd, qdd) - rigid,
         "diagnosis candidate": np.einsum("snp,p->sn", candidate, np.concatenate([fv, fc])),

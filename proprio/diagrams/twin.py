@@ -1,6 +1,7 @@
 """The twin: the data-collection diagram that plays the role of the real robot (DESIGN.md, "Physics of the twin").
 
-``JointTrajectorySource → InverseDynamicsController → JointDrive (motor side + link friction) → MultibodyPlant
+``JointTrajectorySource → InverseDynamicsController → drive (motor side + link friction: a C++ FrictionDrive or the
+Python JointDrive, proprio.systems.joint_drive) → MultibodyPlant
 (discrete 1 ms, payload) → VectorLogSink``; the logged true motion then passes the sensor models
 (:mod:`proprio.systems.sensors`) and the robot's logger (:mod:`proprio.systems.robot_logger`: lost samples, jittered
 stamps, the channels the robot reports) in one vectorised pass. Output: a :class:`~proprio.recording.Recording`
@@ -10,7 +11,7 @@ truth channels:
 
 * ``tau_rbd``: rigid-body torque of the logged motion incl. payload (``proprio.dynamics.inverse_dynamics``);
 * ``tau_J_true``: the transmitted, sensed torque before the sensor effects, straight from the simulation
-  (``JointDrive.sensed_torque``: actuation + link friction [− B q̈ for a rigid drive]); it equals
+  (``DriveLaw.sensed_torque``: actuation + link friction [− B q̈ for a rigid drive]); it equals
   ``tau_rbd + Σ link friction`` to solver precision (tests: 1e-6 N·m);
 * ``tau_<effect>``: each effect's contribution (``tau_viscous_coulomb``, ``tau_hysteresis``, ...);
 * ``q_true``, ``qd``, ``qdd``: the plant's exact link position, velocity and acceleration at the true sampling
@@ -75,7 +76,7 @@ from proprio.plant import DrakeRobot
 from proprio.recording import Recording
 from proprio.urdf import to_urdf
 from proprio.systems.joint_drive import (
-    AddJointDrive, JointDrive, check_elastic_stability, check_explicit_friction, friction_slope, reflected_inertia,
+    AddJointDrive, DriveLaw, check_elastic_stability, check_explicit_friction, friction_slope, reflected_inertia,
 )
 from proprio.identification.regressor import drive_identified
 from proprio.effects import Elasticity, EncoderNoise
@@ -99,7 +100,7 @@ class TwinDiagram:
     """What :func:`build_twin_diagram` returns."""
     diagram: Diagram
     plant: Any
-    drive: JointDrive
+    drive: DriveLaw                # FrictionDrive or JointDrive
     controller: InverseDynamicsController
     logger: VectorLogSink          # logs [q; q̇; q̈; net actuation (; θ; θ̇ if elastic)] every time_step
     config: TwinConfig
@@ -317,7 +318,7 @@ def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload |
     return _to_recording(config, twin.drive, t0 + keep * dt, data, wall, cpu)
 
 
-def _to_recording(config: TwinConfig, drive: JointDrive, t: np.ndarray, data: np.ndarray, wall_s: float,
+def _to_recording(config: TwinConfig, drive: DriveLaw, t: np.ndarray, data: np.ndarray, wall_s: float,
                   cpu_s: float) -> Recording:
     """Sensor models, the robot's logger and truth channels from the logged true motion ``[q; q̇; q̈; net actuation
     (; θ; θ̇)]`` at the true instants ``t`` [s]."""
