@@ -13,7 +13,7 @@ from proprio.diagrams.twin import (
     TwinConfig, TwinConfigError, load_twin_config, payload_wrench, simulate_twin,
 )
 from proprio.dynamics import inverse_dynamics
-from proprio.payload import Payload
+from proprio.payload import Payload, attach_payload
 from proprio.plant import DrakeRobot
 from proprio.recording import Recording, load_recording, save_recording
 from proprio.effects import make_effects
@@ -85,6 +85,10 @@ def test_calibrated_twin_channels_are_consistent(calibrated):
     tr = rec.truth
     # τ_J from the simulation equals rigid-body dynamics of the logged motion + link friction
     np.testing.assert_allclose(tr["tau_J_true"], tr["tau_rbd"] + tr["tau_viscous_coulomb"], atol=1e-6)
+    # ... where the twin's rigid-body torque (the plant's own step) is the loaded arm's inverse dynamics
+    tau_loaded = inverse_dynamics(attach_payload(calibrated.robot, payload), tr["q_true"][::50], tr["qd"][::50],
+                                  tr["qdd"][::50])
+    np.testing.assert_allclose(tr["tau_rbd"][::50], tau_loaded, rtol=0, atol=1e-6)
     # ... and the payload's part of it is −Jᵀ f_ext (f_ext: the payload wrench on the flange, world frame)
     tau_robot = inverse_dynamics(calibrated.robot, tr["q_true"], tr["qd"], tr["qdd"])
     jac = np.array([DrakeRobot(calibrated.robot).flange_jacobian(q) for q in tr["q_true"][::50]])

@@ -1,6 +1,6 @@
 """The twin: the data-collection diagram that plays the role of the real robot (DESIGN.md, "Physics of the twin").
 
-``JointTrajectorySource → InverseDynamicsController → drive (motor side + link friction: a C++ FrictionDrive or the
+``JointTrajectorySource → DiscreteInverseDynamicsController → drive (motor side + link friction: a C++ FrictionDrive or the
 Python JointDrive, proprio.systems.joint_drive) → MultibodyPlant
 (discrete 1 ms, payload) → VectorLogSink``; the logged true motion then passes the sensor models
 (:mod:`proprio.systems.sensors`) and the robot's logger (:mod:`proprio.systems.robot_logger`: lost samples, jittered
@@ -9,7 +9,9 @@ whose measured channels are what that robot logs — stamps ``t``, encoder ``q``
 that reports one, its own filtered ``qd``; never ``qdd`` — plus the true flange wrench ``f_ext`` (for scoring) and
 truth channels:
 
-* ``tau_rbd``: rigid-body torque of the logged motion incl. payload (``proprio.dynamics.inverse_dynamics``);
+* ``tau_rbd``: rigid-body torque of the logged motion incl. payload, the plant's own dynamics in each step
+  (``DriveLaw.rigid_body_torque``: net actuation less the rotor inertia the plant carries; equal to
+  ``proprio.dynamics.inverse_dynamics`` of the logged motion to 1e-6 N·m, tests);
 * ``tau_J_true``: the transmitted, sensed torque before the sensor effects, straight from the simulation
   (``DriveLaw.sensed_torque``: actuation + link friction [− B q̈ for a rigid drive]); it equals
   ``tau_rbd + Σ link friction`` to solver precision (tests: 1e-6 N·m);
@@ -61,8 +63,7 @@ import numpy as np
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import DiscreteContactApproximation, MultibodyPlant
 from pydrake.multibody.tree import PdControllerGains
-from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
-from pydrake.systems.controllers import InverseDynamicsController
+from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import Multiplexer, VectorLogSink
 from pydrake.trajectories import PiecewisePolynomial, Trajectory
@@ -81,6 +82,7 @@ from proprio.systems.joint_drive import (
 from proprio.identification.regressor import drive_identified
 from proprio.effects import Elasticity, EncoderNoise
 from proprio.signals import MotionSignals
+from proprio.systems.controller import AddDiscreteInverseDynamicsController, DiscreteInverseDynamicsController
 from proprio.systems.robot_logger import RobotLogger
 from proprio.systems.sensors import PositionSensor, TorqueSensor
 from proprio.systems.trajectories import AddTrajectorySource, sample_trajectory
@@ -101,7 +103,7 @@ class TwinDiagram:
     diagram: Diagram
     plant: Any
     drive: DriveLaw                # FrictionDrive or JointDrive
-    controller: InverseDynamicsController
+    controller: DiscreteInverseDynamicsController
     logger: VectorLogSink          # logs [q; q̇; q̈; net actuation (; θ; θ̇ if elastic)] every time_step
     config: TwinConfig
     control_plant: Any             # keeps the controller's model alive
@@ -170,8 +172,7 @@ def build_twin_diagram(config: TwinConfig, trajectory: Trajectory) -> TwinDiagra
     plant.set_name("plant")
     instance = plant.GetModelInstanceByName(desc.name)
     control_plant = _robot_plant(desc, config.payload if config.payload_model else None, 0.0, rotor)
-    ctrl = builder.AddSystem(InverseDynamicsController(control_plant, config.kp, config.ki, config.kd, True))
-    ctrl.set_name("controller")
+    ctrl = AddDiscreteInverseDynamicsController(builder, control_plant, config.kp, config.ki, config.kd, dt)
     coupled = coupling is not None and np.any(reflected != np.diag(rotor))
     drive = AddJointDrive(builder, n, link, motor, elastic, dt, session_time_s=config.session_time_s,
                           drive_offset=np.array(desc.drive.offset) if drive_identified(desc) else None,
@@ -180,12 +181,12 @@ def build_twin_diagram(config: TwinConfig, trajectory: Trajectory) -> TwinDiagra
     source = AddTrajectorySource(builder, trajectory)
 
     state = plant.get_state_output_port(instance)
-    builder.Connect(source.GetOutputPort("state"), ctrl.get_input_port_desired_state())
-    builder.Connect(source.GetOutputPort("qdd"), ctrl.get_input_port_desired_acceleration())
+    builder.Connect(source.GetOutputPort("state"), ctrl.GetInputPort("desired_state"))
+    builder.Connect(source.GetOutputPort("qdd"), ctrl.GetInputPort("desired_acceleration"))
     # an elastic joint is position-controlled on the motor side (collocated, see joint_drive.py)
     feedback = drive.GetOutputPort("motor_state") if elastic is not None else state
-    builder.Connect(feedback, ctrl.get_input_port_estimated_state())
-    builder.Connect(ctrl.get_output_port_generalized_force(), drive.GetInputPort("motor_torque"))
+    builder.Connect(feedback, ctrl.GetInputPort("estimated_state"))
+    builder.Connect(ctrl.GetOutputPort("generalized_force"), drive.GetInputPort("motor_torque"))
     builder.Connect(state, drive.GetInputPort("link_state"))
     builder.Connect(drive.GetOutputPort("actuation"), plant.get_actuation_input_port(instance))
     net_actuation = plant.get_net_actuation_output_port(instance)
@@ -276,12 +277,7 @@ def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload |
     n_steps = int(math.floor((t1 - t0) / dt + 1e-9)) + 1
     keep = _log_indices(n_steps, dt, config.logger.rate_hz)
 
-    sim = Simulator(twin.diagram)
-    # the only continuous state is the controller's error integral (PidController in InverseDynamicsController),
-    # integrated by explicit Euler at the time step as a digital controller does; with ki = 0 (every shipped twin)
-    # it does not act and the run equals the default error-controlled RK3 bit for bit, without its extra
-    # derivative evaluations between the plant's steps
-    ResetIntegratorFromFlags(sim, "explicit_euler", dt)
+    sim = Simulator(twin.diagram)        # every state is discrete (plant, controller integral, drive): no integrator
     ctx = sim.get_mutable_context()
     ctx.SetTime(t0)
     pctx = twin.plant.GetMyMutableContextFromRoot(ctx)
@@ -327,7 +323,7 @@ def _to_recording(config: TwinConfig, drive: DriveLaw, t: np.ndarray, data: np.n
     rng = np.random.default_rng(config.seed)
     s = MotionSignals(t=t + config.session_time_s, q=q, qd=qd, qdd=qdd)      # effects see the session clock
     truth: dict[str, np.ndarray] = {}
-    truth["tau_rbd"] = _in_batches(inverse_dynamics, attach_payload(desc, config.payload), q, qd, qdd)
+    truth["tau_rbd"] = drive.rigid_body_torque(u, qdd)
     # link-side effects act with q̈ = 0, on the session clock
     s_drive = MotionSignals(t=t + config.session_time_s, q=q, qd=qd, qdd=np.zeros_like(qdd))
     for eff in config.effects:

@@ -208,6 +208,15 @@ class DriveLaw:
             tau = tau - self.rotor_diagonal * qdd
         return tau
 
+    def rigid_body_torque(self, net_actuation: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """``τ_rbd = M(q) q̈ + C(q, q̇) q̇ − τ_g(q)`` [N·m] ``[N,n]`` of the simulated arm (payload included) from the
+        plant's logged net actuation and acceleration: the plant steps ``(M + D) q̈ = u − b`` with the rotor inertia
+        ``D`` it carries (:attr:`rotor_diagonal` for a rigid drive, none for the elastic one, whose spring torque is
+        part of ``u``), so ``τ_rbd = u − D q̈`` — the arm's own dynamics in the step, without re-evaluating them."""
+        if self.elasticity is not None:
+            return np.array(net_actuation, dtype=float)
+        return net_actuation - self.rotor_diagonal * qdd
+
     def set_motor_state(self, context: Context, q: np.ndarray, qd: np.ndarray, tau: np.ndarray) -> None:
         """Start the drive in equilibrium with link state (q, q̇) carrying torque ``tau`` (a no-op for a rigid
         drive; see :meth:`JointDrive.set_motor_state`)."""
@@ -218,11 +227,10 @@ class FrictionDrive(DriveLaw, Diagram):
     ``stribeck``, the motor's friction), as Drake C++ systems: ``actuation = motor_torque − τ_f(q̇)``.
 
     ``τ_f`` is the effects' own ``friction`` code (:mod:`proprio.friction_law`) evaluated once on symbolic velocities
-    at construction; a ``SymbolicVectorSystem`` evaluates those expressions each step (≈ 5 µs instead of ≈ 25 µs for
-    the Python :class:`JointDrive`) and an ``Adder`` applies them. Its one state is the work the friction has
-    dissipated, ``W = ∫ τ_f·q̇ dt`` [J] (``Σ`` over the joints; Drake's SymbolicVectorSystem must have a state in a
-    Diagram with continuous state). Ports as :class:`JointDrive`: ``motor_torque`` [n] N·m, ``link_state`` [2n] =
-    [q; q̇] → ``actuation`` [n] N·m.
+    at construction; a stateless ``SymbolicVectorSystem`` evaluates those expressions each step (≈ 5 µs instead of
+    ≈ 25 µs for the Python :class:`JointDrive`) and an ``Adder`` applies them. Ports as :class:`JointDrive`:
+    ``motor_torque`` [n] N·m, ``link_state`` [2n] = [q; q̇] → ``actuation`` [n] N·m. For discrete Diagrams like the
+    twin's (Drake's stateless SymbolicVectorSystem refuses to be asked for time derivatives).
     """
 
     def __init__(self, n: int, link_effects: list[JointEffect], motor: Motor | None = None,
@@ -236,10 +244,9 @@ class FrictionDrive(DriveLaw, Diagram):
             tau_f = self.motor_friction(x[n:])
             for eff in link_effects:
                 tau_f = tau_f + eff.friction(x[n:])
-            power, minus_tau_f = tau_f.dot(x[n:]), -tau_f
+            minus_tau_f = -tau_f
         builder = DiagramBuilder()
-        friction = builder.AddNamedSystem("friction", SymbolicVectorSystem(
-            state=MakeVectorVariable(1, "friction_work"), input=x, dynamics=[power], output=minus_tau_f))
+        friction = builder.AddNamedSystem("friction", SymbolicVectorSystem(input=x, output=minus_tau_f))
         adder = builder.AddNamedSystem("apply", Adder(2, n))
         builder.Connect(friction.get_output_port(), adder.get_input_port(1))
         builder.ExportInput(adder.get_input_port(0), "motor_torque")
