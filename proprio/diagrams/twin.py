@@ -60,9 +60,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pydrake.multibody.parsing import Parser
-from pydrake.multibody.plant import DiscreteContactApproximation, MultibodyPlant
-from pydrake.multibody.tree import PdControllerGains
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import Multiplexer, VectorLogSink
@@ -73,9 +70,8 @@ from proprio.description import RobotDescription
 from proprio.dynamics import inverse_dynamics
 from proprio.kinematics import flange_pose, point_jacobian
 from proprio.payload import Payload, attach_payload
-from proprio.plant import DrakeRobot
+from proprio.plant import DrakeRobot, robot_plant
 from proprio.recording import Recording
-from proprio.urdf import to_urdf
 from proprio.systems.joint_drive import (
     AddJointDrive, DriveLaw, check_elastic_stability, check_explicit_friction, friction_slope, reflected_inertia,
 )
@@ -109,34 +105,6 @@ class TwinDiagram:
     control_plant: Any             # keeps the controller's model alive
 
 
-def _robot_plant(desc: RobotDescription, payload: Payload | None, time_step: float,
-                 rotor_inertia: np.ndarray | None = None, spring: Elasticity | None = None) -> MultibodyPlant:
-    """The robot as a finalized MultibodyPlant (proprio's URDF, no collision shapes) with reflected rotor inertia
-    (per actuator: a coupled drive's diagonal, the rest acts through the JointDrive), or with each actuator a
-    PD-controlled joint whose gains are the series spring (K, D) of ``spring``.
-
-    The twin plays planned, collision-free paths and draws nothing, so it needs no SceneGraph: geometry queries
-    would cost ~1/3 of a step. Same URDF as ``proprio.plant.AddRobot``. Without a spring the discrete solver is
-    TAMSI (≈2× faster than SAP when nothing is in contact); the implicit PD actuators need SAP.
-    """
-    plant = MultibodyPlant(time_step)
-    Parser(plant).AddModelsFromString(to_urdf(desc, payload, collision=False), "urdf")
-    plant.mutable_gravity_field().set_gravity_vector(np.asarray(desc.gravity, dtype=float))
-    for k, index in enumerate(plant.GetJointActuatorIndices()):
-        actuator = plant.get_joint_actuator(index)
-        if rotor_inertia is not None:
-            actuator.set_default_rotor_inertia(float(rotor_inertia[k]))
-        if spring is not None:
-            actuator.set_controller_gains(PdControllerGains(p=float(spring.stiffness[k]),
-                                                            d=float(spring.damping[k])))
-    if time_step > 0:
-        plant.SetUseSampledOutputPorts(False)          # log q̈ and u of the state at the logged instant
-        plant.set_discrete_contact_approximation(DiscreteContactApproximation.kSap if spring is not None
-                                                 else DiscreteContactApproximation.kTamsi)
-    plant.Finalize()
-    return plant
-
-
 def _effective_inertia(desc: RobotDescription, payload: Payload | None, trajectory: Trajectory,
                        extra: np.ndarray) -> np.ndarray:
     """Smallest inertia a torque on each joint sees along the trajectory: ``min_t 1/[(M(q)+extra)⁻¹]_jj``
@@ -168,16 +136,17 @@ def build_twin_diagram(config: TwinConfig, trajectory: Trajectory) -> TwinDiagra
         check_elastic_stability(elastic, motor, dt)
 
     builder = DiagramBuilder()
-    plant = builder.AddSystem(_robot_plant(desc, config.payload, dt, rotor if elastic is None else None, elastic))
+    plant = builder.AddSystem(robot_plant(desc, config.payload, dt, rotor if elastic is None else None,
+                                           None if elastic is None else (elastic.stiffness, elastic.damping)))
     plant.set_name("plant")
     instance = plant.GetModelInstanceByName(desc.name)
-    control_plant = _robot_plant(desc, config.payload if config.payload_model else None, 0.0, rotor)
+    control_plant = robot_plant(desc, config.payload if config.payload_model else None, 0.0, rotor)
     ctrl = AddDiscreteInverseDynamicsController(builder, control_plant, config.kp, config.ki, config.kd, dt)
     coupled = coupling is not None and np.any(reflected != np.diag(rotor))
     drive = AddJointDrive(builder, n, link, motor, elastic, dt, session_time_s=config.session_time_s,
                           drive_offset=np.array(desc.drive.offset) if drive_identified(desc) else None,
                           coupling=coupling,
-                          model_plant=_robot_plant(desc, config.payload, 0.0, rotor) if coupled else None)
+                          model_plant=robot_plant(desc, config.payload, 0.0, rotor) if coupled else None)
     source = AddTrajectorySource(builder, trajectory)
 
     state = plant.get_state_output_port(instance)
