@@ -23,7 +23,7 @@ def test_lombscargle_equals_scipys(freqs):
     assert np.max(np.abs(_lombscargle(x, y, freqs) - ref)) <= 1e-10 * np.max(ref)
 
 
-def _data(n_rec: int = 2, n: int = 3, samples: int = 1500) -> GapData:
+def _data(n_rec: int = 2, n: int = 3, samples: int = 4000) -> GapData:
     rng = np.random.default_rng(5)
     sigs, idx = [], []
     for _ in range(n_rec):
@@ -32,7 +32,7 @@ def _data(n_rec: int = 2, n: int = 3, samples: int = 1500) -> GapData:
         q = 0.4 * np.sin(1.3 * t[:, None] + phase) + 0.1 * np.sin(4.1 * t[:, None])
         qd = np.gradient(q, t, axis=0)
         sigs.append(MotionSignals(t, q, qd, np.gradient(qd, t, axis=0), 5.0 * np.cos(t[:, None] + phase)))
-        idx.append(np.flatnonzero(rng.random(samples) < 0.3))
+        idx.append(np.flatnonzero(rng.random(samples) < 0.05))
     zeros = [np.zeros_like(s.q) for s in sigs]
     return GapData([], sigs, zeros, zeros, zeros, idx, list(range(n_rec)))
 
@@ -49,3 +49,6 @@ def test_candidate_torque_at_the_kept_samples_equals_the_full_evaluation(name):
     direct = data.stack([eff.torque(s) for s in data.signals])
     for _ in range(2):                                  # the second call reads the cached travel / kept signals
         np.testing.assert_allclose(cand.torque(theta, data), direct, rtol=1e-12, atol=1e-12)
+    views = [v for k, v in data.cache.items() if k[0] in ("travel", "kept_signals")]
+    cut = [x.q.shape[0] for v in views for x in (v if isinstance(v, list) else [v[0]])]
+    assert cut and max(cut) < 0.5 * data.signals[0].q.shape[0]       # evaluated on a cut of each recording

@@ -101,11 +101,12 @@ class EffectCandidate(Candidate):
         self.linear = bool(self.proto.linear)
         self.place = self.proto.place
         self.time_varying = bool(self.proto.time_varying)
-        self._takes_travel = ("travel" in inspect.signature(cls.torque).parameters
+        # a library effect's torque at a sample depends on that sample alone (evaluated at the kept samples only),
+        # except for the reversal-travel ones, whose state is the travel since the last reversal (:meth:`_travel_view`)
+        library = EFFECTS.get(cls.name) is cls
+        self._takes_travel = (library and "travel" in inspect.signature(cls.torque).parameters
                               and "reversal_velocity" in type(self.proto).settings)
-        # a library effect's torque at a sample depends on that sample alone, except for the reversal-travel ones
-        # (their state is the travel since the last reversal): those are evaluated at the kept samples only
-        self._pointwise = EFFECTS.get(cls.name) is cls and "travel" not in inspect.signature(cls.torque).parameters
+        self._pointwise = library and "travel" not in inspect.signature(cls.torque).parameters
         all_keys = list(type(self.proto).parameters)
         self._keys = list(keys) if keys else all_keys
         self._cols = np.concatenate([np.arange(n) + n * all_keys.index(k) for k in self._keys])
@@ -125,16 +126,34 @@ class EffectCandidate(Candidate):
             return np.concatenate([eff.torque(s) for s in _kept_signals(data)])
         if not self._takes_travel:
             return data.stack([eff.torque(s) for s in data.signals])
-        return data.stack([eff.torque(s, travel=self._travel(data, k, eff)) for k, s in enumerate(data.signals)])
+        out = []
+        for k in range(len(data.signals)):
+            s_u, travel, at = self._travel_view(data, k, eff)
+            out.append(eff.torque(s_u, travel=travel)[at])
+        return np.concatenate(out)
 
-    def _travel(self, data: GapData, k: int, eff: JointEffect) -> ReversalTravel:
-        """The reversal travel of recording ``k`` at the effect's ``reversal_velocity`` setting (never a fitted
-        parameter): computed once per recording and cached in ``data``, not at every iterate of the fit."""
+    def _travel_view(self, data: GapData, k: int, eff: JointEffect
+                     ) -> tuple[MotionSignals, ReversalTravel, np.ndarray]:
+        """Recording ``k`` for a reversal-travel effect: ``(signals, travel, positions of the kept samples in
+        them)``. The travel (at the effect's ``reversal_velocity`` setting, never a fitted parameter) is computed
+        once on the whole recording; its state enters the law only per segment between reversals (the value at each
+        segment's first and last sample) and per sample, so the signals and travel are cut to the kept samples plus
+        every segment's first and last one — the law's values there are those of the whole recording, at a fraction
+        of the cost on a long, strided training set. Cached in ``data``."""
         rv = np.asarray(eff.reversal_velocity, dtype=float)
         key = ("travel", k, rv.tobytes())
         if key not in data.cache:
-            s = data.signals[k]
-            data.cache[key] = reversal_travel(s.q, s.qd, rv)
+            s, kept = data.signals[k], data.fit_index[k]
+            rt = reversal_travel(s.q, s.qd, rv)
+            u = np.unique(np.concatenate([kept, *rt.starts, *(st[1:] - 1 for st in rt.starts)]))
+            if 2 * u.size > s.q.shape[0]:                      # little to cut: the whole recording
+                data.cache[key] = (s, rt, kept)
+            else:
+                at = lambda i: np.searchsorted(u, i)  # noqa: E731
+                cut = ReversalTravel(rt.r[u], rt.direction[u], rt.segment[u], tuple(at(st) for st in rt.starts),
+                                     rt.anchors, rt.seg_direction)
+                s_u = MotionSignals(s.t[u], s.q[u], s.qd[u], s.qdd[u], None if s.tau is None else s.tau[u])
+                data.cache[key] = (s_u, cut, at(kept))
         return data.cache[key]
 
     def starts(self, data: GapData) -> list[np.ndarray]:
