@@ -120,9 +120,10 @@ def run(model, train: Recording, hold: Recording, decimate: bool, out: Path) -> 
 
 
 def show(label: str, r: dict) -> None:
-    rate = r["samples"] / r["wall"]
     print(f"{label}: {r['seconds']:.0f} s of log ({r['samples']} samples) in {r['wall']:.1f} s wall, "
-          f"{r['cpu']:.1f} s CPU -> {rate / 1e3:.1f} k samples/s, {r['seconds'] / r['wall']:.1f}x real time")
+          f"{r['cpu']:.1f} s CPU -> by wall {r['samples'] / r['wall'] / 1e3:.1f} k samples/s, "
+          f"{r['seconds'] / r['wall']:.1f}x real time; by CPU {r['samples'] / r['cpu'] / 1e3:.1f} k samples/s, "
+          f"{r['seconds'] / r['cpu']:.1f}x real time")
     gains = ", ".join(f"{k} {100 * v:.0f} %" for k, v in r["gains"].items())
     print(f"  named: {' > '.join(r['named']) or '(nothing)'}; data path: {', '.join(r['data_path']) or '-'}"
           f"{f' (held-out gains: {gains})' if gains else ''}")
