@@ -135,3 +135,37 @@ def test_cli_refuses_a_bad_resolve_twin_and_a_short_experiment_before_any_diagno
     with pytest.raises(ValueError, match="split"):
         split_passes(one)
     assert not (tmp_path / "out" / "report.md").exists()
+
+
+def test_the_tie_rule_needs_alike_torques_and_a_shared_gain_not_only_similar_strength():
+    from proprio.diagnosis.ambiguity import TIE_CORRELATION, is_tie
+    t_crit = 1.7
+    # the true tie above (82 % shared, correlation 0.95) and the real LWR 4+ friction ↔ rigid body pair (comparable
+    # strength, the block test cannot order them, but 11 % shared and correlation 0.23: both are needed)
+    assert is_tie(0.2, 0.9, 0.5, t_crit, 0.95, 0.82, 0.02)
+    assert not is_tie(0.2, 0.9, 0.5, t_crit, 0.23, 0.11, 0.02)
+    assert not is_tie(0.2, 0.9, 0.5, t_crit, 0.95, 0.11, 0.02)        # alike torques, but mostly exclusive gains
+    assert not is_tie(0.2, 0.9, 0.5, t_crit, 0.5, 0.82, 0.02)         # R² = 0.25: different predictions
+    assert not is_tie(0.2, 0.4, 0.5, t_crit, 0.95, 0.82, 0.02)        # explains less than half the effect's gain
+    assert not is_tie(0.2, 0.9, 2.5, t_crit, 0.95, 0.82, 0.02)        # the block test prefers the effect
+    assert TIE_CORRELATION ** 2 == pytest.approx(0.5)
+
+
+@pytest.fixture(scope="module")
+def two_effects():
+    """Coulomb friction and a sensor offset of similar strength: each explains its own part of the residual."""
+    robot = load_robot("iiwa14_nominal")
+    n = robot.n
+    rng = np.random.default_rng(8)
+    fric = EFFECTS["viscous_coulomb"](n, viscous=np.zeros(n), coulomb=rng.uniform(0.25, 0.35, n))
+    off = EFFECTS["sensor_offset_gain"](n, offset=rng.uniform(0.25, 0.35, n) * rng.choice([-1, 1], n),
+                                        gain=np.zeros(n))
+    train, hold = _recs(robot, [fric, off])
+    return attribute(SimModel(robot), train, hold, candidates=CANDIDATES)
+
+
+def test_two_effects_that_each_explain_their_own_part_are_both_named_and_not_tied(two_effects):
+    att = two_effects
+    named = {s.name for s in att.physical_steps}
+    assert {"viscous_coulomb"} <= named and named & {"sensor_offset", "sensor_offset_gain"}, named
+    assert not any(a.tied for a in att.ambiguity), [a.to_dict() for a in att.ambiguity]
