@@ -59,7 +59,7 @@ CONFUSABLE_PAIRS = (("hysteresis", "viscous_coulomb", "short"), ("viscous_coulom
 """``(truth, impostor, variant)``: hysteresis vs Coulomb (both ways), pre-sliding friction vs lost motion (both
 ways), load-dependent friction vs a sensor gain error (both ways), payload vs rigid body (both ways)."""
 
-VARIANTS = {"short": "a hysteresis that saturates within 0.5–1° (a Coulomb step in disguise, issue #25's real log)",
+VARIANTS = {"short": "a hysteresis that saturates within 0.2–0.4° (a Coulomb step in disguise: issue #25's real log)",
             "load": "load-dependent friction: a direction-flipping level of 0.05–0.15 N·m + 2–5 % of |τ_J|, "
                     "turning over within 0.3–0.6° (the Dahl law with a load gain)",
             "gain": "a sensor gain error of 1–3 % alone (no offset)"}
@@ -125,7 +125,7 @@ def confusable_params(case: BenchmarkCase, n: int) -> dict[str, Any]:
     if kind == "presliding":
         return {"level": m * u(0.15, 0.4), "presliding_travel": np.radians(u(0.5, 1.5))}
     if var == "short":
-        return {"saturation": m * u(0.2, 0.5), "saturation_travel": np.radians(u(0.5, 1.0))}
+        return {"saturation": m * u(0.2, 0.5), "saturation_travel": np.radians(u(0.2, 0.4))}
     if var == "load":
         return {"saturation": m * u(0.05, 0.15), "load_gain": np.minimum(m * u(0.02, 0.05), 0.1),
                 "saturation_travel": np.radians(u(0.3, 0.6))}
