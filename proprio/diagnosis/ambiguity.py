@@ -259,14 +259,16 @@ def ambiguity_markdown(sets: Sequence[AmbiguitySet]) -> str:
     if not sets:
         return "No physical effect was named: nothing to compare."
     rows = ["| named effect | its held-out gain [%] | alternative | gain in its place [%] | share of the effect's "
-            "gain [%] | correlation of the held-out torques | block t (effect better) | tied |",
-            "|---|---|---|---|---|---|---|---|"]
+            "gain [%] | correlation of the held-out torques | block t (effect better) | shared of the pair's gain "
+            "[%] | tied |",
+            "|---|---|---|---|---|---|---|---|---|"]
     for a in sets:
         if not a.alternatives:
-            rows.append(f"| {a.effect} | {100 * a.gain:.1f} | — | — | — | — | — | — |")
+            rows.append(f"| {a.effect} | {100 * a.gain:.1f} | — | — | — | — | — | — | — |")
         for x in a.alternatives:
+            pair = "—" if math.isnan(x.pair_shared) else f"{100 * x.pair_shared:.0f}"
             rows.append(f"| {a.effect} | {100 * a.gain:.1f} | {x.name} | {100 * x.gain:.1f} | {100 * x.share:.0f} | "
-                        f"{x.correlation:.2f} | {x.t_stat:.1f} | {'yes' if x.tied else 'no'} |")
+                        f"{x.correlation:.2f} | {x.t_stat:.1f} | {pair} | {'yes' if x.tied else 'no'} |")
     head = ("Each alternative is fitted in the named effect's place (with the other named effects) on the training "
             "data and scored on the held-out data; tied: it explains at least half of the effect's gain, the "
             "block test cannot tell them apart, their held-out torques correlate ≥ 0.71 (R² > ½) and more than half "
