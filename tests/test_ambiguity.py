@@ -199,3 +199,13 @@ def test_two_effects_that_each_explain_their_own_part_are_both_named_and_not_tie
     assert alt.share >= TIE_SHARE and abs(alt.t_stat) < 1.7
     # ... but their held-out torques are unalike: each explains its own part
     assert abs(alt.correlation) < TIE_CORRELATION
+
+
+@pytest.mark.slow
+def test_confusable_family_through_the_twin_scores_right_or_tied_before_and_right_after():
+    """The whole family through the twin (8 cases, ≈ 5–15 min each on one core; README "Confusable effects")."""
+    from proprio.diagnosis.benchmark_confusable import run_confusable_case
+    results = [run_confusable_case(c) for c in confusable_cases(seed=0, twin=True)]
+    scores, text = summarise_confusable(results)
+    assert scores["cases"] == len(CONFUSABLE_PAIRS), text
+    assert scores["before_right_or_tie"] >= 0.9 and scores["top1_after"] >= 0.9, text
