@@ -47,6 +47,7 @@ __all__ = ["CONFUSABLE_PAIRS", "CONFUSABLE_CANDIDATES", "VARIANTS", "ANSWER", "R
            "confusable_cases", "confusable_params", "confusable_motion", "confusable_data", "run_confusable_case",
            "summarise_confusable"]
 
+NOISY = 4.0                      # the noisy variant's torque-noise factor
 RATE_HZ = 100.0                  # Hz, the family's log rate (the motions are slow: ≤ 25 % of the speed limits)
 LEGS = 7                         # reaches per recording (each joint reverses LEGS − 1 times)
 LEG_DEG = (6.0, 14.0)            # ° per joint and reach
@@ -55,14 +56,18 @@ SPEED = (0.08, 0.20)             # fraction of the velocity limits per reach
 CONFUSABLE_PAIRS = (("hysteresis", "viscous_coulomb", "short"), ("viscous_coulomb", "hysteresis", ""),
                     ("presliding", "lost_motion", ""), ("lost_motion", "hysteresis", ""),
                     ("hysteresis", "sensor_offset_gain", "load"), ("sensor_offset_gain", "hysteresis", "gain"),
-                    ("payload", "rigid_body", ""), ("rigid_body", "payload", ""))
+                    ("payload", "rigid_body", ""), ("rigid_body", "payload", ""),
+                    ("hysteresis", "viscous_coulomb", "short-noisy"), ("viscous_coulomb", "hysteresis", "noisy"))
 """``(truth, impostor, variant)``: hysteresis vs Coulomb (both ways), pre-sliding friction vs lost motion (both
-ways), load-dependent friction vs a sensor gain error (both ways), payload vs rigid body (both ways)."""
+ways), load-dependent friction vs a sensor gain error (both ways), payload vs rigid body (both ways), and hysteresis
+vs Coulomb again in a noisier sensor (``noisy``). A variant joins its parts with ``-``."""
 
 VARIANTS = {"short": "a hysteresis that saturates within 0.2–0.4° (a Coulomb step in disguise: issue #25's real log)",
             "load": "load-dependent friction: a direction-flipping level of 0.05–0.15 N·m + 2–5 % of |τ_J|, "
                     "turning over within 0.3–0.6° (the Dahl law with a load gain)",
-            "gain": "a sensor gain error of 1–3 % alone (no offset)"}
+            "gain": "a sensor gain error of 1–3 % alone (no offset)",
+            "noisy": f"a torque sensor {NOISY:g}× noisier ({NOISY * NOISE_STD:g} N·m; data and model): the shape of "
+                     "a reversal drowns, the level does not"}
 """The variants of the truth's parameters over the benchmark's draw (:func:`confusable_params`)."""
 
 CONFUSABLE_CANDIDATES = ("viscous_coulomb", "hysteresis", "lost_motion", "sensor_offset_gain", "rigid_body", "payload")
@@ -110,9 +115,15 @@ def confusable_cases(seed: int = 0, magnitudes: tuple[float, ...] = (1.0,), twin
             for truth, _, var in CONFUSABLE_PAIRS for m in magnitudes]
 
 
-def _variant(case: BenchmarkCase) -> str:
+def _variant(case: BenchmarkCase) -> set[str]:
+    """The parts of the case's variant (``.../short-noisy@m`` → {short, noisy})."""
     head = case.name.rpartition("@")[0]
-    return head.rpartition("/")[2] if "/" in head else ""
+    return set(head.rpartition("/")[2].split("-")) if "/" in head else set()
+
+
+def _noise(case: BenchmarkCase) -> float:
+    """The case's torque-sensor noise [N·m] (data and model)."""
+    return NOISE_STD * (NOISY if "noisy" in _variant(case) else 1.0)
 
 
 def confusable_params(case: BenchmarkCase, n: int) -> dict[str, Any]:
@@ -124,12 +135,12 @@ def confusable_params(case: BenchmarkCase, n: int) -> dict[str, Any]:
     u = lambda a, b: rng.uniform(a, b, n)  # noqa: E731
     if kind == "presliding":
         return {"level": m * u(0.15, 0.4), "presliding_travel": np.radians(u(0.5, 1.5))}
-    if var == "short":
+    if "short" in var:
         return {"saturation": m * u(0.2, 0.5), "saturation_travel": np.radians(u(0.2, 0.4))}
-    if var == "load":
+    if "load" in var:
         return {"saturation": m * u(0.05, 0.15), "load_gain": np.minimum(m * u(0.02, 0.05), 0.1),
                 "saturation_travel": np.radians(u(0.3, 0.6))}
-    if var == "gain":
+    if "gain" in var:
         return {"offset": np.zeros(n), "gain": m * u(0.01, 0.03) * rng.choice([-1.0, 1.0], n)}
     if kind == "viscous_coulomb":          # a Coulomb level that shows on every joint (the draw's 0.03 does not)
         return {"viscous": m * u(0.10, 0.37), "coulomb": m * u(0.10, 0.32)}
@@ -174,7 +185,7 @@ def _twin_config(case: BenchmarkCase, seed: int):
     n = config.robot.n
     kind, p = case.withheld[0], confusable_params(case, n)
     effects = [EFFECTS[kind](n, **p)] if kind in EFFECTS else []
-    effects += [EFFECTS["torque_noise"](n, std=np.full(n, NOISE_STD)),
+    effects += [EFFECTS["torque_noise"](n, std=np.full(n, _noise(case))),
                 EFFECTS["encoder_noise"](n, **{k: np.full(n, v) for k, v in ENCODER.items()})]
     config = replace(config.with_effects(effects), seed=seed)
     if kind == "rigid_body":
@@ -205,7 +216,7 @@ def _offline(case: BenchmarkCase, robot, traj, seed: int):
         tau = tau + eff.torque(s)
     meas = tau + (eff.torque(s.with_tau(tau)) if eff is not None and eff.place == "sensor" else 0.0)
     rng = np.random.default_rng(seed)
-    meas = meas + rng.normal(0.0, NOISE_STD, meas.shape)
+    meas = meas + rng.normal(0.0, _noise(case), meas.shape)
     q_rec = EFFECTS["encoder_noise"](n, **{k: np.full(n, v) for k, v in ENCODER.items()}).measure(q, rng)
     return Recording(t=t, q=q_rec, tau=meas, meta={"robot": robot.name, "rate_hz": RATE_HZ,
                                                     "source": "gap-benchmark confusable (offline)"})
@@ -229,7 +240,7 @@ def confusable_data(case: BenchmarkCase) -> CaseData:
     robot = _robot()
     n = robot.n
     recs = [_record(case, robot, confusable_motion(robot, case.seed + 7919 * k), k) for k in range(3)]
-    params = {"torque_noise": {"std": np.full(n, NOISE_STD)},
+    params = {"torque_noise": {"std": np.full(n, _noise(case))},
               "encoder_noise": {k: np.full(n, v) for k, v in ENCODER.items()}}
     return CaseData(robot, ("torque_noise", "encoder_noise"), params, recs[:2], recs[2:])
 
