@@ -52,22 +52,26 @@ RATE_HZ = 100.0                  # Hz, the family's log rate (the motions are sl
 LEGS = 7                         # reaches per recording (each joint reverses LEGS − 1 times)
 LEG_DEG = (6.0, 14.0)            # ° per joint and reach
 SPEED = (0.08, 0.20)             # fraction of the velocity limits per reach
+FAST = (0.4, 0.7)                # ... in the fast variant
 
 CONFUSABLE_PAIRS = (("hysteresis", "viscous_coulomb", "short"), ("viscous_coulomb", "hysteresis", ""),
                     ("presliding", "lost_motion", ""), ("lost_motion", "hysteresis", ""),
                     ("hysteresis", "sensor_offset_gain", "load"), ("sensor_offset_gain", "hysteresis", "gain"),
                     ("payload", "rigid_body", ""), ("rigid_body", "payload", ""),
-                    ("hysteresis", "viscous_coulomb", "short-noisy"), ("viscous_coulomb", "hysteresis", "noisy"))
+                    ("hysteresis", "viscous_coulomb", "short-noisy"), ("viscous_coulomb", "hysteresis", "noisy"),
+                    ("hysteresis", "viscous_coulomb", "short-fast"))
 """``(truth, impostor, variant)``: hysteresis vs Coulomb (both ways), pre-sliding friction vs lost motion (both
 ways), load-dependent friction vs a sensor gain error (both ways), payload vs rigid body (both ways), and hysteresis
-vs Coulomb again in a noisier sensor (``noisy``). A variant joins its parts with ``-``."""
+vs Coulomb again in a noisier sensor (``noisy``) and on fast reaches (``fast``). A variant joins its parts with ``-``."""
 
 VARIANTS = {"short": "a hysteresis that saturates within 0.2–0.4° (a Coulomb step in disguise: issue #25's real log)",
             "load": "load-dependent friction: a direction-flipping level of 0.05–0.15 N·m + 2–5 % of |τ_J|, "
                     "turning over within 0.3–0.6° (the Dahl law with a load gain)",
             "gain": "a sensor gain error of 1–3 % alone (no offset)",
             "noisy": f"a torque sensor {NOISY:g}× noisier ({NOISY * NOISE_STD:g} N·m; data and model): the shape of "
-                     "a reversal drowns, the level does not"}
+                     "a reversal drowns, the level does not",
+            "fast": f"reaches at {FAST[0]:g}–{FAST[1]:g} of the speed limits: a reversal's travel-dependent turn-over "
+                    "lasts a few samples"}
 """The variants of the truth's parameters over the benchmark's draw (:func:`confusable_params`)."""
 
 CONFUSABLE_CANDIDATES = ("viscous_coulomb", "hysteresis", "lost_motion", "sensor_offset_gain", "rigid_body", "payload")
@@ -152,9 +156,9 @@ def _robot():
     return load_twin_config("iiwa14_twin").robot.without_friction()
 
 
-def confusable_motion(robot, seed: int):
+def confusable_motion(robot, seed: int, speed: tuple[float, float] = SPEED):
     """One recording's motion (module docstring): :data:`LEGS` rest-to-rest reaches of :data:`LEG_DEG` per joint
-    (random signs) around a drawn pose at :data:`SPEED` of the velocity limits, back to the pose; the first
+    (random signs) around a drawn pose at ``speed`` (fractions of the velocity limits), back to the pose; the first
     collision-free draw of up to 20. Returns the Drake trajectory."""
     from proprio.collision import CollisionChecker
     from proprio.systems.trajectories import Phase, sample_trajectory, time_parameterize
@@ -168,7 +172,7 @@ def confusable_motion(robot, seed: int):
                       for _ in range(LEGS - 1)] + [q0]
         phases = []
         for a, b in zip(pts[:-1], pts[1:]):
-            vf = float(rng.uniform(*SPEED))
+            vf = float(rng.uniform(*speed))
             phases.append(Phase(np.stack([a, b]), vf, min(1.0, 2 * vf), "reach"))
         traj = time_parameterize(phases, robot).trajectory
         if not checker.any_collision(sample_trajectory(traj, 10.0)[1]):
@@ -239,7 +243,8 @@ def confusable_data(case: BenchmarkCase) -> CaseData:
     and encoder noise)."""
     robot = _robot()
     n = robot.n
-    recs = [_record(case, robot, confusable_motion(robot, case.seed + 7919 * k), k) for k in range(3)]
+    speed = FAST if "fast" in _variant(case) else SPEED
+    recs = [_record(case, robot, confusable_motion(robot, case.seed + 7919 * k, speed), k) for k in range(3)]
     params = {"torque_noise": {"std": np.full(n, _noise(case))},
               "encoder_noise": {k: np.full(n, v) for k, v in ENCODER.items()}}
     return CaseData(robot, ("torque_noise", "encoder_noise"), params, recs[:2], recs[2:])
