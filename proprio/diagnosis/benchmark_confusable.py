@@ -33,7 +33,6 @@ library's ``hysteresis`` with a short travel (the library has no other load-depe
 """
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field, replace
 from typing import Any
