@@ -2,7 +2,7 @@
 
 Each case withholds one effect that another candidate can imitate (:data:`CONFUSABLE_PAIRS`: the truth, its
 impostor and a variant of the truth's parameters), on recordings whose motion makes the pair confusable: a few
-reaches of 6–14° per joint between rest poses at 8–20 % of the speed limits (≈ 12–15 s each, every joint reversing
+reaches of 6–14° per joint between rest poses at 8–20 % of the speed limits (9–15 s each, every joint reversing
 up to 6 times, always after many degrees of travel), so a Dahl loop that saturates within a degree looks like a
 Coulomb step and a load law sees only a few load levels. The diagnosis chooses among :data:`CONFUSABLE_CANDIDATES`.
 
