@@ -3,8 +3,10 @@
 Each case withholds one effect that another candidate can imitate (:data:`CONFUSABLE_PAIRS`: the truth, its
 impostor and a variant of the truth's parameters), on recordings whose motion makes the pair confusable: a few
 reaches of 6–14° per joint between rest poses at 8–20 % of the speed limits (9–15 s each, every joint reversing
-up to 6 times, always after many degrees of travel), so a Dahl loop that saturates within a degree looks like a
-Coulomb step and a load law sees only a few load levels. The diagnosis chooses among :data:`CONFUSABLE_CANDIDATES`.
+up to 6 times, always after many degrees of travel), meant to make a Dahl loop that saturates within a degree look
+like a Coulomb step and to show a load law only a few load levels (measured, README "Confusable effects": on these
+slow reaches the first diagnosis still separates every pair; the ``fast`` variant's reaches leave hysteresis and
+Coulomb tied). The diagnosis chooses among :data:`CONFUSABLE_CANDIDATES`.
 
 **Data.** Twin mode (``twin=True``, ``proprio gap-benchmark --confusable --twin``, the family's mode): every
 recording is :func:`proprio.diagrams.twin.simulate_twin` of the shipped ``iiwa14_twin`` (robot ``iiwa14_identified``,
