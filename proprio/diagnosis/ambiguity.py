@@ -120,8 +120,9 @@ class AmbiguitySet:
                     "ranking (an experiment that separates them: diagnose --design-experiment / --resolve).")
         if self.alternatives:
             a = max(self.alternatives, key=lambda x: x.share)
-            return (f"{nm(self.effect)} is preferred over {nm(a.name)} (which explains {100 * a.share:.0f} % of its "
-                    f"held-out gain in its place; block t = {a.t_stat:.1f}).")
+            return (f"No other candidate takes the place of {nm(self.effect)}: the closest, {nm(a.name)}, explains "
+                    f"{100 * a.share:.0f} % of its held-out gain in its place, their held-out torques correlate "
+                    f"{a.correlation:.2f} (block t = {a.t_stat:.1f} for {nm(self.effect)}).")
         if self.gain < 0.02:
             return f"{nm(self.effect)} adds little once the other named effects are in: no alternative tested."
         return f"No other candidate takes the place of {nm(self.effect)} on these data."
@@ -273,5 +274,6 @@ def ambiguity_markdown(sets: Sequence[AmbiguitySet]) -> str:
             "data and scored on the held-out data; tied: it explains at least half of the effect's gain, the "
             "block test cannot tell them apart, their held-out torques correlate ≥ 0.71 (R² > ½) and more than half "
             "of what the two explain together is shared.")
-    tied = [a.text() for a in tied_sets(sets)] or ["No tie: every named effect is preferred over its alternatives."]
+    tied = [a.text() for a in tied_sets(sets)] or [
+        "No tie: no alternative can take a named effect's place (the rule above)."]
     return "\n\n".join([head, "\n".join(rows)] + tied)
