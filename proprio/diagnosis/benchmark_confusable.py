@@ -63,7 +63,8 @@ CONFUSABLE_PAIRS = (("hysteresis", "viscous_coulomb", "short"), ("viscous_coulom
                     ("hysteresis", "viscous_coulomb", "short-fast"))
 """``(truth, impostor, variant)``: hysteresis vs Coulomb (both ways), pre-sliding friction vs lost motion (both
 ways), load-dependent friction vs a sensor gain error (both ways), payload vs rigid body (both ways), and hysteresis
-vs Coulomb again in a noisier sensor (``noisy``) and on fast reaches (``fast``). A variant joins its parts with ``-``."""
+vs Coulomb again in a noisier sensor (``noisy``) and on fast reaches (``fast``). A variant joins its parts with
+``-``."""
 
 VARIANTS = {"short": "a hysteresis that saturates within 0.2–0.4° (a Coulomb step in disguise: issue #25's real log)",
             "load": "load-dependent friction: a direction-flipping level of 0.05–0.15 N·m + 2–5 % of |τ_J|, "
