@@ -15,8 +15,23 @@ effects (its *context*, fitted alongside every time):
 * ``share = g(alt) / g(s)``: how much of ``s``'s held-out gain the alternative explains when swapped in;
 * ``correlation``: the weighted correlation of the two held-out torque predictions (``C + x`` minus ``C``);
 * ``t``: the paired one-sided block t-test of ``s`` against the alternative (log-ratio differences, as the
-  selection's tie test). The alternative is **tied** with ``s`` when its share is at least :data:`TIE_SHARE` and
-  ``s`` is not significantly better (5 %) — the selection's own tie rule, applied in the effect's place.
+  selection's tie test);
+* ``pair_shared``: the share of the pair's joint gain ``g(s + alt)`` that either explains alone,
+  ``(g(s) + g(alt) − g(s + alt)) / g(s + alt)`` (the shared share below, for the pair).
+
+The alternative is **tied** with ``s`` — it can take ``s``'s place — only when all of these hold:
+
+1. it explains at least :data:`TIE_SHARE` (half) of ``s``'s held-out gain in its place: less, and what it leaves
+   unexplained is the larger part;
+2. ``s`` is not significantly better (the selection's own tie test, one-sided 5 %);
+3. their held-out torques are alike: correlation at least :data:`TIE_CORRELATION` = 1/√2, i.e. more than half of
+   either prediction's (weighted) variance lies along the other's (R² > ½);
+4. what they explain is mostly the same: ``pair_shared`` at least :data:`TIE_SHARED` (half), i.e. the shared part
+   outweighs the exclusive parts together. Two effects that each explain a different part of the residual by a
+   similar amount (a rigid-body error and friction on a real arm) pass 1 and 2 but are not a tie: both are needed.
+
+Each threshold is the "more than half" of its quantity, not a value fitted to data; 1 and 2 alone (the rule before)
+said "tie" for two effects of similar strength whatever they explain.
 
 A tied set ``S`` (``s`` and its tied alternatives) is fitted jointly over the selected effects outside it,
 ``g(S)``; the **exclusive** share of a member ``x`` is ``(g(S) − g(S∖x)) / g(S)`` (what only it explains), the
@@ -37,12 +52,13 @@ from proprio.diagnosis.candidates import Candidate
 from proprio.diagnosis.data import GapData
 from proprio.diagnosis.fitting import Fit, fit_candidates, predict_candidates
 
-__all__ = ["Alternative", "AmbiguitySet", "ambiguity_sets", "ambiguity_markdown", "tied_sets", "ALT_MIN_SHARE",
-           "TIE_SHARE", "MAX_ALTERNATIVES"]
+__all__ = ["Alternative", "AmbiguitySet", "ambiguity_sets", "ambiguity_markdown", "tied_sets", "is_tie",
+           "ALT_MIN_SHARE", "TIE_SHARE", "TIE_CORRELATION", "TIE_SHARED", "MAX_ALTERNATIVES"]
 
 ALT_MIN_SHARE = 0.3      # an alternative is tested when its step-1 gain alone is 30–333 % of the effect's
-TIE_SHARE = 0.5          # ... and tied when it explains ≥ 50 % of the effect's gain in its place and the block test
-#                          cannot tell them apart
+TIE_SHARE = 0.5          # ... tied only if it explains ≥ half of the effect's gain in its place,
+TIE_CORRELATION = 1.0 / math.sqrt(2.0)   # its held-out torque shares > half its variance with the effect's (R² > ½)
+TIE_SHARED = 0.5         # ... and > half of the pair's joint gain is shared (module docstring: the tie rule)
 MAX_ALTERNATIVES = 3
 
 
@@ -50,17 +66,20 @@ MAX_ALTERNATIVES = 3
 class Alternative:
     """A candidate swapped in for a named effect: its held-out gain in the effect's place as a share of the
     effect's own (``share``), the correlation of the two held-out torque predictions, the paired block t statistic
-    of the effect against it (large: the effect is significantly better) and whether they are tied."""
+    of the effect against it (large: the effect is significantly better), the shared share of the pair's joint gain
+    (``pair_shared``; NaN when not needed: a criterion before it failed) and whether they are tied."""
     name: str
     gain: float
     share: float
     correlation: float
     t_stat: float
     tied: bool
+    pair_shared: float = math.nan
 
     def to_dict(self) -> dict[str, Any]:
         return {"name": self.name, "gain": self.gain, "share": self.share, "correlation": self.correlation,
-                "t": self.t_stat, "tied": self.tied}
+                "t": self.t_stat, "pair_shared": None if math.isnan(self.pair_shared) else self.pair_shared,
+                "tied": self.tied}
 
 
 @dataclass
@@ -101,8 +120,9 @@ class AmbiguitySet:
                     "ranking (an experiment that separates them: diagnose --design-experiment / --resolve).")
         if self.alternatives:
             a = max(self.alternatives, key=lambda x: x.share)
-            return (f"{nm(self.effect)} is preferred over {nm(a.name)} (which explains {100 * a.share:.0f} % of its "
-                    f"held-out gain in its place; block t = {a.t_stat:.1f}).")
+            return (f"No other candidate takes the place of {nm(self.effect)}: the closest, {nm(a.name)}, explains "
+                    f"{100 * a.share:.0f} % of its held-out gain in its place, their held-out torques correlate "
+                    f"{a.correlation:.2f} (block t = {a.t_stat:.1f} for {nm(self.effect)}).")
         if self.gain < 0.02:
             return f"{nm(self.effect)} adds little once the other named effects are in: no alternative tested."
         return f"No other candidate takes the place of {nm(self.effect)} on these data."
@@ -130,6 +150,16 @@ def _corr(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> float:
     a, b = (a * sw).ravel(), (b * sw).ravel()
     den = math.sqrt(float(a @ a) * float(b @ b))
     return float(a @ b) / den if den > 0 else 0.0
+
+
+def is_tie(gain: float, share: float, t_stat: float, t_crit: float, correlation: float, pair_shared: float,
+           min_gain: float) -> bool:
+    """The tie rule of the module docstring: the alternative gains at least ``min_gain`` in the effect's place,
+    explains ≥ :data:`TIE_SHARE` of the effect's gain (``share``), the effect is not significantly better
+    (``t_stat < t_crit``), their held-out torques correlate ≥ :data:`TIE_CORRELATION` and ≥ :data:`TIE_SHARED` of
+    the pair's joint gain is shared (``pair_shared``)."""
+    return bool(gain >= min_gain and share >= TIE_SHARE and t_stat < t_crit and correlation >= TIE_CORRELATION
+                and pair_shared >= TIE_SHARED)
 
 
 def _home(train: GapData) -> np.ndarray:
@@ -189,8 +219,13 @@ def ambiguity_sets(selected: Sequence[Candidate], physical: Sequence[bool], cand
             lb_c, gc, d_c = gain(ctx, [c])
             share = gc / gs if gs > 0 else 0.0
             t = _t_stat(lb_s - lb_c)
-            tied = bool(gc >= min_gain and share >= TIE_SHARE and t < t_tie)
-            alts.append(Alternative(c.name, gc, share, _corr(d_s, d_c, w), t, tied))
+            rho = _corr(d_s, d_c, w)
+            pair = math.nan
+            if is_tie(gc, share, t, t_tie, rho, 1.0, min_gain):       # only then is the joint fit needed
+                g_sc = gain(ctx, [s, c])[1]
+                pair = float((gs + gc - g_sc) / g_sc) if g_sc > 0 else 0.0
+            alts.append(Alternative(c.name, gc, share, rho, t, is_tie(gc, share, t, t_tie, rho, pair, min_gain),
+                                    pair))
         members = [s.name] + [a.name for a in alts if a.tied]
         mem = [s] + [by_name[k] for k in members[1:]]
         ctx = [x for x in selected if x.name not in members]
@@ -225,16 +260,20 @@ def ambiguity_markdown(sets: Sequence[AmbiguitySet]) -> str:
     if not sets:
         return "No physical effect was named: nothing to compare."
     rows = ["| named effect | its held-out gain [%] | alternative | gain in its place [%] | share of the effect's "
-            "gain [%] | correlation of the held-out torques | block t (effect better) | tied |",
-            "|---|---|---|---|---|---|---|---|"]
+            "gain [%] | correlation of the held-out torques | block t (effect better) | shared of the pair's gain "
+            "[%] | tied |",
+            "|---|---|---|---|---|---|---|---|---|"]
     for a in sets:
         if not a.alternatives:
-            rows.append(f"| {a.effect} | {100 * a.gain:.1f} | — | — | — | — | — | — |")
+            rows.append(f"| {a.effect} | {100 * a.gain:.1f} | — | — | — | — | — | — | — |")
         for x in a.alternatives:
+            pair = "—" if math.isnan(x.pair_shared) else f"{100 * x.pair_shared:.0f}"
             rows.append(f"| {a.effect} | {100 * a.gain:.1f} | {x.name} | {100 * x.gain:.1f} | {100 * x.share:.0f} | "
-                        f"{x.correlation:.2f} | {x.t_stat:.1f} | {'yes' if x.tied else 'no'} |")
+                        f"{x.correlation:.2f} | {x.t_stat:.1f} | {pair} | {'yes' if x.tied else 'no'} |")
     head = ("Each alternative is fitted in the named effect's place (with the other named effects) on the training "
-            "data and scored on the held-out data; tied: it explains at least half of the effect's gain and the "
-            "block test cannot tell them apart.")
-    tied = [a.text() for a in tied_sets(sets)] or ["No tie: every named effect is preferred over its alternatives."]
+            "data and scored on the held-out data; tied: it explains at least half of the effect's gain, the "
+            "block test cannot tell them apart, their held-out torques correlate ≥ 0.71 (R² > ½) and more than half "
+            "of what the two explain together is shared.")
+    tied = [a.text() for a in tied_sets(sets)] or [
+        "No tie: no alternative can take a named effect's place (the rule above)."]
     return "\n\n".join([head, "\n".join(rows)] + tied)

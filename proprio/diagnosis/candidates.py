@@ -2,6 +2,7 @@
 an unmodelled payload, signal lag, encoder noise and elasticity (see :mod:`proprio.diagnosis.selection`)."""
 from __future__ import annotations
 
+import inspect
 import math
 from dataclasses import replace
 from typing import Any, Callable, Sequence
@@ -17,6 +18,7 @@ from proprio.dynamics import inverse_dynamics
 from proprio.effects import EFFECTS, JointEffect, effect_key, register_plugin, resolve_effect
 from proprio.identification.regressor import (PARAMS_PER_JOINT, drive_columns, drive_identified, n_parameters,
                                               parameter_names, regressor)
+from proprio.reversals import ReversalTravel, reversal_travel
 from proprio.signals import MotionSignals
 
 __all__ = ["Candidate", "EffectCandidate", "RigidBodyCandidate", "PayloadCandidate", "SignalLagCandidate",
@@ -70,6 +72,15 @@ class Candidate:
         return data.cache[key]
 
 
+def _kept_signals(data: GapData) -> list[MotionSignals]:
+    """The data's motion signals at their kept samples (``fit_index``), per recording; cached in ``data``."""
+    key = ("kept_signals",)
+    if key not in data.cache:
+        data.cache[key] = [MotionSignals(s.t[i], s.q[i], s.qd[i], s.qdd[i], None if s.tau is None else s.tau[i])
+                           for s, i in zip(data.signals, data.fit_index)]
+    return data.cache[key]
+
+
 class EffectCandidate(Candidate):
     """A joint effect: a library name, a plugin path ``"package.module:Class"`` or a ``JointEffect`` subclass
     (:mod:`proprio.effects.plugins`); the candidate is named by the class' ``name``. Linear effects are fitted through
@@ -90,6 +101,12 @@ class EffectCandidate(Candidate):
         self.linear = bool(self.proto.linear)
         self.place = self.proto.place
         self.time_varying = bool(self.proto.time_varying)
+        # a library effect's torque at a sample depends on that sample alone (evaluated at the kept samples only),
+        # except for the reversal-travel ones, whose state is the travel since the last reversal (:meth:`_travel_view`)
+        library = EFFECTS.get(cls.name) is cls
+        self._takes_travel = (library and "travel" in inspect.signature(cls.torque).parameters
+                              and "reversal_velocity" in type(self.proto).settings)
+        self._pointwise = library and "travel" not in inspect.signature(cls.torque).parameters
         all_keys = list(type(self.proto).parameters)
         self._keys = list(keys) if keys else all_keys
         self._cols = np.concatenate([np.arange(n) + n * all_keys.index(k) for k in self._keys])
@@ -99,11 +116,45 @@ class EffectCandidate(Candidate):
         return [f"{k}[{j + 1}]" for k in self._keys for j in range(self._n)]
 
     def design(self, data: GapData) -> np.ndarray:
+        if self._pointwise:
+            return np.concatenate([self.proto.regressor(s)[..., self._cols] for s in _kept_signals(data)])
         return data.stack([self.proto.regressor(s)[..., self._cols] for s in data.signals])
 
     def torque(self, theta: np.ndarray, data: GapData) -> np.ndarray:
         eff = self.proto.with_vector(np.asarray(theta, dtype=float))
-        return data.stack([eff.torque(s) for s in data.signals])
+        if self._pointwise:
+            return np.concatenate([eff.torque(s) for s in _kept_signals(data)])
+        if not self._takes_travel:
+            return data.stack([eff.torque(s) for s in data.signals])
+        out = []
+        for k in range(len(data.signals)):
+            s_u, travel, at = self._travel_view(data, k, eff)
+            out.append(eff.torque(s_u, travel=travel)[at])
+        return np.concatenate(out)
+
+    def _travel_view(self, data: GapData, k: int, eff: JointEffect
+                     ) -> tuple[MotionSignals, ReversalTravel, np.ndarray]:
+        """Recording ``k`` for a reversal-travel effect: ``(signals, travel, positions of the kept samples in
+        them)``. The travel (at the effect's ``reversal_velocity`` setting, never a fitted parameter) is computed
+        once on the whole recording; its state enters the law only per segment between reversals (the value at each
+        segment's first and last sample) and per sample, so the signals and travel are cut to the kept samples plus
+        every segment's first and last one — the law's values there are those of the whole recording, at a fraction
+        of the cost on a long, strided training set. Cached in ``data``."""
+        rv = np.asarray(eff.reversal_velocity, dtype=float)
+        key = ("travel", k, rv.tobytes())
+        if key not in data.cache:
+            s, kept = data.signals[k], data.fit_index[k]
+            rt = reversal_travel(s.q, s.qd, rv)
+            u = np.unique(np.concatenate([kept, *rt.starts, *(st[1:] - 1 for st in rt.starts)]))
+            if 2 * u.size > s.q.shape[0]:                      # little to cut: the whole recording
+                data.cache[key] = (s, rt, kept)
+            else:
+                at = lambda i: np.searchsorted(u, i)  # noqa: E731
+                cut = ReversalTravel(rt.r[u], rt.direction[u], rt.segment[u], tuple(at(st) for st in rt.starts),
+                                     rt.anchors, rt.seg_direction)
+                s_u = MotionSignals(s.t[u], s.q[u], s.qd[u], s.qdd[u], None if s.tau is None else s.tau[u])
+                data.cache[key] = (s_u, cut, at(kept))
+        return data.cache[key]
 
     def starts(self, data: GapData) -> list[np.ndarray]:
         """Library defaults with zero amplitudes set to 1 and 0.3 × the residual RMS; a time constant [s] starts at
@@ -207,23 +258,24 @@ class ElasticityCandidate(Candidate):
 
     def design(self, data: GapData) -> np.ndarray:
         out = []
-        for s, cs in zip(data.signals, data.conditioned):
+        for s, cs, i in zip(data.signals, data.conditioned, data.fit_index):
             n, tau = s.n, s.tau
             # the deflection reaches q̇, q̈ through the same low-pass as the measured motion
             smooth = zero_phase_lowpass(tau, cs.rate_hz, cs.cutoff_hz)
             tau_d = np.gradient(smooth, s.t, axis=0)
             tau_dd = np.gradient(tau_d, s.t, axis=0)
-            cols = np.empty(s.q.shape + (n,))
+            q, qd, qdd = s.q[i], s.qd[i], s.qdd[i]                  # the rigid body at the kept samples only
+            cols = np.empty(q.shape + (n,))
             for k in range(n):
                 # directional derivative of τ_rbd along the deflection (τ_k, τ̇_k, τ̈_k)·c_k of joint k
                 h = 1e-3 / max(float(np.abs(tau[:, k]).max()), 1e-9)
-                dirs = [np.zeros_like(s.q) for _ in range(3)]
-                dirs[0][:, k], dirs[1][:, k], dirs[2][:, k] = h * tau[:, k], h * tau_d[:, k], h * tau_dd[:, k]
-                plus = inverse_dynamics(self.model.robot, s.q + dirs[0], s.qd + dirs[1], s.qdd + self.accel * dirs[2])
-                minus = inverse_dynamics(self.model.robot, s.q - dirs[0], s.qd - dirs[1], s.qdd - self.accel * dirs[2])
+                dirs = [np.zeros_like(q) for _ in range(3)]
+                dirs[0][:, k], dirs[1][:, k], dirs[2][:, k] = h * tau[i, k], h * tau_d[i, k], h * tau_dd[i, k]
+                plus = inverse_dynamics(self.model.robot, q + dirs[0], qd + dirs[1], qdd + self.accel * dirs[2])
+                minus = inverse_dynamics(self.model.robot, q - dirs[0], qd - dirs[1], qdd - self.accel * dirs[2])
                 cols[:, :, k] = -(plus - minus) / (2 * h)
             out.append(cols)
-        return data.stack(out)
+        return np.concatenate(out)
 
     def joint_of_param(self, n: int) -> np.ndarray:
         return -np.ones(n, dtype=int)
@@ -268,7 +320,7 @@ class RigidBodyCandidate(Candidate):
 
     def _inertial(self, data: GapData) -> np.ndarray:
         keep = _inertial_columns(self.robot)
-        return data.stack([regressor(self.robot, s.q, s.qd, s.qdd)[..., keep] for s in data.signals])
+        return np.concatenate([regressor(self.robot, s.q, s.qd, s.qdd)[..., keep] for s in _kept_signals(data)])
 
     def param_names(self) -> list[str]:
         return self._names
@@ -363,11 +415,11 @@ class PayloadCandidate(Candidate):
         n = self.robot.n
         c0 = PARAMS_PER_JOINT * (n - 1)
         out = []
-        for s in data.signals:
+        for s in _kept_signals(data):
             y = regressor(self.robot, s.q, s.qd, s.qdd)[..., c0:c0 + 10]
             out.append(np.concatenate([y[..., :1] + y[..., 1:4] @ self.p_f[:, None], y[..., 1:4] @ self.r_f,
                                        y[..., 4:10]], axis=-1))
-        return data.stack(out)
+        return np.concatenate(out)
 
 
 class SignalLagCandidate(Candidate):
