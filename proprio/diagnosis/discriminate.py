@@ -42,7 +42,7 @@ import numpy as np
 
 from proprio.collision import CollisionChecker
 from proprio.conditioning import ConditionedSignals
-from proprio.diagnosis.ambiguity import AmbiguitySet, tied_sets
+from proprio.diagnosis.ambiguity import TIE_SHARE, AmbiguitySet, tied_sets
 from proprio.diagnosis.data import GapData, SimModel
 from proprio.diagnosis.fitting import fit_candidates, predict_candidates
 from proprio.recording import Recording
@@ -50,13 +50,14 @@ from proprio.signals import MotionSignals
 from proprio.systems.trajectories import (Phase, check_limits, sample_trajectory, save_trajectory,
                                           time_parameterize)
 
-__all__ = ["Experiment", "Resolution", "design_experiment", "split_passes", "resolution", "MIN_SCORE",
-           "PASS_S"]
+__all__ = ["Experiment", "Resolution", "design_experiment", "split_passes", "resolution", "confounded_pairs",
+           "pair_set", "MIN_SCORE", "PASS_S", "CONFOUND_CORRELATION"]
 
 PASS_S = 30.0            # s, each of the two mirrored passes
 MIN_SCORE = 3.0          # separation (noise units over half-second blocks) below which nothing decides
 SCORE_RATE_HZ = 50.0     # Hz, the motion sampled for the predictions
 BLOCK_S = 0.5
+CONFOUND_CORRELATION = 0.8   # two named effects whose held-out torques correlate this much share their parameters
 
 
 @dataclass
@@ -206,11 +207,12 @@ def _separation(aset: AmbiguitySet, data: GapData, refit: bool) -> float:
 
 
 def design_experiment(model: SimModel, aset: AmbiguitySet, checker: CollisionChecker | None = None,
-                      refit_top: int = 3) -> Experiment | None:
+                      refit_top: int = 3, families: Sequence[str] | None = None) -> Experiment | None:
     """The motion of the family (module docstring) that best separates the tied set ``aset``, within the limits and
     collision-checked (``checker``: default the robot's self-collision checker); ``None`` when ``aset`` is not tied
     or no member fits the limits without a collision. The ``refit_top`` best members by raw separation are scored
-    with the refit."""
+    with the refit; ``families``: only these kinds of motion (``"triangles"``, ``"sweeps"``, ``"dwell_reverse"``,
+    ``"poses"``; default all)."""
     if not aset.tied:
         return None
     robot = model.robot
@@ -219,7 +221,13 @@ def design_experiment(model: SimModel, aset: AmbiguitySet, checker: CollisionChe
     room = 0.9 * np.minimum(robot.upper - q0, q0 - robot.lower)
     room = np.maximum(room, 0.0)
     scored = []
+    unknown = set(families or ()) - {"triangles", "sweeps", "dwell_reverse", "poses"}
+    if unknown:
+        raise ValueError(f"design_experiment: families {sorted(unknown)} unknown; valid: triangles, sweeps, "
+                         "dwell_reverse, poses")
     for fam, label, build in _family(q0, room, robot.n):
+        if families is not None and fam not in families:
+            continue
         made = None
         for shrink in (1.0, 0.5):
             made = _passes(model, lambda sign, b=build, s=shrink: [[Phase(q0 + s * (p.waypoints - q0),
@@ -247,6 +255,43 @@ def design_experiment(model: SimModel, aset: AmbiguitySet, checker: CollisionChe
                       float(traj.end_time() - traj.start_time()),
                       [(r[0], r[1], float(r[4]), float("nan") if r[5] is None else float(r[5])) for r in scored],
                       check_limits(traj, robot, 200.0), robot.name)
+
+
+def confounded_pairs(sets: Sequence[AmbiguitySet]) -> list[tuple[AmbiguitySet, str]]:
+    """Named effects whose parameters trade off: ``(set of s, t)`` for two effects ``s`` and ``t`` that the selection
+    both named, where ``t`` swapped into ``s``'s place explains at least :data:`~proprio.diagnosis.ambiguity.TIE_SHARE`
+    of its held-out gain with held-out torques correlated ≥ :data:`CONFOUND_CORRELATION`, but is not tied with it.
+    The block test then prefers ``s`` and keeps both, yet the data cannot say how the shared torque divides between
+    them: ``s`` takes ``t``'s level (the demo's mixture: hysteresis fitted with the Coulomb level, Coulomb ≈ 0).
+    Each unordered pair once."""
+    named = {a.effect for a in sets}
+    seen: set[frozenset] = set()
+    out = []
+    for a in sets:
+        for alt in a.alternatives:
+            key = frozenset((a.effect, alt.name))
+            if (alt.name in named and not alt.tied and alt.share >= TIE_SHARE
+                    and alt.correlation >= CONFOUND_CORRELATION and key not in seen):
+                seen.add(key)
+                out.append((a, alt.name))
+    return out
+
+
+def pair_set(aset: AmbiguitySet, other: str, train: GapData) -> AmbiguitySet:
+    """The confounded pair (:func:`confounded_pairs`) of ``aset.effect`` and the named ``other`` as a two-member set
+    for :func:`design_experiment`: each member fitted alone in the pair's place, with the named effects outside the
+    pair, on ``train`` (the diagnosis' training data, :meth:`GapData.build`; started from the joint fit)."""
+    ctx = [k for k in aset.context if k != other]
+    cands = [aset.candidates[k] for k in ctx]
+    init = dict(aset.fits[aset.effect].thetas)
+    fits = {}
+    for m in (aset.effect, other):
+        cs = cands + [aset.candidates[m]]
+        fits[m] = fit_candidates(cs, train, aset.weights, {k: v for k, v in init.items() if k in ctx or k == m},
+                                 sweeps=3 if any(not c.linear for c in cs) else 1)
+    alt = next(a for a in aset.alternatives if a.name == other)
+    return replace(aset, members=[aset.effect, other], alternatives=[replace(alt, tied=True)], context=ctx, fits=fits,
+                   joint_gain=float("nan"), shared=float("nan"), exclusive={})
 
 
 def split_passes(rec: Recording, split_s: float | None = None) -> tuple[Recording, Recording]:
