@@ -16,7 +16,12 @@ set's ``home`` configuration (a configuration the robot visited):
 Score of a member: for every ordered pair (A, B) of the set, B (with the context effects) is refitted to A's
 prediction on the motion and ``z = RMS((τ_A − τ_B*)/σ) · sqrt(T / 0.5 s)`` (σ [n] the held-out residual RMS the
 diagnosis left, T the motion's duration; ≈ the separation in units of the noise over independent half-second
-blocks); the member's score is the smallest z over the pairs and the best member is kept. Below
+blocks); the member's score is the smallest z over the pairs and the best member is kept. A *confounded pair*
+(:func:`confounded_pairs`: two effects the selection both named, whose torques can take each other's place) is
+scored on the even mixture of the two members' predictions instead: each member alone (with the context) is refitted
+to it, and z is the smallest misfit — a motion on which neither alone can mimic the mixture lets the joint fit divide
+the shared torque between them (either alone can absorb the other's level elsewhere: a hysteresis whose travel shrinks
+mimics a Coulomb step). Below
 :data:`MIN_SCORE` no motion of the family separates the set: it says so (a payload, for instance, is inside the
 rigid-body error's span for every motion).
 
@@ -183,36 +188,40 @@ def _prediction_data(model: SimModel, traj: Any) -> GapData:
     return GapData.build(model, [cs], [np.ones(len(t), dtype=bool)], "holdout")
 
 
-def _separation(aset: AmbiguitySet, data: GapData, refit: bool) -> float:
-    """Smallest separation z over the ordered member pairs (module docstring) on ``data``."""
+def _separation(aset: AmbiguitySet, data: GapData, refit: bool, mixed: bool = False) -> float:
+    """Smallest separation z over the ordered member pairs (module docstring) on ``data``; ``mixed``: over the
+    members, each refitted to the even mixture of the members' predictions (a confounded pair, module docstring)."""
     ctx = [aset.candidates[k] for k in aset.context]
     pred = {m: predict_candidates(ctx + [aset.candidates[m]], aset.fits[m], data) for m in aset.members}
     scale = np.sqrt(max(float(data.times[0][-1] - data.times[0][0]), BLOCK_S) / BLOCK_S)
     sigma = np.maximum(aset.sigma, 1e-6)
+    mix = sum(pred.values()) / len(pred)
+    orders = [(None, b) for b in aset.members] if mixed else \
+        [(a, b) for a in aset.members for b in aset.members if a != b and (refit or a < b)]
     best = math.inf
-    for a in aset.members:
-        for b in aset.members:
-            if a == b or (not refit and b < a):
-                continue
-            other = pred[b]
-            if refit:
-                target = replace(data, e=[pred[a]])          # the designs depend on the motion only: cache shared
-                cs = ctx + [aset.candidates[b]]
-                f = fit_candidates(cs, target, aset.weights, dict(aset.fits[b].thetas),
-                                   sweeps=3 if any(not c.linear for c in cs) else 1)
-                other = predict_candidates(cs, f, target)
-            z = float(np.sqrt(np.mean(((pred[a] - other) / sigma) ** 2))) * scale
-            best = min(best, z)
+    for a, b in orders:
+        goal = mix if a is None else pred[a]
+        other = pred[b]
+        if refit:
+            target = replace(data, e=[goal])             # the designs depend on the motion only: cache shared
+            cs = ctx + [aset.candidates[b]]
+            f = fit_candidates(cs, target, aset.weights, dict(aset.fits[b].thetas),
+                               sweeps=3 if any(not c.linear for c in cs) else 1)
+            other = predict_candidates(cs, f, target)
+        z = float(np.sqrt(np.mean(((goal - other) / sigma) ** 2))) * scale
+        best = min(best, z)
     return best
 
 
 def design_experiment(model: SimModel, aset: AmbiguitySet, checker: CollisionChecker | None = None,
-                      refit_top: int = 3, families: Sequence[str] | None = None) -> Experiment | None:
+                      refit_top: int = 3, families: Sequence[str] | None = None,
+                      mixed: bool = False) -> Experiment | None:
     """The motion of the family (module docstring) that best separates the tied set ``aset``, within the limits and
     collision-checked (``checker``: default the robot's self-collision checker); ``None`` when ``aset`` is not tied
     or no member fits the limits without a collision. The ``refit_top`` best members by raw separation are scored
     with the refit; ``families``: only these kinds of motion (``"triangles"``, ``"sweeps"``, ``"dwell_reverse"``,
-    ``"poses"``; default all)."""
+    ``"poses"``; default all). ``mixed``: ``aset`` is a confounded pair (:func:`pair_set`) — both effects stay, so
+    the motion must show the even mixture of the two apart from either one alone (module docstring)."""
     if not aset.tied:
         return None
     robot = model.robot
@@ -243,12 +252,12 @@ def design_experiment(model: SimModel, aset: AmbiguitySet, checker: CollisionChe
         if made is None:
             continue
         data = _prediction_data(model, made[0])
-        scored.append([fam, label, made, data, _separation(aset, data, refit=False), None])
+        scored.append([fam, label, made, data, _separation(aset, data, refit=False, mixed=mixed), None])
     if not scored:
         return None
     scored.sort(key=lambda x: -x[4])
     for row in scored[:refit_top]:
-        row[5] = _separation(aset, row[3], refit=True)
+        row[5] = _separation(aset, row[3], refit=True, mixed=mixed)
     best = max(scored[:refit_top], key=lambda x: x[5])
     traj, split = best[2]
     return Experiment(list(aset.members), best[0], best[1], float(best[5]), float(best[4]), traj, float(split),

@@ -75,15 +75,15 @@ def design_experiments(model: SimModel, att: Attribution, out_dir: str | Path | 
     when it decides (``out_dir`` given)."""
     say = progress or (lambda m: None)
     named = {a.effect for a in att.ambiguity}
-    sets = [a for a in tied_sets(att.ambiguity) if not (set(a.members) <= named and _unrelated(a))]
+    sets = [(a, False) for a in tied_sets(att.ambiguity) if not (set(a.members) <= named and _unrelated(a))]
     if train is not None:
         for aset, other in confounded_pairs(att.ambiguity):
             say(f"refitting {aset.effect} and {other} each alone in their place")
-            sets.append(pair_set(aset, other, train))
+            sets.append((pair_set(aset, other, train), True))
     out = []
-    for aset in sets:
+    for aset, mixed in sets:
         say(f"designing the experiment for {' vs '.join(aset.members)}")
-        exp = design_experiment(model, aset)
+        exp = design_experiment(model, aset, mixed=mixed)
         path = None
         if exp is not None and exp.decides and out_dir is not None:
             path = exp.save(Path(out_dir) / f"experiment_{'_vs_'.join(aset.members)}.npz")
