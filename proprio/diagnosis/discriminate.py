@@ -82,16 +82,23 @@ class Experiment:
     scores: list[tuple[str, str, float, float]]
     limits: dict[str, float]
     robot: str
+    pair: bool = False
 
     @property
     def decides(self) -> bool:
         return self.score >= MIN_SCORE
 
+    @property
+    def worth_running(self) -> bool:
+        """It decides, or ``members`` is a confounded pair: both effects stay named and the joint fit gains from the
+        motion that shows their mixture best even where one alone could still mimic it within the noise."""
+        return self.decides or self.pair
+
     def meta(self) -> dict[str, Any]:
         return {"robot": self.robot, "purpose": f"separate {' vs '.join(self.members)}", "family": self.family,
                 "label": self.label, "score": self.score, "raw_score": self.raw_score, "split_s": self.split_s,
                 "passes": [[0.0, self.split_s], [self.split_s, self.duration]], "limits": self.limits,
-                "collision_checked": True}
+                "collision_checked": True, "confounded_pair": self.pair}
 
     def save(self, path: str | Path) -> Path:
         """The trajectory file (``proprio trajectory``'s format, :func:`save_trajectory`) with :meth:`meta`."""
@@ -99,6 +106,11 @@ class Experiment:
 
     def text(self) -> str:
         who = " vs ".join(self.members)
+        if self.pair:
+            return (f"{' and '.join(self.members)} (both named, their levels trade off): {self.family} {self.label}, "
+                    f"{self.duration:.0f} s in two mirrored passes (split at {self.split_s:.1f} s), shows their "
+                    f"mixture apart from either alone by {self.score:.1f} noise units after refitting "
+                    f"({self.raw_score:.1f} before); the re-diagnosis fits both jointly on the old and the new data.")
         if not self.decides:
             return (f"{who}: no motion of the family separates them beyond the noise (best {self.family} "
                     f"{self.label}, separation {self.score:.1f} < {MIN_SCORE:g} noise units after refitting): on "
@@ -263,7 +275,7 @@ def design_experiment(model: SimModel, aset: AmbiguitySet, checker: CollisionChe
     return Experiment(list(aset.members), best[0], best[1], float(best[5]), float(best[4]), traj, float(split),
                       float(traj.end_time() - traj.start_time()),
                       [(r[0], r[1], float(r[4]), float("nan") if r[5] is None else float(r[5])) for r in scored],
-                      check_limits(traj, robot, 200.0), robot.name)
+                      check_limits(traj, robot, 200.0), robot.name, pair=mixed)
 
 
 def confounded_pairs(sets: Sequence[AmbiguitySet]) -> list[tuple[AmbiguitySet, str]]:

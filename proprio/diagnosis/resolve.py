@@ -52,8 +52,8 @@ class DesignedExperiment:
         return self.experiment.text() + where
 
 
-def training_data(model: SimModel, train: Sequence[Recording], conditioning: ConditioningConfig = DIAGNOSIS_CONDITIONING,
-                  trim_s: float = 0.5) -> GapData:
+def training_data(model: SimModel, train: Sequence[Recording],
+                  conditioning: ConditioningConfig = DIAGNOSIS_CONDITIONING, trim_s: float = 0.5) -> GapData:
     """The training recordings prepared as the diagnosis prepares them (the same conditioning, trimming and
     session clock, :meth:`GapData.build`), for refitting the members of a confounded pair."""
     cond = condition_all(train, conditioning, "training")
@@ -72,7 +72,7 @@ def design_experiments(model: SimModel, att: Attribution, out_dir: str | Path | 
     """The experiment of every tied set of ``att`` and, with ``train`` (the diagnosis' training data,
     :func:`training_data`), of every confounded pair of named effects (module docstring;
     :func:`~proprio.diagnosis.discriminate.design_experiment`), written to ``out_dir/experiment_<A>_vs_<B>.npz``
-    when it decides (``out_dir`` given)."""
+    when it decides or serves a confounded pair (``out_dir`` given)."""
     say = progress or (lambda m: None)
     named = {a.effect for a in att.ambiguity}
     sets = [(a, False) for a in tied_sets(att.ambiguity) if not (set(a.members) <= named and _unrelated(a))]
@@ -85,7 +85,7 @@ def design_experiments(model: SimModel, att: Attribution, out_dir: str | Path | 
         say(f"designing the experiment for {' vs '.join(aset.members)}")
         exp = design_experiment(model, aset, mixed=mixed)
         path = None
-        if exp is not None and exp.decides and out_dir is not None:
+        if exp is not None and exp.worth_running and out_dir is not None:
             path = exp.save(Path(out_dir) / f"experiment_{'_vs_'.join(aset.members)}.npz")
         out.append(DesignedExperiment(list(aset.members), exp, path))
     return out
@@ -105,13 +105,13 @@ def with_experiments(train: Sequence[Recording], hold: Sequence[Recording], expe
 
 def run_on_twin(twin: "TwinConfig", designed: Sequence[DesignedExperiment],
                 progress: Callable[[str], None] | None = None) -> list[Recording]:
-    """Run every deciding experiment on ``twin`` (:func:`proprio.diagrams.twin.simulate_twin`); returns the
-    recordings in order (each also kept on its :class:`DesignedExperiment`)."""
+    """Run every deciding (or confounded-pair) experiment on ``twin`` (:func:`proprio.diagrams.twin.simulate_twin`);
+    returns the recordings in order (each also kept on its :class:`DesignedExperiment`)."""
     from proprio.diagrams.twin import simulate_twin
 
     recs = []
     for d in designed:
-        if d.experiment is None or not d.experiment.decides:
+        if d.experiment is None or not d.experiment.worth_running:
             continue
         (progress or (lambda m: None))(f"running the experiment for {' vs '.join(d.members)} on the twin")
         d.recording = simulate_twin(twin, d.experiment.trajectory, progress=False)
