@@ -99,6 +99,7 @@ def test_the_pair_experiment_lets_the_joint_fit_divide_the_level(mixture):
     assert set(pair.fits["viscous_coulomb"].thetas) == {"viscous_coulomb"}
     exp = design_experiment(model, pair, families=("triangles",), refit_top=2, mixed=True)
     assert exp is not None and exp.family == "triangles" and exp.duration <= 60.0 + 1e-6
+    assert exp.pair and exp.worth_running and "both named" in exp.text()      # run even if one alone could mimic it
     assert np.isfinite(exp.score) and exp.score <= exp.raw_score + 1e-9    # refitting only removes separation
     new = record(*sample_trajectory(exp.trajectory, RATE), 2)
     after = fit_candidates(both, training_data(model, [old, new]), w, {}, sweeps=3)
