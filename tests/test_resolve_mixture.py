@@ -10,6 +10,7 @@ slow test (README, "Confusable effects")."""
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -21,7 +22,7 @@ from proprio.diagnosis.candidates import candidate_set
 from proprio.diagnosis.data import SimModel
 from proprio.diagnosis.discriminate import CONFOUND_CORRELATION, confounded_pairs, design_experiment, pair_set
 from proprio.diagnosis.fitting import fit_candidates
-from proprio.diagnosis.resolve import training_data
+from proprio.diagnosis.resolve import design_experiments, training_data
 from proprio.dynamics import inverse_dynamics
 from proprio.effects import EFFECTS
 from proprio.recording import Recording
@@ -55,6 +56,9 @@ def test_confounded_pairs_are_two_named_effects_with_correlated_torques_not_tied
     weak = [_set("hysteresis", [_alt("viscous_coulomb", 0.4, 0.9)], ["viscous_coulomb"]),
             _set("viscous_coulomb", [], ["hysteresis"])]
     assert confounded_pairs(weak) == []                      # explains too little of the effect's gain in its place
+    # a tie of two named effects whose held-out torques do not correlate gets no experiment (both explain their part)
+    unrelated = SimpleNamespace(ambiguity=[sets[2], _set("lost_motion", [], ["ripple"])])
+    assert design_experiments(SimModel(load_robot("iiwa14_nominal")), unrelated) == []
 
 
 @pytest.fixture(scope="module")
