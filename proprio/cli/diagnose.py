@@ -232,9 +232,11 @@ def _experiments(args: argparse.Namespace, model, d, train, hold, conditioning, 
     """--design-experiment / --resolve: the experiments of the tied sets, and with a twin the re-diagnosis."""
     from proprio.diagnosis.discriminate import resolution
     from proprio.diagnosis.report import diagnose
-    from proprio.diagnosis.resolve import design_experiments, run_on_twin, with_experiments, write_resolution
+    from proprio.diagnosis.resolve import (design_experiments, run_on_twin, training_data, with_experiments,
+                                           write_resolution)
 
-    designed = design_experiments(model, d.attribution, args.out)
+    designed = design_experiments(model, d.attribution, args.out,
+                                  train=training_data(model, train, conditioning, args.trim))
     if not designed:
         print("no tied effects: no experiment needed")
         return

@@ -16,7 +16,12 @@ set's ``home`` configuration (a configuration the robot visited):
 Score of a member: for every ordered pair (A, B) of the set, B (with the context effects) is refitted to A's
 prediction on the motion and ``z = RMS((τ_A − τ_B*)/σ) · sqrt(T / 0.5 s)`` (σ [n] the held-out residual RMS the
 diagnosis left, T the motion's duration; ≈ the separation in units of the noise over independent half-second
-blocks); the member's score is the smallest z over the pairs and the best member is kept. Below
+blocks); the member's score is the smallest z over the pairs and the best member is kept. A *confounded pair*
+(:func:`confounded_pairs`: two effects the selection both named, whose torques can take each other's place) is
+scored on the even mixture of the two members' predictions instead: each member alone (with the context) is refitted
+to it, and z is the smallest misfit — a motion on which neither alone can mimic the mixture lets the joint fit divide
+the shared torque between them (either alone can absorb the other's level elsewhere: a hysteresis whose travel shrinks
+mimics a Coulomb step). Below
 :data:`MIN_SCORE` no motion of the family separates the set: it says so (a payload, for instance, is inside the
 rigid-body error's span for every motion).
 
@@ -42,7 +47,7 @@ import numpy as np
 
 from proprio.collision import CollisionChecker
 from proprio.conditioning import ConditionedSignals
-from proprio.diagnosis.ambiguity import AmbiguitySet, tied_sets
+from proprio.diagnosis.ambiguity import TIE_SHARE, AmbiguitySet, tied_sets
 from proprio.diagnosis.data import GapData, SimModel
 from proprio.diagnosis.fitting import fit_candidates, predict_candidates
 from proprio.recording import Recording
@@ -50,13 +55,14 @@ from proprio.signals import MotionSignals
 from proprio.systems.trajectories import (Phase, check_limits, sample_trajectory, save_trajectory,
                                           time_parameterize)
 
-__all__ = ["Experiment", "Resolution", "design_experiment", "split_passes", "resolution", "MIN_SCORE",
-           "PASS_S"]
+__all__ = ["Experiment", "Resolution", "design_experiment", "split_passes", "resolution", "confounded_pairs",
+           "pair_set", "MIN_SCORE", "PASS_S", "CONFOUND_CORRELATION"]
 
 PASS_S = 30.0            # s, each of the two mirrored passes
 MIN_SCORE = 3.0          # separation (noise units over half-second blocks) below which nothing decides
 SCORE_RATE_HZ = 50.0     # Hz, the motion sampled for the predictions
 BLOCK_S = 0.5
+CONFOUND_CORRELATION = 0.8   # two named effects whose held-out torques correlate this much share their parameters
 
 
 @dataclass
@@ -76,16 +82,23 @@ class Experiment:
     scores: list[tuple[str, str, float, float]]
     limits: dict[str, float]
     robot: str
+    pair: bool = False
 
     @property
     def decides(self) -> bool:
         return self.score >= MIN_SCORE
 
+    @property
+    def worth_running(self) -> bool:
+        """It decides, or ``members`` is a confounded pair: both effects stay named and the joint fit gains from the
+        motion that shows their mixture best even where one alone could still mimic it within the noise."""
+        return self.decides or self.pair
+
     def meta(self) -> dict[str, Any]:
         return {"robot": self.robot, "purpose": f"separate {' vs '.join(self.members)}", "family": self.family,
                 "label": self.label, "score": self.score, "raw_score": self.raw_score, "split_s": self.split_s,
                 "passes": [[0.0, self.split_s], [self.split_s, self.duration]], "limits": self.limits,
-                "collision_checked": True}
+                "collision_checked": True, "confounded_pair": self.pair}
 
     def save(self, path: str | Path) -> Path:
         """The trajectory file (``proprio trajectory``'s format, :func:`save_trajectory`) with :meth:`meta`."""
@@ -93,6 +106,11 @@ class Experiment:
 
     def text(self) -> str:
         who = " vs ".join(self.members)
+        if self.pair:
+            return (f"{' and '.join(self.members)} (both named, their levels trade off): {self.family} {self.label}, "
+                    f"{self.duration:.0f} s in two mirrored passes (split at {self.split_s:.1f} s), shows their "
+                    f"mixture apart from either alone by {self.score:.1f} noise units after refitting "
+                    f"({self.raw_score:.1f} before); the re-diagnosis fits both jointly on the old and the new data.")
         if not self.decides:
             return (f"{who}: no motion of the family separates them beyond the noise (best {self.family} "
                     f"{self.label}, separation {self.score:.1f} < {MIN_SCORE:g} noise units after refitting): on "
@@ -182,35 +200,40 @@ def _prediction_data(model: SimModel, traj: Any) -> GapData:
     return GapData.build(model, [cs], [np.ones(len(t), dtype=bool)], "holdout")
 
 
-def _separation(aset: AmbiguitySet, data: GapData, refit: bool) -> float:
-    """Smallest separation z over the ordered member pairs (module docstring) on ``data``."""
+def _separation(aset: AmbiguitySet, data: GapData, refit: bool, mixed: bool = False) -> float:
+    """Smallest separation z over the ordered member pairs (module docstring) on ``data``; ``mixed``: over the
+    members, each refitted to the even mixture of the members' predictions (a confounded pair, module docstring)."""
     ctx = [aset.candidates[k] for k in aset.context]
     pred = {m: predict_candidates(ctx + [aset.candidates[m]], aset.fits[m], data) for m in aset.members}
     scale = np.sqrt(max(float(data.times[0][-1] - data.times[0][0]), BLOCK_S) / BLOCK_S)
     sigma = np.maximum(aset.sigma, 1e-6)
+    mix = sum(pred.values()) / len(pred)
+    orders = [(None, b) for b in aset.members] if mixed else \
+        [(a, b) for a in aset.members for b in aset.members if a != b and (refit or a < b)]
     best = math.inf
-    for a in aset.members:
-        for b in aset.members:
-            if a == b or (not refit and b < a):
-                continue
-            other = pred[b]
-            if refit:
-                target = replace(data, e=[pred[a]])          # the designs depend on the motion only: cache shared
-                cs = ctx + [aset.candidates[b]]
-                f = fit_candidates(cs, target, aset.weights, dict(aset.fits[b].thetas),
-                                   sweeps=3 if any(not c.linear for c in cs) else 1)
-                other = predict_candidates(cs, f, target)
-            z = float(np.sqrt(np.mean(((pred[a] - other) / sigma) ** 2))) * scale
-            best = min(best, z)
+    for a, b in orders:
+        goal = mix if a is None else pred[a]
+        other = pred[b]
+        if refit:
+            target = replace(data, e=[goal])             # the designs depend on the motion only: cache shared
+            cs = ctx + [aset.candidates[b]]
+            f = fit_candidates(cs, target, aset.weights, dict(aset.fits[b].thetas),
+                               sweeps=3 if any(not c.linear for c in cs) else 1)
+            other = predict_candidates(cs, f, target)
+        z = float(np.sqrt(np.mean(((goal - other) / sigma) ** 2))) * scale
+        best = min(best, z)
     return best
 
 
 def design_experiment(model: SimModel, aset: AmbiguitySet, checker: CollisionChecker | None = None,
-                      refit_top: int = 3) -> Experiment | None:
+                      refit_top: int = 3, families: Sequence[str] | None = None,
+                      mixed: bool = False) -> Experiment | None:
     """The motion of the family (module docstring) that best separates the tied set ``aset``, within the limits and
     collision-checked (``checker``: default the robot's self-collision checker); ``None`` when ``aset`` is not tied
     or no member fits the limits without a collision. The ``refit_top`` best members by raw separation are scored
-    with the refit."""
+    with the refit; ``families``: only these kinds of motion (``"triangles"``, ``"sweeps"``, ``"dwell_reverse"``,
+    ``"poses"``; default all). ``mixed``: ``aset`` is a confounded pair (:func:`pair_set`) — both effects stay, so
+    the motion must show the even mixture of the two apart from either one alone (module docstring)."""
     if not aset.tied:
         return None
     robot = model.robot
@@ -219,7 +242,13 @@ def design_experiment(model: SimModel, aset: AmbiguitySet, checker: CollisionChe
     room = 0.9 * np.minimum(robot.upper - q0, q0 - robot.lower)
     room = np.maximum(room, 0.0)
     scored = []
+    unknown = set(families or ()) - {"triangles", "sweeps", "dwell_reverse", "poses"}
+    if unknown:
+        raise ValueError(f"design_experiment: families {sorted(unknown)} unknown; valid: triangles, sweeps, "
+                         "dwell_reverse, poses")
     for fam, label, build in _family(q0, room, robot.n):
+        if families is not None and fam not in families:
+            continue
         made = None
         for shrink in (1.0, 0.5):
             made = _passes(model, lambda sign, b=build, s=shrink: [[Phase(q0 + s * (p.waypoints - q0),
@@ -235,18 +264,55 @@ def design_experiment(model: SimModel, aset: AmbiguitySet, checker: CollisionChe
         if made is None:
             continue
         data = _prediction_data(model, made[0])
-        scored.append([fam, label, made, data, _separation(aset, data, refit=False), None])
+        scored.append([fam, label, made, data, _separation(aset, data, refit=False, mixed=mixed), None])
     if not scored:
         return None
     scored.sort(key=lambda x: -x[4])
     for row in scored[:refit_top]:
-        row[5] = _separation(aset, row[3], refit=True)
+        row[5] = _separation(aset, row[3], refit=True, mixed=mixed)
     best = max(scored[:refit_top], key=lambda x: x[5])
     traj, split = best[2]
     return Experiment(list(aset.members), best[0], best[1], float(best[5]), float(best[4]), traj, float(split),
                       float(traj.end_time() - traj.start_time()),
                       [(r[0], r[1], float(r[4]), float("nan") if r[5] is None else float(r[5])) for r in scored],
-                      check_limits(traj, robot, 200.0), robot.name)
+                      check_limits(traj, robot, 200.0), robot.name, pair=mixed)
+
+
+def confounded_pairs(sets: Sequence[AmbiguitySet]) -> list[tuple[AmbiguitySet, str]]:
+    """Named effects whose parameters trade off: ``(set of s, t)`` for two effects ``s`` and ``t`` that the selection
+    both named, where ``t`` swapped into ``s``'s place explains at least :data:`~proprio.diagnosis.ambiguity.TIE_SHARE`
+    of its held-out gain with held-out torques correlated ≥ :data:`CONFOUND_CORRELATION`, but is not tied with it.
+    The block test then prefers ``s`` and keeps both, yet the data cannot say how the shared torque divides between
+    them: ``s`` takes ``t``'s level (the demo's mixture: hysteresis fitted with the Coulomb level, Coulomb ≈ 0).
+    Each unordered pair once."""
+    named = {a.effect for a in sets}
+    seen: set[frozenset] = set()
+    out = []
+    for a in sets:
+        for alt in a.alternatives:
+            key = frozenset((a.effect, alt.name))
+            if (alt.name in named and not alt.tied and alt.share >= TIE_SHARE
+                    and alt.correlation >= CONFOUND_CORRELATION and key not in seen):
+                seen.add(key)
+                out.append((a, alt.name))
+    return out
+
+
+def pair_set(aset: AmbiguitySet, other: str, train: GapData) -> AmbiguitySet:
+    """The confounded pair (:func:`confounded_pairs`) of ``aset.effect`` and the named ``other`` as a two-member set
+    for :func:`design_experiment`: each member fitted alone in the pair's place, with the named effects outside the
+    pair, on ``train`` (the diagnosis' training data, :meth:`GapData.build`; started from the joint fit)."""
+    ctx = [k for k in aset.context if k != other]
+    cands = [aset.candidates[k] for k in ctx]
+    init = dict(aset.fits[aset.effect].thetas)
+    fits = {}
+    for m in (aset.effect, other):
+        cs = cands + [aset.candidates[m]]
+        fits[m] = fit_candidates(cs, train, aset.weights, {k: v for k, v in init.items() if k in ctx or k == m},
+                                 sweeps=3 if any(not c.linear for c in cs) else 1)
+    alt = next(a for a in aset.alternatives if a.name == other)
+    return replace(aset, members=[aset.effect, other], alternatives=[replace(alt, tied=True)], context=ctx, fits=fits,
+                   joint_gain=float("nan"), shared=float("nan"), exclusive={})
 
 
 def split_passes(rec: Recording, split_s: float | None = None) -> tuple[Recording, Recording]:
