@@ -1,6 +1,7 @@
 # The two set-up commands: `make demo` and `make test`. Both create/reuse .venv and install what they need.
 # `make test` runs every module, command and demo stage on reduced sizes and every notebook, on every core
-# (pytest-xdist, one test module or notebook per worker at a time: module fixtures such as the demo are built once);
+# (pytest-xdist, one test module or notebook per worker at a time: module fixtures such as the demo are built once;
+# the longest modules first, tests/conftest.py LONGEST_FIRST, so the short ones fill in behind them);
 # `make test-all` adds the full-size runs (pytest --full: the tests marked slow, the demo at its own sizes).
 # TEST_WORKERS=1 runs it in one process. One BLAS/OpenMP thread per worker: the workers already fill the cores.
 # `make lab` (extra): JupyterLab in the same environment with the notebooks open (LAB_ARGS, e.g. --no-browser).
@@ -12,7 +13,8 @@ STAMP  := $(VENV)/.installed-$(CKSUM)
 LAB_ARGS ?=
 TEST_WORKERS ?= auto
 PYTEST := MPLBACKEND=Agg OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 \
-          $(PY) -m pytest -q tests --nbmake notebooks -n $(TEST_WORKERS) --dist loadscope
+          $(PY) -m pytest -q tests --nbmake notebooks -n $(TEST_WORKERS) --dist loadscope \
+          --no-loadscope-reorder
 LAB_ROOT  := $(if $(filter 0,$(shell id -u)),--allow-root,)   # containers often run as root
 
 .PHONY: demo test test-all venv clean benchmarks lab cuda-torch

@@ -198,3 +198,25 @@ def test_lost_motion_is_zero_before_a_joint_first_moves():
     tau = LostMotion.from_config({"amplitude": 0.3}, N_J).torque(rest)
     np.testing.assert_array_equal(tau[:pad], 0.0)
     assert np.min(tau[pad + 5:pad + 50, 0]) < -0.29                     # then holds −A while the flip is lost
+
+
+def test_the_reversal_travel_is_computed_once_per_motion_and_deadband():
+    """A fit evaluates hysteresis and lost motion many times on the same signals: their reversal travel is memoised
+    per motion and deadband (``MotionSignals.derived``), equal to :func:`reversal_travel` of the same inputs, shared by
+    ``with_tau`` and recomputed for another deadband or another motion."""
+    from proprio.effects.base import motion_reversal_travel
+
+    t = np.linspace(0.0, 4.0, 801)
+    q = np.column_stack([0.3 * np.sin(2 * t), 0.2 * np.sin(3 * t + 1.0)])
+    s = MotionSignals(t, q, np.gradient(q, t, axis=0), np.zeros_like(q))
+    hyst = Hysteresis(2, saturation=np.array([0.5, 0.2]))
+    first = hyst.torque(s)
+    rt = motion_reversal_travel(s, hyst.reversal_velocity)
+    assert len(s.derived) == 1 and motion_reversal_travel(s.with_tau(first), hyst.reversal_velocity) is rt
+    ref = reversal_travel(s.q, s.qd, hyst.reversal_velocity)
+    assert np.array_equal(rt.r, ref.r) and np.array_equal(rt.segment, ref.segment)
+    np.testing.assert_array_equal(hyst.torque(s), first)
+    LostMotion(2, amplitude=np.array([0.1, 0.1]), reversal_velocity=np.array([2e-3, 0.5])).torque(s)
+    assert len(s.derived) == 2                                        # another deadband: its own travel
+    moved = MotionSignals(t, q + 0.1 * t[:, None], s.qd + 0.1, s.qdd)
+    assert not np.array_equal(Hysteresis(2, saturation=np.array([0.5, 0.2])).torque(moved), first)

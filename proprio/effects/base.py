@@ -9,9 +9,11 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from proprio.reversals import ReversalTravel, reversal_travel
 from proprio.signals import MotionSignals
 
-__all__ = ["EffectConfigError", "JointEffect", "affine_scan", "diagonal_regressor", "INF", "TINY"]
+__all__ = ["EffectConfigError", "JointEffect", "affine_scan", "diagonal_regressor", "motion_reversal_travel", "INF",
+           "TINY"]
 
 INF = math.inf
 TINY = 1e-9
@@ -19,6 +21,17 @@ TINY = 1e-9
 
 class EffectConfigError(ValueError):
     """A joint-effect configuration is invalid; the message names the effect and the field."""
+
+
+def motion_reversal_travel(s: MotionSignals, reversal_velocity: float | np.ndarray) -> ReversalTravel:
+    """:func:`proprio.reversals.reversal_travel` of ``s``'s ``(q, q̇)`` with the deadband ``reversal_velocity``
+    [rad/s], computed once per signals and deadband (memoised in ``s.derived``: a fit evaluates the reversal effects
+    many times on the same motion)."""
+    eps = np.asarray(reversal_velocity, dtype=float)
+    key = ("reversal_travel", eps.shape, eps.tobytes())
+    if key not in s.derived:
+        s.derived[key] = reversal_travel(s.q, s.qd, eps if eps.ndim else float(eps))
+    return s.derived[key]
 
 
 def affine_scan(a: np.ndarray, b: np.ndarray, x0: float) -> np.ndarray:

@@ -23,8 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from proprio.effects.base import INF, TINY, JointEffect, affine_scan
-from proprio.reversals import ReversalTravel, reversal_travel
+from proprio.effects.base import INF, TINY, JointEffect, affine_scan, motion_reversal_travel
+from proprio.reversals import ReversalTravel
 from proprio.signals import MotionSignals
 
 __all__ = ["DahlState", "dahl_start", "dahl_advance", "dahl_value", "dahl_batch", "PreSliding", "MAX_PRESLIDING_TRAVEL"]
@@ -141,5 +141,5 @@ class PreSliding(JointEffect):
     def torque(self, s: MotionSignals, rng: np.random.Generator | None = None,
                travel: ReversalTravel | None = None) -> np.ndarray:
         self._check_n(s)
-        rt = travel or reversal_travel(s.q, s.qd, self.reversal_velocity)
+        rt = travel or motion_reversal_travel(s, self.reversal_velocity)
         return dahl_batch(rt, np.broadcast_to(self.level, s.q.shape), self.rho)

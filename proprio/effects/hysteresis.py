@@ -5,9 +5,9 @@ import math
 
 import numpy as np
 
-from proprio.effects.base import INF, TINY, JointEffect
+from proprio.effects.base import INF, TINY, JointEffect, motion_reversal_travel
 from proprio.effects.dahl import dahl_batch
-from proprio.reversals import ReversalTravel, reversal_travel
+from proprio.reversals import ReversalTravel
 from proprio.signals import MotionSignals
 
 __all__ = ["Hysteresis", "LostMotion", "MAX_LOAD_GAIN"]
@@ -42,7 +42,7 @@ class Hysteresis(JointEffect):
     def torque(self, s: MotionSignals, rng: np.random.Generator | None = None,
                travel: ReversalTravel | None = None) -> np.ndarray:
         self._check_n(s)
-        rt = travel or reversal_travel(s.q, s.qd, self.reversal_velocity)
+        rt = travel or motion_reversal_travel(s, self.reversal_velocity)
         return dahl_batch(rt, self._load_scale(s, self.saturation, self.load_gain), self.saturation_travel / 3.0)
 
 
@@ -69,7 +69,7 @@ class LostMotion(JointEffect):
     def torque(self, s: MotionSignals, rng: np.random.Generator | None = None,
                travel: ReversalTravel | None = None) -> np.ndarray:
         self._check_n(s)
-        rt = travel or reversal_travel(s.q, s.qd, self.reversal_velocity)
+        rt = travel or motion_reversal_travel(s, self.reversal_velocity)
         amp = self._load_scale(s, self.amplitude, self.load_gain)
         flip = np.where(rt.segment > 0, 2.0, 1.0)
         return -rt.direction * flip * amp * np.exp(-(np.abs(rt.r) / self.window) ** 6)
