@@ -29,10 +29,12 @@ def _fix(system, context, x, x_d, qdd_d, drake: bool) -> None:
         system.GetInputPort("desired_acceleration").FixValue(context, qdd_d)
 
 
-def test_equals_drakes_inverse_dynamics_controller_with_the_integral_per_step(plant):
+@pytest.mark.parametrize("integral", [True, False], ids=["pid", "pd (ki = 0: stateless)"])
+def test_equals_drakes_inverse_dynamics_controller_with_the_integral_per_step(plant, integral):
     n = plant.num_velocities()
     rng = np.random.default_rng(3)
-    kp, ki, kd = rng.uniform(100, 900, n), rng.uniform(0, 50, n), rng.uniform(10, 60, n)
+    kp, kd = rng.uniform(100, 900, n), rng.uniform(10, 60, n)
+    ki = rng.uniform(0, 50, n) if integral else np.zeros(n)
     ours = DiscreteInverseDynamicsController(plant, kp, ki, kd, DT)
     theirs = InverseDynamicsController(plant, kp, ki, kd, True)
     c_ours, c_theirs = ours.CreateDefaultContext(), theirs.CreateDefaultContext()
@@ -41,12 +43,16 @@ def test_equals_drakes_inverse_dynamics_controller_with_the_integral_per_step(pl
         qdd_d, z = rng.uniform(-2, 2, n), rng.uniform(-0.1, 0.1, n)
         _fix(ours, c_ours, x, x_d, qdd_d, drake=False)
         _fix(theirs, c_theirs, x, x_d, qdd_d, drake=True)
-        c_ours.SetDiscreteState(z)                       # the same error integral z [rad·s] in both
+        if integral:
+            c_ours.SetDiscreteState(z)                   # the same error integral z [rad·s] in both
         c_theirs.SetContinuousState(z)
         tau = ours.GetOutputPort("generalized_force").Eval(c_ours)
         expected = theirs.get_output_port_generalized_force().Eval(c_theirs)
         assert np.max(np.abs(expected)) > 10.0                                     # N·m: a real command
         np.testing.assert_allclose(tau, expected, rtol=0, atol=1e-9)
+        if not integral:
+            assert c_ours.num_discrete_state_groups() == 0
+            continue
         # one period later the integral has taken explicit Euler's step on the position error
         update = ours.EvalUniquePeriodicDiscreteUpdate(c_ours).get_vector().value()
         np.testing.assert_allclose(update, z + DT * (x_d[:n] - x[:n]), rtol=0, atol=1e-15)

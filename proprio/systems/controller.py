@@ -8,8 +8,8 @@ period ``Δt`` (explicit Euler, as a digital controller does) instead of as cont
 for the speed of the twin: with no continuous state in its Diagram the Simulator takes pure discrete steps, without an
 integrator's derivative evaluation of the whole Diagram between the plant's steps (≈ 25 % of a twin step; with
 ``K_i = 0``, every shipped twin, the two controllers give the same torques to rounding — test). Everything is C++: a
-discrete ``LinearSystem`` holds the PID (state ``z``, input ``[q_d; q̇_d; q; q̇]``), an ``Adder`` adds ``q̈_d`` and
-``InverseDynamics`` turns the command into joint torques.
+discrete ``LinearSystem`` holds the PID (state ``z``, input ``[q_d; q̇_d; q; q̇]``; with ``K_i = 0`` a stateless
+``MatrixGain``, the PD law), an ``Adder`` adds ``q̈_d`` and ``InverseDynamics`` turns the command into joint torques.
 """
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ import numpy as np
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.controllers import InverseDynamics
 from pydrake.systems.framework import Diagram, DiagramBuilder
-from pydrake.systems.primitives import Adder, LinearSystem, Multiplexer
+from pydrake.systems.primitives import Adder, LinearSystem, MatrixGain, Multiplexer
 
 __all__ = ["DiscreteInverseDynamicsController", "AddDiscreteInverseDynamicsController"]
 
@@ -45,8 +45,11 @@ class DiscreteInverseDynamicsController(Diagram):
         self.plant = plant
         eye, zero = np.eye(n), np.zeros((n, n))
         gains = np.hstack([np.diag(kp), np.diag(kd)])                     # on the state error [q_d − q; q̇_d − q̇]
-        pid = LinearSystem(A=eye, B=time_step * np.hstack([eye, zero, -eye, zero]), C=np.diag(ki),
-                           D=np.hstack([gains, -gains]), time_period=time_step)
+        if np.any(ki != 0):
+            pid = LinearSystem(A=eye, B=time_step * np.hstack([eye, zero, -eye, zero]), C=np.diag(ki),
+                               D=np.hstack([gains, -gains]), time_period=time_step)
+        else:                                                      # K_i = 0: a PD law, no state to update
+            pid = MatrixGain(np.hstack([gains, -gains]))
         b = DiagramBuilder()
         states = b.AddNamedSystem("states", Multiplexer([2 * n, 2 * n]))           # [x_d; x]
         pid = b.AddNamedSystem("pid", pid)
