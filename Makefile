@@ -5,6 +5,8 @@
 # `make test-all` adds the full-size runs (pytest --full: the tests marked slow, the demo at its own sizes).
 # A notebook cell may take 180 s: nbclient sometimes waits a cell's whole timeout after a cell that displays an
 # ipywidgets control, then goes on (jupyter/nbclient#312; measured 297 s of idle wait at nbmake's default 300 s).
+# Two notebook kernels started at once can race for a TCP port ("Kernel died before replying to kernel_info", zmq
+# "Address already in use"): such a test, and only such, is run again (pytest-rerunfailures).
 # TEST_WORKERS=1 runs it in one process. One BLAS/OpenMP thread per worker: the workers already fill the cores.
 # `make lab` (extra): JupyterLab in the same environment with the notebooks open (LAB_ARGS, e.g. --no-browser).
 PYTHON ?= python3
@@ -16,7 +18,7 @@ LAB_ARGS ?=
 TEST_WORKERS ?= auto
 PYTEST := MPLBACKEND=Agg OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 \
           $(PY) -m pytest -q tests --nbmake notebooks --nbmake-timeout=180 -n $(TEST_WORKERS) --dist loadscope \
-          --no-loadscope-reorder
+          --no-loadscope-reorder --reruns 2 --only-rerun "Kernel died"
 LAB_ROOT  := $(if $(filter 0,$(shell id -u)),--allow-root,)   # containers often run as root
 
 .PHONY: demo test test-all venv clean benchmarks lab cuda-torch
