@@ -86,8 +86,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="directory for benchmark.txt / benchmark.json; OUT/cases/ keeps one result file per finished "
                    "case, so a rerun (after a kill) runs only the missing cases")
     b.add_argument("--confusable", action="store_true",
-                   help="the confusable-pairs family instead (hysteresis vs Coulomb, lost motion vs hysteresis, "
-                   "sensor gain vs rigid body, payload vs rigid body): each case is diagnosed, the experiment of "
+                   help="the confusable-pairs family instead (hysteresis vs Coulomb, pre-sliding vs lost motion, "
+                   "load-dependent friction vs sensor gain, payload vs rigid body; --twin: through the twin): each case is diagnosed, the experiment of "
                    "every tied set designed and recorded, and diagnosed again; prints the share right or tied before "
                    "and top-1 after (OUT/confusable.txt, OUT/confusable.json)")
     b.add_argument("--seed", type=nonnegative_int, default=0, help="seed of the case list (default 0)")
