@@ -72,8 +72,9 @@ from proprio.effects import Elasticity, JointEffect, Motor, PreSliding, Stribeck
 from proprio.effects.dahl import DahlState
 from proprio.signals import MotionSignals
 
-__all__ = ["DriveLaw", "JointDrive", "FrictionDrive", "friction_only", "AddJointDrive", "check_explicit_friction", "check_elastic_stability", "friction_slope",
-           "motor_from_description", "coupling_from_description", "reflected_inertia"]
+__all__ = ["DriveLaw", "JointDrive", "FrictionDrive", "friction_only", "AddJointDrive", "check_explicit_friction",
+           "check_elastic_stability", "friction_slope", "motor_from_description", "coupling_from_description",
+           "reflected_inertia"]
 
 
 def motor_from_description(desc: RobotDescription) -> Motor | None:
@@ -201,12 +202,10 @@ class DriveLaw:
         """True τ_J ``[N,n]`` from the plant's logged net actuation and link motion (``u + τ_link``, minus
         ``B q̈`` for the rigid drive whose motor inertia the plant carries as rotor inertia); with ``drive_offset``
         (a drive-torque arm) the motor's torque ``u + τ_link + τ_f,m(q̇) + τ_0`` instead."""
-        tau = net_actuation + self.link_torque(t, q, qd)
+        tau_link = self.link_torque(t, q, qd)
         if self.drive_offset is not None:
-            return tau + self.drive_offset + self.motor_friction(qd) + qdd @ self._off
-        if self.elasticity is None and self.motor is not None:
-            tau = tau - self.rotor_diagonal * qdd
-        return tau
+            return net_actuation + tau_link + self.drive_offset + self.motor_friction(qd) + qdd @ self._off
+        return self.rigid_body_torque(net_actuation, qdd) + tau_link
 
     def rigid_body_torque(self, net_actuation: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """``τ_rbd = M(q) q̈ + C(q, q̇) q̇ − τ_g(q)`` [N·m] ``[N,n]`` of the simulated arm (payload included) from the
