@@ -30,6 +30,7 @@ from proprio.diagnosis.patch import patch_entries, twin_patch, write_twin_patch
 from proprio.diagnosis.replay import ReplayGap, replay_gap
 from proprio.diagnosis.selection import Attribution, attribute
 from proprio.diagnosis.truth import TruthComparison, compare_to_truth, truth_summary
+from proprio.diagnosis.candidates import tau_kind
 from proprio.diagnosis.verdict import data_and_processing_text, verdict_text
 from proprio.io import atomic_write_text
 from proprio.plots.gap import plot_before_after, plot_gap_map, plot_spectra
@@ -192,7 +193,7 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
                                        f"{twin.name} + twin_patch.yaml")
         replay = replay_gap(patched, holdout_recs, base=twin, att=att, trim_s=trim_s, conditioning=conditioning)
     gm, sp = _localise(model, list(train_recs) + list(holdout_recs), trim_s, conditioning)
-    verdict = verdict_text(att, gm)
+    verdict = verdict_text(att, gm, tau_kind(model.robot))
     files = {"gap_map_png": plot_gap_map(out / "gap_map.png", gm.share, gm.columns, gm.joint_names),
              "spectra_png": plot_spectra(out / "spectra.png", sp.freq, sp.psd, sp.orders, sp.order_power,
                                          gm.joint_names),
@@ -213,7 +214,7 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
     sections = [
         ("Data quality of each recording (before any fitting)", findings_markdown(quality)),
         ("Verdict", verdict),
-        ("Data and processing", data_and_processing_text(att)),
+        ("Data and processing", data_and_processing_text(att, tau_kind(model.robot))),
         ("When the data were taken: time dependence of the gap", _time_table(att)),
         ("Where the gap lies: gap map (share of the total squared residual, %)",
          "![gap map](gap_map.png)\n\n" + gm.table(min_share=0.002)),
