@@ -17,7 +17,7 @@ from proprio.data_quality import assess, findings_markdown
 from proprio.description import RobotDescription
 from proprio.conditioning import ConditioningConfig
 from proprio.diagnosis.ambiguity import ambiguity_markdown
-from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, DiagnosisError, SimModel, session_motion, session_time,
+from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, DiagnosisError, SimModel, kept, session_motion, session_time,
                                     signals_of)
 from proprio.diagnosis.localisation import (
     GapMap,
@@ -54,14 +54,14 @@ class Diagnosis:
     replay: ReplayGap | None = None           # the held-out gap through the twin (``diagnose(twin=...)``)
 
 
-def _localise(model: SimModel, recs: Sequence[Recording], trim_s: float,
+def _localise(model: SimModel, recs: Sequence[Recording], trim_s: float | None,
               conditioning: ConditioningConfig) -> tuple[GapMap, Spectra]:
     es, fams, taus, qs, qds = [], [], [], [], []
     rob = model.robot
     for raw in recs:
         cs = signals_of(raw, conditioning)
         rec, s = cs.as_recording(), session_motion(cs, session_time(raw))
-        keep = (rec.t >= rec.t[0] + trim_s) & (rec.t <= rec.t[-1] - trim_s) & cs.valid
+        keep = kept(cs, trim_s)
         e = (rec.tau - model.predict(s))[keep]
         fam = regime_families(s.q, s.qd, rob.lower, rob.upper, rob.velocity_limits, rec)
         fams.append([type(f)(f.name, f.names, f.labels[keep]) for f in fam])
@@ -160,7 +160,7 @@ def _md_to_html_table(md: str) -> str:
 
 def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording],
              holdout_recs: Sequence[Recording], out_dir: str | Path, candidates: Sequence[str] | None = None,
-             trim_s: float = 0.5, progress: Callable[[str], None] | None = None,
+             trim_s: float | None = None, progress: Callable[[str], None] | None = None,
              conditioning: ConditioningConfig = DIAGNOSIS_CONDITIONING, twin: TwinConfig | None = None,
              plugins: Sequence[str | type] = ()) -> Diagnosis:
     """Diagnose the torque gap of ``model`` on measured recordings and write the report to ``out_dir``.
