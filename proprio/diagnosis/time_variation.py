@@ -164,6 +164,19 @@ def time_basis(t_norm: np.ndarray, rec: np.ndarray, n_rec: int, order: int = ORD
     return np.stack(cols, axis=1)
 
 
+def session_hypotheses(t_session: np.ndarray, rec: np.ndarray, n_rec: int, steps: bool) -> dict[str, np.ndarray]:
+    """The time dependences the test tries, each ``[M, c]`` and each a function of the session clock shared by every
+    recording: ``trend`` — one slope of the session time ``t_session`` [s] over the span the data cover (normalised
+    to [−1, 1]); with ``steps``, ``step`` — a level for recordings 2..K (contrasts). A drift or a warm-up moves every
+    recording the same way on the session clock; a static effect the model lacks leaves, in each recording, whatever
+    trend its motion gives, which a slope per recording (or levels plus a slope, a saw-tooth) would take for time."""
+    lo, hi = float(t_session.min()), float(t_session.max())
+    out = {"trend": (2.0 * (t_session - lo) / max(hi - lo, 1e-9) - 1.0)[:, None]}
+    if steps:
+        out["step"] = np.stack([(rec == r).astype(float) for r in range(1, n_rec)], axis=1)
+    return out
+
+
 def level_cols(n_rec: int, order: int = ORDER) -> np.ndarray:
     """Indices of the level (across-recording) columns of :func:`time_basis`."""
     return np.array([order + (order + 1) * (r - 1) for r in range(1, n_rec)], dtype=int)
@@ -210,16 +223,13 @@ def time_variation(model: SimModel, train: GapData, hold: GapData, alpha: float 
         return a - xs[:, j, :] @ (g_inv @ (w[j] * xs[:, j, :].T @ a))
 
     e_res = pool.e - xs @ (g_inv @ np.einsum("mjp,j,mj->p", xs, w, pool.e))
-    basis = time_basis(pool.t_norm, pool.rec, pool.n_rec)
-    lv = level_cols(pool.n_rec)
-    # levels between recordings are evidence of *time* only where the recordings were taken at different session
-    # times; otherwise they are as likely an unmodelled effect whose level differs with the recordings' motions
-    # (a spring loaded by another joint's pose), so only the within-recording terms are tested
+    # two hypotheses, each a function of the session clock shared by every recording: a trend over the session
+    # (drift, warm-up) and — only where the recordings were taken at different session times — steps between
+    # sessions (re-zeroing); without different session times a level that differs between recordings is as likely
+    # an unmodelled effect whose level differs with the recordings' motions (a spring loaded by another joint's pose)
     sessions_differ = pool.n_rec > 1 and float(np.ptp(pool.session_start)) > 0.0
-    if not sessions_differ:
-        basis, lv = np.delete(basis, lv, axis=1), np.zeros(0, dtype=int)
-    all_cols = np.arange(basis.shape[1])
-    within = np.setdiff1d(all_cols, lv)
+    hypotheses = session_hypotheses(pool.t_session, pool.rec, pool.n_rec, sessions_differ)
+    tests = 2 * len(hypotheses)                          # Bonferroni over the series and the hypotheses
     span = float(pool.t_session.max() - pool.t_session.min())
     p_val, change, share = np.ones(n), np.zeros(n), np.zeros(n)
     kinds = [""] * n
@@ -235,23 +245,19 @@ def time_variation(model: SimModel, train: GapData, hold: GapData, alpha: float 
     for j in range(n):
         best = (1.0, 0.0, 0.0, "")
         for k, z in enumerate((np.ones(m_s), pool.sign[:, j])):
-            t_res = clear(j, basis * z[:, None])
-            y, x = block_mean(e_res[:, j] * z), block_mean(t_res * z[:, None])
-            p_full, coef = _block_f_test(y, x, counts[ok], all_cols)
-            p = min(1.0, 2.0 * p_full)
-            if p >= best[0]:
-                continue
-            level = basis @ coef                         # the time dependence itself (offset or friction level)
-            fitted = t_res @ coef                        # what it explains beyond the static model
-            sh = float(fitted @ fitted) / max(float(e_res[:, j] @ e_res[:, j]), 1e-300)
-            if SERIES[k] == "friction":
-                kind = "friction change"
-            elif not sessions_differ:
-                kind = "offset drift"
-            else:
-                p_within, _ = _block_f_test(y, x, counts[ok], within)
-                kind = "offset drift" if 2.0 * p_within < thr else "offset step between recordings"
-            best = (p, float(level.max() - level.min()), sh, kind)
+            for hyp, basis in hypotheses.items():
+                t_res = clear(j, basis * z[:, None])
+                y, x = block_mean(e_res[:, j] * z), block_mean(t_res * z[:, None])
+                p_full, coef = _block_f_test(y, x, counts[ok], np.arange(basis.shape[1]))
+                p = min(1.0, tests * p_full)
+                if p >= best[0]:
+                    continue
+                level = basis @ coef                     # the time dependence itself (offset or friction level)
+                fitted = t_res @ coef                    # what it explains beyond the static model
+                sh = float(fitted @ fitted) / max(float(e_res[:, j] @ e_res[:, j]), 1e-300)
+                kind = "friction change" if SERIES[k] == "friction" else \
+                    "offset drift" if hyp == "trend" else "offset step between recordings"
+                best = (p, float(level.max() - level.min()), sh, kind)
         p_val[j], change[j], share[j], kinds[j] = best
     joints = (p_val < thr) & (share >= MIN_SHARE)
     kinds = [k if joints[j] else "" for j, k in enumerate(kinds)]
