@@ -38,8 +38,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--candidate", action="append", default=[], metavar="MODULE:CLASS",
                    help="your own effect (a proprio.effects.JointEffect subclass, README 'Your own effect') tested "
                    "alongside the library candidates; repeatable")
-    p.add_argument("--trim", type=nonnegative, default=0.5, help="seconds dropped at both ends of every recording "
-                   "(filter start-up; default 0.5)")
+    p.add_argument("--trim", type=nonnegative, default=None, help="seconds dropped at both ends of every recording "
+                   "(filter start-up; default 0.5, at most 5 %% of a recording's length but never less than its "
+                   "low-pass's settling, 3 periods of the lowest cutoff)")
     p.add_argument("--twin", metavar="BASE",
                    help="base twin config of the --model robot (a shipped name such as kuka_lwr4_twin, or a YAML "
                    "path): replay the held-out recordings through it and through it + twin_patch.yaml, and report the "

@@ -485,21 +485,25 @@ class DriveCandidate(Candidate):
     description's coupling ``C``): ``rotor_inertia`` ``Cᵀ(I_a ⊙ C q̈)`` (I_a [kg·m²] per motor), ``motor_friction``
     ``Cᵀ(F_v,m ⊙ C q̇ + F_c,m ⊙ sgn_s(C q̇))`` ([N·m·s/rad], [N·m] per motor: a motor shared by coupled joints brakes
     each of them through Cᵀ) and ``drive_offset`` τ_0 [N·m] per joint. The fit is the part the model lacks: the
-    patch adds it to the description's drive block."""
+    patch adds it to the description's drive block. ``motors`` (0-based) restricts the motor terms to those motors
+    (default all): an uncoupled motor's friction is the joint's own (:func:`candidate_set`)."""
     place = "motor"
 
-    def __init__(self, robot: RobotDescription, group: str):
+    def __init__(self, robot: RobotDescription, group: str, motors: Sequence[int] | None = None):
         if group not in DRIVE_CANDIDATES:
             raise DiagnosisError(f"drive candidate {group!r}: must be one of {DRIVE_CANDIDATES}")
         if not drive_identified(robot):
             raise DiagnosisError(f"drive candidate {group}: the robot description {robot.name!r} has no drive block "
                                  "with tau_kind: drive")
         self.robot, self.name, n = robot, group, robot.n
-        self._cols = {"rotor_inertia": np.arange(n), "motor_friction": np.arange(n, 3 * n)}.get(group)
+        self._motors = np.arange(n) if motors is None else np.asarray(motors, dtype=int)
+        groups = {"rotor_inertia": (0,), "motor_friction": (1, 2)}.get(group)
+        self._cols = None if groups is None else np.concatenate([g * n + self._motors for g in groups])
 
     def param_names(self) -> list[str]:
         keys = {"rotor_inertia": ("I_a",), "motor_friction": ("F_v,m", "F_c,m"), "drive_offset": ("offset",)}
-        return [f"{k}[{j + 1}]" for k in keys[self.name] for j in range(self.robot.n)]
+        index = range(self.robot.n) if self._cols is None else self._motors
+        return [f"{k}[{j + 1}]" for k in keys[self.name] for j in index]
 
     def design(self, data: GapData) -> np.ndarray:
         if self._cols is None:
@@ -509,8 +513,10 @@ class DriveCandidate(Candidate):
                            for s in data.signals])
 
     def joint_of_param(self, n: int) -> np.ndarray:
-        if self._cols is None or not self.robot.drive.coupled:
-            return np.tile(np.arange(n), self.n_params // n)
+        if self._cols is None:
+            return np.arange(n)
+        if not self.robot.drive.coupled:
+            return np.tile(self._motors, self.n_params // len(self._motors))
         return -np.ones(self.n_params, dtype=int)
 
     def patch(self, theta: np.ndarray) -> dict[str, Any] | None:
@@ -571,8 +577,13 @@ def candidate_set(model: SimModel, train: GapData, names: Sequence[str] | None =
     kind = tau_kind(model.robot)
     if kind == "drive":
         available.update({k: (lambda k=k: DriveCandidate(model.robot, k)) for k in DRIVE_CANDIDATES})
-        if not model.robot.drive.coupled and "viscous_coulomb" in available:
-            del available["motor_friction"]         # an uncoupled motor's friction is the viscous_coulomb candidate
+        if "viscous_coulomb" in available:          # an uncoupled motor's friction is the viscous_coulomb candidate:
+            c = model.robot.drive.normalized_coupling            # the motor friction candidate keeps the motors
+            shared = np.flatnonzero(np.count_nonzero(c, axis=1) > 1)   # that turn with several joints, if any
+            if shared.size:
+                available["motor_friction"] = lambda: DriveCandidate(model.robot, "motor_friction", shared)
+            else:
+                del available["motor_friction"]
     unseen = GAUGE_ONLY if kind == "drive" else DRIVE_ONLY
     for k in unseen:
         available.pop(k, None)

@@ -25,13 +25,16 @@ from proprio.recording import Recording
 from proprio.signals import MotionSignals
 
 __all__ = ["DiagnosisError", "SimModel", "GapData", "signals_of", "condition_all", "kept", "session_time",
-           "session_motion", "NOISE_EFFECTS", "DIAGNOSIS_CONDITIONING", "identified_robot"]
+           "session_motion", "NOISE_EFFECTS", "DIAGNOSIS_CONDITIONING", "identified_robot", "default_trim_s",
+           "MAX_TRIM_S"]
 
 
 NOISE_EFFECTS = ("torque_noise", "encoder_noise")
 MIN_BLOCKS = 10
 MIN_BLOCK_S = 0.25
 MAX_FIT_SAMPLES = 4000
+MAX_TRIM_S = 0.5         # s, the default trim per end of a recording long enough to afford it
+TRIM_SHARE = 0.05        # the most of a recording's length the default trim takes per end beyond the settling
 
 
 DIAGNOSIS_CONDITIONING = ConditioningConfig(tau_filter=False, decimate=True, velocity="auto")
@@ -166,10 +169,20 @@ def signals_of(rec: Recording, config: ConditioningConfig = DIAGNOSIS_CONDITIONI
         raise DiagnosisError(str(exc)) from exc
 
 
-def kept(cs: ConditionedSignals, trim_s: float) -> np.ndarray:
+def default_trim_s(cs: ConditionedSignals, config: ConditioningConfig = DIAGNOSIS_CONDITIONING) -> float:
+    """The diagnosis' default trim per end of a conditioned recording [s]: :data:`MAX_TRIM_S`, but no more than
+    :data:`TRIM_SHARE` of the recording's length — and never less than the zero-phase low-pass's settling
+    (``edge_cycles`` periods of its lowest cutoff, the reach of the filter's padding). A recording of ≥ 10 s keeps
+    0.5 s; a short one (the TX40's 3 s held-out tail) loses only what its filters need, not a third of its length."""
+    settle = config.edge_cycles / float(np.min(cs.cutoff_hz))
+    return float(min(MAX_TRIM_S, max(settle, TRIM_SHARE * float(cs.t[-1] - cs.t[0]))))
+
+
+def kept(cs: ConditionedSignals, trim_s: float | None = None) -> np.ndarray:
     """``bool [N]``: the samples of a conditioned recording the diagnosis uses — ``trim_s`` [s] of filter start-up
-    dropped at both ends, and none inside a gap of the log."""
-    return (cs.t >= cs.t[0] + trim_s) & (cs.t <= cs.t[-1] - trim_s) & cs.valid
+    dropped at both ends (``None``: :func:`default_trim_s`), and none inside a gap of the log."""
+    trim = default_trim_s(cs) if trim_s is None else trim_s
+    return (cs.t >= cs.t[0] + trim) & (cs.t <= cs.t[-1] - trim) & cs.valid
 
 
 def session_time(rec: Recording, role: str = "recording") -> float:

@@ -32,8 +32,8 @@ import numpy as np
 from proprio.conditioning import ConditionedSignals, ConditioningConfig
 from proprio.time_base import measured_segments
 from proprio.description import RobotDescription
-from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, NOISE_EFFECTS, DiagnosisError, condition_all, kept,
-                                    session_time)
+from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, MAX_TRIM_S, NOISE_EFFECTS, DiagnosisError,
+                                    condition_all, kept, session_time)
 from proprio.diagnosis.selection import Attribution
 from proprio.recording import Recording
 
@@ -138,7 +138,8 @@ def replay_recording(config: TwinConfig, cs: ConditionedSignals, progress: bool 
     return dataclasses.replace(rec, t=rec.t + cs.t[0])
 
 
-def twin_gap(twin_recs: Sequence[Recording], conditioned: Sequence[ConditionedSignals], trim_s: float) -> np.ndarray:
+def twin_gap(twin_recs: Sequence[Recording], conditioned: Sequence[ConditionedSignals], trim_s: float | None
+             ) -> np.ndarray:
     """Per joint ``RMS(τ_meas − τ_twin)`` [N·m] over the kept samples of all recordings (τ_twin interpolated onto
     the conditioned instants)."""
     sq, count = 0.0, 0
@@ -163,11 +164,11 @@ def offline_prediction(att: Attribution) -> tuple[np.ndarray, np.ndarray]:
 
 
 def replay_gap(patched: TwinConfig, holdout: Sequence[Recording], base: TwinConfig | None = None,
-               att: Attribution | None = None, trim_s: float = 0.5,
+               att: Attribution | None = None, trim_s: float | None = None,
                conditioning: ConditioningConfig = DIAGNOSIS_CONDITIONING, progress: bool = False) -> ReplayGap:
     """Replay ``holdout`` through ``patched`` (and ``base``, for the gap before) and measure the gap (module
     docstring); ``att`` adds the diagnosis' offline prediction. Raises :class:`DiagnosisError` on a joint-count
-    mismatch or no recordings."""
+    mismatch or no recordings. ``trim_s`` [s] per end (``None``: each recording's default, :func:`kept`)."""
     if not holdout:
         raise DiagnosisError("replay: need at least one held-out recording")
     for k, r in enumerate(holdout):
@@ -175,12 +176,13 @@ def replay_gap(patched: TwinConfig, holdout: Sequence[Recording], base: TwinConf
             raise DiagnosisError(f"replay: held-out recording {k} has {r.n_joints} joints, the twin's robot "
                                  f"'{patched.robot.name}' has {patched.robot.n}")
     pieces, offsets, owner = [], [], []
+    span = MAX_TRIM_S if trim_s is None else trim_s
     for k, r in enumerate(holdout):
         kept_ranges = [(a, b) for a, b in measured_segments(r, conditioning.max_gap_s)
-                       if r.t[b - 1] - r.t[a] > 2 * trim_s]
+                       if r.t[b - 1] - r.t[a] > 2 * span]
         if not kept_ranges:
             raise DiagnosisError(f"replay: held-out recording {k} has no stretch between the gaps of its log longer "
-                                 f"than 2 × trim = {2 * trim_s:g} s; nothing measured to replay")
+                                 f"than 2 × trim = {2 * span:g} s; nothing measured to replay")
         for a, b in kept_ranges:
             pieces.append(r.slice(a, b))
             offsets.append(float(r.t[a] - r.t[0]))

@@ -17,7 +17,7 @@ from proprio.data_quality import assess, findings_markdown
 from proprio.description import RobotDescription
 from proprio.conditioning import ConditioningConfig
 from proprio.diagnosis.ambiguity import ambiguity_markdown
-from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, DiagnosisError, SimModel, session_motion, session_time,
+from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, DiagnosisError, SimModel, kept, session_motion, session_time,
                                     signals_of)
 from proprio.diagnosis.localisation import (
     GapMap,
@@ -30,6 +30,7 @@ from proprio.diagnosis.patch import patch_entries, twin_patch, write_twin_patch
 from proprio.diagnosis.replay import ReplayGap, replay_gap
 from proprio.diagnosis.selection import Attribution, attribute
 from proprio.diagnosis.truth import TruthComparison, compare_to_truth, truth_summary
+from proprio.diagnosis.candidates import tau_kind
 from proprio.diagnosis.verdict import data_and_processing_text, verdict_text
 from proprio.io import atomic_write_text
 from proprio.plots.gap import plot_before_after, plot_gap_map, plot_spectra
@@ -53,14 +54,14 @@ class Diagnosis:
     replay: ReplayGap | None = None           # the held-out gap through the twin (``diagnose(twin=...)``)
 
 
-def _localise(model: SimModel, recs: Sequence[Recording], trim_s: float,
+def _localise(model: SimModel, recs: Sequence[Recording], trim_s: float | None,
               conditioning: ConditioningConfig) -> tuple[GapMap, Spectra]:
     es, fams, taus, qs, qds = [], [], [], [], []
     rob = model.robot
     for raw in recs:
         cs = signals_of(raw, conditioning)
         rec, s = cs.as_recording(), session_motion(cs, session_time(raw))
-        keep = (rec.t >= rec.t[0] + trim_s) & (rec.t <= rec.t[-1] - trim_s) & cs.valid
+        keep = kept(cs, trim_s)
         e = (rec.tau - model.predict(s))[keep]
         fam = regime_families(s.q, s.qd, rob.lower, rob.upper, rob.velocity_limits, rec)
         fams.append([type(f)(f.name, f.names, f.labels[keep]) for f in fam])
@@ -159,7 +160,7 @@ def _md_to_html_table(md: str) -> str:
 
 def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording],
              holdout_recs: Sequence[Recording], out_dir: str | Path, candidates: Sequence[str] | None = None,
-             trim_s: float = 0.5, progress: Callable[[str], None] | None = None,
+             trim_s: float | None = None, progress: Callable[[str], None] | None = None,
              conditioning: ConditioningConfig = DIAGNOSIS_CONDITIONING, twin: TwinConfig | None = None,
              plugins: Sequence[str | type] = ()) -> Diagnosis:
     """Diagnose the torque gap of ``model`` on measured recordings and write the report to ``out_dir``.
@@ -192,7 +193,7 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
                                        f"{twin.name} + twin_patch.yaml")
         replay = replay_gap(patched, holdout_recs, base=twin, att=att, trim_s=trim_s, conditioning=conditioning)
     gm, sp = _localise(model, list(train_recs) + list(holdout_recs), trim_s, conditioning)
-    verdict = verdict_text(att, gm)
+    verdict = verdict_text(att, gm, tau_kind(model.robot))
     files = {"gap_map_png": plot_gap_map(out / "gap_map.png", gm.share, gm.columns, gm.joint_names),
              "spectra_png": plot_spectra(out / "spectra.png", sp.freq, sp.psd, sp.orders, sp.order_power,
                                          gm.joint_names),
@@ -213,7 +214,7 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
     sections = [
         ("Data quality of each recording (before any fitting)", findings_markdown(quality)),
         ("Verdict", verdict),
-        ("Data and processing", data_and_processing_text(att)),
+        ("Data and processing", data_and_processing_text(att, tau_kind(model.robot))),
         ("When the data were taken: time dependence of the gap", _time_table(att)),
         ("Where the gap lies: gap map (share of the total squared residual, %)",
          "![gap map](gap_map.png)\n\n" + gm.table(min_share=0.002)),

@@ -65,7 +65,7 @@ from scipy import stats
 from proprio.description import RobotDescription
 from proprio.diagnosis.candidates import Candidate, candidate_set
 from proprio.conditioning import ConditionedSignals, ConditioningConfig, processing_torque_sigma
-from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, MIN_BLOCK_S, MIN_BLOCKS, DiagnosisError, GapData,
+from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, MAX_TRIM_S, MIN_BLOCK_S, MIN_BLOCKS, DiagnosisError, GapData,
                                     SimModel, condition_all, kept, session_motion, session_time)
 from proprio.diagnosis.encoder_floor import EncoderFloor, encoder_floor
 from proprio.diagnosis.fitting import Fit, fit_candidates, predict_candidates
@@ -263,7 +263,8 @@ def _time_blocks(hold: GapData, block_s: float) -> np.ndarray:
 
 
 def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording],
-              holdout_recs: Sequence[Recording] = (), candidates: Sequence[str] | None = None, trim_s: float = 0.5,
+              holdout_recs: Sequence[Recording] = (), candidates: Sequence[str] | None = None,
+              trim_s: float | None = None,
               alpha: float = 0.01, min_gain: float = 0.02, max_steps: int = 6,
               progress: Callable[[str], None] | None = None,
               conditioning: ConditioningConfig = DIAGNOSIS_CONDITIONING,
@@ -277,7 +278,8 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
     swapped, and the result reports how well the folds agree. ``candidates``: restrict to these names; ``plugins``:
     user-defined effects (plugin paths ``"package.module:Class"`` or ``JointEffect`` subclasses,
     :mod:`proprio.effects.plugins`) tested alongside the library candidates; ``trim_s``:
-    seconds dropped at both ends of every recording (filter start-up). Raises :class:`DiagnosisError` on bad input
+    seconds dropped at both ends of every recording (filter start-up; ``None``: each recording's default,
+    :func:`proprio.diagnosis.data.default_trim_s`). Raises :class:`DiagnosisError` on bad input
     (no recordings, joint-count mismatch, too little data for the block test, nothing to test)."""
     model = SimModel.of(model)
     n = model.robot.n
@@ -298,12 +300,13 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
     sess_h = [session_time(r, f"holdout recording {k}") for k, r in enumerate(holdout_recs)]
     cond_tr = condition_all(train_recs, conditioning, "training")
     keep_tr = [kept(cs, trim_s) for cs in cond_tr]
+    trimmed = "the default trim" if trim_s is None else f"{trim_s:g} s"
     if holdout_recs:
         cond_h = condition_all(holdout_recs, conditioning, "holdout")
         keep_h = [kept(cs, trim_s) for cs in cond_h]
         held_s = sum(float(k.sum()) / cs.rate_hz for cs, k in zip(cond_h, keep_h))
         if held_s < MIN_BLOCKS * MIN_BLOCK_S:
-            raise DiagnosisError(f"holdout: {held_s:.2f} s of held-out data after trimming {trim_s} s per end is too "
+            raise DiagnosisError(f"holdout: {held_s:.2f} s of held-out data after trimming {trimmed} per end is too "
                                  f"short for the block test ({MIN_BLOCKS} blocks of ≥ {MIN_BLOCK_S} s)")
         block_s = float(np.clip(2.0 * _correlation_time(model, cond_h, keep_h, sess_h), MIN_BLOCK_S,
                                 min(MAX_BLOCK_S, held_s / MIN_BLOCKS)))
@@ -318,9 +321,9 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
         return att
     total_s = sum(float(k.sum()) / cs.rate_hz for cs, k in zip(cond_tr, keep_tr))
     if total_s < 2 * MIN_BLOCKS * MIN_BLOCK_S:
-        raise DiagnosisError(f"training: {total_s:.2f} s of data after trimming {trim_s} s per end; a diagnosis "
+        raise DiagnosisError(f"training: {total_s:.2f} s of data after trimming {trimmed} per end; a diagnosis "
                              f"without --holdout cross-validates over time blocks and needs ≥ "
-                             f"{2 * MIN_BLOCKS * MIN_BLOCK_S + 2 * trim_s:.1f} s")
+                             f"{2 * MIN_BLOCKS * MIN_BLOCK_S + 2 * (MAX_TRIM_S if trim_s is None else trim_s):.1f} s")
     block_s = float(np.clip(2.0 * _correlation_time(model, cond_tr, keep_tr, sess_tr), MIN_BLOCK_S,
                             min(MAX_BLOCK_S, total_s / (2 * MIN_BLOCKS))))
     halves: tuple[list, list] = ([], [])          # (conditioned piece, keep, source index) per half

@@ -8,7 +8,7 @@ from proprio.diagnosis.ambiguity import tied_sets
 from proprio.diagnosis.localisation import GapMap
 from proprio.diagnosis.selection import Attribution
 
-__all__ = ["PLAIN", "verdict_text", "undecided_text", "data_and_processing_text"]
+__all__ = ["PLAIN", "plain_names", "verdict_text", "undecided_text", "data_and_processing_text"]
 
 PLAIN = {"viscous_coulomb": "viscous + Coulomb friction", "stribeck": "Stribeck (static) friction",
          "hysteresis": "torque-sensor hysteresis", "lost_motion": "lost motion after reversals",
@@ -18,11 +18,28 @@ PLAIN = {"viscous_coulomb": "viscous + Coulomb friction", "stribeck": "Stribeck 
          "elasticity": "joint elasticity (deflection unseen by the position sensor)",
          "rigid_body": "rigid-body (inertial) parameter error", "payload": "an unmodelled payload at the flange",
          "signal_lag": "a time lag between measured and modelled torque (filter delay)",
-         "offset_drift": "a drifting torque-sensor offset", "friction_warmup": "friction fading as the joints warm up"}
+         "offset_drift": "a drifting torque-sensor offset", "friction_warmup": "friction fading as the joints warm up",
+         "rotor_inertia": "rotor (armature) inertia", "presliding": "pre-sliding friction (before gross sliding)",
+         "motor_friction": "motor-side friction (viscous + Coulomb on the motor velocities)",
+         "drive_offset": "constant drive-torque offsets"}
+
+_DRIVE_WORDS = {"sensor_offset_gain": "drive-torque offset / gain error (torque-constant error)",
+                "sensor_gain": "drive-torque gain error (torque-constant error)",
+                "sensor_offset": "drive-torque offsets", "torque_noise": "drive-torque (motor-current) noise",
+                "offset_drift": "a drifting drive-torque offset"}
 
 
-def verdict_text(att: Attribution, gm: GapMap) -> str:
-    """One plain-language paragraph: where the gap is, which effects explain it, how far it shrinks, what stays."""
+def plain_names(tau_kind: str = "link_sensor") -> dict[str, str]:
+    """Plain-language names of the candidates for a τ of kind ``tau_kind`` (``link_sensor`` | ``drive``,
+    :func:`proprio.diagnosis.candidates.tau_kind`): a drive torque (current × torque constant × gear ratio) has no
+    torque sensor, so its gain, offset and noise are named for the drive, not for a sensor."""
+    return {**PLAIN, **_DRIVE_WORDS} if tau_kind == "drive" else dict(PLAIN)
+
+
+def verdict_text(att: Attribution, gm: GapMap, tau_kind: str = "link_sensor") -> str:
+    """One plain-language paragraph: where the gap is, which effects explain it, how far it shrinks, what stays
+    (candidates named for what ``tau_kind`` says τ is, :func:`plain_names`)."""
+    plain = plain_names(tau_kind)
     rmse0, sig = att.rmse_before, att.signal_rms
     tot0 = float(np.sqrt((rmse0 ** 2).mean()))
     share = (rmse0 ** 2) / max(float((rmse0 ** 2).sum()), 1e-300)
@@ -43,9 +60,9 @@ def verdict_text(att: Attribution, gm: GapMap) -> str:
             if st.processing:
                 prev = st.rmse_after
                 continue
-            name = PLAIN.get(st.name, st.name)
+            name = plain.get(st.name, st.name)
             if st.tied:
-                name += " (or, equally well, " + " or ".join(PLAIN.get(t, t) for t in st.tied) + \
+                name += " (or, equally well, " + " or ".join(plain.get(t, t) for t in st.tied) + \
                     " — the data cannot tell them apart)"
             a = float(np.sqrt((prev ** 2).mean()))
             b = float(np.sqrt((st.rmse_after ** 2).mean()))
@@ -57,12 +74,12 @@ def verdict_text(att: Attribution, gm: GapMap) -> str:
         parts.append(f"With {len(att.physical_steps)} effect(s) added the gap is {float(np.sqrt((fin ** 2).mean())):.3g} "
                      f"N·m RMS ({100 * (1 - float((fin ** 2).sum()) / float((rmse0 ** 2).sum())):.0f} % less "
                      "squared error).")
-        parts += [a.text(PLAIN) for a in tied_sets(att.ambiguity)]
+        parts += [a.text(plain) for a in tied_sets(att.ambiguity)]
     elif att.undecided is None:
         parts.append("No physical candidate shrinks the held-out gap significantly beyond what the signal "
                      "processing explains: the model explains the data as well as any of the candidates can.")
     if att.undecided is not None:
-        parts.append(undecided_text(att))
+        parts.append(undecided_text(att, tau_kind))
     tv = att.time_variation
     if tv is not None and tv.detected:
         parts.append(tv.text[0].upper() + tv.text[1:] + ".")
@@ -96,25 +113,27 @@ def verdict_text(att: Attribution, gm: GapMap) -> str:
     for f in att.noise:
         joints = np.flatnonzero(f.rms > 0)
         parts.append(f"On {', '.join(att.joint_names[j] for j in joints)} the remaining residual is white and larger "
-                     f"than the model's own noise: {PLAIN.get(f.name, f.name)} of about "
+                     f"than the model's own noise: {plain.get(f.name, f.name)} of about "
                      f"{', '.join(f'{f.rms[j]:.2g}' for j in joints)} N·m is unmodelled.")
     return " ".join(parts)
 
 
-def undecided_text(att: Attribution) -> str:
+def undecided_text(att: Attribution, tau_kind: str = "link_sensor") -> str:
     """The sentence for a selection that stopped for want of held-out data (:class:`Undecided`)."""
+    plain = plain_names(tau_kind)
     u = att.undecided
     return (f"Undecided: the held-out data are too few to decide{' whether more effects add' if att.physical_steps else ''}"
-            f". The provisional leader is {PLAIN.get(u.name, u.name)}, lowering the held-out error by "
+            f". The provisional leader is {plain.get(u.name, u.name)}, lowering the held-out error by "
             f"{100 * u.gain:.0f} % (t = {u.t_stat:.2g} over {u.n_blocks} blocks of {u.block_s:.2g} s, where "
             f"t ≥ {u.t_crit:.2g} is needed); about {u.more_s:.0f} s more held-out data of the same kind would decide.")
 
 
-def data_and_processing_text(att: Attribution) -> str:
+def data_and_processing_text(att: Attribution, tau_kind: str = "link_sensor") -> str:
     """The data path, apart from the physics: the conditioning of every recording, how much data there was and how
     the held-out test was made (and, for one cross-validated recording, how well the folds agree), the torque error
     the processing itself explains, the data-path candidates the selection found and the data's position-noise floor
     against the model's encoder noise (never reported as a cause)."""
+    plain = plain_names(tau_kind)
     train_s, hold_s = att.data_seconds
     parts = [f"Data: {train_s:.1f} s for fitting and {hold_s:.1f} s held out, scored in time blocks of "
              f"{att.block_s:.2f} s (twice the residual's correlation time, within the limits the data length allows)."]
@@ -136,10 +155,10 @@ def data_and_processing_text(att: Attribution) -> str:
                     "make up half the gap or more: take the verdict there with care" if np.any(ratio >= 0.5) else "")
                  + "; a physical effect must exceed it to be named.")
     for st in att.processing_steps:
-        parts.append(f"Data path: {PLAIN.get(st.name, st.name)} lowers the held-out error by "
+        parts.append(f"Data path: {plain.get(st.name, st.name)} lowers the held-out error by "
                      f"{100 * st.gain:.0f} % — not a property of the robot: it {st.reason}.")
     for name, gain, rms in att.below_floor:
-        parts.append(f"Within the conditioning error: {PLAIN.get(name, name)} lowers the held-out error by "
+        parts.append(f"Within the conditioning error: {plain.get(name, name)} lowers the held-out error by "
                      f"{100 * gain:.0f} %, but its held-out torque (≤ {rms:.2g} N·m RMS) stays within the error the "
                      "signal conditioning explains — not named, and not a data-path finding either.")
     if att.encoder is not None:
