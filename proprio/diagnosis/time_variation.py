@@ -7,7 +7,12 @@ of the diagnosis — the rigid-body error's identifiable inertial columns, visco
 one common offset per joint — are fitted jointly with slow functions of time to the model residual ``e`` of all
 recordings (Frisch–Waugh: both are cleared of the static design, joint weights ``1/mean(e_j²)``), so a static gap that
 differs between recordings only because their motions differ (gravity in other poses) is not taken for a time
-dependence, and a time trend is not handed to the static terms. The time functions, per joint ``j`` and for two
+dependence, and a time trend is not handed to the static terms. The static design also holds the shapes the
+direction-dependent static candidates (hysteresis, pre-sliding friction, lost motion) take after each reversal
+(:func:`reversal_shapes`: the library's hysteresis law at three travel scales): on a motion whose amplitude grows
+with time at a steady speed — a designed experiment's growing triangles — a loop that saturates with travel raises
+``e·sign q̇`` with time, which was taken for a friction change (a false alarm on the re-diagnosis with the experiment
+of ``tests/test_ambiguity.py``); a warm-up on the same motion is still found (``tests/test_time_variation.py``). The time functions, per joint ``j`` and for two
 series,
 
 * ``1`` — an offset that moves (a drifting sensor offset, a step between sessions),
@@ -60,13 +65,16 @@ from scipy import stats
 from proprio import friction_law
 from proprio.diagnosis.candidates import Candidate, EffectCandidate, RigidBodyCandidate
 from proprio.diagnosis.data import GapData, SimModel
+from proprio.effects import Hysteresis
 
-__all__ = ["TimeVariation", "TimeTrendNuisance", "time_variation", "BLOCK_S", "MIN_SHARE"]
+__all__ = ["TimeVariation", "TimeTrendNuisance", "time_variation", "reversal_shapes", "BLOCK_S", "MIN_SHARE",
+           "REVERSAL_SCALES_DEG"]
 
 BLOCK_S = 2.0            # s, block length of the time-dependence test
 ORDER = 1                # Legendre order of the within-recording time functions
 MIN_SHARE = 0.02         # share of the state-cleared residual variance a time dependence must explain
 MIN_BLOCK_SAMPLES = 10
+REVERSAL_SCALES_DEG = (0.5, 2.0, 6.0)   # deg, travel scales of the static reversal shapes the test clears
 SERIES = ("offset", "friction")
 
 
@@ -103,14 +111,32 @@ class _Pooled:
     session_start: np.ndarray       # [n_rec] s: each recording's session time at its t = 0
 
 
+def reversal_shapes(n: int, data: GapData) -> np.ndarray:
+    """``[M, n, n·K]``: per joint, the shapes a direction-dependent static effect takes after each reversal — the
+    library's hysteresis law (:class:`proprio.effects.Hysteresis`, unit saturation) at the travel scales
+    :data:`REVERSAL_SCALES_DEG` — each on its own joint's rows. Saturating with the travel since the last reversal,
+    they are what hysteresis, pre-sliding friction or lost motion leave in ``e·sign q̇``: static functions of the
+    motion, which a motion whose amplitude changes with time (a designed experiment's growing triangles) would
+    otherwise hand to a friction level that changes with time."""
+    m = sum(len(i) for i in data.fit_index)
+    out = np.zeros((m, n, n * len(REVERSAL_SCALES_DEG)))
+    for k, scale in enumerate(REVERSAL_SCALES_DEG):
+        loop = Hysteresis(n, saturation=np.ones(n), saturation_travel=np.full(n, np.radians(scale)))
+        shape = data.stack([loop.torque(s) for s in data.signals])             # reversal travel on the full motion
+        out[:, np.arange(n), np.arange(n) * len(REVERSAL_SCALES_DEG) + k] = shape
+    return out
+
+
 def _static_design(model: SimModel, train: GapData, hold: GapData) -> tuple[np.ndarray, np.ndarray]:
     """The static model the time dependence is tested against, ``[M, n, p]`` for the training and the held-out
     samples: the rigid-body error's identifiable columns, viscous + Coulomb friction, sensor gain and a common
-    offset per joint — the linear static candidates of the diagnosis."""
+    offset per joint — the linear static candidates of the diagnosis — and the reversal shapes of the
+    direction-dependent ones (:func:`reversal_shapes`)."""
     n = model.robot.n
     rigid = RigidBodyCandidate.of(model.robot, train)
     parts = [rigid.cached_design, EffectCandidate("viscous_coulomb", n).cached_design,      # shared with the
-             EffectCandidate("sensor_offset_gain", n).cached_design]                      # selection's candidates
+             EffectCandidate("sensor_offset_gain", n).cached_design,                      # selection's candidates
+             lambda d: reversal_shapes(n, d)]
     return tuple(np.concatenate([f(d) for f in parts], axis=-1) for d in (train, hold))
 
 
