@@ -234,6 +234,8 @@ def _draw(kind: str, n: int, mag: float, rng: np.random.Generator, joint: int = 
         return {"std": mag * u(2e-5, 8e-5)}
     if kind == "elasticity":
         return {"stiffness": u(4000.0, 15000.0) / mag}
+    if kind == "presliding":                     # 0.3–0.8 N·m, turning over within 0.2–1° of travel
+        return {"level": mag * u(0.3, 0.8), "presliding_travel": np.radians(u(0.2, 1.0))}
     if kind == "rigid_body":
         return {"mass_scale": 1 + mag * u(-0.15, 0.15), "com_shift": mag * rng.uniform(-0.02, 0.02, (n, 3))}
     if kind == "payload":
@@ -404,11 +406,8 @@ def generate_case_data(case: BenchmarkCase, robot: RobotDescription | None = Non
                                                                               case.duration_s)
         s = MotionSignals(t + _session(case, k), q, qd, qdd)          # effects see the session clock
         tau = inverse_dynamics(data_robot, q, qd, qdd)
-        for name in ("viscous_coulomb", "stribeck", "friction_warmup"):
-            if name in effects:
-                tau = tau + effects[name].torque(s)
-        for name, eff in effects.items():          # link-side plugins (q, q̇ only, as in the twin's drive)
-            if is_plugin_path(name) and eff.place == "link":
+        for name, eff in effects.items():          # link-side effects and plugins (q, q̇ only, as in the twin's drive)
+            if eff.place == "link":
                 tau = tau + eff.torque(s)
         s = s.with_tau(tau)
         sensor = np.zeros_like(tau)

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from proprio.diagnosis.benchmark_cases import ENCODER, BenchmarkCase, CaseData, twin_recordings
+from proprio.diagnosis.benchmark_cases import ENCODER, BenchmarkCase, CaseData, _draw, twin_recordings
 from proprio.drive_description import drive_from_dict
 from proprio.effects import EFFECTS, PreSliding
 
@@ -74,7 +74,7 @@ def drive_case_config(case: BenchmarkCase, omit_withheld: bool = False) -> tuple
     motor, link = base.motor, base.effect("viscous_coulomb")
     arm = {"rotor_inertia": motor.motor_inertia * u(0.7, 1.3), "viscous": motor.motor_viscous * u(0.7, 1.3),
            "coulomb": motor.motor_coulomb * u(0.7, 1.3), "offset": u(0.2, 0.9) * rng.choice([-1.0, 1.0], n)}
-    presliding = {"level": case.magnitude * u(0.3, 0.8), "presliding_travel": np.radians(u(0.2, 1.0))}
+    presliding = _draw("presliding", n, case.magnitude, rng)
     noise = u(0.1, 0.3)
     short = {"rotor_inertia": ("rotor_inertia",), "motor_friction": ("viscous", "coulomb"),
              "drive_offset": ("offset",)}
