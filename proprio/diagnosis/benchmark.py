@@ -26,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from proprio.diagnosis.benchmark_cases import (PROCESSING_TYPES, BenchmarkCase, generate_case_data, is_drive_case,
-                                               is_open_world, is_time_varying)
+from proprio.diagnosis.benchmark_cases import (PROCESSING_TYPES, BenchmarkCase, expected_name, generate_case_data,
+                                               is_drive_case, is_open_world, is_time_varying)
 from proprio.effects import EFFECTS
 from proprio.io import atomic_write_text
 
@@ -182,17 +182,17 @@ def summarise(results: list[CaseResult]) -> tuple[dict[str, Any], str]:
         i = labels.index(r.case.withheld[0])
         p = r.top[0] if r.top else "(none)"
         conf[i, pred_labels.index(p) if p in pred_labels else len(labels)] += 1
-    top1 = np.mean([bool(r.top) and r.top[0] == r.case.withheld[0] for r in single]) if single else float("nan")
+    top1 = np.mean([bool(r.top) and r.top[0] == expected_name(r.case) for r in single]) if single else float("nan")
     physical = [r for r in single if r.case.withheld[0] not in PROCESSING_TYPES]
-    top1_phys = np.mean([bool(r.top) and r.top[0] == r.case.withheld[0] for r in physical]) if physical \
+    top1_phys = np.mean([bool(r.top) and r.top[0] == expected_name(r.case) for r in physical]) if physical \
         else float("nan")
-    top2 = np.mean([r.case.withheld[0] in r.top[:2] for r in single]) if single else float("nan")
+    top2 = np.mean([expected_name(r.case) in r.top[:2] for r in single]) if single else float("nan")
     null_fp = np.mean([bool(r.steps) for r in null]) if null else float("nan")
     pair_both = np.mean([set(r.case.withheld) <= set(r.top[:3]) for r in pair]) if pair else float("nan")
     # a noise-level finding (extra encoder noise) predicts no held-out shrinkage: noise cannot be predicted away, so
     # its measured column only says what the extra noise costs
     shr = [(r.predicted_shrinkage, r.measured_shrinkage) for r in single
-           if r.measured_shrinkage > 0.05 and r.top and r.top[0] == r.case.withheld[0]
+           if r.measured_shrinkage > 0.05 and r.top and r.top[0] == expected_name(r.case)
            and r.case.withheld[0] not in LEVEL_FINDINGS]
     rel = np.array([abs(p - m) / m for p, m in shr]) if shr else np.zeros(0)
     flagged = [_flagged_unexplained(r) for r in open_w]

@@ -41,7 +41,8 @@ from typing import Any
 
 import numpy as np
 
-from proprio.diagnosis.benchmark_cases import ENCODER, NOISE_STD, BenchmarkCase, CaseData, _draw, _perturbed
+from proprio.diagnosis.benchmark_cases import (ENCODER, LINK_SENSOR_ANSWER, NOISE_STD, BenchmarkCase, CaseData, _draw,
+                                               _perturbed)
 from proprio.effects import EFFECTS
 
 __all__ = ["CONFUSABLE_PAIRS", "CONFUSABLE_CANDIDATES", "VARIANTS", "ANSWER", "RATE_HZ", "ConfusableResult",
@@ -80,7 +81,7 @@ CONFUSABLE_CANDIDATES = ("viscous_coulomb", "hysteresis", "lost_motion", "sensor
 """The candidates the family's diagnoses choose among: every effect of the pairs (pre-sliding as the Dahl law,
 ``hysteresis``, on a link-side sensor)."""
 
-ANSWER = {"presliding": "hysteresis"}
+ANSWER = LINK_SENSOR_ANSWER
 """The name the diagnosis should give a truth when it is not the truth's own (module docstring)."""
 
 _BASE = {"sensor_offset": "sensor_offset_gain", "sensor_gain": "sensor_offset_gain"}
