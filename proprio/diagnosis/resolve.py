@@ -164,7 +164,7 @@ class JointRefit:
                              for _, p, b, a, t in rows)
             parts.append(f"{eff}: {vals}")
         return ("joint re-fit of the named effects on all the training data (each joint's parameters of the "
-                "joint-by-joint effects in one problem; the selection's back-fitting in brackets) — " + "; ".join(parts))
+                "joint-by-joint effects in one problem; the selection's fit in brackets) — " + "; ".join(parts))
 
     def to_dict(self) -> dict[str, Any]:
         return {"effects": self.effects, "text": self.text(),
@@ -179,8 +179,9 @@ LEVEL_KEYS = ("coulomb", "saturation", "amplitude", "level", "static", "offset")
 def refit_jointly(att: Attribution, train: GapData, truth: Sequence[Any] = ()) -> JointRefit | None:
     """The named effects of ``att`` re-fitted on ``train`` (the diagnosis' training data, :func:`training_data`, old
     recordings plus the experiments' first passes) by the joint re-fit
-    (:func:`~proprio.diagnosis.discriminate.joint_refit`), started from the selection's fit; the reported effects
-    are the members of its confounded pairs and tied sets. ``truth``: the twin's effects
+    (:func:`~proprio.diagnosis.discriminate.joint_refit`; without the selection's time-trend nuisance), started from
+    each named effect's parameters as the selection fitted it; the reported effects are the named members of its
+    confounded pairs and tied sets. ``truth``: the twin's effects
     (:class:`~proprio.effects.JointEffect`) when the data came from a twin, for scoring. ``None`` when nothing is
     named or no named effect is confounded or tied."""
     if not att.ambiguity:
@@ -191,13 +192,15 @@ def refit_jointly(att: Attribution, train: GapData, truth: Sequence[Any] = ()) -
                       | {m for a in tied_sets(att.ambiguity) for m in a.members if m in named})
     if not reported:
         return None
-    cands = [first.candidates[k] for k in named]
-    before = dict(first.fits[first.effect].thetas)
-    fit = joint_refit(cands, train, first.weights, before)
-    names = {k: first.candidates[k].param_names() for k in reported}
+    by_name = {k: c for a in att.ambiguity for k, c in a.candidates.items()}
+    cands = [by_name[k] for k in named]
+    init = {k: v for a in att.ambiguity for k, v in a.fits[a.effect].thetas.items() if k in named}
+    before = {a.effect: a.fits[a.effect].thetas[a.effect] for a in att.ambiguity}     # each as the selection fitted it
+    fit = joint_refit(cands, train, first.weights, {**init, **before})
+    names = {k: by_name[k].param_names() for k in reported}
     params = {e.name: e.params() for e in truth}
     true = {k: np.array([_value(params[c.effect], x) for x in names[k]]) for k in reported
-            for c in [first.candidates[k]] if getattr(c, "effect", None) in params}
+            for c in [by_name[k]] if getattr(c, "effect", None) in params}
     return JointRefit(fit, before, reported, names, true or None)
 
 
