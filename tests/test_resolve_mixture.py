@@ -9,6 +9,7 @@ recording at 50 Hz, the pair's two candidates); the demo's twin mixture through 
 slow test (README, "Confusable effects")."""
 from __future__ import annotations
 
+import json
 import math
 from types import SimpleNamespace
 
@@ -23,7 +24,7 @@ from proprio.diagnosis.data import SimModel
 from proprio.diagnosis.discriminate import (CONFOUND_CORRELATION, confounded_pairs, design_experiment, pair_set,
                                             split_passes)
 from proprio.diagnosis.fitting import fit_candidates
-from proprio.diagnosis.resolve import design_experiments, training_data
+from proprio.diagnosis.resolve import design_experiments, training_data, write_resolution
 from proprio.dynamics import inverse_dynamics
 from proprio.effects import EFFECTS
 from proprio.recording import Recording
@@ -165,7 +166,7 @@ def twin_mixture():
     return (model, *_twin_data(model, 20.0, [1.0], 20))
 
 
-def test_the_joint_refit_reaches_a_lower_cost_than_back_fitting_on_the_twins_mixture(twin_mixture):
+def test_the_joint_refit_reaches_a_lower_cost_than_back_fitting_on_the_twins_mixture(twin_mixture, tmp_path):
     """Back-fitting (each nonlinear effect on what the others leave, the selection's final fit) stops on the ridge
     where the hysteresis and the lost motion take the Coulomb level; the joint re-fit (every joint's parameters of
     the joint-by-joint effects in one problem) goes on to a lower cost, nearer the twin's split, and
@@ -192,6 +193,10 @@ def test_the_joint_refit_reaches_a_lower_cost_than_back_fitting_on_the_twins_mix
     assert t == pytest.approx(twin.effect("viscous_coulomb").coulomb[0])
     assert abs(a / t - 1) < abs(b / t - 1)
     assert "coulomb[1]" in refit.text() and "saturation[1]" in refit.text() and "twin" in refit.text()
+    write_resolution(tmp_path / "resolution.json", [], [], refit)
+    doc = json.loads((tmp_path / "resolution.json").read_text())
+    assert {"effect": "viscous_coulomb", "parameter": "coulomb[1]", "before": b, "after": a, "truth": t} \
+        in doc["refit"]["levels"]
 
 
 @pytest.mark.slow
@@ -202,6 +207,7 @@ def test_the_demos_mixture_after_one_designed_experiment_fits_both_levels_within
     25 % of the twin's (README, "Confusable effects", for the measured figures)."""
     from proprio.diagnosis.discriminate import joint_refit
     from proprio.diagnosis.resolve import refit_jointly
+    from proprio.diagrams.twin import simulate_twin
 
     model = SimModel(load_robot("iiwa14_nominal"))
     n = model.robot.n
@@ -209,18 +215,15 @@ def test_the_demos_mixture_after_one_designed_experiment_fits_both_levels_within
     every = [cands[k] for k in TWIN_NAMED]
     back = fit_candidates(every, train, w, {}, sweeps=3)                 # the selection's final fit
     sets = _named_sets(back, cands, w, model, rec.q[np.argmin(((rec.q - np.median(rec.q, 0)) ** 2).sum(1))])
-    designed = design_experiments(model, SimpleNamespace(ambiguity=sets), train=train)
-    (de,) = designed
+    (de,) = design_experiments(model, SimpleNamespace(ambiguity=sets), train=train)
     assert de.experiment is not None and de.experiment.worth_running and de.experiment.duration <= 60.0 + 1e-6
-    from proprio.diagrams.twin import simulate_twin
-
     new = simulate_twin(twin, de.experiment.trajectory, progress=False).downsample(5)
     first, _ = split_passes(new, de.experiment.split_s)
-    both = training_data(model, [rec, first])
-    after = joint_refit(every, both, w, back.thetas)
-    refit = refit_jointly(SimpleNamespace(ambiguity=sets), both, twin.effects)
+    refit = refit_jointly(SimpleNamespace(ambiguity=sets), training_data(model, [rec, first]), twin.effects)
+    after = refit.fit
+    old_only = joint_refit(every, train, w, back.thetas)
     with capsys.disabled():
-        print(f"\nexperiment: {de.text()}\nback-fit on the old data, joint 1 (Coulomb, saturation) relative errors "
-              f"{_errors(back, twin, n)}; joint re-fit on the old data {_errors(joint_refit(every, train, w, back.thetas), twin, n)}; "
-              f"after the experiment {_errors(after, twin, n)}\n{refit.text()}")
+        print(f"\nexperiment: {de.text()}\njoint 1 (Coulomb, saturation) relative errors: selection's fit on the old "
+              f"data {_errors(back, twin, n)}; joint re-fit on the old data {_errors(old_only, twin, n)}; after the "
+              f"experiment {_errors(after, twin, n)}\n{refit.text()}")
     assert max(_errors(after, twin, n)) <= 0.25, _errors(after, twin, n)

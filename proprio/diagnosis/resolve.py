@@ -194,9 +194,9 @@ def refit_jointly(att: Attribution, train: GapData, truth: Sequence[Any] = ()) -
         return None
     by_name = {k: c for a in att.ambiguity for k, c in a.candidates.items()}
     cands = [by_name[k] for k in named]
-    init = {k: v for a in att.ambiguity for k, v in a.fits[a.effect].thetas.items() if k in named}
-    before = {a.effect: a.fits[a.effect].thetas[a.effect] for a in att.ambiguity}     # each as the selection fitted it
-    fit = joint_refit(cands, train, first.weights, {**init, **before})
+    init = {k: v for a in att.ambiguity for f in a.fits.values() for k, v in f.thetas.items() if k in named}
+    before = {**init, **{a.effect: a.fits[a.effect].thetas[a.effect] for a in att.ambiguity if a.effect in a.fits}}
+    fit = joint_refit(cands, train, first.weights, before)                 # each as the selection fitted it
     names = {k: by_name[k].param_names() for k in reported}
     params = {e.name: e.params() for e in truth}
     true = {k: np.array([_value(params[c.effect], x) for x in names[k]]) for k in reported
