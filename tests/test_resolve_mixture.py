@@ -103,6 +103,10 @@ def test_the_pair_experiment_lets_the_joint_fit_divide_the_level(mixture):
     assert pair.members == ["hysteresis", "viscous_coulomb"] and pair.context == [] and pair.tied
     assert set(pair.fits["hysteresis"].thetas) == {"hysteresis"}          # each alone in the pair's place
     assert set(pair.fits["viscous_coulomb"].thetas) == {"viscous_coulomb"}
+    with pytest.raises(ValueError, match="pass_s"):
+        design_experiment(model, pair, pass_s=45.0)                          # each pass at most PASS_S
+    short = design_experiment(model, pair, families=("triangles",), refit_top=1, mixed=True, pass_s=10.0)
+    assert short.split_s <= 10.0 + 1e-6 and short.duration <= 20.0 + 1e-6
     exp = design_experiment(model, pair, families=("triangles",), refit_top=2, mixed=True)
     assert exp is not None and exp.family == "triangles" and exp.duration <= 60.0 + 1e-6
     assert exp.pair and exp.worth_running and "both named" in exp.text()      # run even if one alone could mimic it

@@ -183,15 +183,15 @@ def _family(q0: np.ndarray, room: np.ndarray, n: int) -> list[tuple[str, str, An
     return out
 
 
-def _passes(model: SimModel, build, q0: np.ndarray) -> tuple[Any, float] | None:
+def _passes(model: SimModel, build, q0: np.ndarray, pass_s: float = PASS_S) -> tuple[Any, float] | None:
     """The two mirrored passes of a family member as one trajectory (units dropped from the end until a pass fits
-    :data:`PASS_S`), and the time between them; ``None`` if not even one unit fits."""
+    ``pass_s`` [s], default :data:`PASS_S`), and the time between them; ``None`` if not even one unit fits."""
     robot = model.robot
     first, second = build(1.0), build(-1.0)
     k = len(first)
     while k > 0:
         one = time_parameterize([p for u in first[:k] for p in u], robot)
-        if one.duration <= PASS_S:
+        if one.duration <= pass_s:
             both = time_parameterize([p for u in first[:k] + second[:k] for p in u], robot)
             return both.trajectory, one.duration
         k -= 1
@@ -238,15 +238,18 @@ def _separation(aset: AmbiguitySet, data: GapData, refit: bool, mixed: bool = Fa
 
 def design_experiment(model: SimModel, aset: AmbiguitySet, checker: CollisionChecker | None = None,
                       refit_top: int = 3, families: Sequence[str] | None = None,
-                      mixed: bool = False) -> Experiment | None:
+                      mixed: bool = False, pass_s: float = PASS_S) -> Experiment | None:
     """The motion of the family (module docstring) that best separates the tied set ``aset``, within the limits and
     collision-checked (``checker``: default the robot's self-collision checker); ``None`` when ``aset`` is not tied
     or no member fits the limits without a collision. The ``refit_top`` best members by raw separation are scored
     with the refit; ``families``: only these kinds of motion (``"triangles"``, ``"sweeps"``, ``"dwell_reverse"``,
     ``"poses"``; default all). ``mixed``: ``aset`` is a confounded pair (:func:`pair_set`) — both effects stay, so
-    the motion must show the even mixture of the two apart from either one alone (module docstring)."""
+    the motion must show the even mixture of the two apart from either one alone (module docstring). ``pass_s`` [s]:
+    the longest pass (≤ :data:`PASS_S`; a shorter experiment keeps the first, smallest units of each motion)."""
     if not aset.tied:
         return None
+    if not 0.0 < pass_s <= PASS_S:
+        raise ValueError(f"design_experiment: pass_s = {pass_s:g} s outside (0, {PASS_S:g}] s")
     robot = model.robot
     checker = checker or CollisionChecker(robot)
     q0 = aset.home
@@ -265,7 +268,7 @@ def design_experiment(model: SimModel, aset: AmbiguitySet, checker: CollisionChe
             made = _passes(model, lambda sign, b=build, s=shrink: [[Phase(q0 + s * (p.waypoints - q0),
                                                                          p.velocity_fraction,
                                                                          p.acceleration_fraction, p.kind)
-                                                                   for p in u] for u in b(sign)], q0)
+                                                                   for p in u] for u in b(sign)], q0, pass_s)
             if made is None:
                 continue
             qs = sample_trajectory(made[0], 10.0)[1]
