@@ -209,6 +209,12 @@ def _diagnose(args: argparse.Namespace) -> int:
     print(d.verdict)
     if d.replay is not None:
         print(d.replay.text())
+    if args.experiment:
+        from proprio.diagnosis.resolve import refit_jointly, training_data
+
+        refit = refit_jointly(d.attribution, training_data(model, train, conditioning, args.trim))
+        if refit is not None:
+            print(refit.text())
     print(f"twin patch: {d.files['twin_patch']}")
     print(f"report: {d.files['report_html']}")
     if args.design_experiment or resolve_twin is not None:
@@ -233,8 +239,8 @@ def _experiments(args: argparse.Namespace, model, d, train, hold, conditioning, 
     """--design-experiment / --resolve: the experiments of the tied sets, and with a twin the re-diagnosis."""
     from proprio.diagnosis.discriminate import resolution
     from proprio.diagnosis.report import diagnose
-    from proprio.diagnosis.resolve import (design_experiments, run_on_twin, training_data, with_experiments,
-                                           write_resolution)
+    from proprio.diagnosis.resolve import (design_experiments, refit_jointly, run_on_twin, training_data,
+                                           with_experiments, write_resolution)
 
     designed = design_experiments(model, d.attribution, args.out,
                                   train=training_data(model, train, conditioning, args.trim))
@@ -243,7 +249,7 @@ def _experiments(args: argparse.Namespace, model, d, train, hold, conditioning, 
         return
     for de in designed:
         print(f"experiment: {de.text()}")
-    resolutions = []
+    resolutions, refit = [], None
     if twin is not None:
         recs = run_on_twin(twin, designed)
         if recs:
@@ -255,9 +261,12 @@ def _experiments(args: argparse.Namespace, model, d, train, hold, conditioning, 
             print(f"with the experiment(s): {d2.verdict}")
             for r in resolutions:
                 print(f"resolution: {r.text}")
+            refit = refit_jointly(d2.attribution, training_data(model, train2, conditioning, args.trim), twin.effects)
+            if refit is not None:
+                print(refit.text())
             print(f"report after the experiment(s): {d2.files['report_html']}")
     print(f"experiments: {args.out / 'resolution.json'}")
-    write_resolution(args.out / "resolution.json", designed, resolutions)
+    write_resolution(args.out / "resolution.json", designed, resolutions, refit)
 
 
 def _positive_float(text: str, flag: str) -> float:
