@@ -31,6 +31,7 @@ and the tint scale comes from the measured frames only; the legend lists the gap
 """
 from __future__ import annotations
 
+import gc
 import html
 import json
 import logging
@@ -461,10 +462,20 @@ def playback_html(pb: Playback, settings: PlaybackSettings = PlaybackSettings(),
                   ) -> tuple[str, PlaybackInfo]:
     """The self-contained HTML of ``pb``'s animation (Meshcat's ``StaticHtml``: the viewer, the scene, the recorded
     animation and a legend; no network needed to view it) and what was recorded. A temporary Meshcat serves on
-    localhost while it is made."""
-    meshcat = start_meshcat(port, quiet=True)
-    info = record_playback(pb, meshcat, settings)
-    page = meshcat.StaticHtml()
+    localhost while it is made, and is freed on the calling thread before this returns: Drake's ``~Meshcat`` asserts
+    the thread that made it, and the recording Diagram holds it in reference cycles, which a garbage collection on
+    another thread (a Jupyter kernel's) would otherwise free there and abort the process."""
+    collecting = gc.isenabled()
+    gc.disable()
+    try:
+        meshcat = start_meshcat(port, quiet=True)
+        info = record_playback(pb, meshcat, settings)
+        page = meshcat.StaticHtml()
+        del meshcat
+    finally:
+        gc.collect()
+        if collecting:
+            gc.enable()
     cut = page.rfind("</body>")
     if cut < 0:
         raise RuntimeError("playback: Meshcat's StaticHtml has no </body>")
