@@ -191,7 +191,8 @@ def _stage_hybrid(ctx: dict[str, Any], out: Path) -> list[Path]:
                                   epochs=size.hybrid_epochs, payload_recs=payload_recs, init=init)
     print(f"  hybrid {model.cfg.label()} on the identified RBD backbone: the residual pretrained on 41 min of RFMA "
           f"on this twin (proprio/configs/{HYBRID_INIT}) fine-tuned on the demo's {sum(r.duration for r in train):.0f} s "
-          f"for {size.hybrid_epochs} epochs; test = a separate RFMA run (20 s, raw τ); payload forces from the "
+          f"for {size.hybrid_epochs} epochs; test = a separate RFMA run ({size.hybrid_payload_seconds:g} s, raw τ); "
+          "payload forces from the "
           "Jacobian observer (force-only)")
     # the same model online: its network stepped inside the estimation diagram, state carried sample to sample
     res = estimate_wrench(load_torque_model(out / "hybrid_lstm.pt"), payload_recs["1000 g"],

@@ -13,7 +13,9 @@ A hybrid never ends worse than its backbone on the validation split: τ_RBD alon
 when no epoch beats it the model falls back to the backbone exactly (``TrainResult.fallback`` = "all"); otherwise,
 where the network has a separate output row per joint, each joint whose validation MSE is not below the backbone's
 is zeroed (falls back to τ_RBD; ``fallback`` lists those joints). The validation split is part of the training data,
-never the test split.
+never the test split. A warm start (``warm``: fine-tuning a pretrained model, ``proprio train --init``) keeps the
+model's normalisation and scores its weights as given on the validation split too: the saved model is the best of
+backbone, pretrained weights and fine-tuned epochs, the per-joint fallback still against the backbone.
 
 The checkpoint (written atomically after each epoch) holds the model, optimizer, scheduler, epoch, best weights,
 history and every RNG state (torch global, the batch-order generator, CUDA), so a resumed run continues exactly where
@@ -74,7 +76,7 @@ class TrainConfig:
 @dataclass
 class TrainResult:
     history: list[dict[str, float]] = field(default_factory=list)   # per epoch: epoch, train, val, lr, seconds
-    best_epoch: int = -1            # -1: no epoch beat the backbone (a hybrid) or none ran
+    best_epoch: int = -1            # -1: no epoch beat the backbone (a hybrid), the warm start, or none ran
     stopped_early: bool = False
     backbone_val: float = float("nan")   # validation loss of τ_RBD alone (a hybrid; NaN for a standalone model)
     fallback: str | list[int] = field(default_factory=list)   # "all" or the joints (0-based) that predict τ_RBD
