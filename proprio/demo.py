@@ -16,7 +16,8 @@ Stages (the built-in default is the calibrated iiwa 14 twin, ``proprio/configs/i
 6. ``diagnosis`` — the sim-to-real gap of the twin against the nominal CAD model: where, which effects, how far
    it shrinks (report.html), scored against the twin's truth; ``twin_patch.yaml`` and the held-out gap re-measured
    through the CAD twin with and without the patch.
-7. ``hybrid`` — a small hybrid LSTM residual (§4.2) on the twin data, and the payload table with it.
+7. ``hybrid`` — a small hybrid LSTM residual (§4.2): the one pretrained for this twin (``HYBRID_INIT``) fine-tuned
+   on the twin data, scored against the RBD on a separate run, and the payload table with it.
 8. ``view`` — Meshcat playbacks (:mod:`proprio.diagrams.playback`) of the twin run and of the heaviest payload run
    as self-contained HTML animations: the arm, estimated and true flange force, links tinted by the torque residual.
 
@@ -44,6 +45,7 @@ NOMINAL_ROBOT = "iiwa14_nominal"
 CAD_TWIN = "iiwa14_cad_twin"   # the nominal CAD robot as a twin: the base the diagnosis' twin_patch.yaml applies to
 DIAGNOSIS_DOWNSAMPLE = 5     # 1 kHz -> 200 Hz for the diagnosis
 HYBRID_DOWNSAMPLE = 7        # 1 kHz twin logs -> ≈143 Hz, the thesis' data rate (the model halves it again, §4.4)
+HYBRID_INIT = "demo_residual.pt"   # proprio/configs/: the residual pretrained for this twin (README, "The demo")
 
 
 @dataclass(frozen=True)
@@ -54,7 +56,7 @@ class DemoSize:
     twin_seconds: float = 30.0            # s of RFMA motion simulated on the twin
     excitation_speeds: tuple[float, ...] = (1.0, 0.8)   # the first two periods of the §4.1 protocol (20 s + 25 s)
     payload_seconds: float = 6.0          # s of motion per payload mass
-    hybrid_epochs: int = 30
+    hybrid_epochs: int = 15              # fine-tuning epochs of the pretrained residual
     hybrid_payload_seconds: float = 20.0  # s of motion per payload mass of the hybrid's payload table
 
 
@@ -167,6 +169,7 @@ def _stage_diagnosis(ctx: dict[str, Any], out: Path) -> list[Path]:
 
 def _stage_hybrid(ctx: dict[str, Any], out: Path) -> list[Path]:
     import dataclasses
+    import importlib.resources
 
     from proprio.diagrams.estimation import estimate_wrench, load_torque_model
     from proprio.experiments.payload import validation_trajectory
@@ -183,10 +186,14 @@ def _stage_hybrid(ctx: dict[str, Any], out: Path) -> list[Path]:
         rec = simulate_twin(run.with_payload(Payload(mass) if mass else None), traj, progress=False)
         payload_recs[f"{int(mass * 1000)} g"] = rec.downsample(step)
     train = [ctx["twin_rfma"].downsample(step), ctx["twin_excitation"].downsample(step)]
-    model, text = demo_hybrid(train, [payload_recs["0 g"]], str(ctx["identified_model_path"]), out,
-                              epochs=size.hybrid_epochs, payload_recs=payload_recs)
-    print(f"  hybrid {model.cfg.label()} on the identified RBD backbone, {size.hybrid_epochs} epochs; test = a "
-          "separate RFMA run; payload forces from the Jacobian observer (force-only)")
+    with importlib.resources.as_file(importlib.resources.files("proprio.configs") / HYBRID_INIT) as init:
+        model, text = demo_hybrid(train, [payload_recs["0 g"]], str(ctx["identified_model_path"]), out,
+                                  epochs=size.hybrid_epochs, payload_recs=payload_recs, init=init)
+    print(f"  hybrid {model.cfg.label()} on the identified RBD backbone: the residual pretrained on 41 min of RFMA "
+          f"on this twin (proprio/configs/{HYBRID_INIT}) fine-tuned on the demo's {sum(r.duration for r in train):.0f} s "
+          f"for {size.hybrid_epochs} epochs; test = a separate RFMA run ({size.hybrid_payload_seconds:g} s, raw τ); "
+          "payload forces from the "
+          "Jacobian observer (force-only)")
     # the same model online: its network stepped inside the estimation diagram, state carried sample to sample
     res = estimate_wrench(load_torque_model(out / "hybrid_lstm.pt"), payload_recs["1000 g"],
                           mapping=WrenchMapping(force_only=True))

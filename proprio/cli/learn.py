@@ -69,7 +69,15 @@ def _train(args: argparse.Namespace) -> int:
     backbone = _backbone(args.backbone, recs)
     split = prepare_split(recs, backbone, cfg.data, tests, names + tnames)
     print("\n".join(split.conditioning))
-    model, result, rows = train_from_config(cfg, recs, backbone, args.out, tests, names + tnames, split=split)
+    if args.init and not Path(args.init).is_file():
+        raise UserError(f"--init {args.init}: no such model file")
+    try:
+        model, result, rows = train_from_config(cfg, recs, backbone, args.out, tests, names + tnames, split=split,
+                                                init=args.init)
+    except ValueError as exc:
+        if args.init and str(exc).startswith(str(args.init)):
+            raise UserError(f"--init {exc}") from exc
+        raise
     print(format_table(rows))
     if result.fallback_line():
         print(result.fallback_line())
@@ -145,6 +153,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "train_transformer, train_demo; default train_lstm2_fcl)")
     _common(p)
     p.add_argument("--out", required=True, metavar="MODEL", help="model file to write (.pt)")
+    p.add_argument("--init", metavar="MODEL", default=None,
+                   help="warm start: fine-tune this saved model (same architecture, inputs, window and rate as the "
+                        "config; trained against the same backbone) instead of starting from a zero residual")
     p.add_argument("--curve", metavar="PNG", default=None,
                    help="also plot the learning curve (train/validation loss per epoch, the backbone's validation "
                         "loss as a line) to this PNG")

@@ -36,7 +36,7 @@ from proprio.tasks import Shared, Task, import_ray, init_ray, run_tasks
 from proprio.typed_yaml import ConfigError, check_keys, load_typed, read_yaml
 
 __all__ = ["load_config", "training_config", "TrainingConfig", "TrainingYaml", "GridSection", "Backbone", "resolve_backbone",
-           "prepare_split", "train_from_config", "evaluate_saved",
+           "prepare_split", "train_from_config", "warm_start_model", "evaluate_saved",
            "train_grid", "train_grid_model", "grid_tag", "search_hyperparameters", "SEARCH_SPACE", "demo_hybrid",
            "payload_table", "GRID_VARIANTS"]
 
@@ -158,25 +158,45 @@ def _model_config(cfg: TrainingConfig, split: Split, n: int, **override: Any) ->
                    reversal_deadband_deg=data.reversal_deadband_deg, r_max_deg=data.r_max_deg)
 
 
+def warm_start_model(path: str | Path, model_cfg: ModelConfig) -> HybridModel:
+    """The model saved at ``path`` (a pretrained residual) as the start of a training run configured as
+    ``model_cfg``: same architecture, inputs, sizes and window, and a model rate within 1 %; else a ValueError that
+    names the file and the settings that differ. Its weights and normalisation are kept (``train_model(warm=True)``).
+    Its backbone is not checked: the residual fits only the backbone it was trained against."""
+    model, _ = load_model(path)
+    have, want = asdict(model.cfg), asdict(model_cfg)
+    differ = [k for k in want if k != "rate_hz" and have.get(k) != want[k]]
+    if abs(model.cfg.rate_hz / model_cfg.rate_hz - 1.0) > 0.01:
+        differ.append("rate_hz")
+    if differ:
+        raise ValueError(f"{path}: cannot warm-start from this model, it differs from the config in "
+                         + ", ".join(f"{k} ({have.get(k)} vs {want[k]})" for k in differ))
+    return model
+
+
 def train_from_config(cfg: TrainingConfig, train_recs: Sequence[Recording], backbone: Backbone, out: str | Path,
                       test_recs: Sequence[Recording] = (), names: Sequence[str] | None = None,
-                      progress: bool = True, split: Split | None = None, **model_override: Any
-                      ) -> tuple[HybridModel, TrainResult, list[TableRow]]:
+                      progress: bool = True, split: Split | None = None, init: str | Path | None = None,
+                      **model_override: Any) -> tuple[HybridModel, TrainResult, list[TableRow]]:
     """Train one model as configured; save it to ``out`` (checkpoint ``out.ckpt`` beside it, resumed if present,
-    removed on success). Returns the model, its history and the rows [RBD, model (windowed), model (streaming)]."""
+    removed on success). ``init``: a saved model to start from (:func:`warm_start_model`; its weights and
+    normalisation are fine-tuned, and kept where no epoch beats them) instead of the zero-start residual. Returns the
+    model, its history and the rows [RBD, model (windowed), model (streaming)]."""
     data, tcfg = cfg.data, cfg.train
     split = split or prepare_split(train_recs, backbone, data, test_recs, names)
     torch.manual_seed(tcfg.seed)            # the initial weights too come from the config's seed
-    model = HybridModel(_model_config(cfg, split, backbone.description.n, **model_override))
+    model_cfg = _model_config(cfg, split, backbone.description.n, **model_override)
+    model = HybridModel(model_cfg) if init is None else warm_start_model(init, model_cfg)
     out = Path(out)
     ckpt = out.with_name(out.name + ".ckpt")
-    result = train_model(model, split, tcfg, checkpoint=ckpt, progress=progress)
+    result = train_model(model, split, tcfg, checkpoint=ckpt, progress=progress, warm=init is not None)
     rows = [rbd_row(split), evaluate_model(model, split)]
     if model.cfg.streamable:
         rows.append(streaming_row(model, split))
     extra = {"data": data.to_dict(), "train": asdict(tcfg), "backbone": backbone.spec,
              "history": result.history, "best_epoch": result.best_epoch,
              "backbone_val": result.backbone_val, "fallback": result.fallback,
+             "init": None if init is None else str(init), "init_val": result.init_val,
              "mse": {r.name: {"train": r.train.tolist(), "test": r.test.tolist()} for r in rows}}
     save_model(model, out, extra)
     ckpt.unlink(missing_ok=True)
@@ -415,17 +435,22 @@ def search_hyperparameters(cfg: TrainingConfig, split: Split, backbone: Backbone
 
 def demo_hybrid(train_recs: Sequence[Recording], test_recs: Sequence[Recording], robot: RobotDescription | str,
                 out_dir: str | Path, epochs: int = 30, payload_recs: dict[str, Recording] | None = None,
-                contact_point: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> tuple[HybridModel, str]:
+                contact_point: tuple[float, float, float] = (0.0, 0.0, 0.0), init: str | Path | None = None
+                ) -> tuple[HybridModel, str]:
     """The demo's stage: a small hybrid LSTM-2-FCL (with r, ``train_demo.yaml``) trained on ``train_recs`` for
-    ``epochs`` and compared with the RBD backbone of ``robot`` on ``test_recs``; saved to ``out_dir/hybrid_lstm.pt``.
-    With ``payload_recs`` (label → Recording with ``f_ext``, e.g. {"0 g": ..., "1000 g": ...}) the Table 5.4 force
-    errors of RBD and hybrid are appended. Returns ``(model, text)``. Sized for < 60 s on 2 cores with a few
-    minutes of data."""
+    ``epochs`` — from ``init`` (a pretrained residual, :func:`warm_start_model`) when given, else from a zero
+    residual — and compared with the RBD backbone of ``robot`` on ``test_recs``; saved to ``out_dir/hybrid_lstm.pt``.
+    The text ends with the hybrid's average test MSE as a fraction of the RBD's. With ``payload_recs`` (label →
+    Recording with ``f_ext``, e.g. {"0 g": ..., "1000 g": ...}) the Table 5.4 force errors of RBD and hybrid are
+    appended. Returns ``(model, text)``. Sized for < 60 s on 2 cores with a few minutes of data."""
     cfg = load_config("train_demo").with_train(max_epochs=int(epochs))
     backbone = resolve_backbone(robot)
     model, result, rows = train_from_config(cfg, train_recs, backbone, Path(out_dir) / "hybrid_lstm.pt",
-                                       test_recs=test_recs, progress=False)
-    text = "\n".join([format_table(rows), *filter(None, [result.fallback_line()])])
+                                            test_recs=test_recs, progress=False, init=init)
+    rbd = rows[0].test.mean()
+    ratio = (f"test MSE hybrid / RBD: {rows[1].test.mean():.4f} / {rbd:.4f} N·m² = {rows[1].test.mean() / rbd:.2f}"
+             + (f" (streaming {rows[2].test.mean() / rbd:.2f})" if len(rows) > 2 else ""))
+    text = "\n".join([format_table(rows), *filter(None, [result.fallback_line()]), ratio])
     if payload_recs:
         text += "\n\n" + payload_table({"RBD": None, model.cfg.label(): model}, backbone, payload_recs,
                                         cfg.data, contact_point)

@@ -13,7 +13,9 @@ A hybrid never ends worse than its backbone on the validation split: τ_RBD alon
 when no epoch beats it the model falls back to the backbone exactly (``TrainResult.fallback`` = "all"); otherwise,
 where the network has a separate output row per joint, each joint whose validation MSE is not below the backbone's
 is zeroed (falls back to τ_RBD; ``fallback`` lists those joints). The validation split is part of the training data,
-never the test split.
+never the test split. A warm start (``warm``: fine-tuning a pretrained model, ``proprio train --init``) keeps the
+model's normalisation and scores its weights as given on the validation split too: the saved model is the best of
+backbone, pretrained weights and fine-tuned epochs, the per-joint fallback still against the backbone.
 
 The checkpoint (written atomically after each epoch) holds the model, optimizer, scheduler, epoch, best weights,
 history and every RNG state (torch global, the batch-order generator, CUDA), so a resumed run continues exactly where
@@ -74,10 +76,11 @@ class TrainConfig:
 @dataclass
 class TrainResult:
     history: list[dict[str, float]] = field(default_factory=list)   # per epoch: epoch, train, val, lr, seconds
-    best_epoch: int = -1            # -1: no epoch beat the backbone (a hybrid) or none ran
+    best_epoch: int = -1            # -1: no epoch beat the backbone (a hybrid), the warm start, or none ran
     stopped_early: bool = False
     backbone_val: float = float("nan")   # validation loss of τ_RBD alone (a hybrid; NaN for a standalone model)
     fallback: str | list[int] = field(default_factory=list)   # "all" or the joints (0-based) that predict τ_RBD
+    init_val: float = float("nan")       # validation loss of the warm-start weights before training (NaN: cold start)
 
     def fallback_line(self) -> str:
         """One line saying whether and where the residual fell back to its backbone (empty for no fallback)."""
@@ -137,17 +140,21 @@ def _fingerprint(model: HybridModel, cfg: TrainConfig, split: Split) -> dict[str
 
 
 def train_model(model: HybridModel, split: Split, cfg: TrainConfig, checkpoint: str | Path | None = None,
-                progress: bool = True, on_epoch_end: Callable[[int, dict[str, float]], None] | None = None
-                ) -> TrainResult:
+                progress: bool = True, on_epoch_end: Callable[[int, dict[str, float]], None] | None = None,
+                warm: bool = False) -> TrainResult:
     """Set the normalisation from ``split.train`` and train ``model`` in place; returns the history.
 
     ``checkpoint``: file written after every epoch; if it exists (same model/train config and data size) training
     resumes from it — after the last epoch it only restores the best weights. ``on_epoch_end(epoch, record)`` is
-    called after each epoch's checkpoint (tests use it to simulate a kill).
+    called after each epoch's checkpoint (tests use it to simulate a kill). ``warm``: ``model`` is already trained
+    (a warm start, e.g. a pretrained residual to fine-tune): its normalisation is kept, and its weights as given are
+    scored on the validation split beside the backbone, so that they are kept when no epoch beats them
+    (``TrainResult.init_val``).
     """
     device = pick_device(cfg.device)
     torch.manual_seed(cfg.seed)
-    model.set_normalisation(split.train.features, split.train.tau)
+    if not warm:
+        model.set_normalisation(split.train.features, split.train.tau)
     model.to(device=device, dtype=torch.float32)
     x_tr, y_tr = _tensors(split.train, device)
     x_va, y_va = _tensors(split.val if len(split.val) else split.train, device)
@@ -160,6 +167,10 @@ def train_model(model: HybridModel, split: Split, cfg: TrainConfig, checkpoint: 
     if hybrid:
         base = _joint_mse(backbone, x_va, y_va, 4 * cfg.batch_size)
         best_val = result.backbone_val = float((base / model.y_std ** _LOSS_WEIGHT_POWER[cfg.loss]).mean())
+    if warm:
+        result.init_val = _eval_loss(model, x_va, y_va, 4 * cfg.batch_size, cfg.loss)
+        if result.init_val < best_val:
+            best_val, best_state = result.init_val, {k: v.detach().clone() for k, v in model.state_dict().items()}
     fingerprint = _fingerprint(model, cfg, split)
 
     ckpt = Path(checkpoint) if checkpoint is not None else None
