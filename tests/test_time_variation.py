@@ -219,7 +219,8 @@ def _growing(robot, seed: int, effects):
 def test_motion_that_grows_with_time_is_not_taken_for_a_friction_change():
     """A saturating static loop on a motion whose amplitude grows with time (the designed experiment of
     tests/test_ambiguity.py) puts a rising level into e·sign q̇; the reversal shapes of the static design take it
-    (without them joint 2 read as a friction change of 0.22 N·m, p = 2e-5), while a real warm-up on the same motion is found."""
+    (without them joint 2 read as a friction change of 0.22 N·m, p = 2e-5), while a real warm-up on the same motion
+    is found."""
     from proprio.description import load_robot
     from proprio.diagnosis.time_variation import REVERSAL_SCALES_DEG, reversal_shapes
 

@@ -27,8 +27,8 @@ The model is ``iiwa14_identified`` without friction + the background noise.
   truth. A case whose first diagnosis has no tie is scored after as before (no experiment was needed); a tied set no
   motion of the family separates is said so (``experiments[..]["decides"]`` false) and not recorded.
 
-The truth's expected name (:data:`ANSWER`): on a link-side torque sensor (the iiwa's) the drive's pre-sliding
-friction is, in τ_J, the Dahl law the diagnosis offers as the gauge's ``hysteresis``
+The truth's expected name (:func:`proprio.diagnosis.benchmark_cases.expected_name`): on a link-side torque sensor
+(the iiwa's) the drive's pre-sliding friction is, in τ_J, the Dahl law the diagnosis offers as the gauge's ``hysteresis``
 (:data:`proprio.diagnosis.candidates.DRIVE_ONLY`), so that is the right name for it; a load-dependent friction
 (a direction-flipping level that grows with the transmitted torque) is the Dahl law with a ``load_gain``: the
 library's ``hysteresis`` with a short travel (the library has no other load-dependent friction law).
@@ -41,11 +41,11 @@ from typing import Any
 
 import numpy as np
 
-from proprio.diagnosis.benchmark_cases import (ENCODER, LINK_SENSOR_ANSWER, NOISE_STD, BenchmarkCase, CaseData, _draw,
-                                               _perturbed)
+from proprio.diagnosis.benchmark_cases import (ENCODER, NOISE_STD, BenchmarkCase, CaseData, _draw, _perturbed,
+                                               expected_name)
 from proprio.effects import EFFECTS
 
-__all__ = ["CONFUSABLE_PAIRS", "CONFUSABLE_CANDIDATES", "VARIANTS", "ANSWER", "RATE_HZ", "ConfusableResult",
+__all__ = ["CONFUSABLE_PAIRS", "CONFUSABLE_CANDIDATES", "VARIANTS", "RATE_HZ", "ConfusableResult",
            "confusable_cases", "confusable_params", "confusable_motion", "confusable_data", "run_confusable_case",
            "summarise_confusable"]
 
@@ -81,9 +81,6 @@ CONFUSABLE_CANDIDATES = ("viscous_coulomb", "hysteresis", "lost_motion", "sensor
 """The candidates the family's diagnoses choose among: every effect of the pairs (pre-sliding as the Dahl law,
 ``hysteresis``, on a link-side sensor)."""
 
-ANSWER = LINK_SENSOR_ANSWER
-"""The name the diagnosis should give a truth when it is not the truth's own (module docstring)."""
-
 _BASE = {"sensor_offset": "sensor_offset_gain", "sensor_gain": "sensor_offset_gain"}
 
 
@@ -91,7 +88,7 @@ _BASE = {"sensor_offset": "sensor_offset_gain", "sensor_gain": "sensor_offset_ga
 class ConfusableResult:
     """One case: the first diagnosis' top-1 and tied set, the experiments (members, family, score, whether it
     decides), the top-1 after the experiment, and the seconds it took. ``truth``: the name the diagnosis should give
-    the withheld effect (:data:`ANSWER`)."""
+    the withheld effect (:func:`~proprio.diagnosis.benchmark_cases.expected_name`)."""
     case: str
     truth: str
     top_before: str
@@ -273,7 +270,7 @@ def run_confusable_case(case: BenchmarkCase) -> ConfusableResult:
     data = confusable_data(case)
     n = data.robot.n
     model = SimModel(data.robot, tuple(EFFECTS[k](n, **data.model_params[k]) for k in data.model_effects))
-    truth = ANSWER.get(case.withheld[0], case.withheld[0])
+    truth = expected_name(case)
     try:
         att = attribute(model, data.train, data.holdout, candidates=CONFUSABLE_CANDIDATES)
     except ValueError as exc:

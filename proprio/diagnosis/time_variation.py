@@ -12,8 +12,9 @@ direction-dependent static candidates (hysteresis, pre-sliding friction, lost mo
 (:func:`reversal_shapes`: the library's hysteresis law at three travel scales): on a motion whose amplitude grows
 with time at a steady speed — a designed experiment's growing triangles — a loop that saturates with travel raises
 ``e·sign q̇`` with time, which was taken for a friction change (a false alarm on the re-diagnosis with the experiment
-of ``tests/test_ambiguity.py``); a warm-up on the same motion is still found (``tests/test_time_variation.py``). The time functions, per joint ``j`` and for two
-series,
+of ``tests/test_ambiguity.py``); a warm-up on the same motion is still found (``tests/test_time_variation.py``).
+
+The time functions, per joint ``j`` and for two series,
 
 * ``1`` — an offset that moves (a drifting sensor offset, a step between sessions),
 * ``sign q̇_j`` — a friction level that moves (gearbox warm-up),
