@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from proprio.diagnosis.benchmark_drive import DRIVE_TYPES, drive_case_config, drive_cases
+from proprio.diagnosis.benchmark_cases import expected_name
+from proprio.diagnosis.benchmark_drive import DRIVE_TYPES, SHARED_MOTOR, drive_case_config, drive_cases
 
 
 def test_family_cases():
@@ -30,16 +31,26 @@ def test_each_case_withholds_its_effect_only(kind):
     differ = {k for k in ("rotor_inertia", "motor_viscous", "motor_coulomb", "offset")
               if not np.allclose(getattr(arm, k), getattr(model.drive, k))}
     want = {"rotor_inertia": {"rotor_inertia"}, "motor_friction": {"motor_viscous", "motor_coulomb"},
-            "drive_offset": {"offset"}, "presliding": set()}[kind]
+            "coupled_motor_friction": {"motor_viscous", "motor_coulomb"}, "drive_offset": {"offset"},
+            "presliding": set()}[kind]
     assert differ == want
+    assert config.robot.drive.coupled == model.drive.coupled == (kind == "coupled_motor_friction")
+    assert (config.motor_coupling is not None) == (kind == "coupled_motor_friction")   # the twin's drive couples too
+    if kind == "coupled_motor_friction":                          # the shared motor's friction only
+        for k in ("motor_viscous", "motor_coulomb"):
+            shared = ~np.isclose(getattr(arm, k), getattr(model.drive, k))
+            assert np.flatnonzero(shared).tolist() == [SHARED_MOTOR]
+        assert expected_name(case) == "motor_friction"
     assert any(e.name == "presliding" for e in config.effects) == (kind == "presliding")
     assert not any(e.name == "presliding" for e in floor.effects)
 
 
-def test_drive_arm_twin_senses_the_drive_laws():
+@pytest.mark.parametrize("kind", ["presliding", "coupled_motor_friction"])
+def test_drive_arm_twin_senses_the_drive_laws(kind):
     """Through the twin, the drive arm's τ (less its noise) is the diagnosis' model of the arm — rigid body, rotor
-    inertia, link and motor friction, offsets (:class:`proprio.diagnosis.data.SimModel`) — plus the batch law of the
-    pre-sliding friction the drive applied per step, on the true motion, to 1e-6 N·m."""
+    inertia (coupled: ``CᵀI_aC``), link and motor friction (coupled: ``Cᵀτ_f,m(C q̇)``), offsets
+    (:class:`proprio.diagnosis.data.SimModel`) — plus the batch law of the pre-sliding friction the drive applied per
+    step, on the true motion, to 1e-6 N·m; and the withheld part is what the model lacks."""
     from pydrake.trajectories import PiecewisePolynomial
 
     from proprio.diagnosis.data import SimModel
@@ -47,7 +58,7 @@ def test_drive_arm_twin_senses_the_drive_laws():
     from proprio.effects import EFFECTS, PreSliding
     from proprio.signals import MotionSignals
 
-    case = next(c for c in drive_cases(quick=True) if c.withheld == ("presliding",))
+    case = next(c for c in drive_cases(quick=True) if c.withheld == (kind,))
     config, model_robot, params = drive_case_config(case)
     config = config.with_logger(rate_hz=1000.0, stamp_jitter_ms=0.0, dropout_prob=0.0)
     n = config.robot.n
@@ -57,9 +68,13 @@ def test_drive_arm_twin_senses_the_drive_laws():
     rec = simulate_twin(config, PiecewisePolynomial.CubicShapePreserving(t, q.T, True), progress=False)
     tr = rec.truth
     s = MotionSignals(tr["t_true"], tr["q_true"], tr["qd"], tr["qdd"])
-    model = SimModel(model_robot, (EFFECTS["viscous_coulomb"](n, **params["viscous_coulomb"]),))
-    pre = next(e for e in config.effects if isinstance(e, PreSliding))
-    expected = model.predict(s) + pre.torque(s)
-    assert np.abs(pre.torque(s)).max() > 0.2
-    np.testing.assert_allclose(rec.tau - tr["tau_torque_noise"], expected, rtol=0, atol=1e-6)
+    link = (EFFECTS["viscous_coulomb"](n, **params["viscous_coulomb"]),)
+    arm, model = SimModel(config.robot, link).predict(s), SimModel(model_robot, link).predict(s)
+    pre = [e.torque(s) for e in config.effects if isinstance(e, PreSliding)]
+    np.testing.assert_allclose(rec.tau - tr["tau_torque_noise"], arm + sum(pre), rtol=0, atol=1e-6)
+    withheld = np.sqrt(np.mean((arm + sum(pre) - model) ** 2, axis=0))
+    if kind == "presliding":
+        assert np.abs(pre[0]).max() > 0.2
+    else:                                  # the shared motor's friction, on both joints it turns with
+        assert np.all(withheld[SHARED_MOTOR - 1:] > 0.05) and np.all(withheld[:SHARED_MOTOR - 1] < 1e-9)
     assert rec.meta["robot_description"]["drive"]["tau_kind"] == "drive"

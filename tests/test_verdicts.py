@@ -141,3 +141,27 @@ def test_diagnose_model_takes_an_identified_model_file(tmp_path):
     pred = model.predict(MotionSignals(np.arange(len(q)) / 100.0, q, qd, qdd, tau))
     np.testing.assert_allclose(pred[moving], ident.torque(q, qd, qdd)[moving], atol=1e-6 * np.abs(tau).max() + 1e-6)
     np.testing.assert_allclose(pred[moving], tau[moving], atol=0.05)       # and it is the robot that made the data
+
+
+def test_a_stand_in_taken_first_is_dropped_once_the_effects_it_imitated_are_named():
+    """The offline pair rigid body + viscous/Coulomb friction (the gap benchmark's draw): with a Bonferroni bound as
+    strict as the full candidate set's, step 1 takes Stribeck friction — Coulomb friction alone is not yet significant
+    beside the rigid-body error — and steps 2–3 name the rigid body and viscous + Coulomb friction. Added last to those
+    two, Stribeck lowers the held-out error by less than nothing: the backward check drops it, and the verdict names
+    the two true effects only and says what was dropped."""
+    from proprio.diagnosis.benchmark_cases import BenchmarkCase, generate_case_data
+    from proprio.diagnosis.verdict import data_and_processing_text
+
+    case = BenchmarkCase("rigid_body+viscous_coulomb", ("rigid_body", "viscous_coulomb"), 1.0, 407510091)
+    data = generate_case_data(case)
+    n = data.robot.n
+    model = SimModel(data.robot, tuple(EFFECTS[k](n, **data.model_params[k]) for k in data.model_effects))
+    said: list[str] = []
+    att = attribute(model, data.train, data.holdout, candidates=["stribeck", "viscous_coulomb", "rigid_body"],
+                    alpha=0.01 * 3 / 11, progress=said.append)
+    assert [m for m in said if "added" in m][0].startswith("step 1: added stribeck")     # the forward path's stand-in
+    assert [s.name for s in att.physical_steps] == ["rigid_body", "viscous_coulomb"]
+    assert [(x.name, x.step) for x in att.superseded] == [("stribeck", 1)]
+    assert att.superseded[0].gain < 0.02 and att.superseded[0].context == ["rigid_body", "viscous_coulomb"]
+    assert set(att.fitted) == {"rigid_body", "viscous_coulomb"} and "stribeck" not in att.steps[-1].params
+    assert "A stand-in, dropped: Stribeck" in data_and_processing_text(att)

@@ -59,7 +59,8 @@ from proprio.signals import MotionSignals
 __all__ = ["BenchmarkCase", "CaseData", "make_cases", "time_varying_cases", "select_cases", "generate_case_data",
            "generate_twin_case_data", "twin_case_config", "rfma_like_motion", "EFFECT_TYPES", "TWIN_EFFECT_TYPES",
            "PROCESSING_TYPES", "TIME_TYPES", "RATE_HZ", "OPEN_WORLD_TYPES", "open_world_cases", "is_open_world",
-           "is_time_varying", "is_drive_case", "twin_recordings", "LINK_SENSOR_ANSWER", "expected_name"]
+           "is_time_varying", "is_drive_case", "twin_recordings", "LINK_SENSOR_ANSWER", "DRIVE_ANSWER",
+           "expected_name"]
 
 RATE_HZ = 200.0
 NOISE_STD = 0.05                 # background torque-sensor noise [N·m] (present in data AND model unless withheld)
@@ -190,12 +191,16 @@ LINK_SENSOR_ANSWER = {"presliding": "hysteresis"}
 effect's own: the drive's pre-sliding friction is, in τ_J, the Dahl law the diagnosis offers as the gauge's
 ``hysteresis`` (:data:`proprio.diagnosis.candidates.DRIVE_ONLY`; ``proprio/effects/dahl.py``)."""
 
+DRIVE_ANSWER = {"coupled_motor_friction": "motor_friction"}
+"""The same for the drive family: a shared motor's friction is the ``motor_friction`` candidate on the description's
+coupling (:class:`proprio.diagnosis.candidates.DriveCandidate`)."""
+
 
 def expected_name(case: BenchmarkCase) -> str:
     """The top-1 name a single-effect case is right with: its withheld effect, under :data:`LINK_SENSOR_ANSWER`
-    unless the arm's τ is the drive torque (the drive family)."""
+    (:data:`DRIVE_ANSWER` when the arm's τ is the drive torque: the drive family)."""
     kind = case.withheld[0]
-    return kind if is_drive_case(case) else LINK_SENSOR_ANSWER.get(kind, kind)
+    return (DRIVE_ANSWER if is_drive_case(case) else LINK_SENSOR_ANSWER).get(kind, kind)
 
 
 def is_time_varying(case: BenchmarkCase) -> bool:

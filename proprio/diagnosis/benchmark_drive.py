@@ -6,12 +6,14 @@ drive-torque arm: its robot gets a ``drive`` block (:mod:`proprio.drive_descript
 ratio 100 per joint and the twin's motor side as reflected rotor inertia and motor friction (each drawn at 0.7–1.3 ×
 the shipped values), constant drive offsets of 0.2–0.9 N·m with random signs, and white noise of 0.1–0.3 N·m on the
 drive torque (current noise). The twin's drive senses ``τ = τ_rbd + I_a q̈ + τ_f,link + τ_f,m + τ_0``
-(:class:`proprio.systems.joint_drive.JointDrive`). The drives are uncoupled: the twin refuses coupled drives
-(Drake's rotor inertia is per actuator), so the withheld motor friction is an uncoupled motor's, which the diagnosis
-can tell from the link friction only because the model has that (:func:`proprio.diagnosis.candidates.candidate_set`).
+(:class:`proprio.systems.joint_drive.JointDrive`). The drives are uncoupled except in the ``coupled_motor_friction``
+cases, whose last motor turns with the last two joints (``q_m7 = N (q6 + q7)``, as the TX40's motor 6 with joints 5
+and 6; its reflected inertia ``Cᵀ diag(I_a) C`` couples the two joints in the plant). An uncoupled motor's friction
+is told from the link friction only because the model has that (:func:`proprio.diagnosis.candidates.candidate_set`).
 
 **Withheld** (:data:`DRIVE_TYPES`, magnitude ``m``): ``motor_friction`` and ``drive_offset`` — the model's drive
-block has ``(1 − m)`` × the arm's value; ``rotor_inertia`` — the arm's is ``(1 + m)`` × the model's (the gearbox and
+block has ``(1 − m)`` × the arm's value; ``coupled_motor_friction`` — the same for the shared motor's friction only
+(the other motors' is known); ``rotor_inertia`` — the arm's is ``(1 + m)`` × the model's (the gearbox and
 brake inertia a motor datasheet leaves out; the plant never loses the model's part, which keeps the explicit friction
 stable at 1 ms in the floor's data too); ``presliding`` — the arm's drives add pre-sliding friction
 (:class:`proprio.effects.PreSliding`, level ``m`` × 0.3–0.8 N·m, turning over within 0.2–1° of travel), applied by
@@ -23,6 +25,7 @@ is the withheld effect; a null case names nothing), and as its own family line.
 from __future__ import annotations
 
 import dataclasses
+import zlib
 from typing import Any
 
 import numpy as np
@@ -31,9 +34,12 @@ from proprio.diagnosis.benchmark_cases import ENCODER, BenchmarkCase, CaseData, 
 from proprio.drive_description import drive_from_dict
 from proprio.effects import EFFECTS, PreSliding
 
-__all__ = ["DRIVE_TYPES", "DRIVE_LOGGERS", "drive_cases", "drive_case_config", "generate_drive_case_data"]
+__all__ = ["DRIVE_TYPES", "SHARED_MOTOR", "DRIVE_LOGGERS", "drive_cases", "drive_case_config", "generate_drive_case_data"]
 
-DRIVE_TYPES = ("rotor_inertia", "presliding", "motor_friction", "drive_offset")
+DRIVE_TYPES = ("rotor_inertia", "presliding", "motor_friction", "coupled_motor_friction", "drive_offset")
+SHARED_MOTOR = 6
+"""The motor of the ``coupled_motor_friction`` cases that turns with joints ``SHARED_MOTOR − 1`` and ``SHARED_MOTOR``
+(0-based): the iiwa's last motor with its last two joints."""
 GEAR_RATIO = 100.0
 DRIVE_LOGGERS: dict[float, tuple[tuple[str, Any], ...]] = {
     100.0: (("rate_hz", 100.0), ("stamp_jitter_ms", 1.0), ("dropout_prob", 0.002)),
@@ -44,25 +50,29 @@ DRIVE_LOGGERS: dict[float, tuple[tuple[str, Any], ...]] = {
 
 def drive_cases(quick: bool = False, seed: int = 0) -> list[BenchmarkCase]:
     """The family: every :data:`DRIVE_TYPES` at magnitudes 0.5 and 1 (quick: 1) and 2 null cases (quick: 1), at 100 Hz
-    and 1 kHz; named ``drive:<kind>@<m>/<rate>Hz`` and ``drive:null#<k>/<rate>Hz``."""
-    rng = np.random.default_rng([seed, 22])
+    and 1 kHz; named ``drive:<kind>@<m>/<rate>Hz`` and ``drive:null#<k>/<rate>Hz``. Each case's seed is drawn from its name, so a kind added later moves no other case."""
     cases = []
     for rate, logger in DRIVE_LOGGERS.items():
         for kind in DRIVE_TYPES:
             for m in (1.0,) if quick else (0.5, 1.0):
-                cases.append(BenchmarkCase(f"drive:{kind}@{m:g}/{rate:g}Hz", (kind,), m, int(rng.integers(1 << 30)),
-                                           twin=True, logger=logger))
+                name = f"drive:{kind}@{m:g}/{rate:g}Hz"
+                cases.append(BenchmarkCase(name, (kind,), m, _case_seed(name, seed), twin=True, logger=logger))
         for k in range(1 if quick else 2):
-            cases.append(BenchmarkCase(f"drive:null#{k}/{rate:g}Hz", (), 1.0, int(rng.integers(1 << 30)), twin=True,
-                                       logger=logger))
+            name = f"drive:null#{k}/{rate:g}Hz"
+            cases.append(BenchmarkCase(name, (), 1.0, _case_seed(name, seed), twin=True, logger=logger))
     return cases
+
+
+def _case_seed(name: str, seed: int) -> int:
+    """A case's seed from its name and the family's ``seed``."""
+    return int(np.random.default_rng([seed, 22, zlib.crc32(name.encode())]).integers(1 << 30))
 
 
 def drive_case_config(case: BenchmarkCase, omit_withheld: bool = False) -> tuple[Any, Any, dict[str, Any]]:
     """``(TwinConfig of the arm, the model's robot description, the model's friction parameters)`` of a case (module
     docstring); ``omit_withheld``: the arm as the model has it (what a model with the withheld effect would leave)."""
     from proprio.diagrams.twin_config import load_twin_config
-    from proprio.systems.joint_drive import motor_from_description
+    from proprio.systems.joint_drive import coupling_from_description, motor_from_description
 
     bad = sorted(set(case.withheld) - set(DRIVE_TYPES))
     if bad:
@@ -77,11 +87,13 @@ def drive_case_config(case: BenchmarkCase, omit_withheld: bool = False) -> tuple
     presliding = _draw("presliding", n, case.magnitude, rng)
     noise = u(0.1, 0.3)
     short = {"rotor_inertia": ("rotor_inertia",), "motor_friction": ("viscous", "coulomb"),
-             "drive_offset": ("offset",)}
+             "coupled_motor_friction": ("viscous", "coulomb"), "drive_offset": ("offset",)}
+    coupled = "coupled_motor_friction" in case.withheld
     model = dict(arm)
     for kind in case.withheld:
+        which = np.arange(n) == SHARED_MOTOR if kind == "coupled_motor_friction" else np.ones(n, bool)
         for key in short.get(kind, ()):
-            model[key] = (1.0 - case.magnitude) * arm[key]
+            model[key] = np.where(which, (1.0 - case.magnitude) * arm[key], arm[key])
     if "rotor_inertia" in case.withheld:       # the plant keeps the model's rotor inertia (explicit friction at 1 ms)
         model["rotor_inertia"] = arm["rotor_inertia"]
         arm["rotor_inertia"] = (1.0 + case.magnitude) * arm["rotor_inertia"]
@@ -89,7 +101,11 @@ def drive_case_config(case: BenchmarkCase, omit_withheld: bool = False) -> tuple
         arm = model
 
     def robot_with(p: dict[str, np.ndarray]):
-        block = {"tau_kind": "drive", "gear_ratio": [GEAR_RATIO] * n, "rotor_inertia": p["rotor_inertia"].tolist(),
+        coupling = GEAR_RATIO * np.eye(n)
+        if coupled:
+            coupling[SHARED_MOTOR, SHARED_MOTOR - 1] = GEAR_RATIO
+        block = {"tau_kind": "drive", "gear_ratio": [GEAR_RATIO] * n, "coupling": coupling.tolist(),
+                 "rotor_inertia": p["rotor_inertia"].tolist(),
                  "motor_friction": {"viscous": p["viscous"].tolist(), "coulomb": p["coulomb"].tolist()},
                  "offset": p["offset"].tolist()}
         return dataclasses.replace(base.robot.without_friction(), drive=drive_from_dict(block, n))
@@ -98,7 +114,8 @@ def drive_case_config(case: BenchmarkCase, omit_withheld: bool = False) -> tuple
     effects = [link, EFFECTS["torque_noise"](n, std=noise), EFFECTS["encoder_noise"](n, **ENCODER)]
     if "presliding" in case.withheld and not omit_withheld:
         effects.append(PreSliding(n, **presliding))
-    config = dataclasses.replace(base, robot=robot, motor=motor_from_description(robot), effects=effects,
+    config = dataclasses.replace(base, robot=robot, motor=motor_from_description(robot),
+                                 motor_coupling=coupling_from_description(robot), effects=effects,
                                  name="iiwa14_drive_arm")
     params = {"viscous_coulomb": {k: v for k, v in link.params().items()}, "torque_noise": {"std": noise},
               "encoder_noise": {k: np.full(n, v) for k, v in ENCODER.items()}}

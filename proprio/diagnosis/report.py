@@ -275,6 +275,8 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
                "encoder_floor": att.encoder.to_dict() if att.encoder is not None else None,
                "residual_white": rs.white, "white_joints": rs.white_joints.tolist(),
                "processing_sigma": att.processing_sigma.tolist(),
+               "superseded": [{"name": x.name, "step": x.step, "gain": x.gain, "context": x.context}
+                              for x in att.superseded],
                "undecided": None if att.undecided is None else {
                    "name": att.undecided.name, "gain": att.undecided.gain, "t": att.undecided.t_stat,
                    "t_crit": att.undecided.t_crit, "more_holdout_s": att.undecided.more_s}, "hints": [h.to_dict() for h in att.hints], "verdict": verdict,

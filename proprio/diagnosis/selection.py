@@ -34,6 +34,13 @@ case stays clean.
 ("X or Y") and the simpler one (fewer parameters) is the one added; the others stay candidates for later steps.
 A candidate that lowers the weighted error but raises the unweighted held-out SSE counts as no gain.
 
+**Stand-ins.** A greedy step may take an effect that imitates one named later — Stribeck friction for viscous +
+Coulomb friction that is not yet significant while a rigid-body error dominates the residual. After the forward
+steps every named physical effect is scored in the context of all the others (its held-out gain added last,
+:mod:`proprio.diagnosis.ambiguity`); one that adds less than ``min_gain`` there was a stand-in: the selection runs
+again without it (the lowest first, at most :data:`MAX_SUPERSEDED` times), and :attr:`Attribution.superseded` says
+which effect was dropped and what it added.
+
 **Noise.** Torque noise cannot shrink a held-out error. After the deterministic steps, an unmodelled
 ``torque_noise`` is reported when the remaining residual is white (Ljung–Box and state R² agree:
 :mod:`proprio.diagnosis.residual`) and its variance
@@ -75,9 +82,11 @@ from proprio.diagnosis.hints import Hint, find_hints, shifted_joints
 from proprio.diagnosis.time_variation import TimeTrendNuisance, TimeVariation, time_variation
 from proprio.recording import Recording, validate_recording
 
-__all__ = ["Step", "NoiseFinding", "ResidualStructure", "CrossValidation", "Attribution", "attribute"]
+__all__ = ["Step", "Superseded", "NoiseFinding", "ResidualStructure", "CrossValidation", "Attribution", "attribute"]
 
 MAX_BLOCK_S = 2.0
+MAX_SUPERSEDED = 3
+"""The most stand-ins the backward check drops from one selection (module docstring, "Stand-ins")."""
 
 
 def _n_eff_factor(r: np.ndarray, max_lag: int = 200) -> float:
@@ -148,13 +157,25 @@ class CrossValidation:
 
 
 @dataclass
+class Superseded:
+    """A physical effect the forward selection named at step ``step`` (1-based) that, in the context of the effects
+    named with it (``context``), adds a held-out gain of only ``gain`` (< the minimum gain): a stand-in for them,
+    dropped by the backward check (module docstring, "Stand-ins")."""
+    name: str
+    step: int
+    gain: float
+    context: list[str]
+
+
+@dataclass
 class Attribution:
     """Result of :func:`attribute`. ``fitted``: the selected candidates by name (their final parameters are the last
     step's ``params``), for :func:`proprio.diagnosis.patch.twin_patch`. ``encoder``: the data's position-noise floor
     against the model's encoder noise (:mod:`proprio.diagnosis.encoder_floor`; a data-path comparison over all the
     recordings). ``undecided``: the physical candidate still leading, without significance, where the selection
     stopped (:class:`Undecided`); ``below_floor``: ``(name, gain, rms)`` of physical candidates that won a step with a
-    held-out torque (``rms`` N·m) within the processing error — not named, not filed as data path."""
+    held-out torque (``rms`` N·m) within the processing error — not named, not filed as data path; ``superseded``: the
+    stand-ins the backward check dropped (:class:`Superseded`)."""
     joint_names: list[str]
     steps: list[Step]
     ranking: list[dict[str, Any]]
@@ -178,6 +199,7 @@ class Attribution:
     undecided: Undecided | None = None
     below_floor: list[tuple[str, float, float]] = field(default_factory=list)
     ambiguity: list[Any] = field(default_factory=list)   # AmbiguitySet per named effect (diagnosis.ambiguity)
+    superseded: list[Superseded] = field(default_factory=list)
 
     @property
     def physical_steps(self) -> list[Step]:
@@ -363,13 +385,62 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
     return att
 
 
+def _params(selected: list[Candidate], fit: Fit, train: GapData, w: np.ndarray
+            ) -> dict[str, tuple[np.ndarray, np.ndarray, list[str]]]:
+    """The fitted parameters of ``selected`` with their 95 % CI half-widths (module docstring: Jacobian covariance
+    inflated by the effective sample size of the training residual)."""
+    r_tr = train.residual - predict_candidates(selected, fit, train)
+    infl = _n_eff_factor(r_tr)
+    s2 = float(((r_tr ** 2) * w).sum()) / max(r_tr.size - sum(s.n_params for s in selected), 1)
+    return {s.name: (fit.thetas[s.name], 1.96 * np.sqrt(np.maximum(np.diag(fit.cov[s.name]), 0) * s2 * infl),
+                     s.param_names()) for s in selected}
+
+
+def _drop_stand_ins(selected: list[Candidate], steps: list[Step], fit: Fit, train: GapData, hold: GapData,
+                    w: np.ndarray, blk: np.ndarray, min_gain: float,
+                    with_nuisance: Callable[[list[Candidate]], list[Candidate]], say: Callable[[str], None]
+                    ) -> tuple[list[Candidate], list[Step], Fit, list[Superseded]]:
+    """The backward check (module docstring, "Stand-ins"): each named physical effect's held-out gain when added last
+    to all the other selected ones (refitted without it on the training data); the lowest below ``min_gain`` is
+    dropped, the rest refitted, and again — at most :data:`MAX_SUPERSEDED` times. Returns the kept candidates, their
+    steps, their fit and what was dropped."""
+    e_h, n_blk = hold.residual, int(blk.max()) + 1
+    order = [st.name for st in steps]
+    dropped: list[Superseded] = []
+    for _ in range(MAX_SUPERSEDED):
+        physical = {st.name for st in steps if not st.processing}
+        pred_all = predict_candidates(selected, fit, hold)
+        worst = None
+        for c in selected:
+            others = [x for x in selected if x is not c]
+            if c.name not in physical or not others:
+                continue
+            f_o = fit_candidates(with_nuisance(others), train, w, fit.thetas,
+                                 sweeps=3 if any(not x.linear for x in others) else 1)
+            base = predict_candidates(others, f_o, hold)
+            g = _block_gain(e_h - base, pred_all - base, w, blk, n_blk)[1]
+            if g < min_gain and (worst is None or g < worst[1]):
+                worst = (c, g, f_o)
+        if worst is None:
+            break
+        c, g, fit = worst
+        k = next(i for i, st in enumerate(steps) if st.name == c.name)
+        selected = [x for x in selected if x is not c]
+        kept = [st.name for st in steps if st.name != c.name and not st.processing]
+        dropped.append(Superseded(c.name, order.index(c.name) + 1, float(g), kept))
+        steps = steps[:k] + steps[k + 1:]
+        say(f"backward check: {c.name} adds {100 * g:.1f} % held-out gain with the others named — a stand-in, "
+            "dropped")
+    return selected, steps, fit, dropped
+
+
 def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, block_s: float,
             data_seconds: tuple[float, float], candidates: Sequence[str] | None, alpha: float, min_gain: float,
             max_steps: int, say: Callable[[str], None], tv: TimeVariation,
             plugins: Sequence[str | type] = ()) -> Attribution:
-    """The greedy forward selection on prepared training / held-out data with held-out block labels ``blk``; ``tv``:
-    the time-dependence test of the same data (when detected: time-varying candidates offered, static ones fitted
-    with the time-trend nuisance)."""
+    """The greedy forward selection on prepared training / held-out data with held-out block labels ``blk``, then
+    the backward check for stand-ins (module docstring, :func:`_drop_stand_ins`); ``tv``: the time-dependence test of the same data (when
+    detected: time-varying candidates offered, static ones fitted with the time-trend nuisance)."""
     cands = candidate_set(model, train, candidates, plugins, time_varying=tv.detected)
     nuisance = [TimeTrendNuisance(train)] if tv.detected else []
 
@@ -437,15 +508,19 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
         fit = fit_candidates(with_nuisance(selected), train, w, f_c.thetas, sweeps=3) \
             if any(not s.linear for s in selected) else f_c
         pred_h = predict_candidates(selected, fit, hold)
-        r_tr = e_tr - predict_candidates(selected, fit, train)
-        infl = _n_eff_factor(r_tr)
-        s2 = float(((r_tr ** 2) * w).sum()) / max(r_tr.size - sum(s.n_params for s in selected), 1)
-        params = {s.name: (fit.thetas[s.name], 1.96 * np.sqrt(np.maximum(np.diag(fit.cov[s.name]), 0) * s2 * infl),
-                           s.param_names()) for s in selected}
         steps.append(Step(c.name, [g[0].name for g in group[1:]], chosen[3], chosen[4],
-                          np.sqrt(((e_h - pred_h) ** 2).mean(axis=0)), params, processing, reason))
+                          np.sqrt(((e_h - pred_h) ** 2).mean(axis=0)), _params(selected, fit, train, w), processing,
+                          reason))
         say(f"step {len(steps)}: added {c.name} (held-out gain {100 * chosen[3]:.1f} %)")
 
+    superseded: list[Superseded] = []
+    if len(selected) > 1:
+        selected, steps, fit, superseded = _drop_stand_ins(selected, steps, fit, train, hold, w, blk, min_gain,
+                                                           with_nuisance, say)
+        pred_h = predict_candidates(selected, fit, hold)
+        if superseded:                  # the last step holds the final fit
+            steps[-1].rmse_after = np.sqrt(((e_h - pred_h) ** 2).mean(axis=0))
+            steps[-1].params = _params(selected, fit, train, w)
     r_h = e_h - pred_h
     r_tr = e_tr - predict_candidates(selected, fit, train)
     rate = float(np.median([cs.rate_hz for cs in hold.conditioned]))
@@ -464,4 +539,4 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
                        [c.name for c in cands], split_by_recording(e_h, hold), split_by_recording(pred_h, hold), hold.times, proc_sigma,
                        sorted({cs.describe() for cs in hold.conditioned + train.conditioned}), data_seconds, block_s,
                        fitted={c.name: c for c in selected}, hints=hints, time_variation=tv, undecided=undecided,
-                       below_floor=below_floor, ambiguity=amb)
+                       below_floor=below_floor, ambiguity=amb, superseded=superseded)

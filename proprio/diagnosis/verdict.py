@@ -157,6 +157,11 @@ def data_and_processing_text(att: Attribution, tau_kind: str = "link_sensor") ->
     for st in att.processing_steps:
         parts.append(f"Data path: {plain.get(st.name, st.name)} lowers the held-out error by "
                      f"{100 * st.gain:.0f} % — not a property of the robot: it {st.reason}.")
+    for sup in att.superseded:
+        parts.append(f"A stand-in, dropped: {plain.get(sup.name, sup.name)} was taken at step {sup.step}, but with "
+                     f"{', '.join(plain.get(x, x) for x in sup.context) or 'the others'} named it adds "
+                     f"{100 * sup.gain:.1f} % held-out gain — they explain what it did; the selection was run again "
+                     "without it.")
     for name, gain, rms in att.below_floor:
         parts.append(f"Within the conditioning error: {plain.get(name, name)} lowers the held-out error by "
                      f"{100 * gain:.0f} %, but its held-out torque (≤ {rms:.2g} N·m RMS) stays within the error the "
