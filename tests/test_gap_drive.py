@@ -78,3 +78,19 @@ def test_drive_arm_twin_senses_the_drive_laws(kind):
     else:                                  # the shared motor's friction, on both joints it turns with
         assert np.all(withheld[SHARED_MOTOR - 1:] > 0.05) and np.all(withheld[:SHARED_MOTOR - 1] < 1e-9)
     assert rec.meta["robot_description"]["drive"]["tau_kind"] == "drive"
+
+
+def test_family_score_takes_the_shared_motors_friction_by_its_candidates_name():
+    """A coupled-motor-friction case is right when the diagnosis names ``motor_friction`` (its candidate), in the
+    family's own line as in the overall top-1; a null case that names something is a false positive."""
+    from proprio.diagnosis.benchmark import CaseResult, summarise
+
+    cases = {c.name: c for c in drive_cases(quick=True)}
+    res = [CaseResult(cases["drive:coupled_motor_friction@1/100Hz"], ["motor_friction"], ["motor_friction"], 0.5, 0.5,
+                      1.0),
+           CaseResult(cases["drive:rotor_inertia@1/100Hz"], ["stribeck"], ["stribeck"], 0.5, 0.5, 1.0),
+           CaseResult(cases["drive:null#0/100Hz"], [], [], 0.0, 0.0, 1.0),
+           CaseResult(cases["drive:null#0/1000Hz"], ["drive_offset"], ["drive_offset"], 0.1, 0.0, 1.0)]
+    scores, text = summarise(res)
+    assert scores["drive_top1"] == pytest.approx(0.5) and scores["drive_null_false_positive_rate"] == pytest.approx(0.5)
+    assert "top-1 50.0 %" in text

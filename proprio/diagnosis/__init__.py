@@ -21,6 +21,7 @@ Modules, in the order the diagnosis runs:
 """
 from proprio.diagnosis.data import DiagnosisError, SimModel
 from proprio.diagnosis.report import Diagnosis, diagnose
-from proprio.diagnosis.selection import Attribution, attribute
+from proprio.diagnosis.attribution import Attribution
+from proprio.diagnosis.selection import attribute
 
 __all__ = ["DiagnosisError", "SimModel", "Diagnosis", "diagnose", "Attribution", "attribute"]

@@ -7,7 +7,7 @@ explain the same residual. For every physical effect ``s`` the selection named, 
 effects (its *context*, fitted alongside every time):
 
 * ``g(x)``: the relative held-out gain of ``C + x`` over ``C`` (the weighted block SSE of
-  :func:`proprio.diagnosis.selection._block_gain`), for ``x = s`` and for every *alternative* — any other physical
+  :func:`proprio.diagnosis.block_test.block_gain`), for ``x = s`` and for every *alternative* — any other physical
   candidate whose step-1 gain alone is within a factor :data:`ALT_MIN_SHARE` of ``s``'s either way (at most
   :data:`MAX_ALTERNATIVES`, the strongest first; none when ``s`` itself gains less than ``min_gain`` in its
   place); an alternative the selection also named leaves the context ``C`` for the comparison (both were named:
@@ -48,6 +48,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from scipy import stats
 
+from proprio.diagnosis.block_test import block_gain, t_stat
 from proprio.diagnosis.candidates import Candidate
 from proprio.diagnosis.data import GapData
 from proprio.diagnosis.fitting import Fit, fit_candidates, predict_candidates
@@ -133,17 +134,6 @@ class AmbiguitySet:
                 "context": self.context, "alternatives": [a.to_dict() for a in self.alternatives]}
 
 
-def _gain(r: np.ndarray, delta: np.ndarray, w: np.ndarray, blk: np.ndarray, n_blk: int) -> tuple[np.ndarray, float]:
-    from proprio.diagnosis.selection import _block_gain
-    return _block_gain(r, delta, w, blk, n_blk)
-
-
-def _t_stat(x: np.ndarray) -> float:
-    sd = float(np.std(x, ddof=1))
-    if sd <= 0:
-        return math.inf if x.mean() > 0 else (-math.inf if x.mean() < 0 else 0.0)
-    return float(x.mean() / (sd / math.sqrt(len(x))))
-
 
 def _corr(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> float:
     sw = np.sqrt(w)[None, :]
@@ -197,7 +187,7 @@ def ambiguity_sets(selected: Sequence[Candidate], physical: Sequence[bool], cand
         """Block log-ratios, relative held-out gain and held-out torque of ``ctx + extra`` over ``ctx``."""
         base = fit_pred(ctx)[1]
         delta = fit_pred(ctx + extra)[1] - base
-        lb, g = _gain(e_h - base, delta, w, blk, n_blk)
+        lb, g = block_gain(e_h - base, delta, w, blk, n_blk)
         return lb, g, delta
 
     out = []
@@ -218,7 +208,7 @@ def ambiguity_sets(selected: Sequence[Candidate], physical: Sequence[bool], cand
             lb_s, gs, d_s = gain(ctx, [s])
             lb_c, gc, d_c = gain(ctx, [c])
             share = gc / gs if gs > 0 else 0.0
-            t = _t_stat(lb_s - lb_c)
+            t = t_stat(lb_s - lb_c)
             rho = _corr(d_s, d_c, w)
             pair = math.nan
             if is_tie(gc, share, t, t_tie, rho, 1.0, min_gain):       # only then is the joint fit needed

@@ -215,7 +215,7 @@ def summarise(results: list[CaseResult]) -> tuple[dict[str, Any], str]:
     drive_null = [r for r in drive if not r.case.withheld]
     open_scores.update({
         "drive_cases": len(drive),
-        "drive_top1": float(np.mean([bool(r.top) and r.top[0] == r.case.withheld[0] for r in drive_single]))
+        "drive_top1": float(np.mean([bool(r.top) and r.top[0] == expected_name(r.case) for r in drive_single]))
         if drive_single else float("nan"),
         "drive_null_false_positive_rate": float(np.mean([bool(r.steps) for r in drive_null])) if drive_null
         else float("nan")})

@@ -22,7 +22,7 @@ import numpy as np
 import yaml
 
 from proprio.diagnosis.data import DiagnosisError, SimModel
-from proprio.diagnosis.selection import Attribution
+from proprio.diagnosis.attribution import Attribution
 from proprio.io import atomic_write_text
 
 __all__ = ["PatchEntry", "patch_entries", "twin_patch", "write_twin_patch", "MAX_COMMENT_PARAMS"]

@@ -34,7 +34,7 @@ from proprio.time_base import measured_segments
 from proprio.description import RobotDescription
 from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, MAX_TRIM_S, NOISE_EFFECTS, DiagnosisError,
                                     condition_all, kept, session_time)
-from proprio.diagnosis.selection import Attribution
+from proprio.diagnosis.attribution import Attribution
 from proprio.recording import Recording
 
 if TYPE_CHECKING:                 # Drake is imported where the twin runs (the diagnosis package loads without it)

@@ -28,7 +28,8 @@ from proprio.diagnosis.localisation import (
 )
 from proprio.diagnosis.patch import patch_entries, twin_patch, write_twin_patch
 from proprio.diagnosis.replay import ReplayGap, replay_gap
-from proprio.diagnosis.selection import Attribution, attribute
+from proprio.diagnosis.attribution import Attribution
+from proprio.diagnosis.selection import attribute
 from proprio.diagnosis.truth import TruthComparison, compare_to_truth, truth_summary
 from proprio.diagnosis.candidates import tau_kind
 from proprio.diagnosis.verdict import data_and_processing_text, verdict_text

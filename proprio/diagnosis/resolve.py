@@ -34,7 +34,7 @@ from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING, GapData, SimModel, co
 from proprio.diagnosis.discriminate import (Experiment, Resolution, confounded_pairs, design_experiment, joint_refit,
                                             pair_set, split_passes)
 from proprio.diagnosis.fitting import Fit
-from proprio.diagnosis.selection import Attribution
+from proprio.diagnosis.attribution import Attribution
 from proprio.io import atomic_write_text
 from proprio.recording import Recording
 

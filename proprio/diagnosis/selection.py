@@ -36,10 +36,12 @@ A candidate that lowers the weighted error but raises the unweighted held-out SS
 
 **Stand-ins.** A greedy step may take an effect that imitates one named later — Stribeck friction for viscous +
 Coulomb friction that is not yet significant while a rigid-body error dominates the residual. After the forward
-steps every named physical effect is scored in the context of all the others (its held-out gain added last,
-:mod:`proprio.diagnosis.ambiguity`); one that adds less than ``min_gain`` there was a stand-in: the selection runs
-again without it (the lowest first, at most :data:`MAX_SUPERSEDED` times), and :attr:`Attribution.superseded` says
-which effect was dropped and what it added.
+steps every named physical effect is scored in the context of all the others (its held-out gain when added last,
+the rest refitted without it); one that adds less than ``min_gain`` there was a stand-in and is dropped (the lowest
+first, the rest refitted, at most :data:`MAX_SUPERSEDED` times) — backward elimination after the forward steps.
+:attr:`Attribution.superseded` says which effect was dropped, at which step it had been taken and what it added.
+(Running the forward selection again without the stand-in would not do: the effects it stood in for may only become
+significant together, as the rigid body and Coulomb friction of the gap benchmark's pair.)
 
 **Noise.** Torque noise cannot shrink a held-out error. After the deterministic steps, an unmodelled
 ``torque_noise`` is reported when the remaining residual is white (Ljung–Box and state R² agree:
@@ -62,8 +64,6 @@ effective sample size of the autocorrelated residual (Bartlett), i.e. 95 % CI = 
 """
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -74,11 +74,14 @@ from proprio.diagnosis.candidates import Candidate, candidate_set
 from proprio.conditioning import ConditionedSignals, ConditioningConfig, processing_torque_sigma
 from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, MAX_TRIM_S, MIN_BLOCK_S, MIN_BLOCKS, DiagnosisError, GapData,
                                     SimModel, condition_all, kept, session_motion, session_time)
-from proprio.diagnosis.encoder_floor import EncoderFloor, encoder_floor
+from proprio.diagnosis.ambiguity import ambiguity_sets
+from proprio.diagnosis.attribution import Attribution, CrossValidation, Step, Superseded, Undecided
+from proprio.diagnosis.block_test import block_gain, n_eff_factor, t_stat
+from proprio.diagnosis.encoder_floor import encoder_floor
 from proprio.diagnosis.fitting import Fit, fit_candidates, predict_candidates
 from proprio.diagnosis.residual import (NoiseFinding, ResidualStructure, noise_findings, residual_structure,
                                         split_by_recording)
-from proprio.diagnosis.hints import Hint, find_hints, shifted_joints
+from proprio.diagnosis.hints import find_hints, shifted_joints
 from proprio.diagnosis.time_variation import TimeTrendNuisance, TimeVariation, time_variation
 from proprio.recording import Recording, validate_recording
 
@@ -87,171 +90,6 @@ __all__ = ["Step", "Superseded", "NoiseFinding", "ResidualStructure", "CrossVali
 MAX_BLOCK_S = 2.0
 MAX_SUPERSEDED = 3
 """The most stand-ins the backward check drops from one selection (module docstring, "Stand-ins")."""
-
-
-def _n_eff_factor(r: np.ndarray, max_lag: int = 200) -> float:
-    """N / N_eff of an autocorrelated residual (Bartlett: 1 + 2 Σ ρ_k up to the first non-positive ρ), the
-    factor by which the white-noise covariance of a fit understates its true covariance (averaged over joints)."""
-    fac = []
-    for col in r.T:
-        x = col - col.mean()
-        v = float(x @ x)
-        if v <= 0:
-            continue
-        s = 1.0
-        for k in range(1, min(max_lag, len(x) // 4)):
-            rho = float(x[:-k] @ x[k:]) / v
-            if rho <= 0:
-                break
-            s += 2 * rho
-        fac.append(s)
-    return float(np.mean(fac)) if fac else 1.0
-
-
-
-
-@dataclass
-class Step:
-    """One accepted step: ``name`` (``tied`` lists the candidates that explain the same held-out variance),
-    relative held-out gain, t statistic over blocks, per-joint held-out RMSE after the step [N·m], fitted
-    parameters with 95 % CI half-widths. ``processing``: the step describes the data path (a processing candidate,
-    or an effect whose held-out torque stays within the processing error), ``reason`` says which."""
-    name: str
-    tied: list[str]
-    gain: float
-    t_stat: float
-    rmse_after: np.ndarray
-    params: dict[str, tuple[np.ndarray, np.ndarray, list[str]]]
-    processing: bool = False
-    reason: str = ""
-
-
-@dataclass
-class Undecided:
-    """The selection stopped while a physical candidate still lowered the held-out error by ``gain`` (≥ the minimum
-    gain) with a t statistic ``t_stat`` below the significance bound ``t_crit`` over ``n_blocks`` blocks of
-    ``block_s`` [s]: too little held-out data to decide. ``more_s`` [s]: the held-out seconds to add for the same
-    effect to reach the bound (``t`` grows as √blocks)."""
-    name: str
-    gain: float
-    t_stat: float
-    t_crit: float
-    n_blocks: int
-    block_s: float
-
-    @property
-    def more_s(self) -> float:
-        need = self.n_blocks * (self.t_crit / max(self.t_stat, 1e-9)) ** 2
-        return float(max(need - self.n_blocks, 1.0) * self.block_s)
-
-
-@dataclass
-class CrossValidation:
-    """How a single recording (no held-out one given) was cross-validated: alternate time blocks of ``block_s`` [s]
-    train and score (2 folds, roles swapped); ``fold_top`` the physical effects each fold named, ``agreement`` the
-    share of named effects both folds name (1.0 when both name nothing)."""
-    block_s: float
-    n_blocks: int
-    fold_top: list[list[str]]
-    agreement: float
-
-
-@dataclass
-class Superseded:
-    """A physical effect the forward selection named at step ``step`` (1-based) that, in the context of the effects
-    named with it (``context``), adds a held-out gain of only ``gain`` (< the minimum gain): a stand-in for them,
-    dropped by the backward check (module docstring, "Stand-ins")."""
-    name: str
-    step: int
-    gain: float
-    context: list[str]
-
-
-@dataclass
-class Attribution:
-    """Result of :func:`attribute`. ``fitted``: the selected candidates by name (their final parameters are the last
-    step's ``params``), for :func:`proprio.diagnosis.patch.twin_patch`. ``encoder``: the data's position-noise floor
-    against the model's encoder noise (:mod:`proprio.diagnosis.encoder_floor`; a data-path comparison over all the
-    recordings). ``undecided``: the physical candidate still leading, without significance, where the selection
-    stopped (:class:`Undecided`); ``below_floor``: ``(name, gain, rms)`` of physical candidates that won a step with a
-    held-out torque (``rms`` N·m) within the processing error — not named, not filed as data path; ``superseded``: the
-    stand-ins the backward check dropped (:class:`Superseded`)."""
-    joint_names: list[str]
-    steps: list[Step]
-    ranking: list[dict[str, Any]]
-    rmse_before: np.ndarray
-    signal_rms: np.ndarray
-    residual: ResidualStructure
-    noise: list[NoiseFinding]
-    candidates: list[str]
-    holdout_e: list[np.ndarray]
-    holdout_pred: list[np.ndarray]
-    holdout_t: list[np.ndarray]
-    processing_sigma: np.ndarray
-    conditioning: list[str]
-    data_seconds: tuple[float, float]
-    block_s: float
-    cv: "CrossValidation | None" = None
-    fitted: dict[str, Candidate] = field(default_factory=dict)
-    hints: list[Hint] = field(default_factory=list)
-    time_variation: TimeVariation | None = None
-    encoder: EncoderFloor | None = None
-    undecided: Undecided | None = None
-    below_floor: list[tuple[str, float, float]] = field(default_factory=list)
-    ambiguity: list[Any] = field(default_factory=list)   # AmbiguitySet per named effect (diagnosis.ambiguity)
-    superseded: list[Superseded] = field(default_factory=list)
-
-    @property
-    def physical_steps(self) -> list[Step]:
-        return [s for s in self.steps if not s.processing]
-
-    @property
-    def processing_steps(self) -> list[Step]:
-        return [s for s in self.steps if s.processing]
-
-    @property
-    def processing_findings(self) -> list[str]:
-        """Names of every data-path finding, the report's "data and processing" section (never a cause): the
-        processing steps in selection order, then ``encoder_noise`` when the data's position-noise floor is above
-        the model's encoder noise (:mod:`proprio.diagnosis.encoder_floor`)."""
-        out = [s.name for s in self.processing_steps]
-        if self.encoder is not None and self.encoder.reported and self.encoder.name not in out:
-            out.append(self.encoder.name)
-        return out
-
-    @property
-    def selected(self) -> list[str]:
-        """The physical effects and noise findings named (never a data-path step)."""
-        return [s.name for s in self.physical_steps] + [f.name for f in self.noise]
-
-    def top(self, k: int) -> list[str]:
-        """The first ``k`` distinct physical names in attribution order, tied alternatives included after each
-        step (data-path steps are reported apart, :attr:`processing_steps`)."""
-        out: list[str] = []
-        for s in self.physical_steps:
-            for nm in [s.name] + s.tied:
-                if nm not in out:
-                    out.append(nm)
-        for f in self.noise:
-            if f.name not in out:
-                out.append(f.name)
-        return out[:k]
-
-
-def _block_gain(r_s: np.ndarray, delta: np.ndarray, w: np.ndarray, blk: np.ndarray, n_blk: int):
-    """Per block the log-ratio ``l_b = log(SSE_S,b / SSE_S+c,b)`` of the weighted squared residual (scale-free, so
-    blocks of fast reaches and slow exploration weigh alike), and the overall relative gain ``G``."""
-    before = np.bincount(blk, weights=((r_s ** 2) * w).sum(axis=1), minlength=n_blk)
-    after = np.bincount(blk, weights=(((r_s - delta) ** 2) * w).sum(axis=1), minlength=n_blk)
-    lb = np.log(np.maximum(before, 1e-300) / np.maximum(after, 1e-300))
-    return lb, 1.0 - float(after.sum()) / max(float(before.sum()), 1e-300)
-
-
-def _t_stat(x: np.ndarray) -> float:
-    sd = float(np.std(x, ddof=1))
-    if sd <= 0:
-        return math.inf if x.mean() > 0 else -math.inf
-    return float(x.mean() / (sd / math.sqrt(len(x))))
 
 
 def _correlation_time(model: SimModel, conditioned: Sequence[ConditionedSignals], keep: Sequence[np.ndarray],
@@ -266,7 +104,7 @@ def _correlation_time(model: SimModel, conditioned: Sequence[ConditionedSignals]
         spec = np.fft.rfft(e, n=2 * m, axis=0)
         acf = np.fft.irfft(np.abs(spec) ** 2, axis=0)[:m]
         acf = acf / np.maximum(acf[:1], 1e-300)
-        below = acf < math.exp(-1.0)
+        below = acf < np.exp(-1.0)
         lag = np.where(below.any(axis=0), below.argmax(axis=0), m)
         out.extend(lag / cs.rate_hz)
     return float(np.median(out))
@@ -390,7 +228,7 @@ def _params(selected: list[Candidate], fit: Fit, train: GapData, w: np.ndarray
     """The fitted parameters of ``selected`` with their 95 % CI half-widths (module docstring: Jacobian covariance
     inflated by the effective sample size of the training residual)."""
     r_tr = train.residual - predict_candidates(selected, fit, train)
-    infl = _n_eff_factor(r_tr)
+    infl = n_eff_factor(r_tr)
     s2 = float(((r_tr ** 2) * w).sum()) / max(r_tr.size - sum(s.n_params for s in selected), 1)
     return {s.name: (fit.thetas[s.name], 1.96 * np.sqrt(np.maximum(np.diag(fit.cov[s.name]), 0) * s2 * infl),
                      s.param_names()) for s in selected}
@@ -418,7 +256,7 @@ def _drop_stand_ins(selected: list[Candidate], steps: list[Step], fit: Fit, trai
             f_o = fit_candidates(with_nuisance(others), train, w, fit.thetas,
                                  sweeps=3 if any(not x.linear for x in others) else 1)
             base = predict_candidates(others, f_o, hold)
-            g = _block_gain(e_h - base, pred_all - base, w, blk, n_blk)[1]
+            g = block_gain(e_h - base, pred_all - base, w, blk, n_blk)[1]
             if g < min_gain and (worst is None or g < worst[1]):
                 worst = (c, g, f_o)
         if worst is None:
@@ -471,9 +309,9 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
             say(f"step {len(steps) + 1}: fitting {c.name}")
             f_c = fit_candidates(with_nuisance(selected + [c]), train, w, fit.thetas, sweeps=1 if c.linear else 2)
             delta = predict_candidates(selected + [c], f_c, hold) - pred_h
-            db, g = _block_gain(r_s, delta, w, blk, n_blk)
+            db, g = block_gain(r_s, delta, w, blk, n_blk)
             raw = float((r_s ** 2).sum() - ((r_s - delta) ** 2).sum())    # unweighted held-out SSE change
-            scored.append((c, f_c, db, g if raw > 0 else min(g, 0.0), _t_stat(db), delta))
+            scored.append((c, f_c, db, g if raw > 0 else min(g, 0.0), t_stat(db), delta))
         k_test = len(scored)
         t_crit = stats.t.ppf(1 - alpha / k_test, n_blk - 1)
         if first:
@@ -492,7 +330,7 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
         sig_ok.sort(key=lambda x: -x[3])
         best = sig_ok[0]
         t_tie = stats.t.ppf(0.95, n_blk - 1)
-        group = [best] + [x for x in sig_ok[1:] if _t_stat(best[2] - x[2]) < t_tie]
+        group = [best] + [x for x in sig_ok[1:] if t_stat(best[2] - x[2]) < t_tie]
         group.sort(key=lambda x: (x[0].n_params, -x[3]))
         chosen = group[0]
         c, f_c = chosen[0], chosen[1]
@@ -532,7 +370,6 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
     parts = [np.stack([predict_candidates([c], fit, d) for c in selected], axis=2) if selected and len(structured)
              else None for d in (train, hold)]
     hints = find_hints(train, hold, r_tr, r_h, structured, blk, parts[0], parts[1], alpha=alpha)
-    from proprio.diagnosis.ambiguity import ambiguity_sets     # it imports this module
     amb = ambiguity_sets(selected, [not st.processing for st in steps], cands, ranking, train, hold, w, blk,
                          with_nuisance, structure.rmse, min_gain, say)
     return Attribution(model.robot.joint_names, steps, ranking, rmse0, sig, structure, noise,

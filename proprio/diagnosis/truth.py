@@ -35,7 +35,7 @@ import numpy as np
 
 from proprio.description import DescriptionError, RobotDescription, load_robot, robot_from_dict
 from proprio.diagnosis.data import SimModel
-from proprio.diagnosis.selection import Attribution
+from proprio.diagnosis.attribution import Attribution
 from proprio.dynamics import inverse_dynamics
 from proprio.identification.regressor import PARAMS_PER_JOINT, parameter_names, regressor, standard_parameters
 from proprio.payload import Payload

@@ -6,7 +6,7 @@ import numpy as np
 
 from proprio.diagnosis.ambiguity import tied_sets
 from proprio.diagnosis.localisation import GapMap
-from proprio.diagnosis.selection import Attribution
+from proprio.diagnosis.attribution import Attribution
 
 __all__ = ["PLAIN", "plain_names", "verdict_text", "undecided_text", "data_and_processing_text"]
 
