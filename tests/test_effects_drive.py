@@ -132,7 +132,8 @@ def _gap_data(model, seed: int = 0):
 
 
 def test_tau_kind_decides_the_candidates():
-    from proprio.diagnosis.candidates import DRIVE_ONLY, GAUGE_ONLY, candidate_set, tau_kind
+    from proprio.diagnosis.candidate_set import candidate_set
+    from proprio.diagnosis.drive_candidates import DRIVE_ONLY, GAUGE_ONLY, tau_kind
     from proprio.diagnosis.data import DiagnosisError, SimModel
 
     link = SimModel(load_robot("iiwa14_identified"))
@@ -157,7 +158,7 @@ def test_tau_kind_decides_the_candidates():
 def test_drive_candidates_follow_the_coupled_law_and_patch():
     """A coupled motor's friction candidate is the identification's drive law (τ = Cᵀ(F_v,m C q̇ + F_c,m sgn_s(C q̇)));
     the model of a drive arm predicts its drive terms; a fitted candidate patches the description's drive block."""
-    from proprio.diagnosis.candidates import DriveCandidate
+    from proprio.diagnosis.drive_candidates import DriveCandidate
     from proprio.diagnosis.data import SimModel
     from proprio.identification.regressor import drive_torque
 

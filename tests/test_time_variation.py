@@ -11,10 +11,11 @@ import pytest
 
 from proprio.diagnosis.benchmark_cases import (SESSION_S, BenchmarkCase, generate_case_data, make_cases,
                                                time_varying_cases)
-from proprio.diagnosis.candidates import RigidBodyCandidate, candidate_set
+from proprio.diagnosis.candidate_set import candidate_set
 from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, DiagnosisError, GapData, SimModel, condition_all, kept,
                                     session_time)
 from proprio.diagnosis.fitting import fit_candidates, predict_candidates
+from proprio.diagnosis.rigid_body_candidates import RigidBodyCandidate
 from proprio.diagnosis.time_variation import TimeTrendNuisance, time_variation
 from proprio.effects import EFFECTS, FrictionWarmup, OffsetDrift
 from proprio.signals import MotionSignals

@@ -189,11 +189,11 @@ def is_drive_case(case: BenchmarkCase) -> bool:
 LINK_SENSOR_ANSWER = {"presliding": "hysteresis"}
 """The name the diagnosis should give a withheld effect of a link-side torque sensor's arm when it is not the
 effect's own: the drive's pre-sliding friction is, in τ_J, the Dahl law the diagnosis offers as the gauge's
-``hysteresis`` (:data:`proprio.diagnosis.candidates.DRIVE_ONLY`; ``proprio/effects/dahl.py``)."""
+``hysteresis`` (:data:`proprio.diagnosis.drive_candidates.DRIVE_ONLY`; ``proprio/effects/dahl.py``)."""
 
 DRIVE_ANSWER = {"coupled_motor_friction": "motor_friction"}
 """The same for the drive family: a shared motor's friction is the ``motor_friction`` candidate on the description's
-coupling (:class:`proprio.diagnosis.candidates.DriveCandidate`)."""
+coupling (:class:`proprio.diagnosis.drive_candidates.DriveCandidate`)."""
 
 
 def expected_name(case: BenchmarkCase) -> str:
