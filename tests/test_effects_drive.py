@@ -121,7 +121,7 @@ def _drive_robot(coupled: bool = False, **fields):
 
 
 def _gap_data(model, seed: int = 0):
-    from proprio.diagnosis.benchmark_cases import rfma_like_motion
+    from proprio.diagnosis.benchmark_case_data import rfma_like_motion
     from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING, GapData, condition_all, kept
     from proprio.recording import Recording
 
@@ -191,7 +191,7 @@ def test_diagnose_refuses_recordings_of_the_other_tau_kind(tmp_path, capsys):
     """``proprio diagnose``: a Recording whose ``meta.tau_kind`` contradicts the robot description (drive torques
     against a link-sensor model) is refused before any diagnosis, naming the file and what to change."""
     from proprio.cli import main
-    from proprio.diagnosis.benchmark_cases import rfma_like_motion
+    from proprio.diagnosis.benchmark_case_data import rfma_like_motion
     from proprio.recording import Recording, save_recording
 
     robot = load_robot("iiwa14_identified")

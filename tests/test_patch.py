@@ -13,7 +13,8 @@ import yaml
 from proprio import friction_law
 from proprio.cli import main
 from proprio.description import load_robot
-from proprio.diagnosis.benchmark_cases import BenchmarkCase, generate_case_data
+from proprio.diagnosis.benchmark_case_data import generate_case_data
+from proprio.diagnosis.benchmark_cases import BenchmarkCase
 from proprio.diagnosis.candidates import EffectCandidate
 from proprio.diagnosis.data import SimModel
 from proprio.diagnosis.patch import twin_patch, write_twin_patch

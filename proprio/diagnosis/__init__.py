@@ -18,7 +18,8 @@ Modules, in the order the diagnosis runs:
 - :mod:`~proprio.diagnosis.patch` — the found effects as a twin patch (``twin_patch.yaml``);
 - :mod:`~proprio.diagnosis.replay` — the held-out gap re-measured through the (patched) Drake twin;
 - :mod:`~proprio.diagnosis.report` — :func:`diagnose`: all of the above as one call and one report;
-- :mod:`~proprio.diagnosis.benchmark_cases` — the withheld-effect benchmark's cases and their data;
+- :mod:`~proprio.diagnosis.benchmark_cases` — the withheld-effect benchmark's cases;
+- :mod:`~proprio.diagnosis.benchmark_case_data` — their data (offline, or through the Drake twin);
 - :mod:`~proprio.diagnosis.benchmark` — running and scoring them.
 """
 from proprio.diagnosis.data import DiagnosisError, SimModel

@@ -41,8 +41,8 @@ from typing import Any
 
 import numpy as np
 
-from proprio.diagnosis.benchmark_cases import (ENCODER, NOISE_STD, BenchmarkCase, CaseData, _draw, _perturbed,
-                                               expected_name)
+from proprio.diagnosis.benchmark_case_data import ENCODER, NOISE_STD, CaseData, _perturbed
+from proprio.diagnosis.benchmark_cases import BenchmarkCase, _draw, expected_name
 from proprio.effects import EFFECTS
 
 __all__ = ["CONFUSABLE_PAIRS", "CONFUSABLE_CANDIDATES", "VARIANTS", "RATE_HZ", "ConfusableResult",

@@ -30,7 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from proprio.diagnosis.benchmark_cases import ENCODER, BenchmarkCase, CaseData, _draw, twin_recordings
+from proprio.diagnosis.benchmark_case_data import ENCODER, CaseData, twin_recordings
+from proprio.diagnosis.benchmark_cases import BenchmarkCase, _draw
 from proprio.drive_description import drive_from_dict
 from proprio.effects import EFFECTS, PreSliding
 
