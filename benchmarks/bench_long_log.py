@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/bench_long_log.py [--minutes 10] [--compare-seconds 30] [--no-long] [--work DIR]
 
-**Data.** The twin's friction-withheld case of the gap benchmark (:func:`proprio.diagnosis.benchmark_cases.
+**Data.** The twin's friction-withheld case of the gap benchmark (:func:`proprio.diagnosis.benchmark_case_data.
 twin_case_config`: ``iiwa14_twin`` with its link friction, background torque and encoder noise) along long RFMA
 trajectories, two recordings (training, held out) of ``minutes / 2`` each, logged like a robot: 1 kHz, host-stamp
 jitter σ = 0.1 ms, 2 % of the samples followed by a burst of 1–7 lost ones, q and τ only — and 5 % repeated packets
@@ -31,7 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from proprio.diagnosis.benchmark_cases import ENCODER, NOISE_STD, BenchmarkCase, twin_case_config
+from proprio.diagnosis.benchmark_case_data import ENCODER, NOISE_STD, twin_case_config
+from proprio.diagnosis.benchmark_cases import BenchmarkCase
 from proprio.recording import Recording, merge_duplicate_stamps, validate_recording
 
 LOGGER = (("rate_hz", 1000.0), ("stamp_jitter_ms", 0.1), ("dropout_prob", 0.02), ("dropout_max_samples", 7))

@@ -41,7 +41,7 @@ from pydrake.systems.framework import DiagramBuilder  # noqa: E402
 from pydrake.systems.primitives import LogVectorOutput, TrajectorySource  # noqa: E402
 from pydrake.trajectories import PiecewisePolynomial  # noqa: E402
 
-from proprio.conditioning import causal_conditioning  # noqa: E402
+from proprio.causal_conditioning import causal_conditioning  # noqa: E402
 from proprio.description import load_robot  # noqa: E402
 from proprio.diagrams.estimation import RigidBodyTorqueModel, build_estimation_diagram  # noqa: E402
 from proprio.diagrams.hybrid_torque_model import HybridTorqueModel  # noqa: E402

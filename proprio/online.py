@@ -11,8 +11,8 @@ For users who drive the estimator from their own loop (KUKA FRI at 1 kHz, a ROS 
         w = est.step(t, q, tau_J)                    # or est.step(t, q, tau_J, qd) with velocity="measured"
         f = w.jacobian[:3]                           # N, on the robot at the flange origin, world frame
 
-It IS the estimation Diagram: :class:`proprio.diagrams.estimation.WrenchEstimator` with a causal conditioning
-stage (:func:`proprio.conditioning.causal_conditioning`), advanced one sample at a time on its own Drake ``Context``
+It IS the estimation Diagram: :class:`proprio.diagrams.estimation.WrenchEstimator` with a causal conditioning stage
+(:func:`proprio.causal_conditioning.causal_conditioning`), advanced one sample at a time on its own Drake ``Context``
 (the sample on its input ports, the ``estimate`` port evaluated, then the stages' discrete updates applied) —
 the same Systems and step functions as the replayed Diagram and, vectorised, the offline path, so the numbers are
 the Diagram's (tests: to 1e-10) and there is no second copy of any stage. Inputs are validated at the boundary
@@ -26,7 +26,7 @@ from typing import Sequence
 
 import numpy as np
 
-from proprio.conditioning import CausalConditioning, causal_conditioning
+from proprio.causal_conditioning import CausalConditioning, causal_conditioning
 from proprio.description import RobotDescription
 from proprio.diagrams.estimation import (DEFAULT_GAIN, RigidBodyTorqueModel, TorqueModel, WrenchEstimator,
                                          load_torque_model)

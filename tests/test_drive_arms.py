@@ -434,7 +434,7 @@ def test_tx40_identify_cli_split_and_tau_kind_check(tmp_path, capsys):
 def test_tx40_cad_description_is_the_published_model_without_drive_and_friction_terms():
     """The CAD model of a drive-torque arm: the published model's link inertials and transmission, τ a drive torque,
     and nothing a diagnosis of the log should find (friction, rotor inertia, motor friction, offsets)."""
-    from proprio.diagnosis.candidates import tau_kind
+    from proprio.diagnosis.drive_candidates import tau_kind
 
     cad, pub = load_robot("staubli_tx40_cad"), load_robot("staubli_tx40")
     assert tau_kind(cad) == "drive" and cad.drive.coupled
@@ -448,7 +448,7 @@ def test_drive_candidates_without_joint_friction_and_their_names():
     """Without joint friction in the model, friction is the viscous_coulomb candidate and the motor friction
     candidate keeps only the coupled motor (motor 6 turns with joints 5 and 6); a drive torque's gain, offset and
     noise are named for the drive (no torque sensor)."""
-    from proprio.diagnosis.candidates import candidate_set
+    from proprio.diagnosis.candidate_set import candidate_set
     from proprio.diagnosis.data import SimModel
     from proprio.diagnosis.verdict import plain_names
 

@@ -12,7 +12,8 @@ from proprio.description import load_robot
 from proprio.dynamics import inverse_dynamics
 from proprio.diagnosis.data import DiagnosisError, SimModel
 from proprio.diagnosis.selection import attribute
-from proprio.diagnosis.benchmark_cases import BenchmarkCase, generate_case_data, make_cases, rfma_like_motion
+from proprio.diagnosis.benchmark_case_data import generate_case_data, rfma_like_motion
+from proprio.diagnosis.benchmark_cases import BenchmarkCase, make_cases
 from proprio.diagnosis.localisation import REVERSAL_DEADBAND, gap_map, regime_families
 from proprio.reversals import reversal_travel
 from proprio.diagnosis.encoder_floor import encoder_floor

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from proprio.description import load_robot
-from proprio.diagnosis.benchmark_cases import rfma_like_motion
+from proprio.diagnosis.benchmark_case_data import rfma_like_motion
 from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING, GapData, SimModel, condition_all, kept
 from proprio.diagnosis.hints import find_hints
 from proprio.diagnosis.report import diagnose

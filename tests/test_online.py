@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from proprio.conditioning import causal_conditioning
+from proprio.causal_conditioning import causal_conditioning
 from proprio.description import load_robot
 from proprio.diagrams.estimation import (RigidBodyTorqueModel, build_estimation_diagram, estimate_rows,
                                          run_estimation_diagram, split_estimate)

@@ -13,12 +13,14 @@ import yaml
 from proprio import friction_law
 from proprio.cli import main
 from proprio.description import load_robot
-from proprio.diagnosis.benchmark_cases import BenchmarkCase, generate_case_data
-from proprio.diagnosis.candidates import EffectCandidate, PayloadCandidate
+from proprio.diagnosis.benchmark_case_data import generate_case_data
+from proprio.diagnosis.benchmark_cases import BenchmarkCase
+from proprio.diagnosis.candidates import EffectCandidate
 from proprio.diagnosis.data import SimModel
 from proprio.diagnosis.patch import twin_patch, write_twin_patch
 from proprio.diagnosis.report import diagnose
 from proprio.diagnosis.replay import replay_gap
+from proprio.diagnosis.rigid_body_candidates import PayloadCandidate
 from proprio.diagnosis.selection import attribute
 from proprio.diagrams.twin import TwinConfigError, load_twin_config, merge_twin_patch, simulate_twin
 from proprio.dynamics import inverse_dynamics

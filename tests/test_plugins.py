@@ -16,7 +16,7 @@ from importlib import resources
 from pydrake.trajectories import PiecewisePolynomial
 
 from proprio.description import load_robot
-from proprio.diagnosis.benchmark_cases import rfma_like_motion
+from proprio.diagnosis.benchmark_case_data import rfma_like_motion
 from proprio.diagnosis.data import SimModel
 from proprio.diagnosis.selection import attribute
 from proprio.diagrams.twin import TwinConfig, TwinConfigError, simulate_twin

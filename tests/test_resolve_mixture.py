@@ -18,8 +18,8 @@ import pytest
 
 from proprio.description import load_robot
 from proprio.diagnosis.ambiguity import Alternative, AmbiguitySet
-from proprio.diagnosis.benchmark_cases import rfma_like_motion
-from proprio.diagnosis.candidates import candidate_set
+from proprio.diagnosis.benchmark_case_data import rfma_like_motion
+from proprio.diagnosis.candidate_set import candidate_set
 from proprio.diagnosis.data import SimModel
 from proprio.diagnosis.discriminate import (CONFOUND_CORRELATION, confounded_pairs, design_experiment, pair_set,
                                             split_passes)

@@ -9,12 +9,13 @@ from functools import lru_cache
 import numpy as np
 import pytest
 
-from proprio.diagnosis.benchmark_cases import (SESSION_S, BenchmarkCase, generate_case_data, make_cases,
-                                               time_varying_cases)
-from proprio.diagnosis.candidates import RigidBodyCandidate, candidate_set
+from proprio.diagnosis.benchmark_case_data import generate_case_data
+from proprio.diagnosis.benchmark_cases import SESSION_S, BenchmarkCase, make_cases, time_varying_cases
+from proprio.diagnosis.candidate_set import candidate_set
 from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, DiagnosisError, GapData, SimModel, condition_all, kept,
                                     session_time)
 from proprio.diagnosis.fitting import fit_candidates, predict_candidates
+from proprio.diagnosis.rigid_body_candidates import RigidBodyCandidate
 from proprio.diagnosis.time_variation import TimeTrendNuisance, time_variation
 from proprio.effects import EFFECTS, FrictionWarmup, OffsetDrift
 from proprio.signals import MotionSignals
@@ -196,7 +197,7 @@ def _growing(robot, seed: int, effects):
     """A recording whose motion grows with time at a steady speed (a designed experiment's growing triangles): per
     joint ``q = A(t)·sin θ(t)`` with the amplitude ramping 0.3° → 12° over :data:`SHORT_S` and ``θ̇ = v/A`` (peak
     speed ``v`` throughout, ever slower reversals); the rigid body + ``effects``, noise as the benchmark's."""
-    from proprio.diagnosis.benchmark_cases import NOISE_STD
+    from proprio.diagnosis.benchmark_case_data import NOISE_STD
     from proprio.dynamics import inverse_dynamics
     from proprio.recording import Recording
 

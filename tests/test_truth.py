@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from proprio.description import load_robot
-from proprio.diagnosis.benchmark_cases import rfma_like_motion
+from proprio.diagnosis.benchmark_case_data import rfma_like_motion
 from proprio.diagnosis.data import SimModel
 from proprio.diagnosis.report import diagnose
 from proprio.diagnosis.truth import compare_to_truth

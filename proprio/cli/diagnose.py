@@ -138,7 +138,7 @@ def _model(args: argparse.Namespace):
         raise UserError(f"--effects: {exc}") from exc
 
 
-# candidates of the diagnosis that are not joint effects (proprio.diagnosis.candidates.candidate_set)
+# candidates of the diagnosis that are not joint effects (proprio.diagnosis.candidate_set.candidate_set)
 _NON_EFFECT_CANDIDATES = ("rigid_body", "payload", "signal_lag", "sensor_offset", "sensor_gain", "rotor_inertia",
                           "motor_friction", "drive_offset")     # the last three: drive-torque arms only
 

@@ -8,7 +8,8 @@ two-effect cases. Scores: confusion matrix, top-1 / top-2 accuracy, null false-p
 predicted shrinkage (the diagnosis' own held-out SSE reduction after its first step) against the measured one
 (the held-out SSE reduction when the model is given the true withheld effect, i.e. only the sensor noise remains).
 
-The cases and how their data are made: :mod:`proprio.diagnosis.benchmark_cases`. Here: running a case
+The cases: :mod:`proprio.diagnosis.benchmark_cases`; how their data are made:
+:mod:`proprio.diagnosis.benchmark_case_data`. Here: running a case
 (:func:`run_case`), running many on the engine of :mod:`proprio.tasks` (local processes or Ray, resumable), and
 scoring them (:func:`summarise`, :func:`write_results`). Out-of-library cases (a plugin effect no library candidate
 expresses) are scored apart: flagged as structured-unexplained with no library effect above 5 % held-out gain, and
@@ -26,8 +27,9 @@ from typing import Any
 
 import numpy as np
 
-from proprio.diagnosis.benchmark_cases import (PROCESSING_TYPES, BenchmarkCase, expected_name, generate_case_data,
-                                               is_drive_case, is_open_world, is_time_varying)
+from proprio.diagnosis.benchmark_case_data import generate_case_data
+from proprio.diagnosis.benchmark_cases import (PROCESSING_TYPES, BenchmarkCase, expected_name, is_drive_case,
+                                               is_open_world, is_time_varying)
 from proprio.effects import EFFECTS
 from proprio.io import atomic_write_text
 

@@ -29,7 +29,7 @@ The model is ``iiwa14_identified`` without friction + the background noise.
 
 The truth's expected name (:func:`proprio.diagnosis.benchmark_cases.expected_name`): on a link-side torque sensor
 (the iiwa's) the drive's pre-sliding friction is, in τ_J, the Dahl law the diagnosis offers as the gauge's ``hysteresis``
-(:data:`proprio.diagnosis.candidates.DRIVE_ONLY`), so that is the right name for it; a load-dependent friction
+(:data:`proprio.diagnosis.drive_candidates.DRIVE_ONLY`), so that is the right name for it; a load-dependent friction
 (a direction-flipping level that grows with the transmitted torque) is the Dahl law with a ``load_gain``: the
 library's ``hysteresis`` with a short travel (the library has no other load-dependent friction law).
 """
@@ -41,8 +41,8 @@ from typing import Any
 
 import numpy as np
 
-from proprio.diagnosis.benchmark_cases import (ENCODER, NOISE_STD, BenchmarkCase, CaseData, _draw, _perturbed,
-                                               expected_name)
+from proprio.diagnosis.benchmark_case_data import ENCODER, NOISE_STD, CaseData, _perturbed
+from proprio.diagnosis.benchmark_cases import BenchmarkCase, _draw, expected_name
 from proprio.effects import EFFECTS
 
 __all__ = ["CONFUSABLE_PAIRS", "CONFUSABLE_CANDIDATES", "VARIANTS", "RATE_HZ", "ConfusableResult",

@@ -9,7 +9,7 @@ drive torque (current noise). The twin's drive senses ``τ = τ_rbd + I_a q̈ + 
 (:class:`proprio.systems.joint_drive.JointDrive`). The drives are uncoupled except in the ``coupled_motor_friction``
 cases, whose last motor turns with the last two joints (``q_m7 = N (q6 + q7)``, as the TX40's motor 6 with joints 5
 and 6; its reflected inertia ``Cᵀ diag(I_a) C`` couples the two joints in the plant). An uncoupled motor's friction
-is told from the link friction only because the model has that (:func:`proprio.diagnosis.candidates.candidate_set`).
+is told from the link friction only because the model has that (:func:`proprio.diagnosis.candidate_set.candidate_set`).
 
 **Withheld** (:data:`DRIVE_TYPES`, magnitude ``m``): ``motor_friction`` and ``drive_offset`` — the model's drive
 block has ``(1 − m)`` × the arm's value; ``coupled_motor_friction`` — the same for the shared motor's friction only
@@ -30,7 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from proprio.diagnosis.benchmark_cases import ENCODER, BenchmarkCase, CaseData, _draw, twin_recordings
+from proprio.diagnosis.benchmark_case_data import ENCODER, CaseData, twin_recordings
+from proprio.diagnosis.benchmark_cases import BenchmarkCase, _draw
 from proprio.drive_description import drive_from_dict
 from proprio.effects import EFFECTS, PreSliding
 

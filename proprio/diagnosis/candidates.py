@@ -1,29 +1,27 @@
-"""Candidate explanations of the torque gap: every library effect the model lacks, plus rigid-body parameter error,
-an unmodelled payload, signal lag, encoder noise and elasticity (see :mod:`proprio.diagnosis.selection`)."""
+"""Candidate explanations of the torque gap (see :mod:`proprio.diagnosis.selection`): the :class:`Candidate` interface,
+every library effect the model lacks (:class:`EffectCandidate`, :func:`ripple_candidate`), the data path's signal lag
+and encoder noise, and elasticity. The rigid-body and payload candidates:
+:mod:`proprio.diagnosis.rigid_body_candidates`; a drive torque's: :mod:`proprio.diagnosis.drive_candidates`; the set
+a diagnosis tests: :func:`proprio.diagnosis.candidate_set.candidate_set`."""
 from __future__ import annotations
 
 import inspect
 import math
-from dataclasses import replace
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
 import numpy as np
-from scipy import linalg, signal
+from scipy import signal
 
 from proprio.conditioning import zero_phase_lowpass
-from proprio.description import RobotDescription
 from proprio.diagnosis.data import DiagnosisError, GapData, SimModel
 from proprio.diagnosis.localisation import peak_orders
 from proprio.dynamics import inverse_dynamics
 from proprio.effects import EFFECTS, JointEffect, effect_key, register_plugin, resolve_effect
-from proprio.identification.regressor import (PARAMS_PER_JOINT, drive_columns, drive_identified, n_parameters,
-                                              parameter_names, regressor)
 from proprio.reversals import ReversalTravel, reversal_travel
 from proprio.signals import MotionSignals
 
-__all__ = ["Candidate", "EffectCandidate", "RigidBodyCandidate", "PayloadCandidate", "SignalLagCandidate",
-           "EncoderNoiseCandidate", "ElasticityCandidate", "ripple_candidate", "candidate_set", "DriveCandidate",
-           "DRIVE_CANDIDATES", "GAUGE_ONLY", "DRIVE_ONLY", "tau_kind"]
+__all__ = ["Candidate", "EffectCandidate", "SignalLagCandidate", "EncoderNoiseCandidate", "ElasticityCandidate",
+           "ripple_candidate"]
 
 
 class Candidate:
@@ -281,147 +279,6 @@ class ElasticityCandidate(Candidate):
         return -np.ones(n, dtype=int)
 
 
-def _inertial_columns(robot: RobotDescription) -> np.ndarray:
-    """Mask of the link-inertial columns of ``robot``'s regressor (not its friction, nor a drive arm's drive
-    columns)."""
-    k = np.arange(n_parameters(robot))
-    return (k < PARAMS_PER_JOINT * robot.n) & (k % PARAMS_PER_JOINT < 10)
-
-
-class RigidBodyCandidate(Candidate):
-    """Error of the rigid-body (inertial) parameters: the identifiable combinations kept by a rank-revealing QR of
-    the training regressor (friction columns excluded: friction is its own candidate)."""
-    name = "rigid_body"
-    place = "link"
-
-    def __init__(self, robot: RobotDescription, train: GapData, rank_tol: float = 1e-6):
-        self.robot = robot
-        full = self._inertial(train)
-        a = full.reshape(-1, full.shape[-1])
-        norms = np.linalg.norm(a, axis=0)
-        nz = np.flatnonzero(norms > 1e-9 * norms.max())
-        _, r, piv = linalg.qr(a[:, nz] / norms[nz], mode="economic", pivoting=True)
-        d = np.abs(np.diag(r))
-        rank = int((d > rank_tol * d[0]).sum())
-        self.columns = np.sort(nz[piv[:rank]])
-        names = [nm for k, nm in enumerate(parameter_names(robot.n)) if k % PARAMS_PER_JOINT < 10]
-        self._names = [f"δ{names[c]}" for c in self.columns]
-        train.cache[("design", self.name)] = full[..., self.columns]
-        # the training motion, for mapping a fit back to physical link inertials (:meth:`patch`)
-        self._motion = tuple(train.stack([getattr(s, k) for s in train.signals]) for k in ("q", "qd", "qdd"))
-
-    @classmethod
-    def of(cls, robot: RobotDescription, train: GapData) -> "RigidBodyCandidate":
-        """The candidate for ``train``, built once per training set (its rank-revealing QR is the costly part)."""
-        key = ("candidate", cls.name)
-        if key not in train.cache:
-            train.cache[key] = cls(robot, train)
-        return train.cache[key]
-
-    def _inertial(self, data: GapData) -> np.ndarray:
-        keep = _inertial_columns(self.robot)
-        return np.concatenate([regressor(self.robot, s.q, s.qd, s.qdd)[..., keep] for s in _kept_signals(data)])
-
-    def param_names(self) -> list[str]:
-        return self._names
-
-    def design(self, data: GapData) -> np.ndarray:
-        return self._inertial(data)[..., self.columns]
-
-    def patch(self, theta: np.ndarray) -> dict[str, Any] | None:
-        """``{"robot": <corrected description mapping>}``: the fit corrects only identifiable combinations, so the
-        torque it predicts on the training motion, ``Y (φ_nominal + δφ)``, is identified again with the physically
-        consistent SDP (:func:`proprio.identification.estimators.sdp`: pseudo-inertia ⪰ 0, unidentifiable
-        directions nearest the nominal model) and rebuilt as link inertials (friction kept as it was)."""
-        from proprio.identification.estimators import IdentificationError, sdp
-        from proprio.identification.regressor import parameters_to_links, standard_parameters
-
-        robot = self.robot.without_friction()
-        keep = _inertial_columns(robot)
-        phi = standard_parameters(robot)[keep]
-        phi[self.columns] += np.asarray(theta, dtype=float)
-        q, qd, qdd = self._motion
-        y = regressor(robot, q, qd, qdd)[..., keep]
-        target = y @ phi
-        try:
-            model = sdp(robot, q, qd, qdd, target)
-            links = parameters_to_links(model.phi, robot)
-        except (IdentificationError, ValueError) as exc:
-            self.patch_note = (f"rigid_body: not patched — no physically consistent inertials fit the correction "
-                               f"({exc})")
-            return None
-        new = self.robot.with_inertials(links)
-        miss = float(np.sqrt(np.mean((inverse_dynamics(new.without_friction(), q, qd, qdd) - target) ** 2)))
-        corr = float(np.sqrt(np.mean((target - y @ standard_parameters(robot)[keep]) ** 2)))
-        self.patch_note = (f"rigid_body: the fitted identifiable combinations ({len(self.columns)}) mapped back to "
-                           f"physically consistent link inertials by the SDP of proprio.identification.estimators on "
-                           f"the training motion ({len(q)} samples); the rebuilt robot's torque differs from the "
-                           f"fitted correction by {miss:.3g} N·m RMS (the correction itself: {corr:.3g} N·m RMS)")
-        desc = new.to_dict()
-        desc["name"] = self.robot.name
-        desc["provenance"] = (f"{self.robot.provenance} | inertials corrected by proprio diagnose (rigid_body step, "
-                              "SDP-consistent)").strip(" |")
-        return {"robot": desc}
-
-
-class PayloadCandidate(Candidate):
-    """An unmodelled payload at the flange: mass ``m`` [kg], first moment ``m·c`` [kg·m] (``c`` in the flange
-    frame) and rotational inertia about the last link's origin (6 entries, link axes; a point mass off the axis has
-    one). Its torque is the last link's 10 regressor columns with the first moment moved to the flange frame —
-    the same columns a rigid-body error of the last link has, which is why payload and inertial error are a
-    confusable pair (reported as tied when the data cannot separate them)."""
-    name = "payload"
-    place = "link"
-
-    def __init__(self, robot: RobotDescription):
-        from proprio.description import rpy_to_matrix
-        self.robot = robot
-        self.p_f = np.asarray(robot.end_effector.xyz, dtype=float)
-        self.r_f = rpy_to_matrix(robot.end_effector.rpy)
-
-    def param_names(self) -> list[str]:
-        return ["mass", "m·cx", "m·cy", "m·cz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz"]
-
-    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        lo = np.full(10, -np.inf)
-        lo[0] = 0.0                                        # a payload has no negative mass
-        return lo, np.full(10, np.inf)
-
-    def patch(self, theta: np.ndarray) -> dict[str, Any] | None:
-        """``{"payload": {mass, com_flange, inertia}}``: mass [kg], CoM [m] and inertia about the CoM [kg·m²] in
-        flange axes, from the fitted mass, first moment and inertia about the last link's origin (parallel axes);
-        an indefinite inertia is projected onto the nearest positive semi-definite one (said in ``patch_note``)."""
-        theta = np.asarray(theta, dtype=float)
-        m = float(theta[0])
-        if not m > 0.0:
-            self.patch_note = f"payload: not patched — fitted mass {m:.3g} kg is not positive"
-            return None
-        c = theta[1:4] / m                                            # CoM in flange axes
-        p = self.p_f + self.r_f @ c                                   # CoM in the last link's frame
-        ixx, ixy, ixz, iyy, iyz, izz = theta[4:10]
-        i_o = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
-        i_c = self.r_f.T @ (i_o - m * (p @ p * np.eye(3) - np.outer(p, p))) @ self.r_f
-        ev, vec = np.linalg.eigh(0.5 * np.trace(i_c) * np.eye(3) - i_c)        # central second moment ⪰ 0
-        self.patch_note = ""
-        if ev[0] < 0.0:
-            sig = vec @ np.diag(np.maximum(ev, 0.0)) @ vec.T
-            i_c = np.trace(sig) * np.eye(3) - sig
-            self.patch_note = (f"payload: the fitted inertia about the CoM was not physical (second-moment eigenvalue "
-                               f"{ev[0]:.3g} kg·m²); projected onto the nearest physical one")
-        return {"payload": {"mass": m, "com_flange": c.tolist(),
-                            "inertia": [float(i_c[a, b]) for a, b in ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))]}}
-
-    def design(self, data: GapData) -> np.ndarray:
-        n = self.robot.n
-        c0 = PARAMS_PER_JOINT * (n - 1)
-        out = []
-        for s in _kept_signals(data):
-            y = regressor(self.robot, s.q, s.qd, s.qdd)[..., c0:c0 + 10]
-            out.append(np.concatenate([y[..., :1] + y[..., 1:4] @ self.p_f[:, None], y[..., 1:4] @ self.r_f,
-                                       y[..., 4:10]], axis=-1))
-        return np.concatenate(out)
-
-
 class SignalLagCandidate(Candidate):
     """A first-order lag of time constant ``T_j`` [s] between the modelled and the measured torque (a causal
     filter in the torque channel): ``e ≈ LP_T(τ_sim) − τ_sim`` with ``LP_T`` the exactly discretised first-order
@@ -456,151 +313,3 @@ class SignalLagCandidate(Candidate):
 
     def joint_of_param(self, n: int) -> np.ndarray:
         return np.arange(n)
-
-
-DRIVE_CANDIDATES = ("rotor_inertia", "motor_friction", "drive_offset")
-"""The drive's terms the model may lack, as candidates (:class:`DriveCandidate`)."""
-
-GAUGE_ONLY = ("hysteresis", "lost_motion", "ripple", "sensor_offset")
-"""Candidates of a joint-torque sensor's strain gauge (its loop, its lost motion, its ripple, its zero): not
-candidates when τ is a drive torque (current × torque constant × gear ratio has no gauge; a drive's constant bias is
-``drive_offset``). A gain error stays a candidate for both kinds (a drive torque's is a torque-constant error)."""
-
-DRIVE_ONLY = DRIVE_CANDIDATES + ("presliding",)
-"""Candidates only a drive torque sees: rotor inertia, the motor's friction and the drive's offsets sit before a
-link-side torque sensor, and pre-sliding friction is, in τ, the Dahl law of the gauge's hysteresis (one law, the
-same function of the reversal travel: :mod:`proprio.effects.dahl`), which a link sensor's diagnosis names
-hysteresis."""
-
-
-def tau_kind(robot: RobotDescription) -> str:
-    """What the model's τ channel is: ``drive`` when the description's drive block says ``tau_kind: drive`` (its
-    drive terms are in the model), else ``link_sensor`` (:mod:`proprio.drive_description`)."""
-    return "drive" if drive_identified(robot) else "link_sensor"
-
-
-class DriveCandidate(Candidate):
-    """A drive term a drive-torque arm's model lacks (``robot.drive.tau_kind == 'drive'``), linear in its
-    parameters, on the law of :func:`proprio.identification.regressor.drive_columns` (the identification's, with the
-    description's coupling ``C``): ``rotor_inertia`` ``Cᵀ(I_a ⊙ C q̈)`` (I_a [kg·m²] per motor), ``motor_friction``
-    ``Cᵀ(F_v,m ⊙ C q̇ + F_c,m ⊙ sgn_s(C q̇))`` ([N·m·s/rad], [N·m] per motor: a motor shared by coupled joints brakes
-    each of them through Cᵀ) and ``drive_offset`` τ_0 [N·m] per joint. The fit is the part the model lacks: the
-    patch adds it to the description's drive block. ``motors`` (0-based) restricts the motor terms to those motors
-    (default all): an uncoupled motor's friction is the joint's own (:func:`candidate_set`)."""
-    place = "motor"
-
-    def __init__(self, robot: RobotDescription, group: str, motors: Sequence[int] | None = None):
-        if group not in DRIVE_CANDIDATES:
-            raise DiagnosisError(f"drive candidate {group!r}: must be one of {DRIVE_CANDIDATES}")
-        if not drive_identified(robot):
-            raise DiagnosisError(f"drive candidate {group}: the robot description {robot.name!r} has no drive block "
-                                 "with tau_kind: drive")
-        self.robot, self.name, n = robot, group, robot.n
-        self._motors = np.arange(n) if motors is None else np.asarray(motors, dtype=int)
-        groups = {"rotor_inertia": (0,), "motor_friction": (1, 2)}.get(group)
-        self._cols = None if groups is None else np.concatenate([g * n + self._motors for g in groups])
-
-    def param_names(self) -> list[str]:
-        keys = {"rotor_inertia": ("I_a",), "motor_friction": ("F_v,m", "F_c,m"), "drive_offset": ("offset",)}
-        index = range(self.robot.n) if self._cols is None else self._motors
-        return [f"{k}[{j + 1}]" for k in keys[self.name] for j in index]
-
-    def design(self, data: GapData) -> np.ndarray:
-        if self._cols is None:
-            return data.stack([np.broadcast_to(np.eye(s.n), s.q.shape + (s.n,)) for s in data.signals])
-        drive = self.robot.drive
-        return data.stack([np.moveaxis(drive_columns(drive, s.qd.T, s.qdd.T, None), -1, 0)[..., self._cols]
-                           for s in data.signals])
-
-    def joint_of_param(self, n: int) -> np.ndarray:
-        if self._cols is None:
-            return np.arange(n)
-        if not self.robot.drive.coupled:
-            return np.tile(self._motors, self.n_params // len(self._motors))
-        return -np.ones(self.n_params, dtype=int)
-
-    def patch(self, theta: np.ndarray) -> dict[str, Any] | None:
-        """``{"robot": <description mapping>}`` with the fit added to its drive block's parameters."""
-        drive = self.robot.drive
-        theta = np.asarray(theta, dtype=float)
-        p, offset = drive.parameters(), np.asarray(drive.offset, dtype=float)
-        if self._cols is None:
-            offset = offset + theta
-        else:
-            p[self._cols] += theta
-        lo = np.zeros_like(p)
-        self.patch_note = ""
-        if np.any(p < lo):
-            self.patch_note = (f"{self.name}: a fitted drive parameter below zero (rotor inertia and motor friction "
-                               f"are not negative), clipped to 0 in the patch")
-            p = np.maximum(p, lo)
-        desc = replace(self.robot, drive=drive.with_parameters(p, offset)).to_dict()
-        desc["name"] = self.robot.name
-        return {"robot": desc}
-
-
-def candidate_set(model: SimModel, train: GapData, names: Sequence[str] | None = None,
-                  plugins: Sequence[str | type[JointEffect]] = (), time_varying: bool = False) -> list[Candidate]:
-    """All deterministic candidates the model lacks (or only ``names``, which must be among them), plus the user's
-    ``plugins`` (plugin paths ``"package.module:Class"`` or ``JointEffect`` subclasses, tested alongside; a plugin
-    path in ``names`` counts as one). What τ is decides the rest (:func:`tau_kind`): for drive torques the drive's
-    terms (:data:`DRIVE_CANDIDATES`; an uncoupled motor's friction only when the model has link friction, else it is
-    the ``viscous_coulomb`` candidate) and pre-sliding friction, never the gauge's effects (:data:`GAUGE_ONLY`); for a
-    link-side torque sensor never those of :data:`DRIVE_ONLY`. The time-varying library effects are offered only when ``time_varying`` (the
-    residual depends on the session time, :mod:`proprio.diagnosis.time_variation`) or when named. Raises
-    :class:`DiagnosisError` for a plugin that cannot be resolved or that the model already has."""
-    n = model.robot.n
-    present = model.effect_names
-    plugins = list(plugins) + [k for k in names or () if ":" in k]
-    names = None if names is None else [k for k in names if ":" not in k]
-    extra: dict[str, EffectCandidate] = {}
-    for p in plugins:
-        try:
-            cand = EffectCandidate(p, n)
-        except ValueError as exc:
-            raise DiagnosisError(f"candidates: {exc}") from exc
-        if cand.name in present or cand.name in extra:
-            raise DiagnosisError(f"candidates: plugin {cand.effect} ({cand.name}) is already in the model or "
-                                 "given twice")
-        extra[cand.name] = cand
-    special = {"ripple": lambda: ripple_candidate(n, train), "encoder_noise": lambda: EncoderNoiseCandidate(model),
-               "elasticity": lambda: ElasticityCandidate(model)}
-    available: dict[str, Callable[[], Candidate]] = {
-        k: special.get(k, lambda k=k: EffectCandidate(k, n)) for k in EFFECTS
-        if k not in present and k not in ("torque_noise", "sensor_offset_gain")}
-    if "sensor_offset_gain" not in present:
-        # offset and gain error are tested apart: a gain error aliases a scaled rigid body, an offset does not
-        available["sensor_offset"] = lambda: EffectCandidate("sensor_offset_gain", n, ("offset",), "sensor_offset")
-        available["sensor_gain"] = lambda: EffectCandidate("sensor_offset_gain", n, ("gain",), "sensor_gain")
-    names = None if names is None else [x for k in names for x in
-                                        (("sensor_offset", "sensor_gain") if k == "sensor_offset_gain" else (k,))]
-    kind = tau_kind(model.robot)
-    if kind == "drive":
-        available.update({k: (lambda k=k: DriveCandidate(model.robot, k)) for k in DRIVE_CANDIDATES})
-        if "viscous_coulomb" in available:          # an uncoupled motor's friction is the viscous_coulomb candidate:
-            c = model.robot.drive.normalized_coupling            # the motor friction candidate keeps the motors
-            shared = np.flatnonzero(np.count_nonzero(c, axis=1) > 1)   # that turn with several joints, if any
-            if shared.size:
-                available["motor_friction"] = lambda: DriveCandidate(model.robot, "motor_friction", shared)
-            else:
-                del available["motor_friction"]
-    unseen = GAUGE_ONLY if kind == "drive" else DRIVE_ONLY
-    for k in unseen:
-        available.pop(k, None)
-    available["rigid_body"] = lambda: RigidBodyCandidate.of(model.robot, train)
-    available["payload"] = lambda: PayloadCandidate(model.robot)
-    available["signal_lag"] = lambda: SignalLagCandidate(n)
-    if names is not None:
-        unknown = [k for k in names if k not in available and k != "torque_noise"]
-        if unknown:
-            why = [f"{k} (already in the model)" if k in present else f"{k} (a {kind} τ cannot show it)"
-                   if k in unseen else f"{k} (unknown)" for k in unknown]
-            raise DiagnosisError(f"candidates: cannot test {', '.join(why)}; available: {sorted(available)} or a "
-                                 "plugin 'package.module:Class'")
-        chosen = [k for k in names if k in available]
-    else:
-        chosen = [k for k in available if time_varying or k not in EFFECTS or not EFFECTS[k].time_varying]
-    if not chosen and not extra:
-        raise DiagnosisError("candidates: no candidate effects left to test — the model already has every effect "
-                             "of the library (or only noise effects were requested)")
-    return [available[k]() for k in chosen] + list(extra.values())

@@ -31,7 +31,7 @@ from proprio.diagnosis.replay import ReplayGap, replay_gap
 from proprio.diagnosis.attribution import Attribution
 from proprio.diagnosis.selection import attribute
 from proprio.diagnosis.truth import TruthComparison, compare_to_truth, truth_summary
-from proprio.diagnosis.candidates import tau_kind
+from proprio.diagnosis.drive_candidates import tau_kind
 from proprio.diagnosis.verdict import data_and_processing_text, verdict_text
 from proprio.io import atomic_write_text
 from proprio.plots.gap import plot_before_after, plot_gap_map, plot_spectra

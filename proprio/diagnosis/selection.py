@@ -70,7 +70,8 @@ import numpy as np
 from scipy import stats
 
 from proprio.description import RobotDescription
-from proprio.diagnosis.candidates import Candidate, candidate_set
+from proprio.diagnosis.candidate_set import candidate_set
+from proprio.diagnosis.candidates import Candidate
 from proprio.conditioning import ConditionedSignals, ConditioningConfig, processing_torque_sigma
 from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, MAX_TRIM_S, MIN_BLOCK_S, MIN_BLOCKS, DiagnosisError, GapData,
                                     SimModel, condition_all, kept, session_motion, session_time)

@@ -34,7 +34,8 @@ from pydrake.systems.framework import Context, Diagram, DiagramBuilder
 from pydrake.systems.primitives import Demultiplexer, LogVectorOutput, TrajectorySource, VectorLogSink
 from pydrake.trajectories import PiecewisePolynomial
 
-from proprio.conditioning import CausalConditioning, ConditioningConfig, condition
+from proprio.causal_conditioning import CausalConditioning
+from proprio.conditioning import ConditioningConfig, condition
 from proprio.description import RobotDescription, load_robot
 from proprio.dynamics import inverse_dynamics
 from proprio.diagrams.torque_model import (RigidBodyTorqueModel, TorqueModel, TorqueModelSystem,
@@ -107,7 +108,7 @@ class WrenchEstimator(Diagram):
 
     Input ports: without ``conditioning`` the conditioned ``q`` [rad], ``qd`` [rad/s], ``qdd`` [rad/s²],
     ``tau_meas`` [N·m] (e.g. a replay of :func:`proprio.conditioning.condition`); with a
-    :class:`~proprio.conditioning.CausalConditioning` the raw ``q``, (``qd`` for ``velocity="measured"``) and
+    :class:`~proprio.causal_conditioning.CausalConditioning` the raw ``q``, (``qd`` for ``velocity="measured"``) and
     ``tau_meas`` of the robot. Output ports: ``estimate`` = ``[f̂_jacobian (6), f̂_momentum (6), manipulability,
     unreliable, τ̂_ext,jacobian (n), τ̂_ext,momentum (n)]`` (:func:`split_estimate`); ``wrench_jacobian``,
     ``wrench_momentum`` (6 each) [fx, fy, fz, mx, my, mz] on the robot at the contact point (flange origin by

@@ -5,8 +5,8 @@
     tau_meas ───┘        u                 x⁺ = A x + B u, y = C x + D u             ├──▶ qdd   (q̂̈, rad/s²)
                                                                                     └──▶ tau_meas (τ̂_J, N·m)
 
-The filter is :func:`proprio.conditioning.causal_conditioning` (a 2nd-order Butterworth state-variable filter per
-joint and channel; its docstring says how it differs from the offline zero-phase path: a low-frequency lag of
+The filter is :func:`proprio.causal_conditioning.causal_conditioning` (a 2nd-order Butterworth state-variable filter
+per joint and channel; its docstring says how it differs from the offline zero-phase path: a low-frequency lag of
 √2/ω_c on every channel, τ_J included so that prediction and measurement stay aligned). Outputs are direct
 feedthrough (``D ≠ 0``): at a sample time t_k they already include the sample u_k; the discrete update at t_k
 then advances the state. :meth:`CausalConditioner.set_initial_state` starts the filter in the steady state of the
@@ -18,13 +18,13 @@ import numpy as np
 from pydrake.systems.framework import Context, Diagram, DiagramBuilder
 from pydrake.systems.primitives import Demultiplexer, LinearSystem, Multiplexer
 
-from proprio.conditioning import CausalConditioning
+from proprio.causal_conditioning import CausalConditioning
 
 __all__ = ["CausalConditioner"]
 
 
 class CausalConditioner(Diagram):
-    """:class:`~proprio.conditioning.CausalConditioning` as a sub-Diagram with named ports.
+    """:class:`~proprio.causal_conditioning.CausalConditioning` as a sub-Diagram with named ports.
 
     Input ports (size n): ``q`` [rad], ``qd`` [rad/s] (only with ``design.velocity == "measured"``), ``tau_meas``
     [N·m]. Output ports (size n): ``q``, ``qd``, ``qdd``, ``tau_meas`` — the conditioned (lagged) signals.
