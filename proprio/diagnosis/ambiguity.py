@@ -134,7 +134,6 @@ class AmbiguitySet:
                 "context": self.context, "alternatives": [a.to_dict() for a in self.alternatives]}
 
 
-
 def _corr(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> float:
     sw = np.sqrt(w)[None, :]
     a, b = (a * sw).ravel(), (b * sw).ravel()

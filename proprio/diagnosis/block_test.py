@@ -1,6 +1,6 @@
-"""The block test of the gap diagnosis (:mod:`proprio.diagnosis.selection`, "Selection test"): held-out time
-blocks, each block's log-ratio of the weighted squared residual before and after a candidate, the one-sided t statistic
-over blocks, and the effective-sample-size factor of an autocorrelated residual for the fits' confidence intervals."""
+"""The block test of the gap diagnosis (:mod:`proprio.diagnosis.selection`, "Selection test"): each held-out
+block's log-ratio of the weighted squared residual before and after a candidate, the one-sided t statistic over the
+blocks, and the effective-sample-size factor of an autocorrelated residual for the fits' confidence intervals."""
 from __future__ import annotations
 
 import math
@@ -10,7 +10,8 @@ import numpy as np
 __all__ = ["block_gain", "t_stat", "n_eff_factor"]
 
 
-def block_gain(r_s: np.ndarray, delta: np.ndarray, w: np.ndarray, blk: np.ndarray, n_blk: int):
+def block_gain(r_s: np.ndarray, delta: np.ndarray, w: np.ndarray, blk: np.ndarray, n_blk: int
+               ) -> tuple[np.ndarray, float]:
     """Per block the log-ratio ``l_b = log(SSE_S,b / SSE_S+c,b)`` of the weighted squared residual (scale-free, so
     blocks of fast reaches and slow exploration weigh alike), and the overall relative gain ``G``."""
     before = np.bincount(blk, weights=((r_s ** 2) * w).sum(axis=1), minlength=n_blk)
