@@ -11,7 +11,8 @@ from proprio.diagnosis.benchmark_case_data import rfma_like_motion
 from proprio.diagnosis.data import SimModel
 from proprio.diagnosis.patch import twin_patch
 from proprio.diagnosis.report import _tables
-from proprio.diagnosis.selection import ResidualStructure, attribute
+from proprio.diagnosis.residual import ResidualStructure
+from proprio.diagnosis.selection import attribute
 from proprio.diagnosis.verdict import data_and_processing_text, undecided_text
 from proprio.dynamics import inverse_dynamics
 from proprio.effects import EFFECTS

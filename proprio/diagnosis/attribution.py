@@ -67,7 +67,7 @@ class CrossValidation:
 class Superseded:
     """A physical effect the forward selection named at step ``step`` (1-based) that, in the context of the effects
     named with it (``context``), adds a held-out gain of only ``gain`` (< the minimum gain): a stand-in for them,
-    dropped by the backward check (module docstring, "Stand-ins")."""
+    dropped by the backward check (:mod:`proprio.diagnosis.selection`, "Stand-ins")."""
     name: str
     step: int
     gain: float
@@ -76,7 +76,7 @@ class Superseded:
 
 @dataclass
 class Attribution:
-    """Result of :func:`attribute`. ``fitted``: the selected candidates by name (their final parameters are the last
+    """Result of :func:`proprio.diagnosis.selection.attribute`. ``fitted``: the selected candidates by name (their final parameters are the last
     step's ``params``), for :func:`proprio.diagnosis.patch.twin_patch`. ``encoder``: the data's position-noise floor
     against the model's encoder noise (:mod:`proprio.diagnosis.encoder_floor`; a data-path comparison over all the
     recordings). ``undecided``: the physical candidate still leading, without significance, where the selection

@@ -80,13 +80,12 @@ from proprio.diagnosis.attribution import Attribution, CrossValidation, Step, Su
 from proprio.diagnosis.block_test import block_gain, n_eff_factor, t_stat
 from proprio.diagnosis.encoder_floor import encoder_floor
 from proprio.diagnosis.fitting import Fit, fit_candidates, predict_candidates
-from proprio.diagnosis.residual import (NoiseFinding, ResidualStructure, noise_findings, residual_structure,
-                                        split_by_recording)
+from proprio.diagnosis.residual import noise_findings, residual_structure, split_by_recording
 from proprio.diagnosis.hints import find_hints, shifted_joints
 from proprio.diagnosis.time_variation import TimeTrendNuisance, TimeVariation, time_variation
 from proprio.recording import Recording, validate_recording
 
-__all__ = ["Step", "Superseded", "NoiseFinding", "ResidualStructure", "CrossValidation", "Attribution", "attribute"]
+__all__ = ["attribute"]
 
 MAX_BLOCK_S = 2.0
 MAX_SUPERSEDED = 3
@@ -278,8 +277,9 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
             max_steps: int, say: Callable[[str], None], tv: TimeVariation,
             plugins: Sequence[str | type] = ()) -> Attribution:
     """The greedy forward selection on prepared training / held-out data with held-out block labels ``blk``, then
-    the backward check for stand-ins (module docstring, :func:`_drop_stand_ins`); ``tv``: the time-dependence test of the same data (when
-    detected: time-varying candidates offered, static ones fitted with the time-trend nuisance)."""
+    the backward check for stand-ins (module docstring, :func:`_drop_stand_ins`); ``tv``: the time-dependence test
+    of the same data (when detected: time-varying candidates offered, static ones fitted with the time-trend
+    nuisance)."""
     cands = candidate_set(model, train, candidates, plugins, time_varying=tv.detected)
     nuisance = [TimeTrendNuisance(train)] if tv.detected else []
 
