@@ -1,7 +1,7 @@
 """Learning-stack benchmarks: CPU training time per epoch for each architecture, and µs per sample of the streaming
 hybrid estimator in a Drake Diagram.
 
-    .venv/bin/python benchmarks/bench_learning.py [--samples 20000] [--epochs 2] [--steps 3000]
+    .venv/bin/python benchmarks/bench_learning.py [--samples 20000] [--epochs 2] [--steps 3000] [--trained M.pt ...]
 
 1. Training: synthetic 7-joint data at 75 Hz (``--samples`` samples, windows of T = 100; Transformer also T = 500),
    one torch thread, batch 32 windows; prints s/epoch and training samples/s per architecture (thesis sizes:
@@ -13,11 +13,15 @@ hybrid estimator in a Drake Diagram.
    sample for the full Diagram and for the replay + residual System alone. Target: ≤ 100 µs per sample on one core.
    Also: the estimation diagram ``proprio estimate`` builds for a hybrid ``.pt`` (C++ backbone, residual, Jacobian
    AND momentum observer, one logger), for reference; ``bench_online.py`` times it per configuration.
+3. ``--trained M.pt ...``: models saved by ``proprio train`` (their training history): epochs run, s/epoch, the time
+   to the saved (best) epoch — the time it took to reach the test figure printed beside it (the Table 5.3 cell the
+   run made) — on the threads it was trained with.
 """
 from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -32,7 +36,7 @@ from proprio.diagrams.estimation import RigidBodyTorqueModel, build_estimation_d
 from proprio.diagrams.hybrid_torque_model import HybridTorqueModel
 from proprio.learning.datasets import DataConfig, PreparedRecording, make_split
 from proprio.learning.features import feature_matrix, rotational_displacement
-from proprio.learning.models import ARCHS, HybridModel, ModelConfig
+from proprio.learning.models import ARCHS, HybridModel, ModelConfig, load_model
 from proprio.learning.training import TrainConfig, train_model
 from proprio.plant import build_plant
 from proprio.systems.observers import JacobianWrenchObserver, WrenchMap
@@ -166,12 +170,38 @@ def bench_streaming(steps: int) -> None:
           "µs/sample")
 
 
+def report_trained(paths: list[Path]) -> None:
+    """Per saved model: epochs, s/epoch, its best epoch (1-based, as ``proprio train`` prints it), the time to reach
+    it [min] and its test MSE [N·m²] (windowed and streaming, averaged over joints), from the history ``proprio
+    train`` stores in the file."""
+    print(f"{'model file':<28} {'epochs':>6} {'s/epoch':>8} {'best':>5} {'to best [min]':>14} {'test MSE':>9} "
+          f"{'streaming':>9}")
+    for path in paths:
+        model, extra = load_model(path)
+        hist = extra.get("history") or []
+        if not hist:
+            print(f"{str(path):<28} no training history in the file")
+            continue
+        best = int(extra.get("best_epoch", -1))
+        to_best = sum(h["seconds"] for h in hist if h["epoch"] <= best) / 60.0 if best >= 0 else float("nan")
+        mse = {name: float(np.mean(v["test"])) for name, v in extra.get("mse", {}).items()}
+        label = model.cfg.label()
+        print(f"{str(path):<28} {len(hist):>6} {np.mean([h['seconds'] for h in hist]):>8.2f} {best + 1:>5} "
+              f"{to_best:>14.1f} {mse.get(label, float('nan')):>9.4f} "
+              f"{mse.get(label + ' (streaming)', float('nan')):>9.4f}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", type=int, default=20000, help="training samples per epoch benchmark")
     parser.add_argument("--epochs", type=int, default=2, help="epochs timed per architecture")
     parser.add_argument("--steps", type=int, default=3000, help="Diagram steps timed")
+    parser.add_argument("--trained", nargs="+", type=Path, default=[], metavar="MODEL",
+                        help="saved models (.pt): report their training time to the best epoch, then stop")
     args = parser.parse_args()
+    if args.trained:
+        report_trained(args.trained)
+        return
     torch.set_num_threads(1)
     bench_streaming(args.steps)
     bench_training(args.samples, args.epochs)

@@ -1,6 +1,6 @@
 """Torque-sensor noise of the real KUKA LWR 4+ and the thesis' iiwa against the twins' configured noise.
 
-    .venv/bin/python benchmarks/noise_calibration.py [--band 5]
+    .venv/bin/python benchmarks/noise_calibration.py [--band 5] [--table53 REC.npz ...]
 
 What the LWR 4+ files (``../shared/data/kuka_lwr4/measurements_{1,2,3}.npz``, 200 Hz) can show: their τ went
 through a width-11 median filter and a zero-phase 6th-order 2 Hz Butterworth before it was saved (the data's
@@ -21,6 +21,12 @@ noise the real iiwa's τ leaves at the flange. The twins' white ``torque_noise``
 the Jacobian observer (:func:`jacobian_wrench`, f̂ = J⁻ᵀ(τ_dyn − τ_meas)) at a typical pose by Monte Carlo: the
 std of f̂ along x, y, z [N]. Calibration rule: at most half the thesis' figure on every axis (the other half is left
 to the model's error); the largest scale of the configured σ that meets it is printed.
+
+``--table53 REC.npz ...``: the irreducible floor of Table 5.3 on twin recordings (their ``truth__*`` channels,
+scoring only): the hybrid's target is τ low-passed at ``TARGET_HZ`` (zero phase, as ``train_hybrid_twin``), so the
+white torque noise that passes that filter is error no model can remove; the ripple that passes it is printed
+beside (a function of q, learnable in principle, but at ``h·N·q̇/2π`` it mostly lies above the filter). The floor
+is the MSE over samples and joints [N·m²], like the table's.
 """
 from __future__ import annotations
 
@@ -39,6 +45,7 @@ LWR = Path(__file__).resolve().parents[2] / "shared" / "data" / "kuka_lwr4"
 TREND_HZ, WHITE_BAND = 3.0, (10.0, 40.0)
 HOME = np.array([0.0, 0.5, 0.0, -1.2, 0.0, 0.8, 0.0])           # a typical working pose [rad]
 THESIS_0G = np.array([0.08, 0.09, 0.12])                          # Table 5.4, LSTM-2-FCL 500, 0 g, RMSE [N]
+TARGET_HZ = 5.0                                                   # train_hybrid_twin's tau_filter_hz
 
 
 def _load(i: int) -> dict[str, np.ndarray]:
@@ -93,11 +100,29 @@ def force_floor(desc: RobotDescription, sigma_band: np.ndarray, q: np.ndarray, n
     return wrench[:, :3].std(0)
 
 
+def table53_floor(path: Path) -> tuple[float, float]:
+    """``(noise, noise + ripple)``: the MSE [N·m²] of the twin recording's truth noise (and ripple) through the
+    hybrid target's ``TARGET_HZ`` zero-phase low-pass, over samples and joints."""
+    with np.load(path, allow_pickle=False) as d:
+        t, noise, ripple = d["t"], d["truth__tau_torque_noise"], d["truth__tau_ripple"]
+    rate = (len(t) - 1) / (t[-1] - t[0])
+    lp = lambda x: zero_phase_lowpass(x, rate, TARGET_HZ)  # noqa: E731
+    return float(np.mean(lp(noise) ** 2)), float(np.mean(lp(noise + ripple) ** 2))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--band", type=float, default=5.0, help="bandwidth the force estimate keeps [Hz]")
+    ap.add_argument("--table53", nargs="+", type=Path, default=[], metavar="REC",
+                    help="twin recordings (.npz with truth channels): print the Table 5.3 floor of each")
     args = ap.parse_args()
     fmt = lambda v, p=3: "[" + " ".join(f"{x:.{p}g}" for x in v) + "]"  # noqa: E731
+    for path in args.table53:
+        noise, both = table53_floor(path)
+        print(f"{path}: Table 5.3 floor (τ target low-passed at {TARGET_HZ:g} Hz) {noise:.4f} N·m² from the torque "
+              f"noise, {both:.4f} N·m² with the ripple")
+    if args.table53:
+        return
     psd, step = lwr_filter_floor()
     bound, dq, shift = same_trajectory_bound()
     gain = filter_chain_gain()

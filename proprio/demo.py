@@ -61,7 +61,7 @@ class DemoSize:
 
 
 FULL = DemoSize()
-QUICK = DemoSize(rfma_scaffolds=3, twin_seconds=15.0, excitation_speeds=(1.0, 0.8), payload_seconds=6.0,
+QUICK = DemoSize(rfma_scaffolds=3, twin_seconds=20.0, excitation_speeds=(1.0, 0.8), payload_seconds=6.0,
                  hybrid_epochs=3, hybrid_payload_seconds=6.0)
 
 

@@ -96,6 +96,18 @@ def test_a_recording_at_another_rate_is_decimated_or_rejected(tmp_path, desc):
     assert abs(sig["time_step"] - 0.013) < 0.02 * 0.013
 
 
+def test_a_twin_logs_at_a_rate_the_hybrid_reads(tmp_path, desc):
+    """The payload experiment's twin logs at ``log_rate``: unchanged where a whole decimation reaches the model rate,
+    else the rate of the hybrid's training recordings (1 kHz for a 75 Hz model trained at 150 Hz: 150 Hz)."""
+    hybrid = load_torque_model(_model_file(tmp_path, desc))
+    assert hybrid.rate_hz == pytest.approx(75.0) and DATA.decimate == 2
+    assert hybrid.log_rate(750.0) == 750.0 and hybrid.log_rate(150.0) == 150.0
+    assert hybrid.log_rate(1000.0) == pytest.approx(150.0)
+    with pytest.raises(RecordingError, match="model rate"):
+        hybrid.signals(_recording(desc, seconds=2.0, rate=1000.0))
+    hybrid.signals(_recording(desc, seconds=2.0, rate=hybrid.log_rate(1000.0)))
+
+
 def test_a_transformer_cannot_run_online(tmp_path, desc):
     with pytest.raises(ValueError, match="streaming"):
         load_torque_model(_model_file(tmp_path, desc, arch="transformer"))

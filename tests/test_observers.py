@@ -356,6 +356,27 @@ def test_payload_experiment_end_to_end_on_nominal_twin(rigid, nominal_twin, tmp_
     assert all(p.exists() and p.stat().st_size > 0 for p in exp.files)
 
 
+def test_force_only_rows_keep_the_gaps_of_the_log(rigid):
+    """A log with a gap (a 150 Hz log losing a burst of packets): the force-only rows are NaN there, like every
+    other per-sample value, and solved elsewhere (the solver's SVD used to fail on the NaN positions)."""
+    from proprio.diagrams.estimation import EstimationResult
+    from proprio.experiments.payload import _force_only
+
+    rng = np.random.default_rng(3)
+    n_s = 40
+    q = np.array([0.0, 0.5, 0.0, -1.2, 0.0, 0.8, 0.0]) + 0.05 * rng.standard_normal((n_s, 7))
+    tau_ext = rng.standard_normal((n_s, 7))
+    gap = np.zeros(n_s, dtype=bool)
+    gap[10:14] = True
+    res = EstimationResult(np.arange(n_s) / 150.0, q, {"jacobian": np.zeros((n_s, 6))}, {"jacobian": tau_ext},
+                           np.ones(n_s), np.zeros(n_s, dtype=bool), None, 0.0, 0.0, gap=gap)
+    f = _force_only(res, "jacobian", WrenchMapping(), rigid)
+    assert np.isnan(f[gap]).all() and np.isfinite(f[~gap]).all()
+    whole = EstimationResult(res.t, q, {"jacobian": np.zeros((n_s, 6))}, {"jacobian": tau_ext}, np.ones(n_s),
+                             np.zeros(n_s, dtype=bool), None, 0.0, 0.0)
+    np.testing.assert_allclose(f[~gap], _force_only(whole, "jacobian", WrenchMapping(), rigid)[~gap], atol=1e-12)
+
+
 @pytest.mark.parametrize("mapping", [WrenchMapping(), WrenchMapping(force_only=True),
                                      WrenchMapping(joint_weights=(1, 2, 3, 4, 5, 6, 7), contact_point=(0, 0, 0.1))])
 def test_single_sample_solver_equals_the_batched_one(rigid, mapping):

@@ -151,6 +151,43 @@ def test_rigid_body_patch_is_a_physical_robot_that_reproduces_the_correction(tmp
     assert rms(fixed) < 0.5 * rms(data.robot)
 
 
+def test_a_sensor_gain_fitted_beside_the_rigid_body_stays_a_few_percent():
+    """A common sensor gain and a common scale of the link inertials give the same torques: fitted together on a
+    rigid-body gap, least squares alone runs the gains to their ±0.5 bounds (a patch whose sensor reads half the
+    torque, which blew up the replay through the twin); the gain's prior (σ 0.1) keeps them near zero, and the
+    held-out prediction is the same."""
+    from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING, GapData, condition_all, kept
+    from proprio.diagnosis.fitting import fit_candidates, predict_candidates
+    from proprio.diagnosis.rigid_body_candidates import RigidBodyCandidate
+
+    d = generate_case_data(BenchmarkCase("rigid_body", ("rigid_body",), 1.0, 1, duration_s=6.0))
+    model = SimModel.from_names(d.robot, d.model_effects)
+    train, hold = (GapData.build(model, cond, [kept(c, 0.5) for c in cond], role)
+                   for cond, role in ((condition_all(d.train, DIAGNOSIS_CONDITIONING, "training"), "training"),
+                                      (condition_all(d.holdout, DIAGNOSIS_CONDITIONING, "holdout"), "holdout")))
+    w = 1.0 / (train.residual ** 2).mean(axis=0)
+    rigid = RigidBodyCandidate(model.robot, train)
+    gain = EffectCandidate("sensor_offset_gain", d.robot.n, ("gain",), "sensor_gain")
+    np.testing.assert_allclose(gain.prior_precision(), 1.0 / 0.1 ** 2)
+    out = []
+    for prior in (True, False):
+        if not prior:
+            gain.prior_precision = lambda: np.zeros(gain.n_params)          # the bare least squares
+        fit = fit_candidates([rigid, gain], train, w, {})
+        r = hold.residual - predict_candidates([rigid, gain], fit, hold)
+        out.append((np.abs(fit.thetas["sensor_gain"]).max(), 1.0 - (r ** 2).sum() / (hold.residual ** 2).sum()))
+    (g_prior, gain_prior), (g_bare, gain_bare) = out
+    assert g_bare > 0.4 and g_prior < 0.05, out
+    assert gain_prior > 0.9 and abs(gain_prior - gain_bare) < 0.01, out
+
+
+def test_replay_text_signs_a_growing_gap():
+    from proprio.diagnosis.replay import ReplayGap
+
+    grew = ReplayGap(["j1"], np.array([1.0]), np.array([5.0]), np.array([1.0]), np.array([0.2]), [])
+    assert "(RMS +400.0 %)" in grew.text() and "(RMS −80.0 %)" in grew.text() and "−-" not in grew.text()
+
+
 def test_withheld_effects_found_patched_and_replayed_through_the_twin(tmp_path):
     """Twin data with friction and sensor offsets the base twin lacks: the diagnosis finds them, the patch adds
     them, and the held-out gap through the patched twin falls to near the data's noise, as predicted offline."""

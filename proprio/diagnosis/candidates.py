@@ -59,6 +59,11 @@ class Candidate:
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         return -np.inf * np.ones(self.n_params), np.inf * np.ones(self.n_params)
 
+    def prior_precision(self) -> np.ndarray:
+        """``1/σ²`` of a zero-mean Gaussian prior per parameter for the linear fit (0: none; see
+        :attr:`proprio.effects.base.JointEffect.prior_std`)."""
+        return np.zeros(self.n_params)
+
     def joint_of_param(self, n: int) -> np.ndarray:
         """Joint each parameter acts on (-1: several joints) — used for the sparse finite-difference Jacobian."""
         return -np.ones(self.n_params, dtype=int)
@@ -175,6 +180,9 @@ class EffectCandidate(Candidate):
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         lo, hi = self.proto.bounds()
         return np.asarray(lo, dtype=float)[self._cols], np.asarray(hi, dtype=float)[self._cols]
+
+    def prior_precision(self) -> np.ndarray:
+        return self.proto.prior_precision()[self._cols]
 
     def joint_of_param(self, n: int) -> np.ndarray:
         return np.tile(np.arange(n), len(self._keys))

@@ -21,15 +21,22 @@ class Fit:
 
 
 def weighted_lstsq(a: np.ndarray, y: np.ndarray, w: np.ndarray,
-                   bounds: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+                   bounds: tuple[np.ndarray, np.ndarray] | None = None,
+                   precision: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Weighted LS of ``y [M,n] ≈ a [M,n,p] θ`` with joint weights ``w [n]`` by the normal equations of the
     column-scaled problem (eigen-decomposition, directions below 1e-10 of the largest dropped); returns θ and
-    (AᵀWA)⁺. ``bounds`` (lower, upper ``[p]``): when the unconstrained θ leaves them (a negative Coulomb level, a
-    negative mass), θ is the bounded LS solution instead (``scipy.optimize.lsq_linear``); the covariance stays the
-    unconstrained one."""
+    (AᵀWA + P)⁺. ``precision`` ``[p]``: the diagonal P of a zero-mean Gaussian prior (``1/σ²``, 0: none), added
+    as rows ``√P_i θ_i ≈ 0``. ``bounds`` (lower, upper ``[p]``): when the unconstrained θ leaves them (a negative
+    Coulomb level, a negative mass), θ is the bounded LS solution instead (``scipy.optimize.lsq_linear``); the
+    covariance stays the unconstrained one."""
     sw = np.sqrt(w)
     aw = (a * sw[None, :, None]).reshape(-1, a.shape[-1])
     yw = (y * sw[None, :]).reshape(-1)
+    if precision is not None and np.any(precision > 0):
+        rows = np.flatnonzero(precision > 0)
+        prior = np.zeros((rows.size, aw.shape[1]))
+        prior[np.arange(rows.size), rows] = np.sqrt(precision[rows])
+        aw, yw = np.vstack([aw, prior]), np.concatenate([yw, np.zeros(rows.size)])
     scale = np.linalg.norm(aw, axis=0)
     scale[scale == 0] = 1.0
     g = (aw.T @ aw) / np.outer(scale, scale)
@@ -176,13 +183,14 @@ def fit_candidates(cands: list[Candidate], data: GapData, w: np.ndarray, init: d
     nl = [c for c in cands if not c.linear]
     a = np.concatenate([c.cached_design(data) for c in lin], axis=-1) if lin else None
     bounds = tuple(np.concatenate(b) for b in zip(*(c.bounds() for c in lin))) if lin else None
+    precision = np.concatenate([c.prior_precision() for c in lin]) if lin else None
     thetas = {c.name: init.get(c.name, c.starts(data)[0]) for c in nl}
     torques = {c.name: c.torque(thetas[c.name], data) if c.name in init else np.zeros_like(e) for c in nl}
     cov: dict[str, np.ndarray] = {}
     for _ in range(sweeps if nl else 1):
         lin_pred = np.zeros_like(e)
         if lin:
-            beta, inv = weighted_lstsq(a, e - sum(torques.values(), np.zeros_like(e)), w, bounds)
+            beta, inv = weighted_lstsq(a, e - sum(torques.values(), np.zeros_like(e)), w, bounds, precision)
             lin_pred = a @ beta
             k = 0
             for c in lin:

@@ -82,6 +82,15 @@ class HybridTorqueModel:
         """The model's sample rate [Hz] (after the §4.4 decimation)."""
         return float(self.network.cfg.rate_hz)
 
+    def log_rate(self, rate_hz: float) -> float:
+        """A logging rate [Hz] this model can read: ``rate_hz`` when a whole decimation brings it to the model rate
+        (within 2 %, as :meth:`signals` requires), else the rate of the recordings it was trained on (its rate × its
+        config's ``decimate``, e.g. 75 Hz × 2 = 150 Hz for a 1 kHz twin that no whole step brings to 75 Hz)."""
+        k = max(1, int(round(rate_hz / self.rate_hz)))
+        if abs(rate_hz / k - self.rate_hz) <= _RATE_TOLERANCE * self.rate_hz:
+            return float(rate_hz)
+        return self.rate_hz * max(1, int(self.data.decimate))
+
     def tau_backbone(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """τ_RBD ``[N,n]`` [N·m] of the backbone: the network's τ_RBD input."""
         return inverse_dynamics(self.description, q, qd, qdd) + self.backbone.tau_int(q, qd, qdd)

@@ -53,7 +53,10 @@ class JointEffect(ABC):
 
     Subclasses declare ``parameters`` (fitted: name → (default, lower, upper); these form :meth:`vector`) and
     ``settings`` (fixed per-joint hyper-parameters: name → (default, lower, upper)). A lower bound of ``0.0`` is
-    inclusive; where a value must be strictly positive the lower bound is a tiny positive number.
+    inclusive; where a value must be strictly positive the lower bound is a tiny positive number. ``prior_std``
+    (parameter name → σ in its units) is a zero-mean Gaussian prior a linear fit adds (:meth:`prior_precision`): the
+    scale physics gives a parameter, which settles a direction the data cannot (a torque-sensor gain against the
+    rigid body's overall mass scale, whose torques are the same); with enough data it changes nothing.
     """
     name: ClassVar[str]
     place: ClassVar[str]                       # "motor" | "link" | "sensor"
@@ -61,6 +64,7 @@ class JointEffect(ABC):
     time_varying: ClassVar[bool] = False       # the torque depends on the session clock MotionSignals.t
     parameters: ClassVar[dict[str, tuple[float, float, float]]] = {}
     settings: ClassVar[dict[str, tuple[float, float, float]]] = {}
+    prior_std: ClassVar[dict[str, float]] = {}
 
     def __init__(self, n: int, **params: Any) -> None:
         self.n = int(n)
@@ -136,6 +140,11 @@ class JointEffect(ABC):
         lo = np.concatenate([np.full(self.n, spec[1]) for spec in self.parameters.values()] or [np.zeros(0)])
         hi = np.concatenate([np.full(self.n, spec[2]) for spec in self.parameters.values()] or [np.zeros(0)])
         return lo, hi
+
+    def prior_precision(self) -> np.ndarray:
+        """``1/σ²`` of the ``prior_std`` prior per entry of :meth:`vector` (0: no prior), in 1/(parameter unit)²."""
+        return np.concatenate([np.full(self.n, self.prior_std[k] ** -2.0 if k in self.prior_std else 0.0)
+                               for k in self.parameters] or [np.zeros(0)])
 
     @abstractmethod
     def torque(self, s: MotionSignals, rng: np.random.Generator | None = None) -> np.ndarray:

@@ -51,12 +51,15 @@ class Ripple(JointEffect):
 class SensorOffsetGain(JointEffect):
     """Torque-sensor offset and gain error: contribution ``g·τ + o`` (measured = (1+g)·τ + o).
 
-    Parameters ``offset`` o [N·m] and ``gain`` g [–] (relative); needs ``MotionSignals.tau``.
+    Parameters ``offset`` o [N·m] and ``gain`` g [–] (relative); needs ``MotionSignals.tau``. A gain error is a few
+    percent (prior σ 0.1): a fit that also corrects the rigid body cannot tell a common gain from a common mass
+    scale, and the prior keeps the scale in the rigid body instead of a sensor reading half the torque.
     """
     name = "sensor_offset_gain"
     place = "sensor"
     linear = True
     parameters = {"gain": (0.0, -0.5, 0.5), "offset": (0.0, -INF, INF)}
+    prior_std = {"gain": 0.1}
 
     def _tau(self, s: MotionSignals) -> np.ndarray:
         if s.tau is None:

@@ -142,10 +142,14 @@ _OBSERVER_ROWS = ("jacobian", "momentum", "jacobian force-only", "momentum force
 
 
 def _force_only(res: EstimationResult, obs: str, mapping: WrenchMapping, desc) -> np.ndarray:
-    """Force-only (3-D) estimate from an observer's τ̂_ext, with the same solver (no re-run of the diagram)."""
+    """Force-only (3-D) estimate from an observer's τ̂_ext, with the same solver (no re-run of the diagram); NaN
+    inside gaps of the log, like the result's other channels."""
     fo = dataclasses.replace(mapping, force_only=True)
-    jac = point_jacobian(desc, res.q, np.asarray(fo.contact_point, dtype=float))
-    return wrench_from_joint_torque(jac, res.tau_ext[obs], fo)[0]
+    out = np.full(res.wrench[obs].shape, np.nan)
+    ok = ~res.gap
+    jac = point_jacobian(desc, res.q[ok], np.asarray(fo.contact_point, dtype=float))
+    out[ok] = wrench_from_joint_torque(jac, res.tau_ext[obs][ok], fo)[0]
+    return out
 
 
 def _error(res: EstimationResult, row: str) -> np.ndarray:
@@ -219,7 +223,8 @@ def payload_experiment(model: str | Path | TorqueModel, out_dir: str | Path, sec
         seconds: duration of the RFMA validation trajectory [s]. masses: payloads [kg] (point masses at
             ``com_flange`` in the flange frame [m]). seed: seed of the RFMA trajectory (the same motion for every
             mass) and of the twin's sensor noise (``seed + k`` for the k-th mass). gain: momentum observer K_O [1/s].
-        twin_config: the twin (default: the calibrated ``iiwa14_twin``).
+        twin_config: the twin (default: the calibrated ``iiwa14_twin``); for a hybrid model it logs at a rate the
+            model reads (:meth:`~proprio.diagrams.hybrid_torque_model.HybridTorqueModel.log_rate`).
     """
     if not masses or not all(np.isfinite(m) and m >= 0 for m in masses):
         raise ValueError(f"masses must be a non-empty list of payload masses >= 0 kg, got {list(masses)}")
@@ -229,6 +234,8 @@ def payload_experiment(model: str | Path | TorqueModel, out_dir: str | Path, sec
     name = Path(model).name if isinstance(model, (str, Path)) and Path(model).suffix in (".npz", ".pt") else \
         getattr(torque_model, "name", torque_model.description.name)
     twin = load_twin_config(twin_config)
+    if hasattr(torque_model, "log_rate"):    # a hybrid reads recordings at a rate its own whole decimation reaches
+        twin = twin.with_logger(rate_hz=torque_model.log_rate(twin.logger.rate_hz))
     traj = validation_trajectory(seconds, seed=seed)
     out = Path(out_dir)
     results: dict[float, EstimationResult] = {}
