@@ -39,6 +39,7 @@ import scipy.signal
 from proprio.conditioning import zero_phase_lowpass
 from proprio.description import RobotDescription, load_robot
 from proprio.diagrams.twin_config import load_twin_config
+from proprio.recording import load_recording
 from proprio.systems.observers import WrenchMapping, jacobian_wrench
 
 LWR = Path(__file__).resolve().parents[2] / "shared" / "data" / "kuka_lwr4"
@@ -103,9 +104,9 @@ def force_floor(desc: RobotDescription, sigma_band: np.ndarray, q: np.ndarray, n
 def table53_floor(path: Path) -> tuple[float, float]:
     """``(noise, noise + ripple)``: the MSE [N·m²] of the twin recording's truth noise (and ripple) through the
     hybrid target's ``TARGET_HZ`` zero-phase low-pass, over samples and joints."""
-    with np.load(path, allow_pickle=False) as d:
-        t, noise, ripple = d["t"], d["truth__tau_torque_noise"], d["truth__tau_ripple"]
-    rate = (len(t) - 1) / (t[-1] - t[0])
+    rec = load_recording(path)
+    noise, ripple = rec.truth["tau_torque_noise"], rec.truth["tau_ripple"]
+    rate = (rec.n_samples - 1) / (rec.t[-1] - rec.t[0])      # the mean rate: a 150 Hz log alternates 6 and 7 ms steps
     lp = lambda x: zero_phase_lowpass(x, rate, TARGET_HZ)  # noqa: E731
     return float(np.mean(lp(noise) ** 2)), float(np.mean(lp(noise + ripple) ** 2))
 

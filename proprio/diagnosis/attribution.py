@@ -76,13 +76,13 @@ class Superseded:
 
 @dataclass
 class Attribution:
-    """Result of :func:`proprio.diagnosis.selection.attribute`. ``fitted``: the selected candidates by name (their final parameters are the last
-    step's ``params``), for :func:`proprio.diagnosis.patch.twin_patch`. ``encoder``: the data's position-noise floor
-    against the model's encoder noise (:mod:`proprio.diagnosis.encoder_floor`; a data-path comparison over all the
-    recordings). ``undecided``: the physical candidate still leading, without significance, where the selection
-    stopped (:class:`Undecided`); ``below_floor``: ``(name, gain, rms)`` of physical candidates that won a step with a
-    held-out torque (``rms`` N·m) within the processing error — not named, not filed as data path; ``superseded``: the
-    stand-ins the backward check dropped (:class:`Superseded`)."""
+    """Result of :func:`proprio.diagnosis.selection.attribute`. ``fitted``: the selected candidates by name (their
+    final parameters are the last step's ``params``), for :func:`proprio.diagnosis.patch.twin_patch`. ``encoder``:
+    the data's position-noise floor against the model's encoder noise (:mod:`proprio.diagnosis.encoder_floor`; a
+    data-path comparison over all the recordings). ``undecided``: the physical candidate still leading, without
+    significance, where the selection stopped (:class:`Undecided`); ``below_floor``: ``(name, gain, rms)`` of
+    physical candidates that won a step with a held-out torque (``rms`` N·m) within the processing error — not
+    named, not filed as data path; ``superseded``: the stand-ins the backward check dropped (:class:`Superseded`)."""
     joint_names: list[str]
     steps: list[Step]
     ranking: list[dict[str, Any]]

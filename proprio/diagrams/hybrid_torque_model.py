@@ -82,14 +82,18 @@ class HybridTorqueModel:
         """The model's sample rate [Hz] (after the §4.4 decimation)."""
         return float(self.network.cfg.rate_hz)
 
+    def decimation(self, rate_hz: float) -> tuple[int, bool]:
+        """``(k, ok)``: the whole decimation nearest to bringing ``rate_hz`` [Hz] to the model rate, and whether
+        ``rate_hz / k`` lies within 2 % of it."""
+        k = max(1, int(round(rate_hz / self.rate_hz)))
+        return k, abs(rate_hz / k - self.rate_hz) <= _RATE_TOLERANCE * self.rate_hz
+
     def log_rate(self, rate_hz: float) -> float:
         """A logging rate [Hz] this model can read: ``rate_hz`` when a whole decimation brings it to the model rate
-        (within 2 %, as :meth:`signals` requires), else the rate of the recordings it was trained on (its rate × its
-        config's ``decimate``, e.g. 75 Hz × 2 = 150 Hz for a 1 kHz twin that no whole step brings to 75 Hz)."""
-        k = max(1, int(round(rate_hz / self.rate_hz)))
-        if abs(rate_hz / k - self.rate_hz) <= _RATE_TOLERANCE * self.rate_hz:
-            return float(rate_hz)
-        return self.rate_hz * max(1, int(self.data.decimate))
+        (:meth:`decimation`, as :meth:`signals` requires), else the rate of the recordings it was trained on (its
+        rate × its config's ``decimate``, e.g. 75 Hz × 2 = 150 Hz for a 1 kHz twin that no whole step brings to
+        75 Hz)."""
+        return float(rate_hz) if self.decimation(rate_hz)[1] else self.rate_hz * max(1, int(self.data.decimate))
 
     def tau_backbone(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """τ_RBD ``[N,n]`` [N·m] of the backbone: the network's τ_RBD input."""
@@ -114,8 +118,8 @@ class HybridTorqueModel:
         cutoff). The conditioned grid's rate divided by a whole decimation factor must give the model rate within 2 % (e.g.
         1 kHz → every 13th sample for a 76.9 Hz model); raises :class:`RecordingError` otherwise."""
         cs, tau = condition_for_training(rec, self.data)
-        k = max(1, int(round(cs.rate_hz / self.rate_hz)))
-        if abs(cs.rate_hz / k - self.rate_hz) > _RATE_TOLERANCE * self.rate_hz:
+        k, ok = self.decimation(cs.rate_hz)
+        if not ok:
             raise RecordingError(f"recording: sampled at {cs.rate_hz:.4g} Hz, which no whole decimation brings to the "
                                  f"model rate {self.rate_hz:.4g} Hz (nearest: 1 sample in {k}, "
                                  f"{cs.rate_hz / k:.4g} Hz); resample the recording")
