@@ -306,3 +306,25 @@ def test_logger_jitter_dropouts_and_a_robot_reported_velocity(calibrated):
         TwinConfig.from_dict({**config_dict(), "logger": {"jitter_ms": 0.1}})
     with pytest.raises(TwinConfigError, match="stamp_jitter_ms"):
         calibrated.with_logger(stamp_jitter_ms=0.5)
+
+
+def test_the_shipped_twins_sensor_meets_its_calibration_rule():
+    """``iiwa14_twin``'s white torque noise and ripple, on Table 5.4's validation run logged at 150 Hz and τ inside the
+    hybrid's 5 Hz target band, cost together at most half the thesis' 0 g force error at the flange on every axis
+    (``benchmarks/noise_calibration.py``, README "Noise calibration"; 1.02: the ±2 % of its 8-draw Monte Carlo); the
+    same twin with twice the noise fails it."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "noise_calibration.py"
+    spec = importlib.util.spec_from_file_location("noise_calibration", path)
+    calib = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(calib)
+    twin = load_twin_config("iiwa14_twin")
+    noise, ripple = calib.sensor_force(twin, calib.TARGET_HZ, 150.0)
+    budget = calib.THESIS_0G / 2
+    assert np.all(np.hypot(noise, ripple) <= 1.02 * budget), (noise, ripple, budget)
+    assert np.all(ripple > 0) and np.all(noise > 0)
+    louder = twin.with_effects([e.with_vector(2 * e.vector()) if e.name == "torque_noise" else e for e in twin.effects])
+    noise2, _ = calib.sensor_force(louder, calib.TARGET_HZ, 150.0)
+    assert np.any(np.hypot(noise2, ripple) > budget), noise2

@@ -64,8 +64,9 @@ class TrainConfig:
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> "TrainConfig":
         cfg = section_from_dict(cls, d, "train")
-        if cfg.max_epochs < 1 or cfg.batch_size < 1:
-            raise ValueError("train: max_epochs and batch_size must be >= 1")
+        if cfg.max_epochs < 0 or cfg.batch_size < 1:
+            raise ValueError("train: max_epochs must be >= 0 (0: no epoch, the warm start or the backbone is scored "
+                             "and kept) and batch_size >= 1")
         if cfg.loss not in _LOSS_WEIGHT_POWER:
             raise ValueError(f"train: loss '{cfg.loss}' must be one of {sorted(_LOSS_WEIGHT_POWER)}")
         if cfg.device not in ("auto", "cpu", "cuda"):
