@@ -113,15 +113,16 @@ def test_demo_payload_table_sees_the_payload(demo_dir):
 
 
 def test_demo_hybrid_streams_like_it_trains(demo_dir):
-    """The hybrid model stepped sample by sample (streaming, state carried) is no more than 1 % worse than its batch
-    test MSE (it may be better: the README's Table 5.3 has streaming 3–21 % below windowed), the hybrid beats the RBD
-    (test MSE ≤ 0.6×, 0 g force RMSE lower on x, y, z), and the online estimation diagram's force error is finite and
-    of the RBD table's order."""
+    """The hybrid beats the RBD (test MSE ≤ 0.6×, windowed and streaming, 0 g force RMSE lower on x, y, z); stepped
+    sample by sample (streaming, state carried, what the estimation diagram runs) it is no more than 5 % worse than
+    its windowed test MSE (it may be better: the README's Table 5.3 has streaming 3–21 % below windowed; on single
+    6–60 s runs the demo's 0.7 s-window residual streams 0.1–2.5 % above it, README "The demo's hybrid"),
+    and the online estimation diagram's force error is finite and of the RBD table's order."""
     text = (demo_dir / "hybrid.txt").read_text()
     avg = {line.split("|")[0].strip(): float(line.split()[-1]) for line in text.splitlines()
            if line.startswith(("RBD ", "LSTM")) and "|" in line}
     batch, stream = (avg[k] for k in sorted(k for k in avg if k.startswith("LSTM")))
-    assert 0 < stream <= 1.01 * batch and batch <= 0.6 * avg["RBD"], avg
+    assert 0 < stream <= 1.05 * batch and max(batch, stream) <= 0.6 * avg["RBD"], avg
     forces = {line.split()[0]: np.array(re.search(r"\[([^\]]+)\]", line).group(1).split(), float)
               for line in text.splitlines() if re.match(r"(RBD|LSTM)\S*\s.*\s0 g\s", line)}
     assert np.all(forces["LSTM-2-FCL"] < forces["RBD"]), forces
