@@ -84,8 +84,9 @@ def _train(args: argparse.Namespace) -> int:
     if args.curve:
         from proprio.plots.experiments import plot_learning_curve
         print(f"learning curve: {plot_learning_curve(args.curve, result.history, result.backbone_val)}")
-    print(f"saved {args.out} (best epoch {result.best_epoch + 1} of {len(result.history)}, "
-          f"{result.seconds_per_epoch:.2f} s/epoch)")
+    trained = (f"best epoch {result.best_epoch + 1} of {len(result.history)}, {result.seconds_per_epoch:.2f} s/epoch"
+               if result.history else "max_epochs 0: no epoch trained, the start as scored on validation")
+    print(f"saved {args.out} ({trained})")
     return 0
 
 
