@@ -190,9 +190,10 @@ def _stage_hybrid(ctx: dict[str, Any], out: Path) -> list[Path]:
     with importlib.resources.as_file(importlib.resources.files("proprio.configs") / HYBRID_INIT) as init:
         model, text = demo_hybrid(train, [payload_recs["0 g"]], str(ctx["identified_model_path"]), out,
                                   epochs=size.hybrid_epochs, payload_recs=payload_recs, init=init)
-    tuned = (f"fine-tuned on the demo's {sum(r.duration for r in train):.0f} s for {size.hybrid_epochs} epochs"
-             if size.hybrid_epochs else f"kept per joint where it beats the backbone on the validation split of the "
-             f"demo's {sum(r.duration for r in train):.0f} s (no fine-tuning)")
+    seconds = sum(r.duration for r in train)
+    tuned = (f"fine-tuned on the demo's {seconds:.0f} s for {size.hybrid_epochs} epochs" if size.hybrid_epochs else
+             f"kept per joint where it beats the backbone on the validation split of the demo's {seconds:.0f} s "
+             "(no fine-tuning)")
     print(f"  hybrid {model.cfg.label()} on the identified RBD backbone: the residual pretrained on 41 min of RFMA "
           f"on this twin (proprio/configs/{HYBRID_INIT}) {tuned}; test = a separate RFMA run "
           f"({size.hybrid_payload_seconds:g} s, raw τ); "
