@@ -147,6 +147,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--band", type=float, default=TARGET_HZ, help="bandwidth the force estimate keeps [Hz]")
     ap.add_argument("--rate", type=float, default=150.0, help="log rate of Table 5.4's run [Hz]")
+    ap.add_argument("--seconds", type=float, default=30.0,
+                    help="duration of Table 5.4's run [s] (the rule's 30; the thesis' run lasted 563)")
     ap.add_argument("--table53", nargs="+", type=Path, default=[], metavar="REC",
                     help="twin recordings (.npz with truth channels): print the Table 5.3 floor of each")
     args = ap.parse_args()
@@ -177,12 +179,12 @@ def main() -> None:
         if noise is None and ripple is None:
             print(f"{name}: no torque_noise, no ripple (a noiseless sensor, quieter than any real one)")
             continue
-        n_rms, r_rms = sensor_force(twin, args.band, args.rate)
+        n_rms, r_rms = sensor_force(twin, args.band, args.rate, args.seconds)
         both = np.hypot(n_rms, r_rms)
         std = np.broadcast_to(np.asarray(noise.std if noise else 0.0, float), (twin.robot.n,))
         amp = np.hypot(ripple.sin_amplitude, ripple.cos_amplitude) if ripple else np.zeros(twin.robot.n)
         print(f"{name}: white σ {fmt(std)} N·m per sample, ripple amplitude {fmt(amp)} N·m; on Table 5.4's run "
-              f"({args.rate:g} Hz, τ inside {args.band:g} Hz) at the flange [N]: noise {fmt(n_rms)}, ripple "
+              f"({args.seconds:g} s at {args.rate:g} Hz, τ inside {args.band:g} Hz) at the flange [N]: noise {fmt(n_rms)}, ripple "
               f"{fmt(r_rms)}, together {fmt(both)}; largest common scale within the budget: "
               f"{np.min(THESIS_0G / 2 / both):.2f}")
 

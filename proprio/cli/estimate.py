@@ -126,7 +126,7 @@ def register(subparsers) -> None:
     p.add_argument("--model", default="iiwa14_identified", help=MODEL_HELP + " (default iiwa14_identified)")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--seconds", type=positive, default=30.0, help="duration of the validation trajectory [s] "
-                   "(default 30)")
+                   "(default 30; the thesis' Table 5.4 ran 563: 42260 samples at 75 Hz)")
     p.add_argument("--masses", type=nonnegative, nargs="+", default=[0.0, 0.5, 1.0], help="payload masses [kg] "
                    "(default 0 0.5 1)")
     p.add_argument("--seed", type=nonnegative_int, default=7, help="seed of the RFMA trajectory and the twin's noise")

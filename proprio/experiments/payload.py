@@ -39,7 +39,7 @@ from proprio.kinematics import point_jacobian
 from proprio.payload import Payload
 from proprio.recording import Recording, save_recording
 from proprio.conditioning import ConditioningConfig, zero_phase_lowpass
-from proprio.diagrams.twin import load_twin_config, simulate_twin
+from proprio.diagrams.twin import TwinConfig, load_twin_config, simulate_twin
 from proprio.diagrams.estimation import (DEFAULT_GAIN, OBSERVERS, EstimationResult, TorqueModel,
                                          conditioned_signals, estimate_wrench, load_torque_model)
 from proprio.systems.observers import WrenchMapping, wrench_from_joint_torque
@@ -53,19 +53,33 @@ THESIS_RBD = {0.0: ([1.53, 1.74, 1.93], [5.11, 5.85, 6.30]), 0.5: ([0.90, 0.83, 
 """Thesis Table 5.4, RBD model: mass [kg] → (RMSE [x y z], σ [x y z]) of the force error [N]."""
 
 
+_MAX_RFMA_TRIES = 4          # validation_trajectory: scaffold counts tried before giving up
+
+
 def validation_trajectory(seconds: float, seed: int = 7, scaffolds: int = 3,
                           waypoints: tuple[int, int] = (800, 1000), joint_margin_deg: float = 10.0
                           ) -> PiecewisePolynomial:
     """An RFMA trajectory (§4.3) cut to ``seconds`` [s], starting at the first scaffold (so that it does not begin
     in the stretched, singular home pose) and shifted to t = 0. Uses the shipped RFMA config with ``scaffolds``
-    scaffolds, shorter exploration phases (``waypoints``) and scaffolds ``joint_margin_deg`` inside the joint limits
+    scaffolds — more when those do not last ``seconds`` (the thesis' validation run is ≈ 9.4 min: 42260 samples at
+    75 Hz) — shorter exploration phases (``waypoints``) and scaffolds ``joint_margin_deg`` inside the joint limits
     (the elastic twin overshoots a 2° margin in fast reaches)."""
-    cfg = load_rfma_config(scaffolds=scaffolds, seed=seed, waypoints=waypoints,
-                           joint_margin=float(np.radians(joint_margin_deg)))
-    _, timed = generate_rfma(cfg)
-    traj = timed.trajectory
-    breaks = np.asarray(traj.get_segment_times())
-    t_start = float(timed.phase_times[1])
+    if not (np.isfinite(seconds) and seconds > 0):
+        raise ValueError(f"seconds must be a finite duration > 0 s, got {seconds}")
+    for _ in range(_MAX_RFMA_TRIES):
+        cfg = load_rfma_config(scaffolds=scaffolds, seed=seed, waypoints=waypoints,
+                               joint_margin=float(np.radians(joint_margin_deg)))
+        _, timed = generate_rfma(cfg)
+        traj = timed.trajectory
+        breaks = np.asarray(traj.get_segment_times())
+        t_start = float(timed.phase_times[1])
+        lasts = breaks[-1] - t_start
+        if lasts >= seconds:
+            break
+        scaffolds = int(np.ceil(1.2 * scaffolds * seconds / max(lasts, 1e-3))) + 1     # the motion grows ∝ scaffolds
+    else:
+        raise ValueError(f"validation_trajectory: {scaffolds} scaffolds still give only {lasts:.1f} s of motion, "
+                         f"{seconds:g} s asked")
     i0 = int(np.searchsorted(breaks, t_start - 1e-9))
     i1 = min(int(np.searchsorted(breaks, breaks[i0] + seconds - 1e-9)), len(breaks) - 1)
     sub = traj.slice(i0, max(i1 - i0, 1))
@@ -211,7 +225,8 @@ def payload_experiment(model: str | Path | TorqueModel, out_dir: str | Path, sec
                        masses: tuple[float, ...] = (0.0, 0.5, 1.0), seed: int = 7, gain: float = DEFAULT_GAIN,
                        mapping: WrenchMapping = WrenchMapping(),
                        conditioning: ConditioningConfig = ConditioningConfig(),
-                       twin_config: str = "iiwa14_twin", com_flange: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                       twin_config: str | TwinConfig = "iiwa14_twin",
+                       com_flange: tuple[float, float, float] = (0.0, 0.0, 0.0),
                        progress: bool = True, save_recordings: bool = False) -> PayloadExperiment:
     """Run the payload experiment and write ``table.txt``, ``stats.json``, ``payload_<g>g.png`` (f̂ vs truth) and
     ``payload_errors.png`` to ``out_dir``.
@@ -223,8 +238,9 @@ def payload_experiment(model: str | Path | TorqueModel, out_dir: str | Path, sec
         seconds: duration of the RFMA validation trajectory [s]. masses: payloads [kg] (point masses at
             ``com_flange`` in the flange frame [m]). seed: seed of the RFMA trajectory (the same motion for every
             mass) and of the twin's sensor noise (``seed + k`` for the k-th mass). gain: momentum observer K_O [1/s].
-        twin_config: the twin (default: the calibrated ``iiwa14_twin``); for a hybrid model it logs at a rate the
-            model reads (:meth:`~proprio.diagrams.hybrid_torque_model.HybridTorqueModel.log_rate`).
+        twin_config: the twin: a config name or YAML, or a :class:`TwinConfig` (default: the calibrated
+            ``iiwa14_twin``); for a hybrid model it logs at a rate the model reads
+            (:meth:`~proprio.diagrams.hybrid_torque_model.HybridTorqueModel.log_rate`).
     """
     if not masses or not all(np.isfinite(m) and m >= 0 for m in masses):
         raise ValueError(f"masses must be a non-empty list of payload masses >= 0 kg, got {list(masses)}")
@@ -233,7 +249,7 @@ def payload_experiment(model: str | Path | TorqueModel, out_dir: str | Path, sec
     torque_model = model if not isinstance(model, (str, Path)) else load_torque_model(model)
     name = Path(model).name if isinstance(model, (str, Path)) and Path(model).suffix in (".npz", ".pt") else \
         getattr(torque_model, "name", torque_model.description.name)
-    twin = load_twin_config(twin_config)
+    twin = twin_config if isinstance(twin_config, TwinConfig) else load_twin_config(twin_config)
     if hasattr(torque_model, "log_rate"):    # a hybrid reads recordings at a rate its own whole decimation reaches
         twin = twin.with_logger(rate_hz=torque_model.log_rate(twin.logger.rate_hz))
     traj = validation_trajectory(seconds, seed=seed)
