@@ -184,8 +184,8 @@ def main() -> None:
         std = np.broadcast_to(np.asarray(noise.std if noise else 0.0, float), (twin.robot.n,))
         amp = np.hypot(ripple.sin_amplitude, ripple.cos_amplitude) if ripple else np.zeros(twin.robot.n)
         print(f"{name}: white σ {fmt(std)} N·m per sample, ripple amplitude {fmt(amp)} N·m; on Table 5.4's run "
-              f"({args.seconds:g} s at {args.rate:g} Hz, τ inside {args.band:g} Hz) at the flange [N]: noise {fmt(n_rms)}, ripple "
-              f"{fmt(r_rms)}, together {fmt(both)}; largest common scale within the budget: "
+              f"({args.seconds:g} s at {args.rate:g} Hz, τ inside {args.band:g} Hz) at the flange [N]: noise "
+              f"{fmt(n_rms)}, ripple {fmt(r_rms)}, together {fmt(both)}; largest common scale within the budget: "
               f"{np.min(THESIS_0G / 2 / both):.2f}")
 
 

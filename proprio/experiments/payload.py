@@ -78,8 +78,8 @@ def validation_trajectory(seconds: float, seed: int = 7, scaffolds: int = 3,
             break
         scaffolds = int(np.ceil(1.2 * scaffolds * seconds / max(lasts, 1e-3))) + 1     # the motion grows ∝ scaffolds
     else:
-        raise ValueError(f"validation_trajectory: {scaffolds} scaffolds still give only {lasts:.1f} s of motion, "
-                         f"{seconds:g} s asked")
+        raise ValueError(f"validation_trajectory: RFMA gives only {lasts:.1f} s of motion after {_MAX_RFMA_TRIES} "
+                         f"scaffold counts, {seconds:g} s asked")
     i0 = int(np.searchsorted(breaks, t_start - 1e-9))
     i1 = min(int(np.searchsorted(breaks, breaks[i0] + seconds - 1e-9)), len(breaks) - 1)
     sub = traj.slice(i0, max(i1 - i0, 1))
