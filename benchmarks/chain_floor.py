@@ -63,7 +63,7 @@ def exact_torque(model: SimModel, s: MotionSignals, s_sensor: MotionSignals | No
     body + link effects), read through the twin's own sensor (:class:`TorqueSensor`: the gauge effects, then the gain
     on what the gauge sees, as the twin applies them); with ``s_sensor`` the sensor laws read that motion (the true
     one) instead, the link-side torque still from ``s``."""
-    link, _ = model.predict_parts(s)
+    link = SimModel(model.robot, tuple(e for e in model.effects if e.place != "sensor")).predict(s)
     sensor = TorqueSensor([e for e in model.effects if e.place == "sensor"])
     return sensor.measure(s if s_sensor is None else s_sensor, link, np.random.default_rng(0))[0]
 

@@ -1,39 +1,24 @@
 """The floor of Table 5.4 through the hybrid's signal chain (``benchmarks/chain_floor.py``, README "Hybrid models on
 the twin"): the twin's exact model, told only the conditioned measured channels, is what its laws allow; lost motion
 is the effect that keeps it above the thesis' 0.1 N."""
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
 import torch
-import yaml
 
 from proprio.description import load_robot
 from proprio.diagrams.hybrid_torque_model import HybridTorqueModel
 from proprio.diagrams.torque_model import RigidBodyTorqueModel
 from proprio.diagrams.twin import load_twin_config
-from proprio.learning.datasets import DataConfig
+from proprio.experiments.hybrid import load_config
 from proprio.learning.features import feature_matrix, rotational_displacement
 from proprio.learning.models import HybridModel, ModelConfig
 from proprio.recording import load_recording
 from proprio.signals import MotionSignals
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _chain_floor():
-    spec = importlib.util.spec_from_file_location("chain_floor", ROOT / "benchmarks" / "chain_floor.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def _twin_recipe_chain() -> HybridTorqueModel:
     """A hybrid with ``train_hybrid_twin``'s signal chain (q and τ in the 5 Hz band, 75 Hz model rate) and a zero
     residual: its network plays no part in the exact model's figures, only its chain does."""
-    with open(ROOT / "proprio" / "configs" / "train_hybrid_twin.yaml") as f:
-        data = DataConfig.from_dict(yaml.safe_load(f)["data"])
+    data = load_config("train_hybrid_twin").data
     desc = load_robot("iiwa14_identified")
     torch.manual_seed(0)
     net = HybridModel(ModelConfig(arch="lstm2_fcl", lstm_hidden=8, rate_hz=75.0))
@@ -44,9 +29,9 @@ def _twin_recipe_chain() -> HybridTorqueModel:
 
 
 @pytest.fixture(scope="module")
-def floor_runs(tmp_path_factory):
+def floor_runs(tmp_path_factory, benchmark_module):
     """Table 5.4's 0 g run (30 s, seed 7) on the calibrated twin and on the same twin without lost motion."""
-    cf = _chain_floor()
+    cf = benchmark_module("chain_floor")
     hyb = _twin_recipe_chain()
     twin = load_twin_config("iiwa14_twin")
     runs = {}

@@ -308,18 +308,12 @@ def test_logger_jitter_dropouts_and_a_robot_reported_velocity(calibrated):
         calibrated.with_logger(stamp_jitter_ms=0.5)
 
 
-def test_the_shipped_twins_sensor_meets_its_calibration_rule():
+def test_the_shipped_twins_sensor_meets_its_calibration_rule(benchmark_module):
     """``iiwa14_twin``'s white torque noise and ripple, on Table 5.4's validation run logged at 150 Hz and τ inside the
     hybrid's 5 Hz target band, cost together at most half the thesis' 0 g force error at the flange on every axis
     (``benchmarks/noise_calibration.py``, README "Noise calibration"; 1.02: the ±2 % of its 8-draw Monte Carlo); the
     same twin with twice the noise fails it."""
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "noise_calibration.py"
-    spec = importlib.util.spec_from_file_location("noise_calibration", path)
-    calib = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(calib)
+    calib = benchmark_module("noise_calibration")
     twin = load_twin_config("iiwa14_twin")
     noise, ripple = calib.sensor_force(twin, calib.TARGET_HZ, 150.0)
     budget = calib.THESIS_0G / 2
