@@ -34,7 +34,7 @@ MDH_TOP_KEYS = ("format", "name", "provenance", "gravity_world", "mdh", "limits"
 MDH_TABLE_KEYS = ("alpha", "alpha_deg", "a", "d", "theta_offset", "theta_offset_deg", "flange_d")
 MDH_LIMIT_KEYS = ("position", "position_deg", "lower", "lower_deg", "upper", "upper_deg", "velocity",
                   "velocity_deg_s", "effort", "acceleration")
-URDF_REF_KEYS = ("format", "name", "urdf", "base_link", "tip_link", "flange_xyz")
+URDF_REF_KEYS = ("format", "name", "urdf", "base_link", "tip_link", "flange_xyz", "drive")
 # ... and the documentation keys every mapping may carry and the loader ignores (robot-numbers/v1 of
 # ../shared/data/kuka_lwr4/robot.yaml: units, conventions, notes, alternative parameter sets, source friction)
 DOC_KEYS = ("units", "conventions", "note", "notes", "comment", "source", "alternatives",

@@ -74,7 +74,11 @@ def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescri
 
 def _robot_from_urdf_ref(data: dict, source: str) -> RobotDescription:
     """``proprio-urdf/v1``: a URDF file (relative to this YAML) with the chain's ``base_link``/``tip_link`` for
-    URDFs where it is ambiguous, and an optional ``flange_xyz`` [m] tool offset."""
+    URDFs where it is ambiguous, an optional ``flange_xyz`` [m] tool offset, and an optional ``drive`` block
+    (:mod:`proprio.drive_description`, as in ``proprio-robot/v1``) for what the URDF cannot say: ``tau_kind``
+    (required there: a URDF never says what τ is), the coupling, torque constants, motor friction, offsets. Its keys
+    win over the URDF's own transmissions and armature (``gear_ratio``, ``rotor_inertia``), which fill in the keys it
+    leaves out, so a current-sensed arm with ``<transmission>`` reductions needs only ``drive: {tau_kind: drive}``."""
     check_keys(data, URDF_REF_KEYS, source, DOC_KEYS)
     if "urdf" not in data:
         raise DescriptionError(f"{source}: proprio-urdf/v1 needs 'urdf' (a file, relative to this YAML)")
@@ -83,7 +87,17 @@ def _robot_from_urdf_ref(data: dict, source: str) -> RobotDescription:
         raise DescriptionError(f"{source}:urdf: {path} not found")
     opt = {k: str(data[k]) for k in ("base_link", "tip_link") if k in data}
     desc = robot_from_urdf(path, flange_xyz=_vec(data, "flange_xyz", source, default=(0.0, 0.0, 0.0)), **opt)
-    return dataclasses.replace(desc, name=str(data.get("name", desc.name)))
+    desc = dataclasses.replace(desc, name=str(data.get("name", desc.name)))
+    if data.get("drive") is None:
+        return desc
+    drive = data["drive"]
+    if not isinstance(drive, dict):
+        raise DescriptionError(f"{source}:drive: expected a mapping (tau_kind, gear_ratio, coupling, ...)")
+    if "tau_kind" not in drive:
+        raise DescriptionError(f"{source}:drive.tau_kind: required (link_sensor: a joint-torque sensor behind the "
+                               "gear; drive: a drive torque from motor currents) — a URDF does not say what τ is")
+    from_urdf = {k: list(getattr(desc.drive, k)) for k in ("gear_ratio", "rotor_inertia")} if desc.drive else {}
+    return dataclasses.replace(desc, drive=_parse_drive({"drive": {**from_urdf, **drive}}, desc.n, source))
 
 
 def robot_from_urdf(path: str | Path, base_link: str | None = None, tip_link: str | None = None,
