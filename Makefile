@@ -1,4 +1,5 @@
 # The two set-up commands: `make demo` and `make test`. Both create/reuse .venv and install what they need.
+# `make docs` builds the documentation site (docs/, mkdocs.yml) in strict mode; `make test` builds it too (tests/test_docs.py).
 # `make test` runs every module, command and demo stage on reduced sizes and every notebook, on every core
 # (pytest-xdist, one test module or notebook per worker at a time: module fixtures such as the demo are built once;
 # the longest modules first, tests/conftest.py LONGEST_FIRST, so the short ones fill in behind them);
@@ -21,7 +22,7 @@ PYTEST := MPLBACKEND=Agg OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREAD
           --no-loadscope-reorder --reruns 2 --only-rerun "Kernel died"
 LAB_ROOT  := $(if $(filter 0,$(shell id -u)),--allow-root,)   # containers often run as root
 
-.PHONY: demo test test-all venv clean benchmarks lab cuda-torch
+.PHONY: demo test test-all venv clean benchmarks lab cuda-torch docs
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -49,6 +50,11 @@ test-all: $(STAMP)
 	$(VENV)/bin/lint-imports
 	$(PYTEST) --full
 
+# the documentation site (mkdocs.yml, docs/) into site/, strict: a broken link, anchor or API reference fails the
+# build; tests/test_docs.py builds it under `make test` too
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict
+
 benchmarks: $(STAMP)
 	for f in benchmarks/bench_*.py; do echo "== $$f"; OPENBLAS_NUM_THREADS=1 $(PY) $$f || exit 1; done
 
@@ -62,4 +68,4 @@ cuda-torch: $(STAMP)
 	$(PY) -c "import torch; print('torch', torch.__version__, 'CUDA', torch.version.cuda, 'GPU available:', torch.cuda.is_available()); assert torch.version.cuda, 'got a CPU build: set TORCH_INDEX'"
 
 clean:
-	rm -rf $(VENV) demo_output .pytest_cache
+	rm -rf $(VENV) demo_output .pytest_cache site
