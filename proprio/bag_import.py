@@ -56,7 +56,8 @@ def is_bag(path: str | Path) -> bool:
 @dataclass
 class _Stream:
     """The messages of one topic, flattened: per message its stamp [ns] and receive time [ns]; per (message, joint)
-    entry the message index, the name and the values (NaN where the message has no such field)."""
+    entry the message index, the name, the values (NaN where the message leaves the field empty, as ROS allows) and
+    ``given[field]``, whether the message filled that field."""
     stamp: np.ndarray
     received: np.ndarray
     msg: np.ndarray
@@ -64,6 +65,7 @@ class _Stream:
     position: np.ndarray
     velocity: np.ndarray
     effort: np.ndarray
+    given: dict[str, np.ndarray]
     frame: str = ""
 
 
@@ -133,6 +135,7 @@ def _read_stream(reader: Any, topic: str, src: str, joint_state: bool) -> _Strea
     vectorised)."""
     conns = [c for c in reader.connections if c.topic == topic]
     stamps, received, msg_idx, names, pos, vel, eff = [], [], [], [], [], [], []
+    given: dict[str, list[np.ndarray]] = {"position": [], "velocity": [], "effort": []}
     frame = ""
     for k, (conn, t_recv, raw) in enumerate(reader.messages(connections=conns)):
         m = reader.deserialize(raw, conn.msgtype)
@@ -148,15 +151,17 @@ def _read_stream(reader: Any, topic: str, src: str, joint_state: bool) -> _Strea
             pos.append(_values(m, "position", count, where))
             vel.append(_values(m, "velocity", count, where))
             eff.append(_values(m, "effort", count, where))
+            for field, parts in given.items():
+                parts.append(np.full(count, len(getattr(m, field)) > 0))
         else:
             w = m.wrench
             pos.append(np.array([w.force.x, w.force.y, w.force.z, w.torque.x, w.torque.y, w.torque.z], dtype=float))
             frame = frame or str(m.header.frame_id)
-    cat = (lambda parts: np.concatenate(parts)) if joint_state else (lambda parts: np.stack(parts))
     return _Stream(stamp=np.asarray(stamps, dtype=np.int64), received=np.asarray(received, dtype=np.int64),
                    msg=np.concatenate(msg_idx) if joint_state else np.arange(len(stamps)), names=names,
-                   position=cat(pos), velocity=np.concatenate(vel) if vel else np.empty(0),
-                   effort=np.concatenate(eff) if eff else np.empty(0), frame=frame)
+                   position=np.concatenate(pos) if joint_state else np.stack(pos), velocity=np.concatenate(vel) if vel else np.empty(0),
+                   effort=np.concatenate(eff) if eff else np.empty(0),
+                   given={k: np.concatenate(v) for k, v in given.items() if v}, frame=frame)
 
 
 def _time_base(s: _Stream, what: str, notes: list[str]) -> tuple[np.ndarray, str]:
@@ -203,16 +208,16 @@ def _merge_joints(s: _Stream, t_msg: np.ndarray, robot: RobotDescription, src: s
     count = np.zeros(shape)
     np.add.at(count, (row, col), 1.0)
     chans: dict[str, np.ndarray] = {}
-    for name, values in (("q", s.position), ("tau", s.effort), ("qd", s.velocity)):
-        v = values[keep]
-        total, seen = np.zeros(shape), np.zeros(shape)
-        ok = np.isfinite(v)
-        np.add.at(total, (row[ok], col[ok]), v[ok])
-        np.add.at(seen, (row[ok], col[ok]), 1.0)
-        bad = ~np.isfinite(v) & (v == v)                 # ±inf in the bag is an error, NaN = field left empty
+    for name, field in (("q", "position"), ("tau", "effort"), ("qd", "velocity")):
+        v, ok = getattr(s, field)[keep], s.given[field][keep]
+        bad = ok & ~np.isfinite(v)                       # a NaN/inf the robot logged (an empty field is no value)
         if bad.any():
             i = int(np.argmax(bad))
-            raise _fail(f"{where}: message {int(msg[i])}: joint {robot.joint_names[col[i]]!r} {name} is {v[i]}")
+            raise _fail(f"{where}: message {int(msg[i])}: joint {robot.joint_names[col[i]]!r} {field} is {v[i]} "
+                        f"({int(bad.sum())} non-finite value(s))")
+        total, seen = np.zeros(shape), np.zeros(shape)
+        np.add.at(total, (row[ok], col[ok]), v[ok])
+        np.add.at(seen, (row[ok], col[ok]), 1.0)
         with np.errstate(invalid="ignore", divide="ignore"):
             chans[name] = np.where(seen > 0, total / np.maximum(seen, 1.0), np.nan)
         chans[name + "_seen"] = seen

@@ -217,7 +217,11 @@ def test_empty_topic_missing_joint_and_wrong_values(tmp_path, lwr_slice):
     nan = Recording(t=short.t, q=short.q.copy(), tau=short.tau.copy(), qd=short.qd)
     nan.q[7, 2] = np.inf
     bag = write_bag(tmp_path / "n", "sqlite3", nan, list(robot.joint_names))
-    with pytest.raises(LogImportError, match="joint 'lwr_2_joint' q is inf"):
+    with pytest.raises(LogImportError, match="message 7: joint 'lwr_2_joint' position is inf"):
+        import_bag(bag, robot, topic="/joint_states")
+    nan.q[7, 2], nan.tau[9, 0] = 0.5, np.nan
+    bag = write_bag(tmp_path / "nan", "ros1", nan, list(robot.joint_names))
+    with pytest.raises(LogImportError, match="message 9: joint 'lwr_0_joint' effort is nan"):
         import_bag(bag, robot, topic="/joint_states")
     deg = Recording(t=short.t, q=np.degrees(short.q) + 100.0, tau=short.tau, qd=short.qd)
     bag = write_bag(tmp_path / "d", "ros1", deg, list(robot.joint_names))
