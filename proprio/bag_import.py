@@ -36,21 +36,13 @@ import numpy as np
 
 from proprio.description import RobotDescription
 from proprio.importer import TAU_KINDS, LogImportError
-from proprio.recording import Recording, validate_recording
+from proprio.recording import Recording, is_bag, validate_recording
 
-__all__ = ["import_bag", "BAG_SUFFIXES", "is_bag", "JOINT_STATE", "WRENCH_STAMPED"]
+__all__ = ["import_bag", "JOINT_STATE", "WRENCH_STAMPED"]
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
 WRENCH_STAMPED = "geometry_msgs/msg/WrenchStamped"
-BAG_SUFFIXES = (".bag", ".mcap", ".db3")
 _NS = 1_000_000_000
-
-
-def is_bag(path: str | Path) -> bool:
-    """True for what :func:`import_bag` reads: a ``.bag``/``.mcap``/``.db3`` file or a folder with ``metadata.yaml``
-    (a ROS 2 bag)."""
-    p = Path(path)
-    return p.suffix.lower() in BAG_SUFFIXES or (p.is_dir() and (p / "metadata.yaml").exists())
 
 
 @dataclass

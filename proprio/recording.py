@@ -36,7 +36,7 @@ from proprio.io import atomic_path
 
 __all__ = ["Recording", "RecordingError", "save_recording", "load_recording", "validate_recording",
            "recording_from_csv", "merge_duplicate_stamps", "load_lwr4", "is_lwr4_file", "LWR4_KEYS",
-           "check_plausible", "PLAUSIBLE_LIMIT_FACTOR"]
+           "check_plausible", "PLAUSIBLE_LIMIT_FACTOR", "is_bag", "BAG_SUFFIXES"]
 
 TRUTH_PREFIX = "truth__"
 LWR4_KEYS = frozenset({"times", "positions", "torques"})   # FloBaRoID's measurement layout
@@ -44,6 +44,7 @@ _OPTIONAL = ("qd", "qdd", "f_ext")
 TEXT_LOG_SUFFIXES = (".csv", ".txt", ".tsv", ".dat")
 IMPORT_HINT = ("convert it with `proprio import MAPPING.yaml --out REC.npz` (a mapping says which columns are q, τ, "
                "units, gear ratios; example: proprio/configs/import_tx40.yaml)")
+BAG_SUFFIXES = (".bag", ".mcap", ".db3")   # what proprio.bag_import reads (and ROS 2 bag folders)
 PLAUSIBLE_LIMIT_FACTOR = 3.0
 """Measured ``|τ|`` / ``|q̇|`` above this multiple of the robot's effort / velocity limit are refused (module
 docstring): a drive's peak torque may exceed its rated limit, but not several times over."""
@@ -51,6 +52,13 @@ docstring): a drive's peak torque may exceed its rated limit, but not several ti
 
 class RecordingError(ValueError):
     """A Recording (or a file meant to be one) is invalid; the message names the offending field."""
+
+
+def is_bag(path: str | Path) -> bool:
+    """True for what :func:`proprio.bag_import.import_bag` reads: a ``.bag``/``.mcap``/``.db3`` file or a folder
+    with ``metadata.yaml`` (a ROS 2 bag)."""
+    p = Path(path)
+    return p.suffix.lower() in BAG_SUFFIXES or (p.is_dir() and (p / "metadata.yaml").exists())
 
 
 @dataclass
@@ -244,6 +252,9 @@ def load_recording(path: str | Path, robot: RobotDescription | None = None) -> R
         raise RecordingError(f"{path}: no such file")
     if path.suffix.lower() in TEXT_LOG_SUFFIXES:
         raise RecordingError(f"{path}: a text log, not a Recording (.npz); {IMPORT_HINT}")
+    if is_bag(path):
+        raise RecordingError(f"{path}: a ROS bag, not a Recording (.npz); convert it with `proprio import {path} "
+                             "--robot R --out REC.npz`")
     try:
         with np.load(path, allow_pickle=False) as z:
             files = set(z.files)

@@ -327,3 +327,11 @@ def test_tx40_urdf_with_drive_identifies_and_diagnoses_a_drive_torque_bag(tmp_pa
     result = json.loads((tmp_path / "diag" / "diagnosis.json").read_text())
     assert result["robot"] == "tx40_urdf"
     assert result["ranking"][0]["name"] == "viscous_coulomb" and result["ranking"][0]["gain"] > 0.5, result["ranking"][0]
+
+
+def test_stages_given_a_bag_say_how_to_convert_it(tmp_path, lwr_slice, capsys):
+    bag, _, _ = _small(tmp_path, lwr_slice)
+    for target in (bag, next(bag.glob("*.mcap"))):
+        assert main(["inspect", str(target)]) == 2
+        err = capsys.readouterr().err
+        assert "a ROS bag, not a Recording (.npz); convert it with `proprio import" in err, err

@@ -14,9 +14,9 @@ __all__ = ["register"]
 
 
 def _import(args: argparse.Namespace) -> int:
-    from proprio.bag_import import import_bag, is_bag
+    from proprio.bag_import import import_bag
     from proprio.importer import import_recording, load_mapping
-    from proprio.recording import save_recording, validate_recording
+    from proprio.recording import is_bag, save_recording, validate_recording
 
     out = Path(args.out)
     if out.suffix != ".npz":
