@@ -28,6 +28,7 @@ LWR_DIR = SHARED / "data" / "kuka_lwr4"
 TX40_DIR = SHARED / "data" / "staubli_tx40"
 TX40_URDF = TX40_DIR / "tx40_mdh_modified.urdf"
 CONTAINERS = ("mcap", "sqlite3", "ros1")
+SYNTH_ROBOT = "iiwa14_nominal"
 T0_NS = 1_700_000_000_123_456_789          # a wall-clock epoch as a robot's clock gives it
 TX40_DRIVE = {"tau_kind": "drive", "gear_ratio": [32.0, 32.0, 45.0, -48.0, 45.0, 32.0],
               "coupling": [[32, 0, 0, 0, 0, 0], [0, 32, 0, 0, 0, 0], [0, 0, 45, 0, 0, 0], [0, 0, 0, -48, 0, 0],
@@ -108,6 +109,17 @@ def lwr_slice() -> tuple[Recording, object]:
 
 
 @pytest.fixture(scope="module")
+def synth() -> tuple[Recording, object]:
+    """A smooth 7-joint motion of the shipped iiwa 14 (2 s at 100 Hz): the behaviour tests run without ../shared."""
+    robot = load_robot(SYNTH_ROBOT)
+    t = np.arange(200) * 0.01
+    phase = np.linspace(0.0, 2.0, robot.n)
+    q = 0.3 * np.sin(np.pi * t[:, None] + phase)
+    return Recording(t=t, q=q, tau=5.0 * np.cos(np.pi * t[:, None] + phase), qd=0.3 * np.pi * np.cos(
+        np.pi * t[:, None] + phase)), robot
+
+
+@pytest.fixture(scope="module")
 def tx40_rec() -> Recording:
     if not TX40_DIR.exists():
         pytest.skip(f"real TX40 data not found at {TX40_DIR}")
@@ -159,8 +171,8 @@ def test_tx40_in_every_container_through_the_cli(tmp_path, tx40_rec, tx40_robot,
     assert got.meta["tau_kind"] == "drive" and got.meta["import"]["wrench_frame"] == "tool0"
 
 
-def test_partial_messages_merge_by_stamp_and_receive_time_is_only_a_fallback(tmp_path, lwr_slice):
-    src, robot = lwr_slice
+def test_partial_messages_merge_by_stamp_and_receive_time_is_only_a_fallback(tmp_path, synth):
+    src, robot = synth
     src = src.slice(0, 200)
     bag = write_bag(tmp_path / "nostamp", "mcap", src, list(robot.joint_names), split=True, zero_stamps=True)
     got = import_bag(bag, robot, topic="/joint_states")
@@ -170,16 +182,16 @@ def test_partial_messages_merge_by_stamp_and_receive_time_is_only_a_fallback(tmp
     assert 1e-6 < np.max(np.abs(got.t - (src.t - src.t[0]))) < 3e-3       # the transport's lag, not the stamps
 
 
-def test_tau_kind_flag_and_description(tmp_path, lwr_slice):
-    src, robot = lwr_slice
+def test_tau_kind_flag_and_description(tmp_path, synth):
+    src, robot = synth
     bag = write_bag(tmp_path / "k", "mcap", src.slice(0, 50), list(robot.joint_names))
     assert import_bag(bag, robot, topic="/joint_states", tau_kind="drive").meta["tau_kind"] == "drive"
     with pytest.raises(LogImportError, match="tau_kind: must be one of"):
         import_bag(bag, robot, topic="/joint_states", tau_kind="current")
 
 
-def _small(tmp_path, lwr_slice, container="mcap", **kw):
-    src, robot = lwr_slice
+def _small(tmp_path, synth, container="mcap", **kw):
+    src, robot = synth
     return write_bag(tmp_path / "b", container, src.slice(0, 40), list(robot.joint_names), **kw), robot, src
 
 
@@ -191,11 +203,11 @@ def _small(tmp_path, lwr_slice, container="mcap", **kw):
      "--wrench-topic /gripper/joint_states: carries sensor_msgs/msg/JointState, not geometry_msgs/msg/WrenchStamped"),
     ([], "several sensor_msgs/msg/JointState topics"),
 ])
-def test_hostile_topics_are_one_line_errors(tmp_path, lwr_slice, capsys, args, message):
-    src, robot = lwr_slice
+def test_hostile_topics_are_one_line_errors(tmp_path, synth, capsys, args, message):
+    src, robot = synth
     bag = write_bag(tmp_path / "b", "mcap", src.slice(0, 20), list(robot.joint_names), wrench=np.zeros((20, 6)))
     out = tmp_path / "o.npz"
-    assert main(["import", str(bag), "--robot", str(LWR_DIR), "--out", str(out), *args]) == 2
+    assert main(["import", str(bag), "--robot", SYNTH_ROBOT, "--out", str(out), *args]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and err.startswith("proprio: error:")
     import re
@@ -203,8 +215,8 @@ def test_hostile_topics_are_one_line_errors(tmp_path, lwr_slice, capsys, args, m
     assert not out.exists()
 
 
-def test_empty_topic_missing_joint_and_wrong_values(tmp_path, lwr_slice):
-    src, robot = lwr_slice
+def test_empty_topic_missing_joint_and_wrong_values(tmp_path, synth):
+    src, robot = synth
     ts = get_typestore(Stores.ROS2_HUMBLE)
     with Writer2(tmp_path / "empty", version=9, storage_plugin=StoragePlugin.MCAP) as w:
         w.add_connection("/joint_states", JOINT_STATE, typestore=ts)
@@ -212,16 +224,16 @@ def test_empty_topic_missing_joint_and_wrong_values(tmp_path, lwr_slice):
         import_bag(tmp_path / "empty", robot)
     short = src.slice(0, 30)
     bag = write_bag(tmp_path / "m", "mcap", short, ["other_joint"] + list(robot.joint_names[1:]))
-    with pytest.raises(LogImportError, match=r"joint\(s\) \['lwr_0_joint'\] of robot .* are in no message"):
+    with pytest.raises(LogImportError, match=r"joint\(s\) \['iiwa_joint_1'\] of robot .* are in no message"):
         import_bag(bag, robot, topic="/joint_states")
     nan = Recording(t=short.t, q=short.q.copy(), tau=short.tau.copy(), qd=short.qd)
     nan.q[7, 2] = np.inf
     bag = write_bag(tmp_path / "n", "sqlite3", nan, list(robot.joint_names))
-    with pytest.raises(LogImportError, match="message 7: joint 'lwr_2_joint' position is inf"):
+    with pytest.raises(LogImportError, match="message 7: joint 'iiwa_joint_3' position is inf"):
         import_bag(bag, robot, topic="/joint_states")
     nan.q[7, 2], nan.tau[9, 0] = 0.5, np.nan
     bag = write_bag(tmp_path / "nan", "ros1", nan, list(robot.joint_names))
-    with pytest.raises(LogImportError, match="message 9: joint 'lwr_0_joint' effort is nan"):
+    with pytest.raises(LogImportError, match="message 9: joint 'iiwa_joint_1' effort is nan"):
         import_bag(bag, robot, topic="/joint_states")
     deg = Recording(t=short.t, q=np.degrees(short.q) + 100.0, tau=short.tau, qd=short.qd)
     bag = write_bag(tmp_path / "d", "ros1", deg, list(robot.joint_names))
@@ -229,8 +241,8 @@ def test_empty_topic_missing_joint_and_wrong_values(tmp_path, lwr_slice):
         import_bag(bag, robot, topic="/joint_states")
 
 
-def test_backwards_and_repeated_stamps(tmp_path, lwr_slice):
-    src, robot = lwr_slice
+def test_backwards_and_repeated_stamps(tmp_path, synth):
+    src, robot = synth
     short = src.slice(0, 30)
     t = short.t.copy()
     t[10] = t[8]                              # joint states stamped before the previous one
@@ -246,14 +258,14 @@ def test_backwards_and_repeated_stamps(tmp_path, lwr_slice):
 
 
 @pytest.mark.parametrize("container", CONTAINERS)
-def test_truncated_and_foreign_files_are_one_line_errors(tmp_path, lwr_slice, capsys, container):
-    bag, robot, _ = _small(tmp_path, lwr_slice, container)
+def test_truncated_and_foreign_files_are_one_line_errors(tmp_path, synth, capsys, container):
+    bag, robot, _ = _small(tmp_path, synth, container)
     files = [bag] if bag.is_file() else [next(f for f in bag.iterdir() if f.suffix in (".mcap", ".db3"))]
     data = files[0].read_bytes()
     files[0].write_bytes(data[: len(data) // 2])
     target = bag if container != "mcap" else files[0]
     out = tmp_path / "o.npz"
-    assert main(["import", str(target), "--robot", str(LWR_DIR), "--topic", "/joint_states", "--out", str(out)]) == 2
+    assert main(["import", str(target), "--robot", SYNTH_ROBOT, "--topic", "/joint_states", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("proprio: error:") and err.count("\n") == 0 and "cannot read the bag" in err, err
     junk = tmp_path / "junk.bag"
@@ -262,14 +274,14 @@ def test_truncated_and_foreign_files_are_one_line_errors(tmp_path, lwr_slice, ca
         import_bag(junk, robot)
 
 
-def test_cli_refuses_what_a_bag_does_not_take(tmp_path, lwr_slice, capsys):
-    bag, _, _ = _small(tmp_path, lwr_slice)
+def test_cli_refuses_what_a_bag_does_not_take(tmp_path, synth, capsys):
+    bag, _, _ = _small(tmp_path, synth)
     out = str(tmp_path / "o.npz")
     assert main(["import", str(bag), "--out", out]) == 2
     assert "give --robot" in capsys.readouterr().err
     csv = tmp_path / "log.csv"
     csv.write_text("1,2\n")
-    assert main(["import", str(csv), "--robot", str(LWR_DIR), "--out", out]) == 2
+    assert main(["import", str(csv), "--robot", SYNTH_ROBOT, "--out", out]) == 2
     assert "read through a mapping YAML" in capsys.readouterr().err
 
 
@@ -329,8 +341,8 @@ def test_tx40_urdf_with_drive_identifies_and_diagnoses_a_drive_torque_bag(tmp_pa
     assert result["ranking"][0]["name"] == "viscous_coulomb" and result["ranking"][0]["gain"] > 0.5, result["ranking"][0]
 
 
-def test_stages_given_a_bag_say_how_to_convert_it(tmp_path, lwr_slice, capsys):
-    bag, _, _ = _small(tmp_path, lwr_slice)
+def test_stages_given_a_bag_say_how_to_convert_it(tmp_path, synth, capsys):
+    bag, _, _ = _small(tmp_path, synth)
     for target in (bag, next(bag.glob("*.mcap"))):
         assert main(["inspect", str(target)]) == 2
         err = capsys.readouterr().err
