@@ -24,7 +24,7 @@ def pytest_addoption(parser: pytest.Parser) -> None:
 
 
 # The longest test modules and notebooks (CPU seconds of `make test`'s reduced sizes, measured one file at a time:
-# the README's Tests section), longest first. pytest-xdist (--dist loadscope --no-loadscope-reorder) hands the modules
+# docs/development/history.md), longest first. pytest-xdist (--dist loadscope --no-loadscope-reorder) hands the modules
 # to the workers in collection order, so these start first and the many short modules fill in behind them (longest
 # processing time first); xdist's default order, by number of tests, started the demo's seven tests last.
 LONGEST_FIRST = ("test_demo.py", "test_ambiguity.py", "test_parallel.py", "test_gap.py", "06_gap_diagnosis.ipynb",
