@@ -8,7 +8,7 @@ A :class:`RobotDescription` is a serial chain of revolute joints. Frames follow 
   rotated by ``com_rpy`` from the link frame, stored as ``(ixx, iyy, izz, ixy, ixz, iyz)``.
 * Angles are radians everywhere except where a key ends in ``_deg`` (converted here, at the boundary).
 
-The YAML layout (``format: proprio-robot/v1``) is documented in ``README.md`` and is a superset of the
+The YAML layout (``format: proprio-robot/v1``) is documented in ``docs/guide/robots.md`` and is a superset of the
 ``robot-numbers/v1`` layout of ``../shared/data/kuka_lwr4/robot.yaml``, so that file loads directly.
 
 The package's modules: :mod:`~proprio.description.model` (the dataclasses), :mod:`~proprio.description.fields` (the
