@@ -379,6 +379,23 @@ def test_coupled_drive_equals_the_python_implicit_step(monkeypatch):
     assert np.max(np.abs(ref.truth["qdd"] @ off)) > 0.05            # the coupled rotor inertia acts on this motion
 
 
+def test_coupled_drive_with_a_python_friction_stage():
+    """A link-side effect the compiled friction cannot trace (pre-sliding friction, here at level 0) puts the Python
+    JointDrive in the coupled drive's friction stage: the same coupled motor friction and rotor inertia, so the same
+    motion and τ as the compiled stage (1e-9 as above)."""
+    from proprio.diagrams.twin import build_twin_diagram, load_twin_config, simulate_twin
+    from proprio.effects import PreSliding
+    from proprio.systems.joint_drive import JointDrive
+
+    config = load_twin_config("staubli_tx40_twin")
+    python_stage = config.with_effects([*config.effects, PreSliding(6, level=np.zeros(6))])
+    motion = _tx40_motion(0.2)
+    assert isinstance(build_twin_diagram(python_stage, motion).drive.GetSubsystemByName("friction"), JointDrive)
+    rec, ref = simulate_twin(python_stage, motion, progress=False), simulate_twin(config, motion, progress=False)
+    assert np.max(np.abs(rec.tau - ref.tau)) < 1e-9
+    assert np.max(np.abs(rec.truth["qdd"] - ref.truth["qdd"])) < 1e-9
+
+
 def test_coupled_drive_needs_a_rigid_twin_and_the_tx40_twin_runs(tmp_path, capsys):
     from proprio.cli import main
     from proprio.diagrams.twin import TwinConfig, TwinConfigError

@@ -12,7 +12,7 @@ Three Systems implement it with one law (:class:`DriveLaw`: what the drive does 
   the friction stage above, Drake's compiled ``InverseDynamics`` for the bias, and one thin Python System
   (:class:`CoupledRotorInertia`) for the one thing no compiled primitive of the pip wheel does, the solve with the
   configuration-dependent ``M(q) + CᵀI_aC`` (:func:`coupled_actuation`); ≈ 20 µs per step (the TX40 twin: 34 µs
-  per 0.1 ms step, 17 µs with its coupling dropped; the all-Python implicit step before: 44 µs);
+  per 0.1 ms step, 17 µs with its coupling dropped, ``benchmarks/bench_twin.py --coupled``);
 * :class:`JointDrive` — one Python ``LeafSystem`` for everything else (elastic, pre-sliding, time-varying or
   user-plugin link effects), vectorised over joints (≈ 25 µs per step):
 
