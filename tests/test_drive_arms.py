@@ -324,10 +324,10 @@ def test_twin_simulates_the_coupled_drive_exactly():
     assert np.max(np.abs(coupled_friction)) > 1.0                      # and motor 6's friction on q̇₅ + q̇₆
 
 
-def _python_coupled_drive(builder, n, link, motor, elastic, dt, session_time_s=0.0, drive_offset=None,
-                          coupling=None, model_plant=None):
-    """Reference for the test below: the coupled drive as one Python System per step (the twin's drive before issue
-    37), written out plainly: friction with numpy, bias and mass matrix of ``model_plant``, ``np.linalg.solve``."""
+def _python_coupled_drive(n, link, motor, coupling, model_plant, time_step, session_time_s, drive_offset):
+    """Reference for the test below, called as :class:`~proprio.systems.joint_drive.CoupledDrive`: the coupled drive
+    as one Python System per step (the twin's drive before issue 37), written out plainly: friction with numpy, bias
+    and mass matrix of ``model_plant``, ``np.linalg.solve``."""
     from pydrake.multibody.tree import MultibodyForces
     from pydrake.systems.framework import LeafSystem
 
@@ -351,10 +351,7 @@ def _python_coupled_drive(builder, n, link, motor, elastic, dt, session_time_s=0
             qdd = np.linalg.solve(model_plant.CalcMassMatrix(self.ctx) + self._off, f - bias)
             output.SetFromVector(f - self._off @ qdd)
 
-    assert elastic is None and coupling is not None
-    drive = builder.AddSystem(Reference())
-    drive.set_name("joint_drive")
-    return drive
+    return Reference()
 
 
 def test_coupled_drive_equals_the_python_implicit_step(monkeypatch):
@@ -362,15 +359,16 @@ def test_coupled_drive_equals_the_python_implicit_step(monkeypatch):
     solve with ``M(q) + CᵀI_aC``) moves the arm and senses τ as the all-Python implicit step does. The algebra is the
     same; only the floating-point order differs (symbolic friction, Cholesky instead of LU): ~3e-11 N·m and rad/s² on
     τ and q̈ of ~100 over 4 000 steps, so 1e-9 has 30× room; a coupled inertia 0.1 % off moves τ by 2e-3 N·m."""
-    import proprio.diagrams.twin as twin
-    from proprio.systems.joint_drive import CoupledDrive
+    from proprio.diagrams.twin import build_twin_diagram, load_twin_config, simulate_twin
+    from proprio.systems import joint_drive
 
-    config = twin.load_twin_config("staubli_tx40_twin")
+    config = load_twin_config("staubli_tx40_twin")
     motion = _tx40_motion()
-    assert isinstance(twin.build_twin_diagram(config, motion).drive, CoupledDrive)
-    rec = twin.simulate_twin(config, motion, progress=False)
-    monkeypatch.setattr(twin, "AddJointDrive", _python_coupled_drive)
-    ref = twin.simulate_twin(config, motion, progress=False)
+    assert isinstance(build_twin_diagram(config, motion).drive, joint_drive.CoupledDrive)
+    rec = simulate_twin(config, motion, progress=False)
+    monkeypatch.setattr(joint_drive, "CoupledDrive", _python_coupled_drive)
+    assert type(build_twin_diagram(config, motion).drive).__name__ == "Reference"
+    ref = simulate_twin(config, motion, progress=False)
     assert np.max(np.abs(rec.tau - ref.tau)) < 1e-9
     for key in ("q_true", "qd", "qdd"):
         assert np.max(np.abs(rec.truth[key] - ref.truth[key])) < 1e-9, key
