@@ -4,11 +4,17 @@ and the calibration check of issue 4 (identified-style RBD model vs. twin data, 
     .venv/bin/python benchmarks/bench_twin.py                          # 6-scaffold RFMA (~200 s of motion)
     .venv/bin/python benchmarks/bench_twin.py --scaffolds 150          # the full ≈1 h path (slow)
     .venv/bin/python benchmarks/bench_twin.py --trajectory FILE.npz    # any 'proprio trajectory rfma' file
+    .venv/bin/python benchmarks/bench_twin.py --coupled                # only the coupled-drive twin (TX40), below
 
 Prints: simulated seconds, wall seconds (simulation loop and sensor/truth post-processing separately), real-time
 factor, µs per 1 ms step, the projection to a 3600 s path, and per-joint MSE [N·m²] of ``τ_RBD + F_v q̇ + F_c
 sign(q̇)`` (true inertials and friction of the twin's robot, true q̇/q̈) against the measured τ_J — raw and with the
 white noise removed — beside the thesis' RBD test row.
+
+``--coupled`` prints instead the coupled-drive twin's figure (:func:`coupled_drive`): ``staubli_tx40_twin`` (motor 6
+turns with joints 5 and 6: rotor inertia ``CᵀI_aC`` off the diagonal, solved implicitly each 0.1 ms step) on a
+seeded 10 s path, its real-time factor by CPU time, and the same arm and path with the coupling dropped (diagonal
+rotor inertia, every per-step System compiled) as the same-run reference.
 """
 from __future__ import annotations
 
@@ -32,13 +38,40 @@ def rfma(scaffolds: int, seed: int, path: str | None):
     return generate_rfma(load_rfma_config(scaffolds=scaffolds, seed=seed))[1].trajectory
 
 
+def coupled_drive(seed: int, seconds: float = 10.0) -> None:
+    """Real-time factor by CPU of the coupled-drive twin (``staubli_tx40_twin``) on a smooth seeded path of
+    ``seconds`` [s] (knots every 1 s, ±0.4 rad around mid-range), beside the same twin with its coupling dropped."""
+    import dataclasses
+
+    from pydrake.trajectories import PiecewisePolynomial
+
+    config = load_twin_config("staubli_tx40_twin")
+    desc = config.robot
+    knots = (desc.lower + desc.upper) / 2 + np.random.default_rng(seed).uniform(-0.4, 0.4, (int(seconds) + 1, desc.n))
+    traj = PiecewisePolynomial.CubicShapePreserving(np.arange(knots.shape[0], dtype=float), knots.T, True)
+    print(f"coupled-drive twin {config.name}: {seconds:.0f} s path at a {config.time_step * 1e3:g} ms step; load "
+          f"average at start {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    rows = {}
+    for label, cfg in (("coupled drive (CᵀI_aC implicit)", config),
+                       ("reference: coupling dropped", dataclasses.replace(config, motor_coupling=None))):
+        rec = simulate_twin(cfg, traj, progress=False)
+        rows[label] = rec.duration / rec.meta["sim_cpu_s"]
+        step_us = rec.meta["sim_cpu_s"] / rec.duration * config.time_step * 1e6
+        print(f"  {label:34} {rows[label]:6.2f}x real time by CPU ({step_us:.1f} us per step)")
+    coupled, reference = rows.values()
+    print(f"  coupled / reference: {coupled / reference:.2f}x")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--twin", default="iiwa14_twin")
     ap.add_argument("--scaffolds", type=int, default=6)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--trajectory", default=None)
+    ap.add_argument("--coupled", action="store_true", help="only the coupled-drive twin's real-time factor")
     args = ap.parse_args()
+    if args.coupled:
+        return coupled_drive(args.seed)
 
     traj = rfma(args.scaffolds, args.seed, args.trajectory)
     config = load_twin_config(args.twin)

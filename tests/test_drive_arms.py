@@ -324,6 +324,76 @@ def test_twin_simulates_the_coupled_drive_exactly():
     assert np.max(np.abs(coupled_friction)) > 1.0                      # and motor 6's friction on q̇₅ + q̇₆
 
 
+def _python_coupled_drive(n, link, motor, coupling, model_plant, time_step, session_time_s, drive_offset):
+    """Reference for the test below, called as :class:`~proprio.systems.joint_drive.CoupledDrive`: the coupled drive
+    as one Python System per step (the twin's drive before issue 37), written out plainly: friction with numpy, bias
+    and mass matrix of ``model_plant``, ``np.linalg.solve``."""
+    from pydrake.multibody.tree import MultibodyForces
+    from pydrake.systems.framework import LeafSystem
+
+    from proprio.systems.joint_drive import DriveLaw
+
+    class Reference(DriveLaw, LeafSystem):
+        def __init__(self):
+            LeafSystem.__init__(self)
+            self._set_law(n, link, motor, None, session_time_s, drive_offset, coupling)
+            self.ctx, self.forces = model_plant.CreateDefaultContext(), MultibodyForces(model_plant)
+            self.tau_m = self.DeclareVectorInputPort("motor_torque", n)
+            self.x = self.DeclareVectorInputPort("link_state", 2 * n)
+            self.DeclareVectorOutputPort("actuation", n, self.calc)
+
+        def calc(self, context, output):
+            x = self.x.Eval(context)
+            f = self.tau_m.Eval(context) - self.motor_friction(x[n:]) - sum(e.friction(x[n:]) for e in link)
+            model_plant.SetPositionsAndVelocities(self.ctx, x)
+            model_plant.CalcForceElementsContribution(self.ctx, self.forces)
+            bias = model_plant.CalcInverseDynamics(self.ctx, np.zeros(n), self.forces)
+            qdd = np.linalg.solve(model_plant.CalcMassMatrix(self.ctx) + self._off, f - bias)
+            output.SetFromVector(f - self._off @ qdd)
+
+    return Reference()
+
+
+def test_coupled_drive_equals_the_python_implicit_step(monkeypatch):
+    """The TX40 twin at its 0.1 ms step: the coupled drive (compiled friction and bias, one thin Python System for the
+    solve with ``M(q) + CᵀI_aC``) moves the arm and senses τ as the all-Python implicit step does. The algebra is the
+    same; only the floating-point order differs (symbolic friction, Cholesky instead of LU): ~3e-11 N·m and rad/s² on
+    τ and q̈ of ~100 over 4 000 steps, so 1e-9 has 30× room; a coupled inertia 0.1 % off moves τ by 2e-3 N·m."""
+    from proprio.diagrams.twin import build_twin_diagram, load_twin_config, simulate_twin
+    from proprio.systems import joint_drive
+
+    config = load_twin_config("staubli_tx40_twin")
+    motion = _tx40_motion()
+    assert isinstance(build_twin_diagram(config, motion).drive, joint_drive.CoupledDrive)
+    rec = simulate_twin(config, motion, progress=False)
+    monkeypatch.setattr(joint_drive, "CoupledDrive", _python_coupled_drive)
+    assert type(build_twin_diagram(config, motion).drive).__name__ == "Reference"
+    ref = simulate_twin(config, motion, progress=False)
+    assert np.max(np.abs(rec.tau - ref.tau)) < 1e-9
+    for key in ("q_true", "qd", "qdd"):
+        assert np.max(np.abs(rec.truth[key] - ref.truth[key])) < 1e-9, key
+    c, ia = config.motor_coupling, config.motor.motor_inertia
+    off = c.T @ (ia[:, None] * c) - np.diag(np.diag(c.T @ (ia[:, None] * c)))
+    assert np.max(np.abs(ref.truth["qdd"] @ off)) > 0.05            # the coupled rotor inertia acts on this motion
+
+
+def test_coupled_drive_with_a_python_friction_stage():
+    """A link-side effect the compiled friction cannot trace (pre-sliding friction, here at level 0) puts the Python
+    JointDrive in the coupled drive's friction stage: the same coupled motor friction and rotor inertia, so the same
+    motion and τ as the compiled stage (1e-9 as above)."""
+    from proprio.diagrams.twin import build_twin_diagram, load_twin_config, simulate_twin
+    from proprio.effects import PreSliding
+    from proprio.systems.joint_drive import JointDrive
+
+    config = load_twin_config("staubli_tx40_twin")
+    python_stage = config.with_effects([*config.effects, PreSliding(6, level=np.zeros(6))])
+    motion = _tx40_motion(0.2)
+    assert isinstance(build_twin_diagram(python_stage, motion).drive.GetSubsystemByName("friction"), JointDrive)
+    rec, ref = simulate_twin(python_stage, motion, progress=False), simulate_twin(config, motion, progress=False)
+    assert np.max(np.abs(rec.tau - ref.tau)) < 1e-9
+    assert np.max(np.abs(rec.truth["qdd"] - ref.truth["qdd"])) < 1e-9
+
+
 def test_coupled_drive_needs_a_rigid_twin_and_the_tx40_twin_runs(tmp_path, capsys):
     from proprio.cli import main
     from proprio.diagrams.twin import TwinConfig, TwinConfigError

@@ -1,13 +1,19 @@
 """The joint drive: motor torque command → torque acting on the links, with the motor side (motor inertia and
 friction, series elasticity: hidden behind the torque sensor) and the link-side friction (visible in τ_J).
 
-Two Systems implement it with one law (:class:`DriveLaw`: what the drive does to the sensed torque), chosen by
+Three Systems implement it with one law (:class:`DriveLaw`: what the drive does to the sensed torque), chosen by
 :func:`AddJointDrive`:
 
-* :class:`FrictionDrive` — the common case (rigid, uncoupled, link-side friction on q̇ alone: every shipped iiwa twin):
-  Drake C++ systems evaluating the effects' own friction code, traced once into symbolic expressions
-  (``actuation = τ_m − τ_f,m(q̇) − τ_f,link(q̇)``); ≈ 5 µs per step;
-* :class:`JointDrive` — one Python ``LeafSystem`` for everything else (elastic, coupled, pre-sliding, time-varying or
+* :class:`FrictionDrive` — the common case (rigid, link-side friction on q̇ alone: every shipped iiwa twin): Drake C++
+  systems evaluating the effects' own friction code, traced once into symbolic expressions
+  (``actuation = τ_m − τ_f,m − τ_f,link(q̇)``, the motor's friction on the motor velocities ``C q̇`` when coupled);
+  ≈ 5 µs per step;
+* :class:`CoupledDrive` — a rigid drive whose coupled motors put rotor inertia off the diagonal (the TX40's wrist):
+  the friction stage above, Drake's compiled ``InverseDynamics`` for the bias, and one thin Python System
+  (:class:`CoupledRotorInertia`) for the one thing no compiled primitive of the pip wheel does, the solve with the
+  configuration-dependent ``M(q) + CᵀI_aC`` (:func:`coupled_actuation`); ≈ 20 µs per step (the TX40 twin: 34 µs
+  per 0.1 ms step, 17 µs with its coupling dropped, ``benchmarks/bench_twin.py --coupled``);
+* :class:`JointDrive` — one Python ``LeafSystem`` for everything else (elastic, pre-sliding, time-varying or
   user-plugin link effects), vectorised over joints (≈ 25 µs per step):
 
 * **rigid drive** (no ``elasticity`` effect): θ = q. The reflected motor inertia B of the :class:`Motor` (the
@@ -44,12 +50,16 @@ offsets ``τ_0``; O below).
 the joints see the rotor inertia ``CᵀI_aC`` and the motor friction ``Cᵀτ_f,m(C q̇)``. Drake's rotor inertia is per
 actuator (a diagonal term of the mass matrix; Drake has no coupled-actuator mechanism), so the plant carries the
 diagonal ``D = diag(CᵀI_aC)`` and the drive the off-diagonal rest ``O = CᵀI_aC − D``, *implicitly*: an explicit
-``−O q̈`` from the last step would lag by one step (an error ~``O·dt·dq̈/dt``) and can be unstable. Each step the drive
-solves the arm's full dynamics at the step's state with a continuous copy of the plant (``model_plant``: same URDF,
-payload and diagonal rotor inertia): ``q̈* = (M(q) + D + O)⁻¹(τ_m − τ_f − b(q, q̇))``, ``b = ID(q, q̇, 0)`` with gravity,
-and applies ``u = τ_m − τ_f − O q̈*``. The discrete plant (TAMSI, no contact) then steps ``(M + D) q̈ = u − b`` with
-the same M and b, so its q̈ is q̈* exactly: the twin moves as the arm with ``M + CᵀI_aC`` (tests: τ equals the
-regressor's drive law to 1e-9 N·m). A coupled drive must be rigid (no ``elasticity``).
+``−O q̈`` from the last step would lag by one step (an error ~``O·dt·dq̈/dt``: all compiled, that way the TX40 twin
+runs 1.8× faster but its τ moves by up to 1.3 N·m on a fast 0.4 s motion) and can be unstable. Each step the
+:class:`CoupledDrive` solves the arm's full dynamics at the step's state with a continuous copy of the plant
+(``model_plant``: same URDF, payload and diagonal rotor inertia): ``q̈* = (M(q) + D + O)⁻¹(τ_m − τ_f − b(q, q̇))``,
+``b = ID(q, q̇, 0)`` with gravity (Drake's ``InverseDynamics`` System), and applies ``u = τ_m − τ_f − O q̈*``. The
+discrete plant (TAMSI, no contact) then steps ``(M + D) q̈ = u − b`` with the same M and b, so its q̈ is q̈* exactly:
+the twin moves as the arm with ``M + CᵀI_aC`` (tests: τ equals the regressor's drive law to 1e-9 N·m). A coupled
+drive must be rigid (no ``elasticity``). The solve needs ``M(q)`` at every step, and no compiled primitive of the
+pip wheel solves with it (Drake's forward dynamics is the plant's own step, on its own state), so
+:class:`CoupledRotorInertia` is the one per-step Python System; everything else of the drive is compiled.
 
 Friction acts explicitly (from the state at the start of the step): stable while ``(c_j / m)·dt < 2`` with ``c_j`` the
 friction slope ``F_v + F_c/v_s (+ F_s/v_s)`` (minus the spring's implicit damping D when elastic) and ``m`` the
@@ -61,10 +71,11 @@ from __future__ import annotations
 
 import numpy as np
 from pydrake.multibody.plant import MultibodyPlant
-from pydrake.multibody.tree import MultibodyForces
 from pydrake.symbolic import MakeVectorVariable
 from pydrake.systems.framework import BasicVector, Context, Diagram, DiagramBuilder, DiscreteValues, LeafSystem
-from pydrake.systems.primitives import Adder, SymbolicVectorSystem
+from pydrake.systems.controllers import InverseDynamics
+from pydrake.systems.primitives import Adder, ConstantVectorSource, SymbolicVectorSystem
+from scipy.linalg import lapack
 
 from proprio import friction_law
 from proprio.description import RobotDescription
@@ -72,7 +83,8 @@ from proprio.effects import Elasticity, JointEffect, Motor, PreSliding, Stribeck
 from proprio.effects.dahl import DahlState
 from proprio.signals import MotionSignals
 
-__all__ = ["DriveLaw", "JointDrive", "FrictionDrive", "friction_only", "AddJointDrive", "check_explicit_friction",
+__all__ = ["DriveLaw", "JointDrive", "FrictionDrive", "CoupledDrive", "CoupledRotorInertia", "coupled_actuation",
+           "friction_only", "AddJointDrive", "check_explicit_friction",
            "check_elastic_stability", "friction_slope", "motor_from_description", "coupling_from_description",
            "reflected_inertia"]
 
@@ -222,22 +234,27 @@ class DriveLaw:
 
 
 class FrictionDrive(DriveLaw, Diagram):
-    """The rigid, uncoupled drive whose per-step work is friction on q̇ alone (link-side ``viscous_coulomb`` and
-    ``stribeck``, the motor's friction), as Drake C++ systems: ``actuation = motor_torque − τ_f(q̇)``.
+    """The rigid drive whose per-step work is friction on q̇ alone (link-side ``viscous_coulomb`` and ``stribeck``, the
+    motor's friction, on the motor velocities ``C q̇`` when ``coupling`` C is given), as Drake C++ systems:
+    ``actuation = motor_torque − τ_f(q̇)``.
 
     ``τ_f`` is the effects' own ``friction`` code (:mod:`proprio.friction_law`) evaluated once on symbolic velocities
     at construction; a stateless ``SymbolicVectorSystem`` evaluates those expressions each step (≈ 5 µs instead of
     ≈ 25 µs for the Python :class:`JointDrive`) and an ``Adder`` applies them. Ports as :class:`JointDrive`:
     ``motor_torque`` [n] N·m, ``link_state`` [2n] = [q; q̇] → ``actuation`` [n] N·m. For discrete Diagrams like the
-    twin's (Drake's stateless SymbolicVectorSystem refuses to be asked for time derivatives).
+    twin's (Drake's stateless SymbolicVectorSystem refuses to be asked for time derivatives). A coupling whose rotor
+    inertia ``CᵀI_aC`` is not diagonal needs :class:`CoupledDrive`, which runs this drive as its friction stage.
     """
 
     def __init__(self, n: int, link_effects: list[JointEffect], motor: Motor | None = None,
-                 session_time_s: float = 0.0, drive_offset: np.ndarray | None = None):
+                 session_time_s: float = 0.0, drive_offset: np.ndarray | None = None,
+                 coupling: np.ndarray | None = None):
         Diagram.__init__(self)
-        self._set_law(n, link_effects, motor, None, session_time_s, drive_offset, None)
-        if not friction_only(link_effects, None, None):
+        self._set_law(n, link_effects, motor, None, session_time_s, drive_offset, coupling)
+        if not friction_only(link_effects, None):
             raise ValueError("FrictionDrive: link-side effects other than viscous_coulomb/stribeck need JointDrive")
+        if np.any(self._off != 0.0):
+            raise ValueError("FrictionDrive: a coupled rotor inertia off the diagonal needs CoupledDrive")
         x = MakeVectorVariable(2 * n, "x")
         with np.errstate(invalid="ignore"):     # Drake's symbolic arithmetic can leave the FPU's invalid flag set
             tau_f = self.motor_friction(x[n:])
@@ -254,12 +271,84 @@ class FrictionDrive(DriveLaw, Diagram):
         builder.BuildInto(self)
 
 
-def friction_only(link_effects: list[JointEffect], elasticity: Elasticity | None,
-                  coupling: np.ndarray | None) -> bool:
-    """Whether a drive is a :class:`FrictionDrive`: rigid, uncoupled, and its link-side effects are the library's
-    velocity friction (``viscous_coulomb``, ``stribeck``: functions of q̇ alone)."""
-    return elasticity is None and coupling is None and all(type(e) in (ViscousCoulomb, Stribeck)
-                                                           for e in link_effects)
+def friction_only(link_effects: list[JointEffect], elasticity: Elasticity | None) -> bool:
+    """Whether a drive's friction stage is a :class:`FrictionDrive`: rigid, and its link-side effects are the
+    library's velocity friction (``viscous_coulomb``, ``stribeck``: functions of q̇ alone)."""
+    return elasticity is None and all(type(e) in (ViscousCoulomb, Stribeck) for e in link_effects)
+
+
+def coupled_actuation(mass: np.ndarray, off: np.ndarray, force: np.ndarray, bias: np.ndarray) -> np.ndarray:
+    """The actuation [N·m] ``[n]`` that makes a plant with mass matrix ``mass`` = ``M(q) + D`` (the diagonal rotor
+    inertia D its actuators carry) move as the arm with ``M(q) + D + off`` (``off`` = O, the off-diagonal rest of
+    ``CᵀI_aC``) does, implicitly in the same step: ``q̈* = (M + D + O)⁻¹(f − b)``, ``u = f − O q̈*``, for the
+    generalized force ``force`` = f = ``τ_m − τ_f`` and the bias ``bias`` = b = ``ID(q, q̇, 0)`` (gravity applied) of
+    the step's state. The plant's own step ``(M + D) q̈ = u − b`` then gives q̈ = q̈*."""
+    _, qdd, info = lapack.dposv(mass + off, force - bias)         # Cholesky: M + CᵀI_aC is SPD
+    if info != 0:
+        raise np.linalg.LinAlgError(f"coupled_actuation: M(q) + CᵀI_aC is not positive definite (LAPACK info {info})")
+    return force - off @ qdd
+
+
+class CoupledRotorInertia(LeafSystem):
+    """The implicit off-diagonal rotor inertia of a coupled drive (:func:`coupled_actuation`), the per-step Python
+    part of :class:`CoupledDrive`. Input ports ``force`` [n] N·m (``τ_m − τ_f``), ``bias`` [n] N·m (``ID(q, q̇, 0)``
+    of ``model_plant``), ``link_state`` [2n] = [q; q̇]; output ``actuation`` [n] N·m. ``model_plant``: a continuous
+    plant of the twin's arm with the diagonal rotor inertia, evaluated on its own context for ``M(q) + D``;
+    ``off``: O [n, n] kg·m²."""
+
+    def __init__(self, model_plant: MultibodyPlant, off: np.ndarray):
+        LeafSystem.__init__(self)
+        n = model_plant.num_velocities()
+        self._plant, self._ctx, self._off = model_plant, model_plant.CreateDefaultContext(), np.asarray(off, float)
+        self._force = self.DeclareVectorInputPort("force", n)
+        self._bias = self.DeclareVectorInputPort("bias", n)
+        self._link = self.DeclareVectorInputPort("link_state", 2 * n)
+        self.DeclareVectorOutputPort("actuation", n, self._calc,
+                                     prerequisites_of_calc={self._force.ticket(), self._bias.ticket(),
+                                                            self._link.ticket()})
+
+    def _calc(self, context: Context, output: BasicVector) -> None:
+        self._plant.SetPositions(self._ctx, self._link.Eval(context)[:self._plant.num_positions()])
+        output.SetFromVector(coupled_actuation(self._plant.CalcMassMatrix(self._ctx), self._off,
+                                               self._force.Eval(context), self._bias.Eval(context)))
+
+
+class CoupledDrive(DriveLaw, Diagram):
+    """A rigid drive with coupled motors whose rotor inertia ``CᵀI_aC`` is not diagonal (``coupling`` C, normalised,
+    n×n; module docstring): the friction stage (a :class:`FrictionDrive` with the coupled motor friction, or the
+    Python :class:`JointDrive` for other link-side effects) gives ``f = τ_m − τ_f``, Drake's ``InverseDynamics`` on
+    ``model_plant`` the bias ``b = ID(q, q̇, 0)``, and :class:`CoupledRotorInertia` the actuation
+    ``u = f − O q̈*``. ``model_plant``: a continuous plant of the twin's arm with the diagonal rotor inertia
+    :attr:`rotor_diagonal`. Ports as :class:`JointDrive`: ``motor_torque`` [n], ``link_state`` [2n] → ``actuation``
+    [n]."""
+
+    def __init__(self, n: int, link_effects: list[JointEffect], motor: Motor, coupling: np.ndarray,
+                 model_plant: MultibodyPlant, time_step: float = 1e-3, session_time_s: float = 0.0,
+                 drive_offset: np.ndarray | None = None):
+        Diagram.__init__(self)
+        self._set_law(n, link_effects, motor, None, session_time_s, drive_offset, coupling)
+        # the friction stage applies the motor's friction; the rotor inertia is the plant's (D) and this Diagram's (O)
+        friction_motor = Motor(n, motor_inertia=np.zeros(n), motor_viscous=motor.motor_viscous,
+                               motor_coulomb=motor.motor_coulomb, smooth_velocity=motor.smooth_velocity)
+        builder = DiagramBuilder()
+        if friction_only(link_effects, None):
+            stage = FrictionDrive(n, link_effects, friction_motor, session_time_s, coupling=coupling)
+        else:
+            stage = JointDrive(n, link_effects, friction_motor, None, time_step, session_time_s, coupling=coupling)
+        builder.AddNamedSystem("friction", stage)
+        bias = builder.AddNamedSystem("bias", InverseDynamics(model_plant,
+                                                              InverseDynamics.InverseDynamicsMode.kInverseDynamics))
+        rest = builder.AddNamedSystem("no_acceleration", ConstantVectorSource(np.zeros(n)))
+        inertia = builder.AddNamedSystem("rotor_inertia", CoupledRotorInertia(model_plant, self._off))
+        builder.Connect(rest.get_output_port(), bias.get_input_port_desired_acceleration())
+        builder.Connect(stage.GetOutputPort("actuation"), inertia.GetInputPort("force"))
+        builder.Connect(bias.get_output_port_generalized_force(), inertia.GetInputPort("bias"))
+        builder.ExportInput(stage.GetInputPort("motor_torque"), "motor_torque")
+        builder.ExportInput(stage.GetInputPort("link_state"), "link_state")
+        builder.ConnectInput("link_state", bias.get_input_port_estimated_state())
+        builder.ConnectInput("link_state", inertia.GetInputPort("link_state"))
+        builder.ExportOutput(inertia.GetOutputPort("actuation"), "actuation")
+        builder.BuildInto(self)
 
 
 class JointDrive(DriveLaw, LeafSystem):
@@ -270,24 +359,18 @@ class JointDrive(DriveLaw, LeafSystem):
     Output ports: ``actuation`` [n] N·m (the plant's actuation input; feed-forward to the implicit spring when
     elastic) and, for the elastic drive, ``motor_state`` [2n] = [θ; θ̇] (the plant's desired state). τ_link is a
     function of the logged t, q, q̇ only, so the twin recomputes it from the log instead of evaluating a second port.
-    A coupled drive (``coupling`` C, normalised, n×n) with rotor inertia off the diagonal of ``CᵀI_aC`` needs
-    ``model_plant``, a continuous plant of the twin's arm with the diagonal rotor inertia :attr:`rotor_diagonal`
-    (module docstring).
+    With a ``coupling`` C (normalised, n×n) it applies the motor's friction on the motor velocities ``C q̇``; a rotor
+    inertia ``CᵀI_aC`` off the diagonal needs :class:`CoupledDrive`, which runs this drive as its friction stage.
     """
 
     def __init__(self, n: int, link_effects: list[JointEffect], motor: Motor | None = None,
                  elasticity: Elasticity | None = None, time_step: float = 1e-3, session_time_s: float = 0.0,
-                 drive_offset: np.ndarray | None = None, coupling: np.ndarray | None = None,
-                 model_plant: MultibodyPlant | None = None):
+                 drive_offset: np.ndarray | None = None, coupling: np.ndarray | None = None):
         LeafSystem.__init__(self)
         self._set_law(n, link_effects, motor, elasticity, session_time_s, drive_offset, coupling)
-        self.time_step = time_step
-        self._model = None
         if np.any(self._off != 0.0):
-            if model_plant is None:
-                raise ValueError("JointDrive: a coupled rotor inertia needs model_plant (the twin's plant with the "
-                                 "diagonal rotor inertia, continuous)")
-            self._model = (model_plant, model_plant.CreateDefaultContext(), MultibodyForces(model_plant))
+            raise ValueError("JointDrive: a coupled rotor inertia off the diagonal needs CoupledDrive")
+        self.time_step = time_step
         # per-step fast path: the viscous + Coulomb frictions acting on q̇ (link side, and an uncoupled motor's for a
         # rigid drive) stacked as rows [k, n] of ONE call of the law (proprio.friction_law, the effects' batch code)
         on_qd = self.link_effects + ([motor] if motor is not None and elasticity is None and coupling is None else [])
@@ -354,24 +437,8 @@ class JointDrive(DriveLaw, LeafSystem):
     def _calc_actuation(self, context: Context, output: BasicVector) -> None:
         if self.elasticity is not None:
             output.SetFromVector(-self._link_on_state(context))
-        elif self._model is None:
-            output.SetFromVector(self._u_motor.Eval(context) - self._link_on_state(context))
         else:
-            output.SetFromVector(self._coupled_actuation(context))
-
-    def _coupled_actuation(self, context: Context) -> np.ndarray:
-        """The actuation that makes the plant (mass matrix ``M(q) + diag(CᵀI_aC)``) move as the arm with the full
-        ``M(q) + CᵀI_aC`` does, implicitly in the same step: ``q̈* = (M_D + O)⁻¹(τ_m − τ_f − b(q, q̇))`` with the
-        off-diagonal rotor inertia ``O`` and the bias ``b = ID(q, q̇, 0)`` (gravity applied) of the model plant at
-        the step's state, and ``u = τ_m − τ_f − O q̈*``; the plant's step then gives ``(M_D)q̈ = u − b``, i.e. q̈ = q̈*
-        (TAMSI, no contact: the same M and b at the start of the step)."""
-        plant, ctx, forces = self._model
-        f = self._u_motor.Eval(context) - self._link_on_state(context)
-        plant.SetPositionsAndVelocities(ctx, self._u_link.Eval(context))
-        plant.CalcForceElementsContribution(ctx, forces)
-        bias = plant.CalcInverseDynamics(ctx, np.zeros(self.n), forces)
-        qdd = np.linalg.solve(plant.CalcMassMatrix(ctx) + self._off, f - bias)
-        return f - self._off @ qdd
+            output.SetFromVector(self._u_motor.Eval(context) - self._link_on_state(context))
 
     def _update_motor(self, context: Context, discrete_state: DiscreteValues) -> None:
         n, motor = self.n, self.motor
@@ -392,15 +459,22 @@ def AddJointDrive(builder: DiagramBuilder, n: int, link_effects: list[JointEffec
                   elasticity: Elasticity | None = None, time_step: float = 1e-3,
                   name: str = "joint_drive", session_time_s: float = 0.0,
                   drive_offset: np.ndarray | None = None, coupling: np.ndarray | None = None,
-                  model_plant: MultibodyPlant | None = None) -> JointDrive | FrictionDrive:
+                  model_plant: MultibodyPlant | None = None) -> JointDrive | FrictionDrive | CoupledDrive:
     """Add the drive to ``builder`` (ports ``motor_torque``, ``link_state`` → ``actuation``; ``session_time_s`` [s]:
-    the session clock at context time 0, for time-varying link effects; ``coupling`` and ``model_plant``: a coupled
-    drive, see :class:`JointDrive`): a :class:`FrictionDrive` (C++) when :func:`friction_only`, else the Python
-    :class:`JointDrive`."""
-    if friction_only(link_effects, elasticity, coupling):
-        drive = builder.AddSystem(FrictionDrive(n, link_effects, motor, session_time_s, drive_offset))
+    the session clock at context time 0, for time-varying link effects): a :class:`CoupledDrive` when ``coupling``
+    puts rotor inertia off the diagonal (``model_plant``: a continuous plant of the arm with the diagonal rotor
+    inertia), else a :class:`FrictionDrive` (C++) when :func:`friction_only`, else the Python :class:`JointDrive`."""
+    reflected = np.zeros((n, n)) if motor is None else reflected_inertia(motor, coupling)
+    if elasticity is None and np.any(reflected != np.diag(np.diag(reflected))):
+        if model_plant is None:
+            raise ValueError("AddJointDrive: a coupled rotor inertia needs model_plant (the twin's plant with the "
+                             "diagonal rotor inertia, continuous)")
+        drive = builder.AddSystem(CoupledDrive(n, link_effects, motor, coupling, model_plant, time_step,
+                                               session_time_s, drive_offset))
+    elif friction_only(link_effects, elasticity):
+        drive = builder.AddSystem(FrictionDrive(n, link_effects, motor, session_time_s, drive_offset, coupling))
     else:
         drive = builder.AddSystem(JointDrive(n, link_effects, motor, elasticity, time_step, session_time_s,
-                                             drive_offset, coupling, model_plant))
+                                             drive_offset, coupling))
     drive.set_name(name)
     return drive
