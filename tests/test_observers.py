@@ -21,9 +21,11 @@ from proprio.recording import Recording, RecordingError
 from proprio.urdf import to_urdf
 from proprio.conditioning import ConditioningConfig
 from proprio.diagrams.estimation import RigidBodyTorqueModel, estimate_wrench, estimate_wrench_offline
-from proprio.systems.momentum_observer import DrakeArm, MomentumObserver, momentum_observer, momentum_terms
-from proprio.systems.observers import (JacobianWrenchObserver, WrenchMap, WrenchMapping, WrenchSolver, jacobian_wrench,
-                                       wrench_from_joint_torque)
+from proprio.momentum import momentum_observer, momentum_terms
+from proprio.rigid_body_terms import RigidBodyTerms
+from proprio.systems.momentum_observer import MomentumObserver, RigidBodyTermsSystem
+from proprio.systems.observers import JacobianWrenchObserver, WrenchMap
+from proprio.wrench_solve import WrenchMapping, WrenchSolver, jacobian_wrench, wrench_from_joint_torque
 
 G = np.array([0.0, 0.0, -9.81])
 HOME = np.array([0.0, 0.5, 0.0, -1.2, 0.0, 0.8, 0.0])
@@ -174,7 +176,7 @@ def test_momentum_terms_match_pinocchio(rigid):
     q = _nonsingular_poses(rigid, 10, seed=9)
     qd = rng.normal(size=q.shape)
     p_np, beta_np = momentum_terms(rigid, q, qd)
-    arm = DrakeArm(rigid)
+    arm = RigidBodyTerms(rigid)
     for i in range(q.shape[0]):
         m = pin.crba(model, data, q[i])
         m = np.triu(m) + np.triu(m, 1).T
@@ -209,10 +211,13 @@ def test_momentum_observer_first_order_response(rigid):
     builder = DiagramBuilder()
     obs = builder.AddSystem(MomentumObserver(rigid, h, gains))
     obs.set_name("momentum_observer")
+    terms = builder.AddSystem(RigidBodyTermsSystem(rigid))
+    builder.Connect(terms.GetOutputPort("momentum_terms"), obs.GetInputPort("momentum_terms"))
     src = builder.AddSystem(TrajectorySource(PiecewisePolynomial.FirstOrderHold(t, tau_meas.T)))
     builder.Connect(src.get_output_port(), obs.GetInputPort("tau_meas"))
-    for name, value in (("q", HOME), ("qd", np.zeros(rigid.n)), ("tau_int", np.zeros(rigid.n))):
-        builder.Connect(builder.AddSystem(ConstantVectorSource(value)).get_output_port(), obs.GetInputPort(name))
+    for port, value in ((terms.GetInputPort("q"), HOME), (terms.GetInputPort("qd"), np.zeros(rigid.n)),
+                        (terms.GetInputPort("qdd"), np.zeros(rigid.n)), (obs.GetInputPort("tau_int"), np.zeros(rigid.n))):
+        builder.Connect(builder.AddSystem(ConstantVectorSource(value)).get_output_port(), port)
     log = LogVectorOutput(obs.GetOutputPort("tau_ext"), builder, publish_period=h)
     diagram = builder.Build()
     sim = Simulator(diagram)

@@ -1,0 +1,47 @@
+"""A discrete-time LTI stage stepped from Python — ``y = C x + D u``, then ``x ← A x + B u`` — as one compiled
+kernel (:class:`DiscreteLti`). It is Drake's ``LinearSystem`` (discrete) semantics, for the streaming estimator,
+which steps the same matrices as the Diagram's ``LinearSystem`` stages (the causal conditioner,
+:func:`proprio.causal_conditioning.causal_conditioning`; the momentum observer, :func:`proprio.momentum.momentum_filter`)
+without a Drake Context per sample."""
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+__all__ = ["DiscreteLti"]
+
+
+@numba.njit(cache=True)
+def _lti_step(a, b, c, d, x, u, y):  # pragma: no cover (compiled)
+    """``y = C x + D u``, then ``x ← A x + B u`` in place."""
+    for i in range(c.shape[0]):
+        s = 0.0
+        for j in range(x.shape[0]):
+            s += c[i, j] * x[j]
+        for j in range(u.shape[0]):
+            s += d[i, j] * u[j]
+        y[i] = s
+    nxt = np.empty(x.shape[0])
+    for i in range(x.shape[0]):
+        s = 0.0
+        for j in range(x.shape[0]):
+            s += a[i, j] * x[j]
+        for j in range(u.shape[0]):
+            s += b[i, j] * u[j]
+        nxt[i] = s
+    x[:] = nxt
+
+
+class DiscreteLti:
+    """``x⁺ = A x + B u``, ``y = C x + D u`` with its state ``x`` (explicit, a numpy vector) — :meth:`step_into`
+    per sample. Building it compiles (or loads from numba's cache) and runs the kernel once."""
+
+    def __init__(self, a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray):
+        self.a, self.b, self.c, self.d = (np.ascontiguousarray(m, dtype=float) for m in (a, b, c, d))
+        self.x = np.zeros(self.a.shape[0])
+        self.step_into(np.zeros(self.b.shape[1]), np.empty(self.c.shape[0]))
+        self.x[:] = 0.0
+
+    def step_into(self, u: np.ndarray, y_out: np.ndarray) -> None:
+        """The output for input ``u`` into ``y_out`` (from the state before the sample), then the state update."""
+        _lti_step(self.a, self.b, self.c, self.d, self.x, u, y_out)
