@@ -395,16 +395,27 @@ def test_force_only_rows_keep_the_gaps_of_the_log(rigid):
 @pytest.mark.parametrize("mapping", [WrenchMapping(), WrenchMapping(force_only=True),
                                      WrenchMapping(joint_weights=(1, 2, 3, 4, 5, 6, 7), contact_point=(0, 0, 0.1))])
 def test_single_sample_solver_equals_the_batched_one(rigid, mapping):
-    """The Systems' per-step LAPACK solve gives the batched solver's wrench, manipulability and flag, also damped
-    near and at the stretched-arm singularity."""
+    """The one compiled solve (Cholesky away from singularities, eigen-decomposition with damping near them), per
+    step and over samples, equals an independent SVD of W^½Jᵀ (σ/(σ² + λ²) per singular value): wrench,
+    manipulability ∏σ and flag, also damped near and at the stretched-arm singularity."""
     rng = np.random.default_rng(4)
     q = np.vstack([_nonsingular_poses(rigid, 20, seed=5), np.zeros(7), [0, 0.01, 0, 0.02, 0, 0.01, 0]])
     jac = point_jacobian(rigid, q, np.asarray(mapping.contact_point, float))
     tau = rng.normal(size=q.shape)
+    rows = [3, 4, 5] if mapping.force_only else [3, 4, 5, 0, 1, 2]
+    sqrt_w = np.sqrt(np.asarray(mapping.joint_weights or np.ones(7), float))
+    a_t = np.swapaxes(jac[:, rows], 1, 2) * sqrt_w[None, :, None]                     # W^½ Jᵀ [N,n,k]
+    u, s, vt = np.linalg.svd(a_t, full_matrices=False)
+    eps, lam = mapping.sigma_threshold, mapping.damping_max
+    damping = np.where(s[:, -1] < eps, lam ** 2 * (1 - (s[:, -1] / eps) ** 2), 0.0)
+    b = np.einsum("nik,ni->nk", u, sqrt_w * tau) * s / (s ** 2 + damping[:, None])
+    ref = np.zeros((q.shape[0], 6))
+    ref[:, :len(rows)] = np.einsum("nkj,nk->nj", vt, b)
     wrench, manip, flag = wrench_from_joint_torque(jac, tau, mapping)
     solver = WrenchSolver(mapping, 7)
     single = np.array([solver(j, t) for j, t in zip(jac, tau)])
     assert flag[-2:].all() and not flag[:-2].any()
-    np.testing.assert_allclose(single[:, :6], wrench, rtol=0, atol=1e-9 * (1 + np.abs(wrench).max()))
-    np.testing.assert_allclose(single[:, 6], manip, rtol=1e-10, atol=1e-15)
-    np.testing.assert_array_equal(single[:, 7] > 0.5, flag)
+    for w, m, f in ((wrench, manip, flag), (single[:, :6], single[:, 6], single[:, 7] > 0.5)):
+        np.testing.assert_allclose(w, ref, rtol=0, atol=1e-9 * (1 + np.abs(ref).max()))
+        np.testing.assert_allclose(m, np.prod(s, axis=1), rtol=1e-10, atol=1e-15)
+        np.testing.assert_array_equal(f, s[:, -1] < eps)
