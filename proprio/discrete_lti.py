@@ -13,24 +13,10 @@ __all__ = ["DiscreteLti"]
 
 
 @numba.njit(cache=True)
-def _affine_into(m, x, k, u, out):  # pragma: no cover (compiled)
-    """``out = M x + K u``."""
-    for i in range(m.shape[0]):
-        s = 0.0
-        for j in range(x.shape[0]):
-            s += m[i, j] * x[j]
-        for j in range(u.shape[0]):
-            s += k[i, j] * u[j]
-        out[i] = s
-
-
-@numba.njit(cache=True)
 def _lti_step(a, b, c, d, x, u, y):  # pragma: no cover (compiled)
     """``y = C x + D u``, then ``x ← A x + B u`` in place."""
-    _affine_into(c, x, d, u, y)
-    nxt = np.empty(x.shape[0])
-    _affine_into(a, x, b, u, nxt)
-    x[:] = nxt
+    y[:] = np.dot(c, x) + np.dot(d, u)
+    x[:] = np.dot(a, x) + np.dot(b, u)
 
 
 @numba.njit(cache=True)

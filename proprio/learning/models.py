@@ -287,12 +287,7 @@ def _lstm_cell(w, z, c, c_out, h_out):  # pragma: no cover (compiled)
     come from ONE tanh, σ(a) = ½ + ½ tanh(a/2), so ``w = S [W_ih  W_hh  b]`` (rows i, f, o, g) is pre-scaled by
     S = ½ on the i, f, o rows and 1 on the g rows, and ``z = [x; h; 1]``."""
     k = c.shape[0]
-    a = np.empty(4 * k)
-    for r in range(4 * k):
-        s = 0.0
-        for j in range(z.shape[0]):
-            s += w[r, j] * z[j]
-        a[r] = math.tanh(s)
+    a = np.tanh(np.dot(w, z))                               # (BLAS: the one product of the cell)
     for i in range(k):
         gate_i, gate_f, gate_o = 0.5 * a[i] + 0.5, 0.5 * a[k + i] + 0.5, 0.5 * a[2 * k + i] + 0.5
         c_new = c[i] * gate_f + gate_i * a[3 * k + i]

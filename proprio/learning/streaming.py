@@ -83,9 +83,3 @@ class ResidualNetworkCore:
         self.encoder.step_into(enc, q, memory_out[1:1 + 3 * n], r)
         tau_out[:], memory_out[1 + 3 * n:] = self.stepper.step(inputs, net_state, r)
         memory_out[0] = 1.0
-
-    def step_stacked(self, memory: np.ndarray, inputs: np.ndarray) -> np.ndarray:
-        """:meth:`step_into` stacked: ``[τ_hybrid (n) N·m; next memory]``."""
-        out = np.empty(self.n + self.memory_size)
-        self.step_into(memory, inputs, out[:self.n], out[self.n:])
-        return out

@@ -111,19 +111,6 @@ class ResidualNetworkSystem(Diagram):
         builder.BuildInto(self)
         self.set_name("residual_network")
 
-    def initial_memory(self) -> np.ndarray:
-        return self.core.initial_memory()
-
-    def step_stacked(self, memory: np.ndarray, inputs: np.ndarray) -> np.ndarray:
-        """:meth:`~proprio.learning.streaming.ResidualNetworkCore.step_stacked` — the step function of the System."""
-        return self.core.step_stacked(memory, inputs)
-
-    def step(self, memory: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, tau_rbd: np.ndarray
-             ) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`step_stacked` with the inputs apart: ``(τ_hybrid [n] N·m, next memory)``."""
-        out = self.step_stacked(memory, np.concatenate((tau_rbd, q, qd, qdd)))
-        return out[:self.n], out[self.n:]
-
 
 def AddResidualNetwork(builder: DiagramBuilder, model: HybridModel, period_s: float | None = None,
                        name: str = "residual_network") -> ResidualNetworkSystem:
