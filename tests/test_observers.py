@@ -168,15 +168,17 @@ def test_mapping_rejects_bad_options(rigid):
 # ---- generalised momentum -------------------------------------------------------------------------------------------
 
 def test_momentum_terms_match_pinocchio(rigid):
-    """p = M q̇ and τ_g + Cᵀq̇ (numpy RNEA and Drake paths) against pinocchio's CRBA, Coriolis matrix and gravity."""
+    """p = M q̇ and τ_g + Cᵀq̇ (numpy RNEA and Drake paths) against pinocchio's CRBA, Coriolis matrix and gravity; the
+    per-sample terms' τ_rigid = M q̈ + ID(q, q̇, 0) against pinocchio's RNEA and their J against the flange Jacobian."""
     model = pin.buildModelFromXML(to_urdf(rigid, None, collision=False))
     model.gravity.linear[:] = rigid.gravity
     data = model.createData()
     rng = np.random.default_rng(8)
     q = _nonsingular_poses(rigid, 10, seed=9)
-    qd = rng.normal(size=q.shape)
+    qd, qdd = rng.normal(size=q.shape), rng.normal(size=q.shape)
     p_np, beta_np = momentum_terms(rigid, q, qd)
     arm = RigidBodyTerms(rigid)
+    tau, momentum, jac = arm.split(arm.buffer())
     for i in range(q.shape[0]):
         m = pin.crba(model, data, q[i])
         m = np.triu(m) + np.triu(m, 1).T
@@ -187,6 +189,10 @@ def test_momentum_terms_match_pinocchio(rigid):
         for p, beta in ((p_np[i], beta_np[i]), (p_dr, beta_dr)):
             np.testing.assert_allclose(p, p_ref, atol=1e-10)
             np.testing.assert_allclose(beta, beta_ref, atol=1e-7)     # Ṁq̇ by central difference
+        arm.calc_into(q[i], qd[i], qdd[i], tau, momentum, jac)
+        np.testing.assert_allclose(tau, pin.rnea(model, data, q[i], qd[i], qdd[i]), atol=1e-10)
+        np.testing.assert_allclose(momentum, np.r_[p_dr, beta_dr], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(jac.reshape(6, -1), flange_jacobian(rigid, q[i:i + 1])[0], atol=1e-12)
 
 
 def test_momentum_observer_first_order_response(rigid):

@@ -33,9 +33,9 @@ __all__ = ["TorqueModel", "RigidBodyTorqueModel", "load_rigid_torque_model", "Ri
 class TorqueModel(Protocol):
     """A joint-torque model τ_dyn = τ_rbd + τ_int (eq. 3.9), vectorised over samples ``[N,n]``.
 
-    ``description`` gives the kinematics and the rigid-body inertials: τ_rbd is its inverse dynamics (Drake's
-    ``CalcInverseDynamics`` per step in the diagram, :func:`proprio.dynamics.inverse_dynamics` offline) and the
-    momentum observer takes M(q) from it. ``tau_int`` is everything the model adds to the rigid body (link friction,
+    ``description`` gives the kinematics and the rigid-body inertials: τ_rbd is its inverse dynamics (per step from
+    the RBD stage's plant context, :class:`~proprio.rigid_body_terms.RigidBodyTerms`, which gives the momentum
+    observer M(q) from the same kinematics; :func:`proprio.dynamics.inverse_dynamics` offline). ``tau_int`` is everything the model adds to the rigid body (link friction,
     a learned residual).
 
     ``torque_step()`` is its per-sample law (``n``, ``memory_size``, ``initial_memory()``, ``step_into(inputs,
@@ -47,7 +47,7 @@ class TorqueModel(Protocol):
 
     def tau_int(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray: ...
 
-    def torque_step(self): ...
+    def torque_step(self) -> "RigidTorqueStep": ...
 
 
 @dataclass(frozen=True)

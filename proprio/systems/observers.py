@@ -16,10 +16,10 @@ Two ways to get τ_ext:
   q̈), a first-order low-pass of τ_ext with time constant 1/K_O per joint; in :mod:`proprio.systems.momentum_observer`.
 
 As Systems (one per stage, C++ where the work is linear): :class:`JacobianWrenchObserver` (τ_dyn − τ_J, a
-``MatrixGain``), the momentum observer (the rigid-body terms p, τ_g + Cᵀq̇ and J from Drake's plant, then the
-recursion as a discrete ``LinearSystem``) and :class:`WrenchMap`, which maps both
-τ̂_ext to wrenches with ONE Jacobian and ONE eigen-decomposition per step. Each Python System exposes its step
-function (``calc``) so that :mod:`proprio.online` drives the same code without a Simulator.
+``MatrixGain``), the momentum observer (the recursion as a discrete ``LinearSystem`` on the rigid-body terms p,
+τ_g + Cᵀq̇ of the RBD stage, :mod:`proprio.systems.momentum_observer`) and :class:`WrenchMap`, which maps both τ̂_ext
+to wrenches with ONE Jacobian (the RBD stage's) and ONE factorisation per step — a thin wrapper of the solve law
+:class:`~proprio.wrench_solve.WrenchSolver`, which :mod:`proprio.online` calls directly.
 
 The Jacobian pseudo-inverse (eq. 3.12, the arm is redundant: 7 equations, 6 or 3 unknowns) is the weighted,
 adaptively damped least-squares law of :mod:`proprio.wrench_solve` (re-exported here): ``WrenchMapping`` its options,
