@@ -8,7 +8,7 @@ a first-order low-pass of τ_ext with time constant 1/K_O per joint. The update 
 (:func:`momentum_filter`): its matrices are the C++ ``LinearSystem`` of
 :class:`~proprio.systems.momentum_observer.MomentumObserver` and the streaming estimator's
 :class:`~proprio.discrete_lti.DiscreteLti` step alike, and the batch form over samples (:func:`momentum_observer`)
-evaluates the same matrices' recursion vectorised (:func:`filter_response`). The rigid-body terms p and
+steps the same matrices by the same compiled kernel in one loop (:meth:`~proprio.discrete_lti.DiscreteLti.response`). The rigid-body terms p and
 τ_g + Cᵀq̇ come from Drake's plant per sample (:class:`proprio.rigid_body_terms.RigidBodyTerms`) or, batched, from
 the numpy RNEA (:func:`momentum_terms`; Cᵀq̇ = Ṁq̇ − Cq̇, a central difference of M along q̇ of step
 :data:`FD_STEP`, in both).
@@ -16,14 +16,13 @@ the numpy RNEA (:func:`momentum_terms`; Cᵀq̇ = Ṁq̇ − Cq̇, a central dif
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import lfilter
 
 from proprio.description import RobotDescription
+from proprio.discrete_lti import DiscreteLti
 from proprio.dynamics import inverse_dynamics
 from proprio.kinematics import chain_geometry
 
-__all__ = ["FD_STEP", "momentum_terms", "momentum_observer", "momentum_initial_state", "filter_response",
-           "momentum_filter"]
+__all__ = ["FD_STEP", "momentum_terms", "momentum_observer", "momentum_initial_state", "momentum_filter"]
 
 FD_STEP = 1e-5
 """[rad] central-difference step of M(q) along q̇ for Ṁq̇ (per sample and batched alike)."""
@@ -65,7 +64,8 @@ def momentum_observer(desc: RobotDescription, time_step: float, q: np.ndarray, q
                       ) -> np.ndarray:
     """Offline generalised-momentum observer over uniformly sampled data: τ̂_ext ``[N,n]`` [N·m] — the recursion of
     :func:`momentum_filter` (the matrices the Diagram's ``LinearSystem`` steps), evaluated over all samples at once
-    from its initial state :func:`momentum_initial_state` (:func:`filter_response`):
+    from its initial state :func:`momentum_initial_state`, stepped over the samples by the streaming estimator's
+    compiled kernel (:meth:`~proprio.discrete_lti.DiscreteLti.response`):
 
         u_k = (p_k − p_{k−1})/Δt − ½(β_k + β_{k−1}),   β = τ_J − τ_int + τ_g + Cᵀq̇,
         r_k = γ r_{k−1} + (1 − γ) u_k,   γ = exp(−K_O Δt),   r_0 = 0,
@@ -84,7 +84,10 @@ def momentum_observer(desc: RobotDescription, time_step: float, q: np.ndarray, q
     p, beta = momentum_terms(desc, q, qd)
     tau_int = np.zeros_like(p) if tau_int is None else np.broadcast_to(np.asarray(tau_int, float), p.shape)
     u = np.hstack([p, beta, np.broadcast_to(np.asarray(tau_meas, float), p.shape), tau_int])
-    return filter_response(momentum_filter(n, time_step, gain), u, momentum_initial_state(u[0]))
+    lti = DiscreteLti(*momentum_filter(n, time_step, gain))
+    lti.x[:] = momentum_initial_state(u[0])
+    r = lti.response(u)                                              # r_{k−1}: the state before each sample
+    return np.vstack([r[1:], lti.x[None, :n]])                       # r_k: the state after each sample
 
 
 def momentum_initial_state(u0: np.ndarray) -> np.ndarray:
@@ -93,23 +96,6 @@ def momentum_initial_state(u0: np.ndarray) -> np.ndarray:
     the batch :func:`momentum_observer` alike)."""
     n = u0.shape[0] // 4
     return np.concatenate((np.zeros(n), u0[:n], -(u0[n:2 * n] + u0[2 * n:3 * n] - u0[3 * n:])))
-
-
-def filter_response(abcd: tuple[np.ndarray, ...], u: np.ndarray, x0: np.ndarray) -> np.ndarray:
-    """The residual states ``r [N,n]`` after each input row ``u [N,4n]`` of the discrete system
-    ``abcd = momentum_filter(...)`` started at ``x0`` — its recursion vectorised over samples. Its structure makes this
-    exact: the rows of A past r are zero (the states ``[p_{k−1}; β_{k−1}] = B_d u_{k−1}`` hold the previous input),
-    and A's r block is diagonal (the poles γ), so ``r_{k+1} = γ r_k + B_r u_k + A_rd B_d u_{k−1}``: one first-order
-    ``lfilter`` per joint."""
-    a, b = abcd[0], abcd[1]
-    n = a.shape[0] // 3
-    gamma = np.diag(a[:n, :n]).copy()
-    if a[n:].any() or np.any(a[:n, :n] != np.diag(gamma)):
-        raise ValueError("filter_response: not the momentum filter's structure (diagonal poles, delayed inputs)")
-    delayed = np.vstack([x0[None, n:], u[:-1] @ b[n:].T])                # [p_{k−1}; β_{k−1}] at each sample
-    drive = u @ b[:n].T + delayed @ a[:n, n:].T
-    return np.stack([lfilter([1.0], [1.0, -gamma[j]], drive[:, j], zi=[gamma[j] * x0[j]])[0] for j in range(n)],
-                    axis=1)
 
 
 def momentum_filter(n: int, time_step: float, gain: float | np.ndarray = 100.0
