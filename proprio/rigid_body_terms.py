@@ -39,6 +39,24 @@ def _combine(m_plus, m_minus, m, id0, qd, qdd, scale, tau_out, momentum_out):  #
         momentum_out[n + i] = mdot * scale - id0[i]
 
 
+@numba.njit(cache=True)
+def _displace(q, qd, step, plus_out, minus_out, state_out):  # pragma: no cover (compiled)
+    """``‖q̇‖``, and ``q ± step·q̇/‖q̇‖`` into ``plus_out``/``minus_out`` (q when q̇ = 0), ``[q; q̇]`` into
+    ``state_out``."""
+    n = q.shape[0]
+    speed = 0.0
+    for j in range(n):
+        speed += qd[j] * qd[j]
+    speed = math.sqrt(speed)
+    scale = step / speed if speed > 0 else 0.0
+    for j in range(n):
+        plus_out[j] = q[j] + qd[j] * scale
+        minus_out[j] = q[j] - qd[j] * scale
+        state_out[j] = q[j]
+        state_out[n + j] = qd[j]
+    return speed
+
+
 class RigidBodyTerms(DrakeRobot):
     """The model robot's rigid-body terms per sample (module docstring) on one plant context.
 
@@ -52,7 +70,7 @@ class RigidBodyTerms(DrakeRobot):
         n = desc.n
         self._zero = np.zeros(self.plant.num_velocities())
         self._contact = np.asarray(contact_point, dtype=float)
-        self._state = np.empty(2 * n)
+        self._state, self._plus, self._minus = np.empty(2 * n), np.empty(n), np.empty(n)
         self.calc_into(np.zeros(n), np.full(n, 0.1), np.zeros(n), *self.split(self.buffer()))   # compile / load
 
     def buffer(self) -> np.ndarray:
@@ -71,18 +89,14 @@ class RigidBodyTerms(DrakeRobot):
         if not self._in_order:
             self._calc_reindexed(q, qd, qdd, tau_out, momentum_out, jac_out)
             return
-        n = qd.shape[0]
         plant, ctx = self.plant, self.context
-        speed = math.sqrt(float(qd @ qd))
+        speed = _displace(q, qd, FD_STEP, self._plus, self._minus, self._state)
         if speed > 0:
-            u = qd * (FD_STEP / speed)
-            plant.SetPositions(ctx, q + u)
+            plant.SetPositions(ctx, self._plus)
             m_plus = plant.CalcMassMatrix(ctx)
-            plant.SetPositions(ctx, q - u)
+            plant.SetPositions(ctx, self._minus)
             m_minus = plant.CalcMassMatrix(ctx)
-        state = self._state
-        state[:n], state[n:] = q, qd
-        plant.SetPositionsAndVelocities(ctx, state)
+        plant.SetPositionsAndVelocities(ctx, self._state)
         m = plant.CalcMassMatrix(ctx)
         plant.CalcForceElementsContribution(ctx, self._forces)       # gravity
         id0 = plant.CalcInverseDynamics(ctx, self._zero, self._forces)     # Cq̇ − τ_g
