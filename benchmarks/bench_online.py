@@ -27,6 +27,10 @@ at 1 kHz (1000 µs / cost), the ratio to the reference (comparable across machin
 (process time: on a shared machine, the part of the wall time that is this process's own) and a 10th percentile
 (of single streaming steps; of 10-step chunks of a Diagram, in one more run): on a loaded machine the median and
 even the CPU time grow with the other processes, the low percentile much less. Torch and BLAS: one thread.
+On a shared machine the wall-clock tail (p99, max) is the time other processes held the core; a real-time loop runs
+at a real-time priority, which ``chrt -f 10`` (root) gives the benchmark too:
+
+    chrt -f 10 .venv/bin/python benchmarks/bench_online.py --steps 300 --repeats 1 --tail-steps 30000
 """
 from __future__ import annotations
 
