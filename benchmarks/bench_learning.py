@@ -147,8 +147,8 @@ def bench_streaming(steps: int) -> None:
     LogVectorOutput(residual.GetOutputPort("tau_hybrid"), builder, 1 / RATE)
     alone = _timed(builder.Build(), steps)
 
-    # (c) the estimation diagram of `proprio estimate --model hybrid.pt`: C++ inverse dynamics + friction System, the
-    # residual, both observers (the momentum one evaluates M(q) three times) and one logger
+    # (c) the estimation diagram of `proprio estimate --model hybrid.pt`: the rigid-body stage (τ_rigid, momentum terms
+    # and J on one plant context, M(q) three times), the torque step (friction + residual), both observers, one logger
     hybrid = HybridTorqueModel(RigidBodyTorqueModel(desc), model, DataConfig())
     signals = {"t": t, "q": q, "qd": qd, "qdd": qdd, "tau": values[:, 21:], "time_step": 1 / RATE}
     estimation = _timed(build_estimation_diagram(hybrid, signals)[0], steps)   # (stages not started: timing only)

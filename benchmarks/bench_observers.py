@@ -14,7 +14,7 @@ from proprio.diagrams.estimation import (RigidBodyTorqueModel, build_estimation_
 from proprio.dynamics import inverse_dynamics
 from proprio.payload import Payload, attach_payload
 from proprio.recording import Recording
-from proprio.systems.momentum_observer import momentum_observer
+from proprio.momentum import momentum_observer
 from proprio.systems.observers import jacobian_wrench
 
 

@@ -1,6 +1,7 @@
 """The causal (online) counterpart of :mod:`proprio.conditioning`: the design of a state-variable filter stage that
-sees only the past (:func:`causal_conditioning`, :class:`CausalConditioning`); its Drake System is
-:class:`proprio.systems.causal_conditioning.CausalConditioner`."""
+sees only the past (:func:`causal_conditioning`, :class:`CausalConditioning`, over a whole log
+:meth:`CausalConditioning.condition`); its Drake System is :class:`proprio.systems.causal_conditioning.CausalConditioner`,
+its per-sample step in the streaming estimator :class:`proprio.discrete_lti.DiscreteLti`."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -8,6 +9,8 @@ from typing import Sequence
 
 import numpy as np
 import scipy.signal
+
+from proprio.discrete_lti import DiscreteLti
 
 __all__ = ["CausalConditioning", "causal_conditioning"]
 
@@ -65,6 +68,21 @@ class CausalConditioning:
         """The steady state ``x = (I − A)⁻¹ B u0`` for a constant input ``u0`` (the first sample): the outputs
         start at q̂ = q0, q̂̇ = q̂̈ = 0 (or the measured q̇0), τ̂ = τ0, with no start-up transient."""
         return np.linalg.solve(np.eye(self.A.shape[0]) - self.A, self.B @ np.asarray(u0, dtype=float))
+
+    def condition(self, u: np.ndarray) -> dict[str, np.ndarray]:
+        """The stage over a whole log, vectorised form of the Diagram's conditioner: the stacked raw inputs ``u
+        [N, input_size]`` (``[q; τ_J]`` or ``[q; q̇; τ_J]`` per sample) from the steady state of the first sample →
+        ``q``, ``qd``, ``qdd``, ``tau`` ``[N,n]`` (rad, rad/s, rad/s², N·m) and ``time_step`` [s]: the same matrices
+        stepped by the same kernel as the streaming estimator (:class:`~proprio.discrete_lti.DiscreteLti`)."""
+        u = np.asarray(u, dtype=float)
+        if u.ndim != 2 or u.shape[1] != self.input_size or u.shape[0] == 0:
+            raise ValueError(f"CausalConditioning.condition: u must be [N, {self.input_size}] with N >= 1, got "
+                             f"shape {list(u.shape)}")
+        lti = DiscreteLti(self.A, self.B, self.C, self.D)
+        lti.x[:] = self.initial_state(u[0])
+        y, n = lti.response(u), self.n
+        return {"q": y[:, :n], "qd": y[:, n:2 * n], "qdd": y[:, 2 * n:3 * n], "tau": y[:, 3 * n:],
+                "time_step": self.time_step}
 
 
 def causal_conditioning(rate_hz: float, cutoff_hz: float | Sequence[float], n: int, velocity: str = "q",

@@ -11,12 +11,18 @@ For users who drive the estimator from their own loop (KUKA FRI at 1 kHz, a ROS 
         w = est.step(t, q, tau_J)                    # or est.step(t, q, tau_J, qd) with velocity="measured"
         f = w.jacobian[:3]                           # N, on the robot at the flange origin, world frame
 
-It IS the estimation Diagram: :class:`proprio.diagrams.estimation.WrenchEstimator` with a causal conditioning stage
-(:func:`proprio.causal_conditioning.causal_conditioning`), advanced one sample at a time on its own Drake ``Context``
-(the sample on its input ports, the ``estimate`` port evaluated, then the stages' discrete updates applied) —
-the same Systems and step functions as the replayed Diagram and, vectorised, the offline path, so the numbers are
-the Diagram's (tests: to 1e-10) and there is no second copy of any stage. Inputs are validated at the boundary
-(shape, finiteness, time strictly increasing at the design rate); one estimator serves one robot from one thread.
+It chains the laws of the estimation Diagram (:class:`proprio.diagrams.estimation.WrenchEstimator`) directly behind
+its input validation, with no Drake Context per sample: the causal conditioner's and the momentum observer's
+matrices stepped by :class:`~proprio.discrete_lti.DiscreteLti`, the rigid-body terms from one plant context
+(:class:`~proprio.rigid_body_terms.RigidBodyTerms`), the model's torque step (friction, + the network of a hybrid
+model: :class:`~proprio.learning.streaming.ResidualNetworkCore`) and the wrench solve
+(:class:`~proprio.wrench_solve.WrenchSolver`) — the functions the Diagram's Systems wrap, so the numbers are the
+Diagram's (tests: to 1e-10) and there is no second copy of any stage. The compiled kernels are compiled (or loaded
+from numba's cache) and run once when the estimator is built, so the first control cycle is not the compile. Inputs
+are validated at the boundary (shape, finiteness, time strictly increasing at the design rate); one estimator serves
+one robot from one thread. For a hard real-time loop call ``gc.freeze()`` once after building it (the interpreter's
+full collections otherwise scan every object torch and Drake made at import: a pause of milliseconds every ~10³
+steps).
 """
 from __future__ import annotations
 
@@ -30,7 +36,10 @@ from proprio.causal_conditioning import CausalConditioning, causal_conditioning
 from proprio.description import RobotDescription
 from proprio.diagrams.estimation import (DEFAULT_GAIN, RigidBodyTorqueModel, TorqueModel, WrenchEstimator,
                                          load_torque_model)
-from proprio.systems.observers import WrenchMapping
+from proprio.discrete_lti import DiscreteLti
+from proprio.momentum import momentum_filter, momentum_initial_state
+from proprio.rigid_body_terms import RigidBodyTerms
+from proprio.wrench_solve import WrenchMapping, WrenchSolver
 
 __all__ = ["WrenchEstimate", "OnlineEstimator", "OnlineInputError"]
 
@@ -98,12 +107,30 @@ class OnlineEstimator:
         self.time_step = design.time_step
         self.max_step_jitter = float(max_step_jitter)
         self._velocity = design.velocity == "measured"
-        self._sample = np.empty(3 * n)                         # the validated sample [q; q̇; τ_J]
-        self._q, self._qd, self._tau = self._sample[:n], self._sample[n:2 * n], self._sample[2 * n:]
-        self._inputs = [(estimator.GetInputPort(name), part) for name, part in
-                        (("q", self._q), ("qd", self._qd), ("tau_meas", self._tau))
-                        if name != "qd" or self._velocity]
-        self._estimate = estimator.GetOutputPort("estimate")
+        # the laws of the Diagram's stages, each with its own explicit state
+        self._conditioner = DiscreteLti(design.A, design.B, design.C, design.D)
+        self._rigid = RigidBodyTerms(self.description, estimator.mapping.contact_point)
+        self._torque = estimator.model.torque_step()
+        self._momentum = DiscreteLti(*momentum_filter(n, self.time_step, estimator.gain))
+        self._solver = WrenchSolver(estimator.mapping, n)
+        # the validated sample [q; (q̇); τ_J] — the conditioner's input
+        self._sample = np.empty(design.input_size)
+        self._q, self._tau = self._sample[:n], self._sample[-n:]
+        self._qd = self._sample[n:2 * n] if self._velocity else None
+        # signals in the layouts the laws read: a = [τ_rigid; q̂; q̂̇; q̂̈; τ̂_J] (the torque step reads its first 4n),
+        # m = [p; τ_g + Cᵀq̇; τ̂_J; τ_int] (the momentum filter's input), the torque step's [τ_dyn; τ_int], J, and
+        # the estimate [wrenches (2×6); manipulability, unreliable; τ̂_ext,jacobian; τ̂_ext,momentum = r]
+        a, m = self._a, self._m = np.empty(5 * n), np.empty(4 * n)
+        self._conditioned, self._rigid_in = a[n:], (a[n:2 * n], a[2 * n:3 * n], a[3 * n:4 * n])
+        self._torque_in, self._tau_hat, self._tau_rigid = a[:4 * n], a[4 * n:], a[:n]
+        self._momentum_terms, self._m_tau, self._m_int = m[:2 * n], m[2 * n:3 * n], m[3 * n:]
+        self._torques = np.empty(2 * n)
+        self._tau_dyn, self._tau_int = self._torques[:n], self._torques[n:]
+        self._jac = np.empty(6 * n)
+        self._jac_matrix = self._jac.reshape(6, n)
+        v = self._v = np.empty(14 + 2 * n)
+        self._wrench, self._flags, self._tau_ext = v[:12].reshape(2, 6), v[12:14], v[14:].reshape(2, n)
+        self._tau_ext_jacobian, self._r = v[14:14 + n], v[14 + n:]
         self.reset()
 
     @classmethod
@@ -144,12 +171,10 @@ class OnlineEstimator:
         return cls(WrenchEstimator(model, conditioning.time_step, gain, mapping, conditioning), max_step_jitter)
 
     def reset(self) -> None:
-        """Forget the past: the next sample restarts the filters (steady state), the observers and the network (a
-        fresh default Context of the Diagram, its inputs fixed to that sample)."""
+        """Forget the past: the next sample restarts the filters (steady state), the observers and the network."""
         self._t_prev = -math.inf
         self._started = False
-        self._context = self.estimator.CreateDefaultContext()
-        self._fixed = [(port.FixValue(self._context, part), part) for port, part in self._inputs]
+        self._memory = [self._torque.initial_memory(), np.empty(self._torque.memory_size)]
 
     def _check(self, t: float, q: np.ndarray, tau_J: np.ndarray, qd: np.ndarray | None) -> None:
         n, u = self.n, self._sample
@@ -173,10 +198,8 @@ class OnlineEstimator:
         elif qd is not None:
             raise OnlineInputError("qd: this estimator differentiates q (velocity='q'); build it with "
                                    "velocity='measured' to use the robot's own q̇")
-        if not self._velocity:
-            self._qd[:] = 0.0
         if not math.isfinite(u @ u):
-            for name, part in (("q", u[:n]), ("qd", u[n:2 * n] if self._velocity else None), ("tau_J", u[2 * n:])):
+            for name, part in (("q", u[:n]), ("qd", self._qd), ("tau_J", u[-n:])):
                 if part is not None and not np.all(np.isfinite(part)):
                     bad = int(np.flatnonzero(~np.isfinite(part))[0])
                     raise OnlineInputError(f"{name}: non-finite value {part[bad]} at joint {bad + 1}")
@@ -197,21 +220,27 @@ class OnlineEstimator:
         ``tau_J`` [N·m] and, with ``velocity="measured"``, the robot's own ``qd`` [rad/s]. Raises
         :class:`OnlineInputError` naming the field for a malformed sample (the state is left as it was).
 
-        One Diagram step at the sample: its values on the input ports, the ``estimate`` port evaluated from the
-        states before the sample (as the replayed Diagram's logger sees it at t), then the discrete update."""
+        The Diagram's step at the sample, law by law: the outputs from the states before the sample (as the replayed
+        Diagram's logger sees them at t), then each stage's update."""
         t = float(t)
         self._check(t, q, tau_J, qd)
-        context, estimator = self._context, self.estimator
-        for fixed, part in self._fixed:                         # (GetMutableData tells the dependents)
-            fixed.GetMutableData().get_mutable_value().SetFromVector(part)
-        context.SetTime(t)
-        if not self._started:
-            estimator.set_initial_state(context)
+        first = not self._started
+        if first:                                     # the conditioner in the steady state of the first sample
+            self._conditioner.x[:] = self.design.initial_state(self._sample)
+        self._conditioner.step_into(self._sample, self._conditioned)
+        self._rigid.calc_into(*self._rigid_in, self._tau_rigid, self._momentum_terms, self._jac)
+        memory = self._memory
+        self._torque.step_into(self._torque_in, memory[0], self._torques, memory[1])
+        memory.reverse()
+        np.subtract(self._tau_dyn, self._tau_hat, out=self._tau_ext_jacobian)
+        self._m_tau[:] = self._tau_hat
+        self._m_int[:] = self._tau_int
+        if first:                                     # the momentum observer at r = 0
+            self._momentum.x[:] = momentum_initial_state(self._m)
             self._started = True
-        v = self._estimate.Eval(context)
-        # every stage's periodic update at the sample (the conditioner's and the momentum filter's LinearSystem, a
-        # hybrid model's ZeroOrderHold), as the Simulator applies it at t_k in the replay
-        context.SetDiscreteState(estimator.EvalUniquePeriodicDiscreteUpdate(context))
+        self._momentum.step_into(self._m, self._r)
+        self._solver.solve_into(self._jac_matrix, self._tau_ext, self._wrench, self._flags)
         self._t_prev = t
+        v = self._v.copy()
         v.flags.writeable = False
         return WrenchEstimate(t, v)

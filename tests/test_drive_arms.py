@@ -418,7 +418,7 @@ def test_observers_subtract_the_drive_terms(arm):
     like contact."""
     from proprio.diagrams.estimation import RigidBodyTorqueModel
     from proprio.dynamics import inverse_dynamics
-    from proprio.systems.momentum_observer import momentum_observer
+    from proprio.momentum import momentum_observer
 
     desc = _iiwa_drive_arm() if arm == "iiwa_drive" else load_robot(arm)
     dt = 1e-3

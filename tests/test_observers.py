@@ -21,9 +21,11 @@ from proprio.recording import Recording, RecordingError
 from proprio.urdf import to_urdf
 from proprio.conditioning import ConditioningConfig
 from proprio.diagrams.estimation import RigidBodyTorqueModel, estimate_wrench, estimate_wrench_offline
-from proprio.systems.momentum_observer import DrakeArm, MomentumObserver, momentum_observer, momentum_terms
-from proprio.systems.observers import (JacobianWrenchObserver, WrenchMap, WrenchMapping, WrenchSolver, jacobian_wrench,
-                                       wrench_from_joint_torque)
+from proprio.momentum import momentum_observer, momentum_terms
+from proprio.rigid_body_terms import RigidBodyTerms
+from proprio.systems.momentum_observer import MomentumObserver, RigidBodyTermsSystem
+from proprio.systems.observers import JacobianWrenchObserver, WrenchMap
+from proprio.wrench_solve import WrenchMapping, WrenchSolver, jacobian_wrench, wrench_from_joint_torque
 
 G = np.array([0.0, 0.0, -9.81])
 HOME = np.array([0.0, 0.5, 0.0, -1.2, 0.0, 0.8, 0.0])
@@ -166,15 +168,17 @@ def test_mapping_rejects_bad_options(rigid):
 # ---- generalised momentum -------------------------------------------------------------------------------------------
 
 def test_momentum_terms_match_pinocchio(rigid):
-    """p = M q̇ and τ_g + Cᵀq̇ (numpy RNEA and Drake paths) against pinocchio's CRBA, Coriolis matrix and gravity."""
+    """p = M q̇ and τ_g + Cᵀq̇ (numpy RNEA and Drake paths) against pinocchio's CRBA, Coriolis matrix and gravity; the
+    per-sample terms' τ_rigid = M q̈ + ID(q, q̇, 0) against pinocchio's RNEA and their J against the flange Jacobian."""
     model = pin.buildModelFromXML(to_urdf(rigid, None, collision=False))
     model.gravity.linear[:] = rigid.gravity
     data = model.createData()
     rng = np.random.default_rng(8)
     q = _nonsingular_poses(rigid, 10, seed=9)
-    qd = rng.normal(size=q.shape)
+    qd, qdd = rng.normal(size=q.shape), rng.normal(size=q.shape)
     p_np, beta_np = momentum_terms(rigid, q, qd)
-    arm = DrakeArm(rigid)
+    arm = RigidBodyTerms(rigid)
+    tau, momentum, jac = arm.split(arm.buffer())
     for i in range(q.shape[0]):
         m = pin.crba(model, data, q[i])
         m = np.triu(m) + np.triu(m, 1).T
@@ -185,6 +189,10 @@ def test_momentum_terms_match_pinocchio(rigid):
         for p, beta in ((p_np[i], beta_np[i]), (p_dr, beta_dr)):
             np.testing.assert_allclose(p, p_ref, atol=1e-10)
             np.testing.assert_allclose(beta, beta_ref, atol=1e-7)     # Ṁq̇ by central difference
+        arm.calc_into(q[i], qd[i], qdd[i], tau, momentum, jac)
+        np.testing.assert_allclose(tau, pin.rnea(model, data, q[i], qd[i], qdd[i]), atol=1e-10)
+        np.testing.assert_allclose(momentum, np.r_[p_dr, beta_dr], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(jac.reshape(6, -1), flange_jacobian(rigid, q[i:i + 1])[0], atol=1e-12)
 
 
 def test_momentum_observer_first_order_response(rigid):
@@ -209,10 +217,13 @@ def test_momentum_observer_first_order_response(rigid):
     builder = DiagramBuilder()
     obs = builder.AddSystem(MomentumObserver(rigid, h, gains))
     obs.set_name("momentum_observer")
+    terms = builder.AddSystem(RigidBodyTermsSystem(rigid))
+    builder.Connect(terms.GetOutputPort("momentum_terms"), obs.GetInputPort("momentum_terms"))
     src = builder.AddSystem(TrajectorySource(PiecewisePolynomial.FirstOrderHold(t, tau_meas.T)))
     builder.Connect(src.get_output_port(), obs.GetInputPort("tau_meas"))
-    for name, value in (("q", HOME), ("qd", np.zeros(rigid.n)), ("tau_int", np.zeros(rigid.n))):
-        builder.Connect(builder.AddSystem(ConstantVectorSource(value)).get_output_port(), obs.GetInputPort(name))
+    for port, value in ((terms.GetInputPort("q"), HOME), (terms.GetInputPort("qd"), np.zeros(rigid.n)),
+                        (terms.GetInputPort("qdd"), np.zeros(rigid.n)), (obs.GetInputPort("tau_int"), np.zeros(rigid.n))):
+        builder.Connect(builder.AddSystem(ConstantVectorSource(value)).get_output_port(), port)
     log = LogVectorOutput(obs.GetOutputPort("tau_ext"), builder, publish_period=h)
     diagram = builder.Build()
     sim = Simulator(diagram)
@@ -390,16 +401,27 @@ def test_force_only_rows_keep_the_gaps_of_the_log(rigid):
 @pytest.mark.parametrize("mapping", [WrenchMapping(), WrenchMapping(force_only=True),
                                      WrenchMapping(joint_weights=(1, 2, 3, 4, 5, 6, 7), contact_point=(0, 0, 0.1))])
 def test_single_sample_solver_equals_the_batched_one(rigid, mapping):
-    """The Systems' per-step LAPACK solve gives the batched solver's wrench, manipulability and flag, also damped
-    near and at the stretched-arm singularity."""
+    """The one compiled solve (Cholesky away from singularities, eigen-decomposition with damping near them), per
+    step and over samples, equals an independent SVD of W^½Jᵀ (σ/(σ² + λ²) per singular value): wrench,
+    manipulability ∏σ and flag, also damped near and at the stretched-arm singularity."""
     rng = np.random.default_rng(4)
     q = np.vstack([_nonsingular_poses(rigid, 20, seed=5), np.zeros(7), [0, 0.01, 0, 0.02, 0, 0.01, 0]])
     jac = point_jacobian(rigid, q, np.asarray(mapping.contact_point, float))
     tau = rng.normal(size=q.shape)
+    rows = [3, 4, 5] if mapping.force_only else [3, 4, 5, 0, 1, 2]
+    sqrt_w = np.sqrt(np.asarray(mapping.joint_weights or np.ones(7), float))
+    a_t = np.swapaxes(jac[:, rows], 1, 2) * sqrt_w[None, :, None]                     # W^½ Jᵀ [N,n,k]
+    u, s, vt = np.linalg.svd(a_t, full_matrices=False)
+    eps, lam = mapping.sigma_threshold, mapping.damping_max
+    damping = np.where(s[:, -1] < eps, lam ** 2 * (1 - (s[:, -1] / eps) ** 2), 0.0)
+    b = np.einsum("nik,ni->nk", u, sqrt_w * tau) * s / (s ** 2 + damping[:, None])
+    ref = np.zeros((q.shape[0], 6))
+    ref[:, :len(rows)] = np.einsum("nkj,nk->nj", vt, b)
     wrench, manip, flag = wrench_from_joint_torque(jac, tau, mapping)
     solver = WrenchSolver(mapping, 7)
     single = np.array([solver(j, t) for j, t in zip(jac, tau)])
     assert flag[-2:].all() and not flag[:-2].any()
-    np.testing.assert_allclose(single[:, :6], wrench, rtol=0, atol=1e-9 * (1 + np.abs(wrench).max()))
-    np.testing.assert_allclose(single[:, 6], manip, rtol=1e-10, atol=1e-15)
-    np.testing.assert_array_equal(single[:, 7] > 0.5, flag)
+    for w, m, f in ((wrench, manip, flag), (single[:, :6], single[:, 6], single[:, 7] > 0.5)):
+        np.testing.assert_allclose(w, ref, rtol=0, atol=1e-9 * (1 + np.abs(ref).max()))
+        np.testing.assert_allclose(m, np.prod(s, axis=1), rtol=1e-10, atol=1e-15)
+        np.testing.assert_array_equal(f, s[:, -1] < eps)

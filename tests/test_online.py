@@ -64,6 +64,20 @@ def _causally_conditioned(design, q, tau, qd=None):
             "time_step": design.time_step}
 
 
+def test_the_batch_conditioner_is_the_recursion(desc):
+    """:meth:`CausalConditioning.condition` (the compiled LTI kernel over a whole log) equals the design's recursion
+    written out test-side, for a differentiated and a measured velocity."""
+    t, q, qd, qdd, tau = _motion(desc, seconds=0.3)
+    for velocity, measured in (("q", None), ("measured", qd)):
+        design = causal_conditioning(RATE, np.linspace(8.0, 14.0, desc.n), desc.n, velocity)
+        u = np.hstack([q, tau] if measured is None else [q, measured, tau])
+        got, expected = design.condition(u), _causally_conditioned(design, q, tau, measured)
+        for key in ("q", "qd", "qdd", "tau"):
+            np.testing.assert_allclose(got[key], expected[key], rtol=0, atol=1e-10 * (1 + np.abs(expected[key]).max()))
+    with pytest.raises(ValueError, match="u must be"):
+        design.condition(u[:, :-1])
+
+
 @pytest.mark.parametrize("kind", ["rbd", "hybrid_lstm2_fcl"])
 def test_streaming_equals_the_diagram_on_a_drive_arm(kind):
     """A drive-torque arm (TX40: τ_int reads q̈ for the rotor inertia), alone or as a hybrid model's backbone: the
@@ -107,7 +121,7 @@ def test_streaming_equals_the_diagram(desc, kind):
     if kind.startswith("rbd"):
         # numpy's batched RNEA instead of Drake's plant per step: the same laws up to rounding, which Ṁq̇'s central
         # difference (step 1e-5 rad) amplifies to a few 1e-10 N in the momentum wrench
-        batch = estimate_rows(model, _causally_conditioned(design, q, tau, measured))
+        batch = estimate_rows(model, design.condition(np.hstack([q, tau] if measured is None else [q, measured, tau])))
         np.testing.assert_allclose(batch, expected, rtol=0, atol=1e-9)   # the estimates are estimates: the payload's weight (the untrained net adds noise)
         for obs in ("jacobian", "momentum"):
             fz = split_estimate(got, desc.n)[f"{obs}.wrench"][t > 0.5, 2]

@@ -2,15 +2,16 @@
 observers, logged at the data rate — the same :class:`WrenchEstimator` a live robot runs.
 
     TrajectorySource [q; q̇; q̈; τ_J] (conditioned, zero phase) → Demultiplexer → WrenchEstimator:
-        ├─ q, q̇, q̈ → torque_model (C++ InverseDynamics + τ_int, or the hybrid model) ─tau_dyn─→ jacobian_observer
-        │                                                                  └─tau_int─→ momentum_observer
+        ├─ q, q̇, q̈ → rigid_body (τ_rigid, [p; τ_g + Cᵀq̇], J(q) from one plant context)
+        ├─ τ_rigid, q, q̇, q̈ → torque_model (τ_int, or the hybrid model's network) ─tau_dyn─→ jacobian_observer
+        │                                                                      └─tau_int─→ momentum_observer
         ├─ τ_J ──────────────────────────────────────────────→ both observers' tau_meas
-        └─ (J(q) from the momentum observer's plant context) ─→ wrench (WrenchMap: one solve for both τ̂_ext)
+        └─ J(q) ──────────────────────────────────────────────→ wrench (WrenchMap: one solve for both τ̂_ext)
                                                                ─estimate─→ ONE VectorLogSink
 
-Every stage is a System with named ports; C++ primitives (InverseDynamics, Multiplexer/Demultiplexer, Adder,
-MatrixGain, discrete LinearSystem, ZeroOrderHold) carry everything but the three Python Systems that hold real
-Python work (τ_int — with the network step for a hybrid model —, the rigid-body terms p, τ_g + Cᵀq̇ and J, the
+Every stage is a System with named ports; C++ primitives (Multiplexer/Demultiplexer, MatrixGain, discrete
+LinearSystem, ZeroOrderHold) carry everything but the three Python Systems that hold real Python work (the
+rigid-body terms, the model's torque step — with the network step for a hybrid model —, the
 wrench solve), each reading one stacked input port and writing one output. The signals come from the one
 conditioning path (:mod:`proprio.conditioning`: uniform time base, zero-phase Butterworth per joint with its cutoff from the data's
 noise floor or from the config, central differences), offline, so they are computed before the replay; online, a
@@ -45,7 +46,8 @@ from proprio.plots.estimation import plot_force_estimates
 from proprio.kinematics import chain_geometry, flange_jacobian, flange_pose, point_jacobian
 from proprio.recording import Recording, RecordingError, validate_recording
 from proprio.systems.causal_conditioning import CausalConditioner
-from proprio.systems.momentum_observer import MomentumObserver, momentum_observer
+from proprio.momentum import momentum_observer
+from proprio.systems.momentum_observer import MomentumObserver, RigidBodyTermsSystem
 from proprio.systems.observers import (JacobianWrenchObserver, WrenchMap, WrenchMapping, jacobian_wrench,
                                        wrench_from_joint_torque)
 
@@ -99,12 +101,17 @@ class WrenchEstimator(Diagram):
     """The online estimator, one Drake System per stage with named ports, all stepping at ``time_step``::
 
         [conditioner]  q, [qd], tau_meas (raw) ─▶ CausalConditioner (C++ LinearSystem) ─▶ q, qd, qdd, tau_meas
-        torque_model   q, qd, qdd ─▶ TorqueModelSystem (C++ InverseDynamics + τ_int) or the hybrid model's System
-                                    ─▶ tau_dyn, tau_int
+        rigid_body     q, qd, qdd ─▶ RigidBodyTermsSystem (one plant context) ─▶ tau_rigid, momentum_terms, jacobian
+        torque_model   tau_rigid, q, qd, qdd ─▶ TorqueModelSystem (the model's torque law: friction, + the network
+                       of a hybrid model) ─▶ tau_dyn, tau_int
         jacobian_observer  tau_dyn, tau_meas ─▶ (C++ MatrixGain [I −I]) ─▶ tau_ext = τ_dyn − τ_J
-        momentum_observer  q, qd, tau_meas, tau_int ─▶ rigid-body terms (p, τ_g + Cᵀq̇, J(q) on one plant context)
-                           ─▶ (C++ discrete LinearSystem) ─▶ tau_ext = r;  jacobian
+        momentum_observer  momentum_terms, tau_meas, tau_int ─▶ (C++ discrete LinearSystem) ─▶ tau_ext = r
         wrench             jacobian, tau_ext_jacobian, tau_ext_momentum ─▶ WrenchMap (one solve for both) ─▶ estimate
+
+    Each Python System is a thin wrapper of a law written once below the Systems (:mod:`proprio.rigid_body_terms`,
+    the model's ``torque_step``, :mod:`proprio.wrench_solve`); the C++ ``LinearSystem`` stages step the matrices of
+    :func:`~proprio.causal_conditioning.causal_conditioning` and :func:`~proprio.momentum.momentum_filter`.
+    :class:`proprio.online.OnlineEstimator` chains the same laws directly, sample by sample.
 
     Input ports: without ``conditioning`` the conditioned ``q`` [rad], ``qd`` [rad/s], ``qdd`` [rad/s²],
     ``tau_meas`` [N·m] (e.g. a replay of :func:`proprio.conditioning.condition`); with a
@@ -116,8 +123,8 @@ class WrenchEstimator(Diagram):
 
     Call :meth:`set_initial_state` once the first sample is on the inputs: it starts the conditioner in that
     sample's steady state and the momentum observer at r = 0 (:class:`MomentumObserver`). The replay
-    (:func:`run_estimation_diagram`) advances it with a Simulator, :class:`proprio.online.OnlineEstimator` one sample
-    at a time on its own Context, and :func:`estimate_rows` evaluates the same laws vectorised.
+    (:func:`run_estimation_diagram`) advances it with a Simulator and :func:`estimate_rows` evaluates the same laws
+    vectorised.
     """
 
     def __init__(self, model: TorqueModel, time_step: float, gain: float | np.ndarray = DEFAULT_GAIN,
@@ -128,43 +135,42 @@ class WrenchEstimator(Diagram):
         if conditioning is not None and abs(conditioning.time_step - time_step) > 1e-9 * time_step:
             raise ValueError(f"WrenchEstimator: the conditioning is designed for {conditioning.rate_hz:g} Hz, the "
                              f"estimator steps every {time_step:g} s")
-        self.model, self.time_step = model, float(time_step)
+        self.model, self.time_step, self.gain, self.mapping = model, float(time_step), gain, mapping
         builder = DiagramBuilder()
-        system = model.make_system(time_step) if hasattr(model, "make_system") else TorqueModelSystem(model)
-        self.torque_model = builder.AddNamedSystem("torque_model", system)
+        self.rigid_body = builder.AddNamedSystem("rigid_body", RigidBodyTermsSystem(desc, mapping.contact_point))
+        self.torque_model = builder.AddNamedSystem("torque_model", TorqueModelSystem(model, time_step))
         self.jacobian = builder.AddNamedSystem("jacobian_observer", JacobianWrenchObserver(n))
-        self.momentum = builder.AddNamedSystem("momentum_observer", MomentumObserver(desc, time_step, gain,
-                                                                                     mapping.contact_point))
+        self.momentum = builder.AddNamedSystem("momentum_observer", MomentumObserver(desc, time_step, gain))
         self.wrench = builder.AddNamedSystem("wrench", WrenchMap(desc, mapping, OBSERVERS, jacobian_input=True))
         self.conditioner = None
-        if conditioning is None:
-            for name in ("q", "qd", "qdd", "tau_meas"):
-                builder.ExportInput(self.torque_model.GetInputPort(name) if name != "tau_meas" else
-                                    self.jacobian.GetInputPort(name), name)
-            signal = {name: None for name in ("q", "qd", "qdd", "tau_meas")}
-        else:
+        signal: dict = {name: None for name in ("q", "qd", "qdd", "tau_meas")}
+        if conditioning is not None:
             self.conditioner = builder.AddNamedSystem("conditioner", CausalConditioner(conditioning))
             for i in range(self.conditioner.num_input_ports()):
                 port = self.conditioner.get_input_port(i)
                 builder.ExportInput(port, port.get_name())
-            signal = {name: self.conditioner.GetOutputPort(name) for name in ("q", "qd", "qdd", "tau_meas")}
+            signal = {name: self.conditioner.GetOutputPort(name) for name in signal}
 
-        def connect(name: str, dest) -> None:
-            if signal[name] is None:
+        def connect(name: str, dest) -> None:          # a conditioner's output, else the Diagram's input port
+            if signal[name] is not None:
+                builder.Connect(signal[name], dest)
+            elif name in exported:
                 builder.ConnectInput(name, dest)
             else:
-                builder.Connect(signal[name], dest)
+                builder.ExportInput(dest, name)
+                exported.add(name)
 
+        exported: set[str] = set()
         for name in ("q", "qd", "qdd"):
-            if signal[name] is not None:
-                connect(name, self.torque_model.GetInputPort(name))
-        if signal["tau_meas"] is not None:
-            connect("tau_meas", self.jacobian.GetInputPort("tau_meas"))
+            connect(name, self.rigid_body.GetInputPort(name))
+            connect(name, self.torque_model.GetInputPort(name))
+        connect("tau_meas", self.jacobian.GetInputPort("tau_meas"))
+        connect("tau_meas", self.momentum.GetInputPort("tau_meas"))
+        builder.Connect(self.rigid_body.GetOutputPort("tau_rigid"), self.torque_model.GetInputPort("tau_rigid"))
         builder.Connect(self.torque_model.GetOutputPort("tau_dyn"), self.jacobian.GetInputPort("tau_dyn"))
-        for name in ("q", "qd", "tau_meas"):
-            connect(name, self.momentum.GetInputPort(name))
+        builder.Connect(self.rigid_body.GetOutputPort("momentum_terms"), self.momentum.GetInputPort("momentum_terms"))
         builder.Connect(self.torque_model.GetOutputPort("tau_int"), self.momentum.GetInputPort("tau_int"))
-        builder.Connect(self.momentum.GetOutputPort("jacobian"), self.wrench.GetInputPort("jacobian"))
+        builder.Connect(self.rigid_body.GetOutputPort("jacobian"), self.wrench.GetInputPort("jacobian"))
         builder.Connect(self.jacobian.GetOutputPort("tau_ext"), self.wrench.GetInputPort("tau_ext_jacobian"))
         builder.Connect(self.momentum.GetOutputPort("tau_ext"), self.wrench.GetInputPort("tau_ext_momentum"))
         for name in ("estimate", "wrench_jacobian", "wrench_momentum", "manipulability", "unreliable"):
@@ -423,7 +429,7 @@ def estimate_rows(model: TorqueModel, signals: dict[str, np.ndarray], gain: floa
     ``signals`` (``q, qd, qdd, tau`` ``[N,n]`` and ``time_step``: what the Diagram's torque model and observers see,
     from a zero-phase or a causal conditioning), from the vectorised form of the same laws instead of stepping the
     Diagram: the model's batch ``tau_int``, :func:`jacobian_wrench` and :func:`momentum_observer` (the recursion of
-    the momentum System's ``LinearSystem``, :func:`~proprio.systems.momentum_observer.momentum_filter`). As in the
+    the momentum System's ``LinearSystem``, :func:`~proprio.momentum.momentum_filter`). As in the
     Diagram (Drake discrete semantics) the momentum estimate at sample k is r_{k−1} (0 at the first sample)."""
     desc = model.description
     q, qd, qdd, tau = signals["q"], signals["qd"], signals["qdd"], signals["tau"]

@@ -1,10 +1,10 @@
 """The hybrid torque model τ_HYB = τ_RBD + f_NN(τ_RBD, q, q̇, q̈, r) (§4.2, eq. 4.29/4.30) as a ``TorqueModel`` of
 the estimation diagram (:mod:`proprio.diagrams.estimation`), so both wrench observers run on it online.
 
-Online (``make_system``), a sub-Diagram with the same ports as :class:`~proprio.diagrams.torque_model.TorqueModelSystem`
-(inputs ``q``, ``qd``, ``qdd``; outputs ``tau_dyn``, ``tau_int``), :class:`HybridTorqueModelSystem`: C++
-``InverseDynamics`` for the rigid body, then ONE Python step that adds the backbone's friction (τ_RBD) and runs the
-network on vec(τ_RBD, q, q̇, q̈, r), its memory held by a C++ ``ZeroOrderHold``.
+Online, its per-sample law (``torque_step``, :class:`HybridTorqueStep`) on the τ_rigid of the estimator's RBD
+stage: it adds the backbone's friction (τ_RBD) and runs the network on vec(τ_RBD, q, q̇, q̈, r) — inside the
+estimation Diagram as :class:`~proprio.diagrams.torque_model.TorqueModelSystem` (its memory held by a C++
+``ZeroOrderHold``) and directly in the streaming estimator (:mod:`proprio.online`).
 
 ``tau_dyn`` = τ_HYB feeds the Jacobian observer; ``tau_int`` = τ_HYB − τ_rigid (the backbone's friction and offsets
 plus the network's residual) feeds the momentum observer, which takes M(q) from the backbone's rigid body. The
@@ -29,9 +29,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from pydrake.systems.controllers import InverseDynamics
-from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
-from pydrake.systems.primitives import Demultiplexer, Multiplexer, ZeroOrderHold
 
 from proprio.description import RobotDescription, load_robot
 from proprio.diagrams.torque_model import RigidBodyTorqueModel, load_rigid_torque_model
@@ -41,10 +38,9 @@ from proprio.learning.evaluation import predict_streaming
 from proprio.learning.features import feature_matrix, rotational_displacement
 from proprio.learning.models import HybridModel, load_model
 from proprio.recording import Recording, RecordingError
-from proprio.plant import DrakeRobot
-from proprio.systems.residual_network import MemoryViews, ResidualNetworkCore
+from proprio.learning.streaming import ResidualNetworkCore
 
-__all__ = ["HybridTorqueModel", "load_hybrid_torque_model"]
+__all__ = ["HybridTorqueModel", "HybridTorqueStep", "load_hybrid_torque_model"]
 
 _RATE_TOLERANCE = 0.02      # a Recording's decimated rate may differ from the model rate by 2 %
 
@@ -107,10 +103,11 @@ class HybridTorqueModel:
         backbone = rigid + self.backbone.tau_int(q, qd, qdd)                # = tau_backbone(q, qd, qdd)
         return predict_streaming(self.network, feature_matrix(backbone, q, qd, qdd, r)) - rigid
 
-    def make_system(self, time_step: float) -> "HybridTorqueModelSystem":
-        """The online model (module docstring), stepping every ``time_step`` [s] (the replayed data's step).
-        Inputs ``q``, ``qd``, ``qdd``; outputs ``tau_dyn`` = τ_HYB and ``tau_int`` = τ_HYB − τ_rigid [N·m]."""
-        return HybridTorqueModelSystem(self, time_step)
+    def torque_step(self) -> "HybridTorqueStep":
+        """The per-sample law (:class:`HybridTorqueStep`) that the estimation Diagram's
+        :class:`~proprio.diagrams.torque_model.TorqueModelSystem` and the streaming estimator run: τ_HYB and
+        τ_int = τ_HYB − τ_rigid [N·m] from τ_rigid, q, q̇, q̈, the network's memory carried from sample to sample."""
+        return HybridTorqueStep(self)
 
     def signals(self, rec: Recording) -> tuple[Recording, dict[str, np.ndarray]]:
         """``rec`` at the model rate and its signals ``t, q, qd, qdd, tau, time_step`` prepared like the training data
@@ -131,89 +128,30 @@ class HybridTorqueModel:
                          "edge_s": self.data.conditioning().edge_cycles / min(cutoffs)}
 
 
-class HybridTorqueStep(LeafSystem):
-    """The Python part of :class:`HybridTorqueModelSystem`: input ``inputs`` = ``[τ_rigid; q; q̇; q̈; memory]``
-    (4n + the network's memory: one stacked port, as each input evaluation from Python costs about a microsecond);
-    output ``step`` = ``[τ_HYB; τ_int; next memory]`` (:meth:`HybridTorqueModelSystem.step_into`)."""
+class HybridTorqueStep:
+    """The per-sample torque law of a :class:`HybridTorqueModel`: :meth:`step_into` ``[τ_rigid; q; q̇; q̈], memory →
+    [τ_HYB; τ_int = τ_HYB − τ_rigid], next memory`` — the backbone's friction and offsets added to τ_rigid (τ_RBD,
+    the network's input), then the network's step (:class:`~proprio.learning.streaming.ResidualNetworkCore`, whose
+    memory — r-encoder and LSTM state — it passes in and out)."""
 
-    def __init__(self, owner: "HybridTorqueModelSystem"):
-        LeafSystem.__init__(self)
-        n, size = owner.n, owner.core.memory_size
-        self._owner, self._k = owner, 4 * n
-        self._inputs = self.DeclareVectorInputPort("inputs", 4 * n + size)
-        self.DeclareVectorOutputPort("step", 2 * n + size, self._calc)
-        self._out = owner.output_buffer()
-        self._memory = owner.core.memory_views(np.empty(size))       # the memory input, copied into fixed views
-
-    def _calc(self, context, output) -> None:
-        x, k = self._inputs.Eval(context), self._k
-        self._memory.vector[:] = x[k:]
-        output.SetFromVector(self._owner.step_into(self._memory, x[:k], self._out))
-
-
-class HybridTorqueModelSystem(Diagram):
-    """:meth:`HybridTorqueModel.make_system`::
-
-        q, qd ─▶ Multiplexer ─▶ InverseDynamics (C++) ─τ_rigid─┐
-        qdd ──────────────────────────┘                        ├─▶ Multiplexer ─▶ HybridTorqueStep ─▶ Demultiplexer
-        q, qd, qdd ────────────────────────────────────────────┤                                     ├─▶ tau_dyn
-                                     ZeroOrderHold ─memory─────┘   ◀──────────── next memory ────────┤   tau_int
-    Inputs ``q``, ``qd``, ``qdd`` (rad, rad/s, rad/s²); outputs ``tau_dyn`` = τ_HYB and ``tau_int`` = τ_HYB − τ_rigid
-    [N·m]. The one Python step (:meth:`step_into`) adds the backbone's friction and offsets to the C++ rigid-body
-    torque (τ_RBD, the network's input) and runs the network (:class:`~proprio.systems.residual_network.
-    ResidualNetworkCore`, the same step as :class:`~proprio.systems.residual_network.ResidualNetworkSystem`); its
-    memory (r-encoder + LSTM state) is held by a C++ ``ZeroOrderHold`` (its default, zeros, is the memory before the
-    first sample) and passed in and out of :meth:`step_into` by :class:`HybridTorqueStep`."""
-
-    def __init__(self, model: HybridTorqueModel, time_step: float):
-        Diagram.__init__(self)
-        n = self.n = model.description.n
-        self.arm = DrakeRobot(model.description)
+    def __init__(self, model: HybridTorqueModel):
+        self.n = model.description.n
         self.core = ResidualNetworkCore(model.network)
+        self.memory_size = self.core.memory_size
         self._friction = model.backbone.tau_int_step()
-        size = self.core.memory_size
-        builder = DiagramBuilder()
-        state = builder.AddNamedSystem("state", Multiplexer([n, n]))
-        rigid = builder.AddNamedSystem("rigid_body", InverseDynamics(self.arm.plant))
-        inputs = builder.AddNamedSystem("inputs", Multiplexer([n] * 4 + [size]))
-        step = builder.AddNamedSystem("step", HybridTorqueStep(self))
-        split = builder.AddNamedSystem("split", Demultiplexer([n, n, size]))
-        hold = builder.AddNamedSystem("memory", ZeroOrderHold(float(time_step), size))
-        builder.ExportInput(state.get_input_port(0), "q")
-        builder.ExportInput(state.get_input_port(1), "qd")
-        builder.ExportInput(rigid.get_input_port_desired_acceleration(), "qdd")
-        builder.Connect(state.get_output_port(), rigid.get_input_port_estimated_state())
-        builder.Connect(rigid.get_output_port_generalized_force(), inputs.get_input_port(0))
-        for i, name in enumerate(("q", "qd", "qdd")):
-            builder.ConnectInput(name, inputs.get_input_port(1 + i))
-        builder.Connect(inputs.get_output_port(), step.GetInputPort("inputs"))
-        builder.Connect(hold.get_output_port(), inputs.get_input_port(4))
-        builder.Connect(step.get_output_port(), split.get_input_port())
-        builder.Connect(split.get_output_port(2), hold.get_input_port())
-        builder.ExportOutput(split.get_output_port(0), "tau_dyn")
-        builder.ExportOutput(split.get_output_port(1), "tau_int")
-        builder.BuildInto(self)
-        self.set_name("hybrid_torque_model")
+        self._inputs = np.empty(4 * self.n)
 
-    def output_buffer(self) -> tuple:
-        """A preallocated output ``[τ_HYB; τ_int; next memory]`` for :meth:`step_into`: ``(vector, τ_HYB view, τ_int
-        view, next-memory views)``."""
-        n = self.n
-        out = np.empty(2 * n + self.core.memory_size)
-        return out, out[:n], out[n:2 * n], self.core.memory_views(out[2 * n:])
+    def initial_memory(self) -> np.ndarray:
+        return self.core.initial_memory()
 
-    def step_into(self, memory: MemoryViews, inputs: np.ndarray, out: tuple) -> np.ndarray:
-        """The step function without allocation: ``out`` (an :meth:`output_buffer`, whose memory must not be
-        ``memory``) gets ``[τ_HYB; τ_int; next memory]`` from the memory and ``inputs = [τ_rigid; q; q̇; q̈]``
-        (modified in place: its first block becomes τ_RBD = τ_rigid + the backbone's τ_int); returns its vector."""
-        n = self.n
-        vector, tau_hybrid, tau_int, memory_out = out
-        friction = self._friction(inputs[2 * n:3 * n], inputs[3 * n:])
-        inputs[:n] += friction                                        # τ_RBD, the network's input
-        self.core.step_views(memory, inputs, tau_hybrid, memory_out)
-        np.subtract(tau_hybrid, inputs[:n], out=tau_int)
-        tau_int += friction                                           # τ_int = τ_HYB − τ_rigid
-        return vector
+    def step_into(self, inputs: np.ndarray, memory: np.ndarray, out: np.ndarray, memory_out: np.ndarray) -> None:
+        """``inputs = [τ_rigid; q; q̇; q̈]`` (4n: N·m, rad, rad/s, rad/s²) and ``memory`` → ``out = [τ_HYB; τ_int]``
+        (2n, N·m) and the next memory into ``memory_out`` (which must not alias ``memory``)."""
+        n, x = self.n, self._inputs
+        x[:] = inputs
+        x[:n] += self._friction(inputs[2 * n:3 * n], inputs[3 * n:])            # τ_RBD, the network's input
+        self.core.step_into(memory, x, out[:n], memory_out)
+        np.subtract(out[:n], inputs[:n], out=out[n:])                           # τ_int = τ_HYB − τ_rigid
 
 
 def load_hybrid_torque_model(path: str | Path) -> HybridTorqueModel:

@@ -1,6 +1,7 @@
 """The joint-torque models of the estimator: the :class:`TorqueModel` protocol, the rigid-body model of a description
-(:class:`RigidBodyTorqueModel`: RBD + link friction + drive terms + offsets) and its System
-(:class:`TorqueModelSystem`: C++ ``InverseDynamics`` + :class:`InteractionTorqueSystem`).
+(:class:`RigidBodyTorqueModel`: RBD + link friction + drive terms + offsets), its per-sample torque law
+(:class:`RigidTorqueStep`) and the System of any model's law (:class:`TorqueModelSystem`, on the τ_rigid of the
+estimator's RBD stage, :class:`~proprio.systems.momentum_observer.RigidBodyTermsSystem`).
 
 Both the estimation diagram (:mod:`proprio.diagrams.estimation`) and the hybrid model
 (:mod:`proprio.diagrams.hybrid_torque_model`, whose backbone is a :class:`RigidBodyTorqueModel`) import this module;
@@ -16,9 +17,8 @@ from pathlib import Path
 from typing import Callable, Protocol
 
 import numpy as np
-from pydrake.systems.controllers import InverseDynamics
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
-from pydrake.systems.primitives import Adder, Multiplexer
+from pydrake.systems.primitives import Demultiplexer, Multiplexer, ZeroOrderHold
 
 from proprio import friction_law
 from proprio.description import RobotDescription, load_robot
@@ -26,25 +26,28 @@ from proprio.identification.model_io import load_model
 from proprio.identification.regressor import drive_identified, drive_torque
 from proprio.plant import DrakeRobot
 
-__all__ = ["TorqueModel", "RigidBodyTorqueModel", "load_rigid_torque_model", "InteractionTorqueSystem",
+__all__ = ["TorqueModel", "RigidBodyTorqueModel", "load_rigid_torque_model", "RigidTorqueStep", "TorqueStepSystem",
            "TorqueModelSystem"]
 
 
 class TorqueModel(Protocol):
     """A joint-torque model τ_dyn = τ_rbd + τ_int (eq. 3.9), vectorised over samples ``[N,n]``.
 
-    ``description`` gives the kinematics and the rigid-body inertials: τ_rbd is its inverse dynamics (Drake's
-    ``CalcInverseDynamics`` per step in the diagram, :func:`proprio.dynamics.inverse_dynamics` offline) and the
-    momentum observer takes M(q) from it. ``tau_int`` is everything the model adds to the rigid body (link friction,
+    ``description`` gives the kinematics and the rigid-body inertials: τ_rbd is its inverse dynamics (per step from
+    the RBD stage's plant context, :class:`~proprio.rigid_body_terms.RigidBodyTerms`, which gives the momentum
+    observer M(q) from the same kinematics; :func:`proprio.dynamics.inverse_dynamics` offline). ``tau_int`` is everything the model adds to the rigid body (link friction,
     a learned residual).
 
-    A model with memory (the hybrid model, :mod:`proprio.diagrams.hybrid_torque_model`) also provides
-    ``make_system(time_step) -> System`` (the ports of :class:`TorqueModelSystem`, run online by the diagram instead of
-    it) and ``signals(rec) -> (Recording, signals)`` (its own preprocessing at its own rate, instead of
+    ``torque_step()`` is its per-sample law (``n``, ``memory_size``, ``initial_memory()``, ``step_into(inputs,
+    memory, out, memory_out)``: :class:`RigidTorqueStep`), which :class:`TorqueModelSystem` and the streaming
+    estimator call. A model with its own preprocessing (the hybrid model, :mod:`proprio.diagrams.hybrid_torque_model`)
+    also provides ``signals(rec) -> (Recording, signals)`` (its own preprocessing at its own rate, instead of
     :func:`~proprio.diagrams.estimation.conditioned_signals`; ``signals["edge_s"]`` is its filters' edge transient [s]) and a ``name``."""
     description: RobotDescription
 
     def tau_int(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray: ...
+
+    def torque_step(self) -> "RigidTorqueStep": ...
 
 
 @dataclass(frozen=True)
@@ -97,6 +100,10 @@ class RigidBodyTorqueModel:
             return lambda qd, qdd: offset.copy()
         return lambda qd, qdd: offset + friction_law.viscous_coulomb(qd, fv, fc, v_s)
 
+    def torque_step(self) -> "RigidTorqueStep":
+        """The per-sample torque law (:class:`RigidTorqueStep`) of the Systems and the streaming estimator."""
+        return RigidTorqueStep(self)
+
 
 def load_rigid_torque_model(spec: str | Path) -> RigidBodyTorqueModel:
     """A rigid-body model from a shipped robot name or robot YAML/URDF (its RBD + friction, e.g.
@@ -118,59 +125,76 @@ def load_rigid_torque_model(spec: str | Path) -> RigidBodyTorqueModel:
     return RigidBodyTorqueModel(load_robot(spec))
 
 
-class InteractionTorqueSystem(LeafSystem):
-    """``tau_int`` (n) [N·m] = the model's τ_int for one sample of the inputs ``q`` [rad], ``qd`` [rad/s], ``qdd``
-    [rad/s²]: the per-sample law of a :class:`RigidBodyTorqueModel` (``tau_int_step``), the model's vectorised
-    ``tau_int`` on one row otherwise. :meth:`calc` is the step function."""
+class RigidTorqueStep:
+    """The per-sample torque law of a :class:`RigidBodyTorqueModel` (no memory): :meth:`step_into` ``[τ_rigid; q;
+    q̇; q̈] → [τ_dyn = τ_rigid + τ_int; τ_int]`` with the folded τ_int (:meth:`RigidBodyTorqueModel.tau_int_step`)."""
+    memory_size = 0
 
-    def __init__(self, model: TorqueModel):
+    def __init__(self, model: RigidBodyTorqueModel):
+        self.n = model.description.n
+        self._tau_int = model.tau_int_step()
+
+    def initial_memory(self) -> np.ndarray:
+        return np.zeros(0)
+
+    def step_into(self, inputs: np.ndarray, memory: np.ndarray, out: np.ndarray, memory_out: np.ndarray) -> None:
+        """``inputs = [τ_rigid; q; q̇; q̈]`` (4n: N·m, rad, rad/s, rad/s²) → ``out = [τ_dyn; τ_int]`` (2n, N·m)."""
+        n = self.n
+        tau_int = self._tau_int(inputs[2 * n:3 * n], inputs[3 * n:])
+        np.add(inputs[:n], tau_int, out=out[:n])
+        out[n:] = tau_int
+
+
+class TorqueStepSystem(LeafSystem):
+    """The Python System of :class:`TorqueModelSystem`: input ``inputs`` = ``[τ_rigid; q; q̇; q̈; memory]`` (one
+    stacked port: each input evaluation from Python costs about a microsecond), output ``step`` = ``[τ_dyn; τ_int;
+    next memory]`` — the model's torque step law (``step_into``), nothing else."""
+
+    def __init__(self, law):
         LeafSystem.__init__(self)
-        n = model.description.n
-        self._ports = [self.DeclareVectorInputPort(name, n) for name in ("q", "qd", "qdd")]
-        if hasattr(model, "tau_int_step"):
-            step = model.tau_int_step()
-            self.calc = lambda q, qd, qdd: step(qd, qdd)
-            self._ports[0] = None                       # the rigid-body law does not read q, nor q̈ but for a drive arm
-            if not model.reads_qdd:
-                self._ports[2] = None
-        else:
-            self.calc = lambda q, qd, qdd: model.tau_int(q[None, :], qd[None, :], qdd[None, :])[0]
-        self.DeclareVectorOutputPort("tau_int", n, self._calc)
+        n, size = law.n, law.memory_size
+        self._law, self._k = law, 4 * n
+        self._inputs = self.DeclareVectorInputPort("inputs", 4 * n + size)
+        self.DeclareVectorOutputPort("step", 2 * n + size, self._calc)
+        self._out = np.empty(2 * n + size)
+        self._torques, self._memory = self._out[:2 * n], self._out[2 * n:]
 
     def _calc(self, context, output) -> None:
-        output.SetFromVector(self.calc(*(None if p is None else p.Eval(context) for p in self._ports)))
+        x, k = self._inputs.Eval(context), self._k
+        self._law.step_into(x[:k], x[k:], self._torques, self._memory)
+        output.SetFromVector(self._out)
 
 
 class TorqueModelSystem(Diagram):
-    """A :class:`TorqueModel` as a sub-Diagram: τ_rbd from Drake's C++ ``InverseDynamics`` (gravity as the applied
-    force) and τ_int from :class:`InteractionTorqueSystem`::
+    """A :class:`TorqueModel`'s torque on the estimator's rigid-body torque, as a sub-Diagram::
 
-        q, qd ──▶ Multiplexer ──▶ InverseDynamics ──τ_rbd──▶ Adder ──▶ tau_dyn
-        qdd ───────────────────────────┘                ┌──▶ ┘
-        q, qd, qdd ──▶ InteractionTorqueSystem ──tau_int┴────────────▶ tau_int
+        tau_rigid, q, qd, qdd ─▶ Multiplexer ─▶ TorqueStepSystem ─▶ Demultiplexer ─▶ tau_dyn, tau_int
+                        memory ─┘   (ZeroOrderHold ◀── next memory ─┘, only for a model with memory)
 
-    Inputs ``q``, ``qd``, ``qdd`` (n each, rad, rad/s, rad/s²); outputs ``tau_dyn`` = τ_rbd + τ_int, ``tau_int`` and
-    ``tau_rbd`` (n each, N·m). ``arm`` is the plant the C++ system evaluates (kept alive with it)."""
+    Inputs ``tau_rigid`` (the inverse dynamics of the RBD stage, N·m), ``q``, ``qd``, ``qdd`` (rad, rad/s, rad/s²),
+    n each; outputs ``tau_dyn`` = τ_rigid + τ_int and ``tau_int`` (N·m). The step is the model's law
+    (``model.torque_step()``: :class:`RigidTorqueStep`, or a hybrid model's friction + network step), whose memory
+    (a network's r-encoder and LSTM state) a C++ ``ZeroOrderHold`` holds at ``time_step`` (its default, zeros, is the
+    memory before the first sample)."""
 
-    def __init__(self, model: TorqueModel):
+    def __init__(self, model: TorqueModel, time_step: float):
         Diagram.__init__(self)
         n = model.description.n
-        self.arm = DrakeRobot(model.description)
+        self.law = law = model.torque_step()
+        size = law.memory_size
         builder = DiagramBuilder()
-        state = builder.AddNamedSystem("state", Multiplexer([n, n]))
-        self.rbd = builder.AddNamedSystem("rigid_body", InverseDynamics(self.arm.plant))
-        self.interaction = builder.AddNamedSystem("interaction", InteractionTorqueSystem(model))
-        total = builder.AddNamedSystem("total", Adder(2, n))
-        builder.ExportInput(state.get_input_port(0), "q")
-        builder.ExportInput(state.get_input_port(1), "qd")
-        builder.ExportInput(self.rbd.get_input_port_desired_acceleration(), "qdd")
-        for name in ("q", "qd", "qdd"):
-            builder.ConnectInput(name, self.interaction.GetInputPort(name))
-        builder.Connect(state.get_output_port(), self.rbd.get_input_port_estimated_state())
-        builder.Connect(self.rbd.get_output_port_generalized_force(), total.get_input_port(0))
-        builder.Connect(self.interaction.get_output_port(), total.get_input_port(1))
-        builder.ExportOutput(total.get_output_port(), "tau_dyn")
-        builder.ExportOutput(self.interaction.get_output_port(), "tau_int")
-        builder.ExportOutput(self.rbd.get_output_port_generalized_force(), "tau_rbd")
+        inputs = builder.AddNamedSystem("inputs", Multiplexer([n] * 4 + ([size] if size else [])))
+        step = builder.AddNamedSystem("step", TorqueStepSystem(law))
+        split = builder.AddNamedSystem("split", Demultiplexer([n, n] + ([size] if size else [])))
+        for i, name in enumerate(("tau_rigid", "q", "qd", "qdd")):
+            builder.ExportInput(inputs.get_input_port(i), name)
+        builder.Connect(inputs.get_output_port(), step.get_input_port())
+        builder.Connect(step.get_output_port(), split.get_input_port())
+        if size:
+            hold = builder.AddNamedSystem("memory", ZeroOrderHold(float(time_step), size))
+            builder.Connect(split.get_output_port(2), hold.get_input_port())
+            builder.Connect(hold.get_output_port(), inputs.get_input_port(4))
+        builder.ExportOutput(split.get_output_port(0), "tau_dyn")
+        builder.ExportOutput(split.get_output_port(1), "tau_int")
         builder.BuildInto(self)
         self.set_name("torque_model")

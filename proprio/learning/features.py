@@ -21,15 +21,15 @@ Per joint the state is ``(d, e, a)``: direction ±1, running extremum in directi
     if d·e − d·q > h:  a ← e, d ← −d, e ← q   (reversal confirmed)
     r = clip(q − a, −r_max, r_max)
 
-The offline encoder runs this segment-wise: between two reversals it is ``np.maximum.accumulate`` over the samples,
-and the next reversal is the first sample where the accumulated extremum leads q by more than h; only the loop over
-segments (one per reversal) and the 7 joints is in Python.
+The per-sample step is one compiled kernel (:func:`reversal_step`, numba): the streaming encoder calls it once per
+sample, the offline one runs it over the samples in a compiled loop, so both are the same law, bit for bit.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import Callable
 
+import numba
 import numpy as np
 
 from proprio import friction_law
@@ -39,40 +39,34 @@ __all__ = ["R_MAX_DEG", "DEFAULT_DEADBAND_DEG", "TauRbdProvider", "rotational_di
 
 R_MAX_DEG = 10.0
 DEFAULT_DEADBAND_DEG = 0.05
-_FIRST_CHUNK = 64
 
 TauRbdProvider = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 """``(q, qd, qdd) -> tau_rbd``, all ``[N, n]`` (rad, rad/s, rad/s², N·m): any rigid-body backbone."""
 
 
-def _encode_joint(q: np.ndarray, h: float, r_max: float, state: tuple[float, float, float]
-                  ) -> tuple[np.ndarray, tuple[float, float, float]]:
-    """One joint: r [N] (unclipped travel, clipped on return) and the final state (d, e, a)."""
-    d, e, a = state
-    n = q.shape[0]
-    r = np.empty(n)
-    i = 0
-    while i < n:
-        # search the next reversal from sample i in growing chunks (amortised O(segment length))
-        start, chunk, hit = i, _FIRST_CHUNK, -1
-        while start < n and hit < 0:
-            stop = min(n, start + chunk)
-            s = d * q[start:stop]
-            run = np.maximum.accumulate(np.maximum(s, d * e))        # running extremum (signed) at each sample
-            lead = np.flatnonzero(run - s > h)
-            if lead.size:
-                hit = start + int(lead[0])
-                stop = hit
-                run = run[:lead[0] + 1]
-            r[start:stop] = q[start:stop] - a
-            e = d * run[-1]
-            start, chunk = stop, 2 * chunk
-        if hit < 0:
-            break
-        a, d, e = e, -d, q[hit]                                        # reversal at the extremum e
-        r[hit] = q[hit] - a
-        i = hit + 1
-    return np.clip(r, -r_max, r_max), (d, e, a)
+@numba.njit(cache=True)
+def reversal_step(d, run, a, q, h, r_max, r_out):  # pragma: no cover (compiled)
+    """The encoder's law for one sample, in place: the state ``d`` (direction ±1), ``run`` (signed running extremum
+    d·e), ``a`` (reversal point) [n] advanced by ``q [n]`` rad with the deadband ``h`` [rad]; r [rad] (clipped to
+    ±``r_max``) into ``r_out [n]``."""
+    for j in range(q.shape[0]):
+        s = d[j] * q[j]
+        m = max(s, run[j])                                   # signed running extremum d·e
+        if m - s > h:                                        # reversal confirmed
+            a[j] = d[j] * m                                  # a ← e, the extremum
+            d[j] = -d[j]                                     # d ← −d
+            m = -s                                           # d·e ← (−d)·q
+        run[j] = m
+        r_out[j] = min(max(q[j] - a[j], -r_max), r_max)
+
+
+@numba.njit(cache=True)
+def _encode(q, h, r_max, out):  # pragma: no cover (compiled)
+    """:func:`reversal_step` over the samples ``q [N,n]`` from the state at ``q[0]`` (direction up) → ``out [N,n]``."""
+    n = q.shape[1]
+    d, run, a = np.ones(n), q[0].copy(), q[0].copy()
+    for k in range(q.shape[0]):
+        reversal_step(d, run, a, q[k], h, r_max, out[k])
 
 
 def rotational_displacement(q: np.ndarray, deadband_deg: float = DEFAULT_DEADBAND_DEG, r_max_deg: float = R_MAX_DEG
@@ -87,10 +81,8 @@ def rotational_displacement(q: np.ndarray, deadband_deg: float = DEFAULT_DEADBAN
         raise ValueError(f"rotational_displacement: q must be [N, n] with N >= 1, got shape {list(q.shape)}")
     if deadband_deg < 0 or r_max_deg <= 0:
         raise ValueError("rotational_displacement: reversal_deadband_deg must be >= 0 and r_max_deg > 0")
-    h, r_max = np.radians(deadband_deg), np.radians(r_max_deg)
-    out = np.empty_like(q)
-    for j in range(q.shape[1]):
-        out[:, j], _ = _encode_joint(q[:, j], h, r_max, (1.0, q[0, j], q[0, j]))
+    out = np.empty(q.shape)
+    _encode(np.ascontiguousarray(q), float(np.radians(deadband_deg)), float(np.radians(r_max_deg)), out)
     return out
 
 
@@ -133,18 +125,9 @@ class ReversalEncoder:
         """:meth:`step_state` into preallocated arrays (for the per-sample Systems): the next state into
         ``state_out [3n]`` (``parts_out``: its :meth:`split_state` views, if made already) and r [rad] into
         ``r_out [n]`` (neither may alias ``state`` or ``q``)."""
-        state_out[:] = state                                       # no reversal: d, d·e, a
+        state_out[:] = state
         d, run, a = self.split_state(state_out) if parts_out is None else parts_out
-        s = d * q
-        np.maximum(s, run, out=run)                                # signed running extremum d·e
-        rev = run - s > self.h
-        if np.count_nonzero(rev):                                  # (cheaper than rev.any() for one sample)
-            a[rev] = d[rev] * run[rev]                             # a ← e, the extremum
-            d[rev] = -d[rev]                                       # d ← −d
-            run[rev] = -s[rev]                                     # d·e ← (−d)·q
-        np.subtract(q, a, out=r_out)                               # clipped to ±r_max (np.clip, less call overhead)
-        np.maximum(r_out, -self.r_max, out=r_out)
-        np.minimum(r_out, self.r_max, out=r_out)
+        reversal_step(d, run, a, q, self.h, self.r_max, r_out)
 
     def step(self, q: np.ndarray) -> np.ndarray:
         """r [n] rad for the next sample ``q [n]`` rad (the first call initialises the state)."""

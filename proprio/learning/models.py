@@ -31,6 +31,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
+import numba
 import numpy as np
 import torch
 from torch import nn
@@ -39,7 +40,7 @@ from proprio.io import atomic_path
 from proprio.learning.features import DEFAULT_DEADBAND_DEG, R_MAX_DEG, feature_columns
 from proprio.learning.sections import section_from_dict
 
-__all__ = ["ARCHS", "ModelConfig", "HybridModel", "StreamingStepper", "save_model", "load_model"]
+__all__ = ["ARCHS", "ModelConfig", "HybridModel", "StreamingStepper", "lstm2_step", "save_model", "load_model"]
 
 ARCHS = ("mlp7", "lstm2", "lstm2_fcl", "transformer")
 _LABEL = {"mlp7": "MLP-7", "lstm2": "LSTM-2", "lstm2_fcl": "LSTM-2-FCL", "transformer": "Transformer"}
@@ -280,6 +281,39 @@ def load_model(path: str | Path, dtype: torch.dtype = torch.float32) -> tuple[Hy
     return model.to(dtype).eval(), payload.get("extra", {})
 
 
+@numba.njit(cache=True)
+def _lstm_cell(w, z, c, c_out, h_out):  # pragma: no cover (compiled)
+    """One LSTM cell step (eq. 3.66–3.71): the cell state from ``c`` into ``c_out`` and h into ``h_out``. The gates
+    come from ONE tanh, σ(a) = ½ + ½ tanh(a/2), so ``w = S [W_ih  W_hh  b]`` (rows i, f, o, g) is pre-scaled by
+    S = ½ on the i, f, o rows and 1 on the g rows, and ``z = [x; h; 1]``."""
+    k = c.shape[0]
+    a = np.tanh(np.dot(w, z))                               # (BLAS: the one product of the cell)
+    for i in range(k):
+        gate_i, gate_f, gate_o = 0.5 * a[i] + 0.5, 0.5 * a[k + i] + 0.5, 0.5 * a[2 * k + i] + 0.5
+        c_new = c[i] * gate_f + gate_i * a[3 * k + i]
+        c_out[i] = c_new
+        h_out[i] = math.tanh(c_new) * gate_o
+
+
+@numba.njit(cache=True)
+def lstm2_step(cell1, cell2, w_out, x, state, state_out, tau_out, hybrid):  # pragma: no cover (compiled)
+    """One step of the LSTM-2(-FCL) on the features ``x`` (the model's columns): τ [n] N·m into ``tau_out`` (+ the
+    first feature block, τ_RBD, when ``hybrid``) and the next state ``[h₁, c₁, h₂, c₂]`` into ``state_out`` (which
+    must not alias ``state``) — the streaming law of :class:`StreamingStepper`, compiled."""
+    k1, k2, f = cell1.shape[0] // 4, cell2.shape[0] // 4, x.shape[0]
+    z1 = np.empty(f + k1 + 1)
+    z1[:f], z1[f:f + k1], z1[f + k1] = x, state[:k1], 1.0
+    _lstm_cell(cell1, z1, state[k1:2 * k1], state_out[k1:2 * k1], state_out[:k1])
+    z2 = np.empty(k1 + k2 + 1)
+    z2[:k1], z2[k1:k1 + k2], z2[k1 + k2] = state_out[:k1], state[2 * k1:2 * k1 + k2], 1.0
+    _lstm_cell(cell2, z2, state[2 * k1 + k2:], state_out[2 * k1 + k2:], state_out[2 * k1:2 * k1 + k2])
+    for i in range(tau_out.shape[0]):
+        s = w_out[i, k2]
+        for j in range(k2):
+            s += w_out[i, j] * state_out[2 * k1 + j]
+        tau_out[i] = s + x[i] if hybrid else s
+
+
 class StreamingStepper:
     """The same model as plain float64 numpy for one-sample-at-a-time inference (≈10× less overhead per sample than
     a torch call). ``step(x [5n], state [state_size]) -> (τ [n], state)``; equals :meth:`HybridModel.run` to
@@ -287,10 +321,10 @@ class StreamingStepper:
 
     The normalisations are folded into the weights once (eq. 4.33/4.34 are affine, so ``W((x − μ)/σ) + b`` =
     ``(W/σ) x + (b − W μ/σ)`` and the output de-normalisation scales the last layer), which leaves one matrix–vector
-    product per LSTM cell (on [x; h]) and one for the output layer.
-
-    For the per-sample Systems, an LSTM reading all five feature blocks in order has :attr:`features`, its input
-    buffer vec(τ_RBD, q, q̇, q̈, r) (5n): fill it and call :meth:`step_into` (no allocation). None otherwise."""
+    product per LSTM cell (on [x; h]) and one for the output layer. An LSTM steps by the compiled kernel
+    :func:`lstm2_step` (numba; compiled or loaded from its cache when the stepper is built, so the first sample is
+    not the compile); :attr:`all_features`: it reads all five feature blocks vec(τ_RBD, q, q̇, q̈, r) in order (the
+    residual step then runs it inside one kernel, :mod:`proprio.learning.streaming`)."""
 
     def __init__(self, model: HybridModel):
         if not model.cfg.streamable:
@@ -298,7 +332,6 @@ class StreamingStepper:
         sd = {k: v.detach().cpu().double().numpy() for k, v in model.state_dict().items()}
         self.n, self.hybrid = model.cfg.n_joints, model.cfg.hybrid
         self.state_size = model.state_size
-        self.features: np.ndarray | None = None
         columns = sd["columns"].astype(int)
         self.columns = None if np.array_equal(columns, np.arange(5 * self.n)) else columns
         inv_std = 1.0 / sd["x_std"]
@@ -308,6 +341,7 @@ class StreamingStepper:
             return w * inv_std, b - w @ (sd["x_mean"] * inv_std)
 
         self.arch = model.cfg.arch
+        self.all_features = self.columns is None and self.arch != "mlp7"
         if self.arch == "mlp7":
             w1 = sd["net.w1"]                                                   # [n, F, H]
             self.w1 = w1 * inv_std[None, :, None]
@@ -332,66 +366,8 @@ class StreamingStepper:
             else:
                 w_out, b_out = np.diag(y_std), y_mean
             self.w_out = np.ascontiguousarray(np.hstack([w_out, b_out[:, None]]))       # [W | b] on [h₂; 1]
-            k1, k2 = self.sizes[0], self.sizes[2]
-            f_in = self.cells[0].shape[1] - k1 - 1
-            # preallocated buffers: z₁ = [x; h₁; 1], z₂ = [h₁; h₂; 1] (the bias rides on the constant 1), each cell's
-            # pre-activations, and their views made once (a slice costs about as much as a small ufunc call)
-            z1, z2 = self._z1, self._z2 = np.ones(f_in + k1 + 1), np.ones(k1 + k2 + 1)
-            self._z1_x, self._z1_h = z1[:f_in], z1[f_in:f_in + k1]
-            self._z2_h1, self._z2_h2, self._z2_out = z2[:k1], z2[k1:k1 + k2], z2[k1:]
-            self._views = [self._cell_views(k) for k in (k1, k2)]
-            self.features = self._z1_x if self.columns is None else None
-            self._tau_rbd = z1[:self.n]
-
-    @staticmethod
-    def _cell_views(k: int) -> tuple[np.ndarray, ...]:
-        """``(a, σ rows, i, f, o, g, scratch)`` for a cell of width k: its pre-activation buffer in the row order
-        i, f, o, g, the view of the three sigmoid gates, each gate's view and a scratch vector."""
-        a = np.empty(4 * k)
-        return a, a[:3 * k], a[:k], a[k:2 * k], a[2 * k:3 * k], a[3 * k:], np.empty(k)
-
-    @staticmethod
-    def _cell(z: np.ndarray, w: np.ndarray, views: tuple[np.ndarray, ...], c: np.ndarray, c_out: np.ndarray,
-              h_out: np.ndarray) -> None:
-        """One LSTM cell step (eq. 3.66–3.71): the cell state from ``c`` into ``c_out`` and h into ``h_out``. The
-        gates come from ONE tanh, σ(a) = ½ + ½ tanh(a/2), so ``w = S [W_ih  W_hh  b]`` (rows i, f, o, g) is
-        pre-scaled by S = ½ on the i, f, o rows and 1 on the g rows, and ``z = [x; h; 1]``."""
-        a, sig, i, f, o, g, tmp = views
-        np.dot(w, z, out=a)
-        np.tanh(a, out=a)
-        sig *= 0.5
-        sig += 0.5                                                   # [i, f, o] = σ, g = tanh
-        np.multiply(c, f, out=c_out)
-        np.multiply(i, g, out=tmp)
-        c_out += tmp
-        np.tanh(c_out, out=h_out)
-        h_out *= o
-
-    def split_state(self, state: np.ndarray) -> tuple[np.ndarray, ...]:
-        """Views ``(h₁, c₁, h₂, c₂)`` of an LSTM state vector (make them once per buffer: :meth:`step_split`)."""
-        k1, k2 = self.sizes[0], self.sizes[2]
-        return state[:k1], state[k1:2 * k1], state[2 * k1:2 * k1 + k2], state[2 * k1 + k2:]
-
-    def step_into(self, state: np.ndarray, state_out: np.ndarray, tau_out: np.ndarray) -> None:
-        """One LSTM step on the features already in :attr:`features` (the per-sample Systems' path: no allocation):
-        τ [n] N·m into ``tau_out`` and the next recurrent state ``[h₁, c₁, h₂, c₂]`` into ``state_out`` (which must not
-        alias ``state``)."""
-        self.step_split(self.split_state(state), self.split_state(state_out), tau_out)
-
-    def step_split(self, state: tuple[np.ndarray, ...], state_out: tuple[np.ndarray, ...], tau_out: np.ndarray
-                   ) -> None:
-        """:meth:`step_into` on the :meth:`split_state` views of the state and the next state."""
-        h1, c1, h2, c2 = state
-        h1_out, c1_out, h2_out, c2_out = state_out
-        self._z1_h[:] = h1
-        self._cell(self._z1, self.cells[0], self._views[0], c1, c1_out, h1_out)
-        self._z2_h1[:] = h1_out
-        self._z2_h2[:] = h2
-        self._cell(self._z2, self.cells[1], self._views[1], c2, c2_out, h2_out)
-        self._z2_h2[:] = h2_out
-        np.dot(self.w_out, self._z2_out, out=tau_out)
-        if self.hybrid:
-            tau_out += self._tau_rbd                                 # + τ_RBD, the first feature block
+            lstm2_step(*self.cells, self.w_out, np.zeros(self.cells[0].shape[1] - self.sizes[0] - 1),
+                       np.zeros(self.state_size), np.empty(self.state_size), np.empty(self.n), self.hybrid)  # compile
 
     def step(self, x: np.ndarray, state: np.ndarray, r: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """τ [n] N·m for the features ``x [5n]`` of one sample — or ``x [4n]`` = vec(τ_RBD, q, q̇, q̈) and ``r [n]``
@@ -403,12 +379,8 @@ class StreamingStepper:
             h = np.maximum(np.einsum("f,jfh->jh", z, self.w1) + self.b1, 0.0)
             tau = np.einsum("jh,jh->j", h, self.w2) + self.b2
             return (tau + x[:self.n] if self.hybrid else tau), state
-        f_in = self._z1_x.shape[0]
-        if r is None:
-            self._z1_x[:] = z
-        else:
-            self._z1_x[:f_in - r.shape[0]] = z
-            self._z1_x[f_in - r.shape[0]:] = r
+        if r is not None:
+            z = np.concatenate((z, r))
         nxt, tau = np.empty_like(state), np.empty(self.n)
-        self.step_into(state, nxt, tau)
+        lstm2_step(*self.cells, self.w_out, z, state, nxt, tau, self.hybrid)
         return tau, nxt
