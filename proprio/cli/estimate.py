@@ -8,7 +8,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from proprio.cli import UserError, check_output, nonnegative, nonnegative_int, positive
+from proprio.cli import check_output, nonnegative, nonnegative_int, positive
+from proprio.cli.flags import add_cutoff_hz, add_list, conditioning_of
 
 __all__ = ["register", "run_estimate", "run_payload_experiment"]
 
@@ -21,8 +22,7 @@ MODEL_HELP = ("a shipped robot name or robot YAML/URDF (its rigid-body model + f
 def _add_observer_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gain", type=positive, default=100.0, help="momentum observer gain K_O [1/s] (default 100: time "
                    "constant 10 ms)")
-    p.add_argument("--cutoff-hz", default="auto", metavar="HZ|auto", help="zero-phase Butterworth cutoff of the "
-                   "signal conditioning for q and τ [Hz], or 'auto' (per joint from the data's noise floor; default)")
+    add_cutoff_hz(p, " for q and τ")
     p.add_argument("--force-only", action="store_true", help="estimate the 3-D force only (moment reported as 0); "
                    "right for a payload whose CoM is the contact point")
     p.add_argument("--sigma-threshold", type=nonnegative, default=0.02,
@@ -31,20 +31,9 @@ def _add_observer_options(p: argparse.ArgumentParser) -> None:
 
 
 def _options(args: argparse.Namespace):
-    from proprio.conditioning import ConditioningConfig
     from proprio.systems.observers import WrenchMapping
-    cutoff = args.cutoff_hz
-    if cutoff != "auto":
-        try:
-            cutoff = float(cutoff)
-        except ValueError:
-            raise UserError(f"--cutoff-hz: expected a number [Hz] or 'auto', got {cutoff!r}") from None
-    try:
-        conditioning = ConditioningConfig.from_dict({"cutoff_hz": cutoff}, "--cutoff-hz")
-    except ValueError as exc:
-        raise UserError(str(exc)) from None
     return (WrenchMapping(force_only=args.force_only, sigma_threshold=args.sigma_threshold,
-                          damping_max=args.sigma_threshold), conditioning)
+                          damping_max=args.sigma_threshold), conditioning_of(args))
 
 
 def run_estimate(args: argparse.Namespace) -> int:
@@ -127,7 +116,7 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--seconds", type=positive, default=30.0, help="duration of the validation trajectory [s] "
                    "(default 30; the thesis' Table 5.4 ran 563: 42260 samples at 75 Hz)")
-    p.add_argument("--masses", type=nonnegative, nargs="+", default=[0.0, 0.5, 1.0], help="payload masses [kg] "
+    add_list(p, "--masses", type=nonnegative, default=[0.0, 0.5, 1.0], help="payload masses [kg] "
                    "(default 0 0.5 1)")
     p.add_argument("--seed", type=nonnegative_int, default=7, help="seed of the RFMA trajectory and the twin's noise")
     p.add_argument("--twin-config", default="iiwa14_twin", help="twin config name or YAML (default iiwa14_twin, "

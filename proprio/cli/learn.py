@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 from proprio.cli import UserError, check_output, nonnegative_int, positive_int
 from proprio.cli._backend import add_backend_args, check_backend_args, clear_state
+from proprio.cli.flags import add_list
 from proprio.recording import Recording, load_recording
 
 if TYPE_CHECKING:                       # (the training stack imports torch: loaded by the commands that train)
@@ -131,10 +132,10 @@ def _train_grid(args: argparse.Namespace) -> int:
 
 
 def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--data", nargs="+", required=True, metavar="REC",
+    add_list(p, "--data", required=True, metavar="REC",
                    help="training Recordings (.npz; LWR 4+ files are converted); split 80/20 by subsequences unless "
                         "--test-data is given")
-    p.add_argument("--test-data", nargs="+", metavar="REC", help="held-out Recordings used as the whole test split")
+    add_list(p, "--test-data", metavar="REC", help="held-out Recordings used as the whole test split")
     p.add_argument("--backbone", metavar="SPEC", help=_BACKBONE_HELP)
     p.add_argument("--threads", type=positive_int, default=1,
                    help="torch CPU threads (default 1; per task in train-grid)")

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from proprio.cli import UserError, add_chain_args, add_plugin_args, check_output, finite, nonnegative, nonnegative_int, positive
+from proprio.cli.flags import add_quiet, add_trim
 
 if TYPE_CHECKING:
     from proprio.diagrams.twin import TwinConfig
@@ -143,8 +144,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="instead of --trajectory: a measured (held-out) recording whose conditioned q is replayed "
                         "through the twin without its noise; writes the twin's Recording and prints the gap "
                         "RMS(tau_meas - tau_twin) per joint (with --patch: for the base twin and the patched one)")
-    p.add_argument("--trim", type=nonnegative, default=0.5,
-                   help="with --replay: seconds left out of the gap at both ends (default 0.5, as diagnose)")
+    add_trim(p, None, "diagnose's: 0.5, at most 5 %% of a recording's length but never less than its low-pass's "
+             "settling", what=" with --replay, left out of the gap")
     p.add_argument("--payload-kg", type=nonnegative, default=None,
                    help="payload mass at the flange [kg] (overrides the config's payload)")
     p.add_argument("--payload-com", type=finite, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),
@@ -152,7 +153,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seconds", type=positive, default=None, help="simulate only the first SECONDS of the trajectory")
     p.add_argument("--log-rate", type=positive, default=None, help="log rate [Hz] (default: the config's)")
     p.add_argument("--seed", type=nonnegative_int, default=None, help="noise seed (default: the config's)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_quiet(p)
     p.add_argument("--out", required=True, help="output Recording (.npz)")
     add_plugin_args(p)
     p.set_defaults(func=_simulate)
@@ -166,7 +167,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                    "joints with a Savitzky-Golay overlay (hysteresis_test.png) and saves the "
                                    "Recording (hysteresis_test.npz).")
     h.add_argument("--twin", default="iiwa14_twin", help="twin config name or YAML path")
-    h.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_quiet(h)
     h.add_argument("--out", required=True, help="output directory")
     add_plugin_args(h)
     h.set_defaults(func=_hysteresis_test)

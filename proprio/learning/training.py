@@ -31,7 +31,7 @@ from typing import Any, Callable
 
 import numpy as np
 import torch
-from tqdm.auto import tqdm
+from proprio.progress import progress_bar
 
 from proprio.io import atomic_path
 from proprio.learning.datasets import Split, Windows
@@ -190,7 +190,7 @@ def train_model(model: HybridModel, split: Split, cfg: TrainConfig, checkpoint: 
         start, best_val, bad = state["epoch"] + 1, state["best_val"], state["bad_epochs"]
         best_state, result = state["best_state"], TrainResult(**state["result"])
 
-    bar = tqdm(range(start, cfg.max_epochs), desc=model.cfg.label(), disable=not progress, unit="epoch",
+    bar = progress_bar(range(start, cfg.max_epochs), desc=model.cfg.label(), enabled=progress, unit="epoch",
                initial=start, total=cfg.max_epochs)
     for epoch in bar:
         if result.stopped_early:
