@@ -13,9 +13,10 @@ def progress_bar(iterable: Iterable | None = None, *, enabled: bool = True, **kw
     """A ``tqdm`` bar over ``iterable`` (``tqdm``'s keywords), disabled unless ``enabled`` and stderr is a terminal or
     the bar is a notebook widget (:mod:`tqdm.auto`)."""
     from tqdm.auto import tqdm
+    from tqdm.autonotebook import tqdm as chosen      # tqdm.std's bar, or in a notebook kernel tqdm.notebook's
     from tqdm.std import tqdm as terminal_bar
 
-    widget = tqdm is not terminal_bar
+    widget = chosen is not terminal_bar
     shown = enabled and (widget or _isatty(kwargs.get("file", sys.stderr)))
     return tqdm(iterable, disable=not shown, **kwargs)
 

@@ -134,7 +134,7 @@ def test_identify_and_diagnose_use_no_sample_from_the_hole_or_its_filter_reach(h
     cs = condition(rec, config)
     reach = 3.0 / 10.0                                                 # edge_cycles periods of the cutoff [s]
     near = (cs.t > HOLE[0] - reach - 1e-6) & (cs.t < HOLE[1] + reach - 1e-6)
-    (q, _, _, _), _ = stack_recordings([rec], trim=50, config=config)
+    (q, _, _, _), _ = stack_recordings([rec], trim_s=50 / cs.rate_hz, config=config)   # 50 samples
     assert q.shape[0] == cs.n_samples - 100 - near.sum()                # identify: every such sample dropped
     assert not (kept(cs, 0.1) & near).any()                            # diagnose too
     assert kept(cs, 0.1).sum() == pytest.approx((~near).sum() - 2 * 50, abs=2)

@@ -76,7 +76,7 @@ def test_lwr_results_do_not_depend_on_the_recorded_derivatives(lwr_dir):
     tables = []
     for drop in ((), ("qdd",), ("qd", "qdd")):
         train = [_without(recs[i], *drop) for i in (2, 3)]
-        _, table = identify_recordings(train, [_without(recs[1], *drop)], robot, trim=500)
+        _, table = identify_recordings(train, [_without(recs[1], *drop)], robot, trim_s=2.5)
         tables.append(table)
     assert tables[0] == tables[1] == tables[2]
     assert "validation" in tables[0]

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from proprio.cli import UserError, add_chain_args, add_plugin_args, check_output, load_robot_arg, nonnegative_int
+from proprio.cli import (UserError, add_chain_args, add_plugin_args, check_output, check_recording_robot, load_robot_arg,
+                         nonnegative_int)
 from proprio.cli._backend import add_backend_args, check_backend_args, clear_state
 from proprio.cli.flags import add_cutoff_hz, add_list, add_split, add_trim, conditioning_of, split_tails
 
@@ -222,8 +223,9 @@ def _diagnose(args: argparse.Namespace) -> int:
             raise UserError(f"--twin: the twin's robot is '{twin.robot.name}' ({twin.robot.n} joints), --model is "
                             f"'{model.robot.name}' ({model.robot.n} joints)")
     resolve_twin = _resolve_twin(args.resolve, model) if args.resolve else None
-    train = [load_recording(p, model.robot) for p in args.train]
-    hold = [load_recording(p, model.robot) for p in args.holdout]
+    load = lambda p: check_recording_robot(load_recording(p, model.robot), model.robot, p, "--model")  # noqa: E731
+    train = [load(p) for p in args.train]
+    hold = [load(p) for p in args.holdout]
     try:                                           # what τ is decides the candidates: the Recordings must agree
         check_tau_kind(train + hold, list(args.train) + list(args.holdout), model.robot)
     except ValueError as exc:
@@ -233,7 +235,7 @@ def _diagnose(args: argparse.Namespace) -> int:
         from proprio.diagnosis.resolve import with_experiments
 
         try:
-            train, hold = with_experiments(train, hold, [load_recording(p, model.robot) for p in args.experiment])
+            train, hold = with_experiments(train, hold, [load(p) for p in args.experiment])
         except ValueError as exc:
             raise UserError(f"--experiment: {exc}") from exc
     bar = progress_bar(desc="diagnose", bar_format="{desc}: {elapsed} {postfix}")

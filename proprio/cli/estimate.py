@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from proprio.cli import check_output, nonnegative, nonnegative_int, positive
+from proprio.cli import check_output, check_recording_robot, nonnegative, nonnegative_int, positive
 from proprio.cli.flags import add_cutoff_hz, add_list, conditioning_of
 
 __all__ = ["register", "run_estimate", "run_payload_experiment"]
@@ -37,23 +37,12 @@ def _options(args: argparse.Namespace):
 
 
 def run_estimate(args: argparse.Namespace) -> int:
-    from proprio.diagrams.estimation import OBSERVERS, check_recording_matches, estimate_wrench, load_torque_model
-    from proprio.recording import RecordingError, load_recording
+    from proprio.diagrams.estimation import OBSERVERS, estimate_wrench, load_torque_model
+    from proprio.recording import load_recording
 
     check_output(args.out, "--out", "dir")
     model = load_torque_model(args.model)
-    rec = load_recording(args.recording)
-    try:
-        check_recording_matches(rec, model.description)
-    except RecordingError as exc:
-        name, own = rec.meta.get("robot"), model.description.name
-        if not name or name == own:
-            raise
-        raise UserError(f"{args.recording}: {str(exc).removeprefix('recording: ')}. Pass --model for robot '{name}' "
-                        f"(e.g. --model {name} if that is a built-in name or a description file, or an identified "
-                        f"model from `proprio identify --robot {name} ...`); if the recording was made on '{own}', "
-                        f"re-import it with `proprio import MAPPING --robot {args.model}` so that meta.robot names "
-                        "it") from None
+    rec = check_recording_robot(load_recording(args.recording), model.description, args.recording, "--model")
     mapping, conditioning = _options(args)
     res = estimate_wrench(model, rec, gain=args.gain, mapping=mapping, conditioning=conditioning)
     out = Path(args.out)
@@ -64,13 +53,18 @@ def run_estimate(args: argparse.Namespace) -> int:
     gaps = f", {res.gap.sum()} inside gaps of the log (no estimate: NaN)" if res.gap.any() else ""
     print(f"{res.t.size} samples{gaps}, {res.unreliable.sum()} flagged unreliable (near a singularity); statistics "
           f"over the {res.valid().sum()} valid ones")
-    if res.f_true is not None and not res.valid().any():
+    if not res.valid().any():
         print("no force statistics: no sample is clear of the transients at the ends and around the gaps")
-    elif res.f_true is not None:
-        print(f"{'observer':<10} {'RMSE [fx fy fz] N':<28} {'σ [fx fy fz] N'}")
+    else:
+        truth = res.f_true is not None
+        print(f"{'observer':<10} {'RMS f̂ [fx fy fz] N':<28}"
+              + (f" {'RMSE [fx fy fz] N':<28} {'σ [fx fy fz] N'}" if truth else "  (no true force in the recording)"))
         for obs in OBSERVERS:
-            rmse, std = res.force_stats(obs)
-            print(f"{obs:<10} {_vec(rmse):<28} {_vec(std)}")
+            line = f"{obs:<10} {_vec(res.force_rms(obs)):<28}"
+            if truth:
+                rmse, std = res.force_stats(obs)
+                line += f" {_vec(rmse):<28} {_vec(std)}"
+            print(line)
     for path in written:
         print(f"wrote {path}")
     return 0

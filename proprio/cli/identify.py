@@ -5,7 +5,7 @@ import argparse
 import json
 
 import numpy as np
-from proprio.cli import add_chain_args, check_output, load_robot_arg, nonnegative, nonnegative_int, positive_int
+from proprio.cli import add_chain_args, check_output, check_recording_robot, load_robot_arg, nonnegative, nonnegative_int, positive_int
 from proprio.cli.flags import add_cutoff_hz, add_list, add_split, add_trim, conditioning_of, split_tails
 
 
@@ -24,8 +24,8 @@ def _identify(args: argparse.Namespace) -> int:
 
     check_output(args.out, "--out", "file")
     robot = load_robot_arg(args.robot, args)
-    train = [load_recording(p, robot) for p in args.train]
-    validate = [load_recording(p, robot) for p in args.validate]
+    train = [check_recording_robot(load_recording(p, robot), robot, p, "--robot") for p in args.train]
+    validate = [check_recording_robot(load_recording(p, robot), robot, p, "--robot") for p in args.validate]
     check_tau_kind(train + validate, args.train + args.validate, robot)
     from proprio.identification.recordings import TRIM_S
 
@@ -50,12 +50,51 @@ def _identify(args: argparse.Namespace) -> int:
     if args.show_parameters:
         print(model.parameter_table())
     print(text.split("\n\n", 1)[1])                # the tables: their conditioning lines were printed above
+    for line in _advice(model, stack_recordings(train, trim_s, conditioning)[0], args.method, offsets):
+        print(line)
     for path, rec in zip(val_names, validate):      # one table per held-out file: runs are not pooled
         (q, qd, qdd, tau), _ = stack_recordings([rec], trim_s, conditioning)
         print("\n" + torque_error_table(tau, model.torque(q, qd, qdd), f"validation: {path}")[0])
     save_model(model, args.out)
     print(f"wrote {args.out}")
     return 0
+
+
+OFFSET_ALPHA = 0.01
+"""Significance level of identify's test for a constant part in the residual (two-sided, over all joints)."""
+
+
+def _advice(model, data, method: str, offsets: bool) -> list[str]:
+    """What identify can tell beyond its tables: an OLS/WLS model that is not physically consistent (suggest
+    ``--method sdp``), and a training residual with a constant part beyond its noise (suggest ``--offsets``): per
+    joint the mean against its standard error, ``t = |ē| / (σ √(f / N))`` with ``f`` the residual's autocorrelation
+    factor N/N_eff (:func:`proprio.diagnosis.block_test.n_eff_factor`), named where ``t`` exceeds the two-sided
+    :data:`OFFSET_ALPHA` level Bonferroni-corrected over the joints."""
+    from scipy.stats import norm
+
+    from proprio.diagnosis.block_test import n_eff_factor
+    from proprio.identification.estimators import inconsistent_links
+
+    lines = []
+    bad = inconsistent_links(model) if method != "sdp" else []
+    if bad:
+        lines.append(f"advice: the {method.upper()} model is not physically consistent (the link inertia or friction "
+                     f"of joint(s) {', '.join(map(str, bad))}): Drake warns when it builds a plant from it (view, "
+                     "estimate, train); --method sdp identifies a physically consistent model")
+    if not offsets:
+        q, qd, qdd, tau = data
+        e = tau - model.torque(q, qd, qdd)
+        mean, sd = e.mean(axis=0), np.maximum(e.std(axis=0), 1e-12)
+        factor = np.array([n_eff_factor(e[:, [j]]) for j in range(e.shape[1])])
+        t = np.abs(mean) / (sd * np.sqrt(factor / e.shape[0]))
+        level = float(norm.isf(OFFSET_ALPHA / (2 * e.shape[1])))
+        hit = np.flatnonzero(t > level)
+        if hit.size:
+            said = ", ".join(f"joint {j + 1}: mean {mean[j]:+.3g} N·m, σ {sd[j]:.3g} N·m, t = {t[j]:.1f}" for j in hit)
+            lines.append(f"advice: the training residual has a constant part beyond its noise ({said}; t > "
+                         f"{level:.2f} is the {100 * OFFSET_ALPHA:g} % level over the joints, autocorrelation "
+                         "counted): --offsets fits a constant torque offset per joint")
+    return lines
 
 
 def _excite(args: argparse.Namespace) -> int:

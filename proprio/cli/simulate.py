@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from proprio.cli import UserError, add_chain_args, add_plugin_args, check_output, finite, nonnegative, nonnegative_int, positive
+from proprio.cli import UserError, add_chain_args, add_plugin_args, check_output, check_recording_robot, finite, nonnegative, nonnegative_int, positive
 from proprio.cli.flags import add_quiet, add_trim
 
 if TYPE_CHECKING:
@@ -51,7 +51,7 @@ def _replay(args: argparse.Namespace, config: "TwinConfig", base: "TwinConfig | 
     if not path.exists():
         raise UserError(f"--replay: no such file: {path}")
     try:
-        rec = load_recording(path, config.robot)
+        rec = check_recording_robot(load_recording(path, config.robot), config.robot, path, "--twin (its robot)")
         gap = replay_gap(config, [rec], base=base, trim_s=args.trim, progress=not args.quiet)
     except (RecordingError, DiagnosisError, TwinConfigError) as exc:
         raise UserError(f"--replay {path}: {exc}") from exc

@@ -32,6 +32,9 @@ def _describe(info) -> str:
             f"time); arrows {100 * info.force_scale:g} cm/N: {', '.join(info.arrow_paths) or 'none'}")
     if info.residual_scale is not None:
         text += f"; link tint saturates at ±{info.residual_scale:.3g} N·m"
+    if info.hidden.any():
+        text += (f"; {int(info.hidden.sum())} frames fall inside gaps of the log and show nothing (no motion is "
+                 "invented there)")
     return text
 
 

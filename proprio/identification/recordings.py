@@ -13,7 +13,10 @@ from proprio.identification.estimators import identify, torque_error_table
 from proprio.identification.regressor import drive_identified
 from proprio.recording import Recording
 
-__all__ = ["identify_recordings", "stack_recordings", "check_tau_kind", "TRIM_S"]
+__all__ = ["identify_recordings", "stack_recordings", "check_tau_kind", "TRIM_S", "TAU_KINDS"]
+
+TAU_KINDS = ("link_sensor", "drive")
+"""The values of a Recording's ``meta.tau_kind`` (written by ``proprio import``)."""
 
 TRIM_S = 0.5
 """s, the default trim per end (filter start-up): the diagnosis' longest default (``proprio.diagnosis.data.MAX_TRIM_S``)
@@ -27,6 +30,10 @@ def check_tau_kind(recs: Sequence[Recording], names: Sequence[str], robot) -> No
     want = robot.drive.tau_kind if robot.drive is not None else "link_sensor"
     for name, rec in zip(names, recs):
         got = rec.meta.get("tau_kind")
+        if got is not None and got not in TAU_KINDS:
+            raise ValueError(f"{name}: meta.tau_kind {got!r} is unknown; valid: 'link_sensor' (τ from a joint-torque "
+                             "sensor) or 'drive' (τ from the motor currents); set tau_kind in the import mapping and "
+                             "import the log again")
         if got is not None and got != want:
             fix = ("add a 'drive:' block with tau_kind: drive (gear_ratio, coupling) to the robot description"
                    if got == "drive" else "set the description's drive.tau_kind to link_sensor")

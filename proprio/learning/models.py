@@ -275,9 +275,20 @@ def load_model(path: str | Path, dtype: torch.dtype = torch.float32) -> tuple[Hy
         raise ValueError(f"{path}: not a readable model file ({exc})") from exc
     if not isinstance(payload, dict) or payload.get("format") != _FORMAT:
         raise ValueError(f"{path}: not a proprio hybrid model (format tag missing)")
-    model = HybridModel(ModelConfig.from_dict(payload["config"]))
-    model.load_state_dict(payload["state_dict"])
+    try:                    # the format tag is right; the config and the weights must fit each other too
+        model = HybridModel(ModelConfig.from_dict(payload["config"]))
+        model.load_state_dict(payload["state_dict"])
+    except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+        raise ValueError(f"{path}: a proprio hybrid model file whose config and weights do not fit together "
+                         f"({_first_line(exc)})") from None
     return model.to(dtype).eval(), payload.get("extra", {})
+
+
+def _first_line(exc: BaseException, limit: int = 200) -> str:
+    """The first line of an exception's message, at most ``limit`` characters (torch's state-dict report lists
+    every key)."""
+    text = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+    return text if len(text) <= limit else text[:limit] + " …"
 
 
 class StreamingStepper:
