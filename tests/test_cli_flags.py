@@ -233,3 +233,44 @@ def test_drakes_inertia_warnings_are_one_line(caplog):
         log.removeFilter(filt)
     messages = [r.getMessage() for r in caplog.records]
     assert messages == [INERTIA_WARNING, "another warning"]
+
+
+LWR = Path(__file__).resolve().parents[2] / "shared" / "data" / "kuka_lwr4"
+
+
+def test_estimate_of_an_lwr_log_without_model_suggests_a_model_that_works(tmp_path, capsys):
+    """Without --model, estimate of an LWR 4+ file suggested `--model kuka_lwr4plus` (not a robot anyone can load);
+    now the folder that holds its robot.yaml, and that runs."""
+    log = LWR / "measurements_1.npz"
+    if not log.exists():
+        pytest.skip(f"{LWR} not present")
+    assert main(["estimate", "--recording", str(log), "--out", str(tmp_path / "e")]) == 2
+    suggestion = _suggested(capsys.readouterr().err)
+    assert suggestion == f"--model {LWR}"
+    assert main(["estimate", "--recording", str(log), "--out", str(tmp_path / "e"), *suggestion.split()]) == 0
+
+
+ADVICE = [   # (command that fails, the advice's flags or command line in its message, the command followed)
+    ("train-grid --data {d}/long.npz --out {o}/g --search 2", "add --backend ray",
+     "train-grid --data {d}/long.npz --out {o}/g --search 2 --backend ray"),
+    ("diagnose --model iiwa14_nominal --train {d}/short.npz --candidates viscous_coulomb --out {o}/d",
+     "--holdout REC", "diagnose --model iiwa14_nominal --train {d}/short.npz --candidates viscous_coulomb --out {o}/d "
+     "--holdout {d}/long.npz"),
+    ("inspect {o}/semicolon.csv", "`proprio import MAPPING.yaml --out REC.npz`",
+     "import proprio/configs/import_tx40.yaml --out {o}/r.npz"),
+]
+
+
+@pytest.mark.parametrize("failing,said,followed", ADVICE, ids=[a[1] for a in ADVICE])
+def test_the_advice_of_an_error_works_when_followed(failing, said, followed, recs, tmp_path, capsys, monkeypatch):
+    """Each error that suggests a flag or a command: the suggestion is in its message, and the command line with it
+    parses (and, where it runs in seconds here, runs: the diagnosis)."""
+    monkeypatch.chdir(Path(__file__).resolve().parents[1])
+    (tmp_path / "semicolon.csv").write_text("t;q1\n0;1\n")
+    fill = lambda s: s.format(d=recs, o=tmp_path)  # noqa: E731
+    assert main(shlex.split(fill(failing))) == 2
+    assert said in capsys.readouterr().err
+    args = build_parser().parse_args(shlex.split(fill(followed)))       # the advice parses ...
+    assert args.func
+    if followed.startswith("diagnose"):                                  # ... and runs
+        assert main(shlex.split(fill(followed))) == 0

@@ -91,6 +91,8 @@ def test_view_html_shows_nothing_inside_the_hole(holed, tmp_path, capsys):
     assert main(["view", str(path), "--html", str(html), "--model", "iiwa14_nominal"] + CUTOFF) == 0
     page = html.read_text()
     summary = _page_summary(page)
+    said = re.search(r"(\d+) frames fall inside gaps of the log and show nothing", capsys.readouterr().out)
+    assert said and int(said.group(1)) == summary["hidden_frames"]           # the hole is said, not only drawn
     ((a, b),) = summary["gaps_s"]
     assert a == pytest.approx(HOLE[0], abs=3 / RATE) and b == pytest.approx(HOLE[1], abs=3 / RATE)
     frame_t = np.arange(summary["frames"]) * summary["frame_period_s"]
