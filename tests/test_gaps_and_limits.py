@@ -74,8 +74,10 @@ def test_estimate_writes_no_value_inside_the_hole(holed, tmp_path, capsys):
     csv = np.genfromtxt(tmp_path / "estimates.csv", delimiter=",", names=True)
     assert np.isnan(csv["fx_jacobian"][inside(csv["t"])]).all() and not csv["valid"][inside(csv["t"])].any()
     # the statistics are over measured samples only: the constant 15 N push is recovered to well under 1 N
-    rmse = [float(x) for x in re.search(r"jacobian\s+\[([^\]]+)\]", out).group(1).split()]
+    row = re.search(r"^jacobian .*$", out, re.M).group(0)               # [RMS f̂] [RMSE] [σ]
+    rms, rmse = ([float(x) for x in v.split()] for v in re.findall(r"\[([^\]]+)\]", row)[:2])
     assert max(rmse) < 0.5, out
+    assert np.allclose(rms, np.abs(FORCE), rtol=0, atol=max(rmse)), out  # the force RMS per axis: the push
     assert "inside gaps of the log" in out
 
 

@@ -177,8 +177,8 @@ def _hold_out_tails(args: argparse.Namespace, train: list, hold: list) -> tuple[
             raise UserError(
                 f"--train: the {role} part is {sum(spans):.2f} s ({usable:.2f} s after trimming) of {total:.2f} s "
                 f"recorded; the block test needs ≥ {least:g} s ({MIN_BLOCKS} blocks of ≥ {MIN_BLOCK_S:g} s) "
-                f"after trimming, {need}, move the split (--holdout-fraction, "
-                "--split-at), or give held-out recordings (--holdout REC)")
+                f"after trimming, so {need}; or move the split (--holdout-fraction, --split-at) or give held-out "
+                "recordings (--holdout REC)")
     return heads, hold + tails
 
 

@@ -18,7 +18,7 @@ def _identify(args: argparse.Namespace) -> int:
     from proprio.data_quality import assess, format_findings
     from proprio.identification.estimators import torque_error_table
     from proprio.identification.model_io import save_model
-    from proprio.identification.recordings import check_tau_kind, identify_recordings, stack_recordings
+    from proprio.identification.recordings import TRIM_S, check_tau_kind, identify_recordings, stack_recordings
     from proprio.identification.regressor import drive_identified
     from proprio.recording import load_recording
 
@@ -27,13 +27,13 @@ def _identify(args: argparse.Namespace) -> int:
     train = [check_recording_robot(load_recording(p, robot), robot, p, "--robot") for p in args.train]
     validate = [check_recording_robot(load_recording(p, robot), robot, p, "--robot") for p in args.validate]
     check_tau_kind(train + validate, args.train + args.validate, robot)
-    from proprio.identification.recordings import TRIM_S
-
     trim_s = TRIM_S if args.trim is None else args.trim
     train, tails, tail_names = split_tails(args, train, args.train)     # held-out tail of every training recording
     validate, val_names = validate + tails, list(args.validate) + tail_names
     if tails:
-        print("split: train on the start of each --train recording, validate on the rest: " + ", ".join(tail_names))
+        head = (f"{args.split_at:g} s" if args.split_at is not None else f"{100 * (1 - args.holdout_fraction):.3g} %")
+        print(f"split: train on the first {head} of each --train recording, validate on the rest: "
+              + ", ".join(tail_names))
     if args.no_drive and robot.drive is not None:
         robot = dataclasses.replace(robot, drive=None)
     conditioning = conditioning_of(args)
@@ -50,11 +50,11 @@ def _identify(args: argparse.Namespace) -> int:
     if args.show_parameters:
         print(model.parameter_table())
     print(text.split("\n\n", 1)[1])                # the tables: their conditioning lines were printed above
-    for line in _advice(model, stack_recordings(train, trim_s, conditioning)[0], args.method, offsets):
-        print(line)
     for path, rec in zip(val_names, validate):      # one table per held-out file: runs are not pooled
         (q, qd, qdd, tau), _ = stack_recordings([rec], trim_s, conditioning)
         print("\n" + torque_error_table(tau, model.torque(q, qd, qdd), f"validation: {path}")[0])
+    for line in _advice(model, stack_recordings(train, trim_s, conditioning)[0], args.method, offsets):
+        print(line)
     save_model(model, args.out)
     print(f"wrote {args.out}")
     return 0
