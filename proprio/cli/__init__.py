@@ -114,12 +114,13 @@ def load_robot_arg(value: str, args: argparse.Namespace):
     return load_robot(value, args.base, args.tip)
 
 
-def check_recording_robot(rec, robot, path: str | Path, flag: str):
+def check_recording_robot(rec, robot, path: str | Path, flag: str, twin: bool = False):
     """The one check that a Recording was made on ``robot`` (the model of a command; ``flag`` names the option that
     gives it): joint count, limits and — when ``meta.robot`` names another robot — the same kinematics
     (:func:`proprio.diagrams.estimation.check_recording_matches`). A mismatch is a :class:`UserError` whose advice is
     a ``flag`` value that loads: ``meta.robot`` itself when it is a description, or the folder of the recording when
-    it holds that robot's ``robot.yaml`` (the LWR 4+ files)."""
+    it holds that robot's ``robot.yaml`` (the LWR 4+ files); with ``twin`` (``flag`` takes a twin config) a twin config
+    of that robot."""
     from proprio.diagrams.estimation import check_recording_matches
     from proprio.recording import RecordingError
 
@@ -130,8 +131,8 @@ def check_recording_robot(rec, robot, path: str | Path, flag: str):
         text = f"{path}: {str(exc).removeprefix('recording: ')}"
         if not name or name == robot.name:
             raise UserError(text) from None
-        found = _description_of(name, Path(path))
-        advice = (f"pass {flag} {found}" if found else
+        found = None if twin else _description_of(name, Path(path))
+        advice = (f"pass {flag} {found}" if found else f"pass {flag} with a twin config of robot '{name}'" if twin else
                   f"pass {flag} with the description of '{name}' (a robot YAML/URDF or a folder with its robot.yaml)")
         raise UserError(f"{text}; {advice}") from None
 

@@ -28,8 +28,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "by `proprio identify` (its inertials, friction and offsets)")
     add_chain_args(p)
     add_list(p, "--effects", nargs="*", default=[], metavar="EFFECT",
-                   help="effects the simulation already has: library names or your own effects as "
-                   "'package.module:Class' (at the parameters of --effects-config, else the class defaults)")
+             help="effects the simulation already has: library names or your own effects as 'package.module:Class' "
+             "(at the parameters of --effects-config, else the class defaults)")
     p.add_argument("--effects-config", type=Path, help="YAML with an 'effects:' mapping {name: parameters}")
     add_list(p, "--train", required=True, type=Path, metavar="REC",
              help="training recordings (.npz Recording or FloBaRoID LWR measurement files); without --holdout the "

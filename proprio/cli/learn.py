@@ -140,8 +140,8 @@ def _train_grid(args: argparse.Namespace) -> int:
 
 def _common(p: argparse.ArgumentParser) -> None:
     add_list(p, "--data", required=True, metavar="REC",
-                   help="training Recordings (.npz; LWR 4+ files are converted); split 80/20 by subsequences unless "
-                        "--test-data is given")
+             help="training Recordings (.npz; LWR 4+ files are converted); split 80/20 by subsequences unless "
+                  "--test-data is given")
     add_list(p, "--test-data", metavar="REC", help="held-out Recordings used as the whole test split")
     p.add_argument("--backbone", metavar="SPEC", help=_BACKBONE_HELP)
     p.add_argument("--threads", type=positive_int, default=1,

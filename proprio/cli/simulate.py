@@ -51,7 +51,7 @@ def _replay(args: argparse.Namespace, config: "TwinConfig", base: "TwinConfig | 
     if not path.exists():
         raise UserError(f"--replay: no such file: {path}")
     try:
-        rec = check_recording_robot(load_recording(path, config.robot), config.robot, path, "--twin (its robot)")
+        rec = check_recording_robot(load_recording(path, config.robot), config.robot, path, "--twin", twin=True)
         gap = replay_gap(config, [rec], base=base, trim_s=args.trim, progress=not args.quiet)
     except (RecordingError, DiagnosisError, TwinConfigError) as exc:
         raise UserError(f"--replay {path}: {exc}") from exc
