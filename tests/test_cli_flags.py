@@ -85,11 +85,13 @@ def test_a_shared_flag_means_one_thing_in_every_command():
     where = {"--trim": {"identify", "diagnose", "simulate"},
              "--cutoff-hz": {"identify", "diagnose", "estimate", "payload-experiment", "view"},
              "--split-at": {"identify", "diagnose"}, "--holdout-fraction": {"identify", "diagnose"},
-             "--quiet": {"simulate", "twin hysteresis-test", "dataset"}}
+             "--quiet": {"simulate", "twin hysteresis-test", "dataset"},
+             "--twin": {"simulate", "twin hysteresis-test", "dataset", "payload-experiment", "diagnose",
+                        "gap-benchmark"}}
     for flag, commands in where.items():
         have = {cmd for cmd, sub in COMMANDS.items() if _flag(sub, flag)}
         assert have == commands, flag
-        actions = [_flag(COMMANDS[c], flag) for c in commands]
+        actions = [_flag(COMMANDS[c], flag) for c in commands - {"gap-benchmark"}]   # its --twin: a switch
         assert len({(a.type, a.metavar, type(a)) for a in actions}) == 1, flag     # one declaration
     assert all("seconds" in _flag(COMMANDS[c], "--trim").help for c in where["--trim"])
     assert f"default {TRIM_S:g}" in _flag(COMMANDS["identify"], "--trim").help

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from proprio.cli._backend import add_backend_args, check_backend_args, clear_state
 from proprio.cli import UserError, add_plugin_args, check_output, nonnegative, nonnegative_int, positive, positive_int
-from proprio.cli.flags import add_list, add_quiet
+from proprio.cli.flags import add_list, add_quiet, add_twin
 
 __all__ = ["register"]
 
@@ -19,9 +19,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "simulated with which twin config (and its SHA-256), which seeds and payloads, and each "
                     "recording's data and file digests. Tasks run here or on Ray (--backend ray [--address]); the "
                     "recordings are identical either way. A rerun simulates only what is missing.")
-    p.add_argument("--twin", default="iiwa14_twin",
-                   help="twin config: a shipped name (iiwa14_twin, iiwa14_nominal_twin) or a YAML path "
-                        "(default iiwa14_twin)")
+    add_twin(p, "iiwa14_twin", "")
     add_list(p, "--seeds", required=True, metavar="SEED",
                    help="RFMA trajectory seeds: integers or inclusive ranges A-B (e.g. 11 12 13 or 20-29)")
     add_list(p, "--payload-kg", type=nonnegative, default=[0.0], metavar="M",

@@ -8,7 +8,7 @@ from pathlib import Path
 from proprio.cli import (UserError, add_chain_args, add_plugin_args, check_output, check_recording_robot, load_robot_arg,
                          nonnegative_int)
 from proprio.cli._backend import add_backend_args, check_backend_args, clear_state
-from proprio.cli.flags import add_cutoff_hz, add_list, add_split, add_trim, conditioning_of, split_tails
+from proprio.cli.flags import add_cutoff_hz, add_list, add_split, add_trim, add_twin, conditioning_of, split_tails
 
 HOLDOUT_FRACTION = 1 / 3
 """The share of every training recording held out at its end when no --holdout is given (the README's TX40 split:
@@ -46,10 +46,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "alongside the library candidates; repeatable")
     add_trim(p, None, "0.5, at most 5 %% of a recording's length but never less than its low-pass's settling, 3 "
              "periods of the lowest cutoff")
-    p.add_argument("--twin", metavar="BASE",
-                   help="base twin config of the --model robot (a shipped name such as kuka_lwr4_twin, or a YAML "
-                   "path): replay the held-out recordings through it and through it + twin_patch.yaml, and report the "
-                   "gap through the twin next to the offline prediction")
+    add_twin(p, None, " of the --model robot, the base: replay the held-out recordings through it and through it + "
+             "twin_patch.yaml, and report the gap through the twin next to the offline prediction")
     p.add_argument("--out", required=True, type=Path, help="output directory for the report and twin_patch.yaml")
     p.add_argument("--design-experiment", action="store_true",
                    help="for every tied set of effects (the report's ambiguity section) design the motion that "

@@ -9,7 +9,7 @@ import argparse
 from pathlib import Path
 
 from proprio.cli import check_output, check_recording_robot, nonnegative, nonnegative_int, positive
-from proprio.cli.flags import add_cutoff_hz, add_list, conditioning_of
+from proprio.cli.flags import add_cutoff_hz, add_list, add_twin, conditioning_of
 
 __all__ = ["register", "run_estimate", "run_payload_experiment"]
 
@@ -81,7 +81,7 @@ def run_payload_experiment(args: argparse.Namespace) -> int:
     mapping, conditioning = _options(args)
     result = payload_experiment(args.model, args.out, seconds=args.seconds, masses=tuple(args.masses),
                                 seed=args.seed, gain=args.gain, mapping=mapping, conditioning=conditioning,
-                                twin_config=args.twin_config, progress=True)
+                                twin_config=args.twin, progress=True)
     print(result.table_text)
     for path in result.files:
         print(f"wrote {path}")
@@ -113,7 +113,7 @@ def register(subparsers) -> None:
     add_list(p, "--masses", type=nonnegative, default=[0.0, 0.5, 1.0], help="payload masses [kg] "
                    "(default 0 0.5 1)")
     p.add_argument("--seed", type=nonnegative_int, default=7, help="seed of the RFMA trajectory and the twin's noise")
-    p.add_argument("--twin-config", default="iiwa14_twin", help="twin config name or YAML (default iiwa14_twin, "
-                   "the calibrated twin)")
+    add_twin(p, "iiwa14_twin", ", the twin the payloads are simulated on (--twin-config: its former name)",
+             "--twin-config")
     _add_observer_options(p)
     p.set_defaults(func=run_payload_experiment)

@@ -7,6 +7,7 @@
 | ``--split-at`` | s: train on the first S s of every training recording, hold out the rest | identify, diagnose |
 | ``--holdout-fraction`` | share of every training recording's length held out at its end | identify, diagnose |
 | ``--quiet`` | no progress bar (bars are drawn only on a terminal anyway) | simulate, twin hysteresis-test, dataset |
+| ``--twin`` | a twin config (shipped name or YAML) | simulate, dataset, twin hysteresis-test, payload-experiment, diagnose |
 
 A flag that takes a list (``--train A B``) accumulates when given twice (``--train A --train B`` is ``A B``), in
 every command (:func:`add_list`): a second occurrence never silently replaces the first.
@@ -20,7 +21,7 @@ from typing import Sequence
 from proprio.errors import UserError
 
 __all__ = ["add_list", "add_trim", "add_cutoff_hz", "cutoff_hz", "conditioning_of", "add_split", "split_tails",
-           "add_quiet"]
+           "add_quiet", "add_twin"]
 
 
 class _Accumulate(argparse.Action):
@@ -134,6 +135,16 @@ def split_tails(args: argparse.Namespace, recs: Sequence, paths: Sequence[str | 
         tails.append(tail)
         names.append(f"{path} after {said}")
     return heads, tails, names
+
+
+def add_twin(p: argparse.ArgumentParser, default: str | None, what: str, *aliases: str) -> None:
+    """``--twin TWIN``: a twin config, a shipped name or a YAML path (:func:`proprio.diagrams.twin.load_twin_config`);
+    ``what`` says what the command does with it. (``gap-benchmark --twin`` is a switch of its own: record the cases
+    through the twin.)"""
+    said = f" (default {default})" if default else ""
+    p.add_argument("--twin", *aliases, default=default, metavar="TWIN",
+                   help=f"twin config: a shipped name (iiwa14_twin, iiwa14_nominal_twin, kuka_lwr4_twin, "
+                        f"staubli_tx40_twin) or a YAML path{what}{said}")
 
 
 def add_quiet(p: argparse.ArgumentParser) -> None:

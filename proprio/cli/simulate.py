@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from proprio.cli import UserError, add_chain_args, add_plugin_args, check_output, check_recording_robot, finite, nonnegative, nonnegative_int, positive
-from proprio.cli.flags import add_quiet, add_trim
+from proprio.cli.flags import add_quiet, add_trim, add_twin
 
 if TYPE_CHECKING:
     from proprio.diagrams.twin import TwinConfig
@@ -132,9 +132,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "(.npz) with measured q, tau, truth channels and the true flange wrench. The file is written "
                     "only when the simulation finishes (atomic write). --patch merges a twin_patch.yaml from "
                     "'proprio diagnose' into the twin; --replay re-simulates a measured recording and prints the gap.")
-    p.add_argument("--twin", default="iiwa14_twin",
-                   help="twin config: a shipped name (iiwa14_twin, iiwa14_nominal_twin, kuka_lwr4_twin, staubli_tx40_twin) "
-                        "or a YAML path")
+    add_twin(p, "iiwa14_twin", "")
     p.add_argument("--trajectory",
                    help="trajectory .npz from 'proprio trajectory' (breaks, q, qd) or a Recording whose q(t) is "
                         "replayed")
@@ -166,7 +164,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                    "speed limit, one joint after the other; plots measured tau vs angle for the 7 "
                                    "joints with a Savitzky-Golay overlay (hysteresis_test.png) and saves the "
                                    "Recording (hysteresis_test.npz).")
-    h.add_argument("--twin", default="iiwa14_twin", help="twin config name or YAML path")
+    add_twin(h, "iiwa14_twin", "")
     add_quiet(h)
     h.add_argument("--out", required=True, help="output directory")
     add_plugin_args(h)
