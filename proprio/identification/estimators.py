@@ -298,19 +298,18 @@ def _clip_second_moments(phi: np.ndarray, n: int, floor: float = 1e-9) -> np.nda
 
 def inconsistent_links(model) -> list[int]:
     """The joints (1-based) whose link parameters in ``model.phi`` (the full set an identification implies) are not
-    physically consistent: a pseudo-inertia with a negative eigenvalue, no positive mass, or negative friction. Empty
-    for every SDP model."""
-    per, n = PARAMS_PER_JOINT, model.description.n
-    rows = np.asarray(model.phi)[:per * n].reshape(n, per)
-    return [j + 1 for j, row in enumerate(rows)
-            if np.linalg.eigvalsh(_pseudo_inertia(row[:10]))[0] < 0.0 or row[0] <= 0.0 or row[10] < 0.0
-            or row[11] < 0.0]
+    physically consistent: a pseudo-inertia with a negative eigenvalue, no positive mass, or negative friction."""
+    return _inconsistent_links(np.asarray(model.phi), model.description.n, np.finfo(float).tiny)
+
+
+def _inconsistent_links(phi: np.ndarray, n: int, min_mass: float) -> list[int]:
+    p = phi[:PARAMS_PER_JOINT * n].reshape(n, PARAMS_PER_JOINT)
+    return [j + 1 for j, row in enumerate(p) if not (np.linalg.eigvalsh(_pseudo_inertia(row[:10]))[0] >= 0.0
+                                                     and row[0] >= min_mass and row[10] >= 0.0 and row[11] >= 0.0)]
 
 
 def _consistent(phi: np.ndarray, n: int, min_mass: float) -> bool:
-    p = phi[:PARAMS_PER_JOINT * n].reshape(n, PARAMS_PER_JOINT)
-    return bool(np.all(phi[PARAMS_PER_JOINT * n:] >= 0.0) and all(np.linalg.eigvalsh(_pseudo_inertia(row[:10]))[0] >= 0.0 and row[0] >= min_mass
-                    and row[10] >= 0.0 and row[11] >= 0.0 for row in p))
+    return bool(np.all(phi[PARAMS_PER_JOINT * n:] >= 0.0) and not _inconsistent_links(phi, n, min_mass))
 
 
 def identify(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, tau: np.ndarray,

@@ -39,7 +39,7 @@ from proprio.io import atomic_path
 from proprio.learning.features import DEFAULT_DEADBAND_DEG, R_MAX_DEG, feature_columns
 from proprio.learning.sections import section_from_dict
 
-__all__ = ["ARCHS", "ModelConfig", "HybridModel", "StreamingStepper", "save_model", "load_model"]
+__all__ = ["ARCHS", "ModelConfig", "HybridModel", "StreamingStepper", "save_model", "load_model", "first_line"]
 
 ARCHS = ("mlp7", "lstm2", "lstm2_fcl", "transformer")
 _LABEL = {"mlp7": "MLP-7", "lstm2": "LSTM-2", "lstm2_fcl": "LSTM-2-FCL", "transformer": "Transformer"}
@@ -280,11 +280,11 @@ def load_model(path: str | Path, dtype: torch.dtype = torch.float32) -> tuple[Hy
         model.load_state_dict(payload["state_dict"])
     except (KeyError, TypeError, ValueError, RuntimeError) as exc:
         raise ValueError(f"{path}: a proprio hybrid model file whose config and weights do not fit together "
-                         f"({_first_line(exc)})") from None
+                         f"({first_line(exc)})") from None
     return model.to(dtype).eval(), payload.get("extra", {})
 
 
-def _first_line(exc: BaseException, limit: int = 200) -> str:
+def first_line(exc: BaseException, limit: int = 200) -> str:
     """The first line of an exception's message, at most ``limit`` characters (torch's state-dict report lists
     every key)."""
     text = (str(exc).strip().splitlines() or [type(exc).__name__])[0]

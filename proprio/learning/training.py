@@ -35,7 +35,7 @@ from proprio.progress import progress_bar
 
 from proprio.io import atomic_path
 from proprio.learning.datasets import Split, Windows
-from proprio.learning.models import HybridModel
+from proprio.learning.models import HybridModel, first_line
 from proprio.learning.sections import section_from_dict
 
 __all__ = ["TrainConfig", "TrainResult", "train_model", "pick_device"]
@@ -191,7 +191,7 @@ def train_model(model: HybridModel, split: Split, cfg: TrainConfig, checkpoint: 
             gen.set_state(state["rng_batches"])
             torch.set_rng_state(state["rng_torch"])
         except (KeyError, TypeError, ValueError, RuntimeError) as exc:
-            raise ValueError(f"{ckpt}: a damaged training checkpoint ({str(exc).splitlines()[0][:200]}); remove it "
+            raise ValueError(f"{ckpt}: a damaged training checkpoint ({first_line(exc)}); remove it "
                              "or choose another output path") from None
         if device.type == "cuda" and "rng_cuda" in state:
             torch.cuda.set_rng_state(state["rng_cuda"])
