@@ -213,9 +213,12 @@ def test_identify_advises_offsets_and_sdp_and_the_advice_works(recs, tmp_path, c
     assert len(offsets) == 1 and "joint 1:" in offsets[0] and not re.search(r"joint [2-7]:", offsets[0])
     assert main(base + ["--offsets"]) == 0
     assert "--offsets fits" not in capsys.readouterr().out
-    if any("--method sdp" in line for line in advice):
-        assert main(base + ["--offsets", "--method", "sdp"]) == 0
-        assert "not physically consistent" not in capsys.readouterr().out
+    assert any("not physically consistent" in line and "--method sdp" in line for line in advice)
+    assert main(base + ["--offsets", "--method", "sdp"]) == 0
+    assert "advice:" not in capsys.readouterr().out
+    # the same motion without the offset: no constant part is claimed
+    assert main(["identify", "--robot", ROBOT, "--train", str(recs / "long.npz"), "--out", str(tmp_path / "n.npz")]) == 0
+    assert "--offsets fits" not in capsys.readouterr().out
 
 
 def test_drakes_inertia_warnings_are_one_line(caplog):
