@@ -137,6 +137,20 @@ def test_one_log_holds_out_its_end_and_stderr_holds_no_carriage_return(recs, tmp
     assert "after 5 s (--split-at)" in capsys.readouterr().out
 
 
+def test_diagnose_redirected_to_a_file_writes_no_carriage_return(recs, tmp_path):
+    """The command as a user runs it, stderr redirected to a file (a progress bar's updates would be one long line)."""
+    import subprocess
+    import sys
+
+    err = tmp_path / "err.txt"
+    with open(err, "wb") as fh:
+        done = subprocess.run([sys.executable, "-m", "proprio", "diagnose", "--model", ROBOT, "--train",
+                               str(recs / "long.npz"), "--candidates", "viscous_coulomb", "--out", str(tmp_path / "d")],
+                              stdout=subprocess.DEVNULL, stderr=fh, timeout=600)
+    assert done.returncode == 0, err.read_text()
+    assert b"\r" not in err.read_bytes()
+
+
 def test_train_writes_no_carriage_return_off_a_terminal(recs, tmp_path, capsys):
     assert main(["train", "--config", "train_demo", "--backbone", ROBOT, "--data", str(recs / "long.npz"),
                  "--out", str(tmp_path / "m.pt")]) == 0
