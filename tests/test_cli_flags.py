@@ -110,6 +110,14 @@ def test_bad_shared_values_are_one_line(line, capsys):
     assert len(err) == 1 and err[0].startswith("proprio: error: ")
 
 
+@pytest.mark.parametrize("command", ["identify --robot iiwa14_nominal --out {o}/m.npz",
+                                     "diagnose --model iiwa14_nominal --out {o}/d"])
+def test_a_split_outside_the_log_names_the_flag(command, recs, tmp_path, capsys):
+    assert main(command.format(o=tmp_path).split() + ["--train", str(recs / "short.npz"), "--split-at", "20"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--split-at 20 s leaves no sample" in err and "short.npz" in err
+
+
 def test_a_log_too_short_to_decide_is_refused_up_front_with_the_seconds_it_needs(recs, tmp_path, capsys):
     from proprio.diagnosis.data import MIN_BLOCK_S, MIN_BLOCKS
 

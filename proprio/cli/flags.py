@@ -118,14 +118,14 @@ def split_tails(args: argparse.Namespace, recs: Sequence, paths: Sequence[str | 
     heads, tails, names = [], [], []
     for path, rec in zip(paths, recs):
         if args.split_at is not None:
-            at, said = args.split_at, f"{args.split_at:g} s"
+            at, said, flag = args.split_at, f"{args.split_at:g} s", f"--split-at {args.split_at:g} s"
         else:
             at = (1.0 - args.holdout_fraction) * (rec.t[-1] - rec.t[0])
-            said = f"{at:.3g} s"
+            said, flag = f"{at:.3g} s", f"--holdout-fraction {args.holdout_fraction:g} (a cut at {at:.3g} s)"
         cut = int(np.searchsorted(rec.t, rec.t[0] + at))
         if not 0 < cut < rec.n_samples:
-            raise UserError(f"--split-at {args.split_at:g} s is outside the time span of {path} "
-                            f"({rec.t[-1] - rec.t[0]:.3g} s)")
+            raise UserError(f"{flag} leaves no sample on one side in {path} ({rec.n_samples} samples over "
+                            f"{rec.t[-1] - rec.t[0]:.3g} s)")
         heads.append(rec.slice(0, cut))
         tail = rec.slice(cut, rec.n_samples)
         try:                    # the tail on the session clock where it was measured (meta.session_time_s: at t[0])
