@@ -154,7 +154,7 @@ def _hold_out_tails(args: argparse.Namespace, train: list, hold: list) -> tuple[
     heads, tails, names = split_tails(args, train, args.train)
     if not tails:
         return train, hold
-    how = (f"after {args.split_at:g} s (--split-at)" if args.split_at is not None else
+    how = (f"all after the first {args.split_at:g} s (--split-at)" if args.split_at is not None else
            f"the last {100 * args.holdout_fraction:.3g} % (--holdout-fraction {args.holdout_fraction:.3g}"
            f"{', the default without --holdout' if default else ''})")
     print(f"held out: {how} of every --train recording: " + ", ".join(names))
