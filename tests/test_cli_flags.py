@@ -142,7 +142,7 @@ def test_one_log_holds_out_its_end_and_stderr_holds_no_carriage_return(recs, tmp
     assert (out / "report.html").is_file()
     assert main(["diagnose", "--model", ROBOT, "--train", str(recs / "long.npz"), "--candidates", "viscous_coulomb",
                  "--split-at", "5", "--cutoff-hz", "20", "--out", str(tmp_path / "d2")]) == 0
-    assert "after 5 s (--split-at)" in capsys.readouterr().out
+    assert "held out: all after the first 5 s (--split-at) of every --train recording" in capsys.readouterr().out
 
 
 def test_diagnose_redirected_to_a_file_writes_no_carriage_return(recs, tmp_path):
