@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 import zipfile
 import zlib
 from dataclasses import dataclass, field
@@ -304,6 +305,18 @@ def load_lwr4(data_dir: str | Path, index: int) -> Recording:
     return load_recording(path, robot)  # same checks and one-line errors for corrupted files
 
 
+def _csv_problem(exc: BaseException, limit: int = 200) -> str:
+    """numpy's CSV error in one short phrase: its first bad row and how many more there are (``genfromtxt`` lists
+    every bad row: 16 000 characters for a long file), else its message cut to ``limit`` characters."""
+    rows = re.findall(r"Line #(\d+) \(got (\d+) columns instead of (\d+)\)", str(exc))
+    if rows:
+        line, got, want = rows[0]
+        more = f"; {len(rows) - 1} more row(s) like it" if len(rows) > 1 else ""
+        return f"line {line} has {got} fields where the header has {want}{more}"
+    text = " ".join(str(exc).split())
+    return text if len(text) <= limit else text[:limit] + " …"
+
+
 def recording_from_csv(path: str | Path, n_joints: int, angle_unit: str = "rad", delimiter: str = ",",
                        meta: dict[str, Any] | None = None) -> Recording:
     """Import a CSV with a header row: ``t``, ``q1..qn``, ``tau1..taun`` and optionally ``qd1..``, ``qdd1..``,
@@ -316,7 +329,7 @@ def recording_from_csv(path: str | Path, n_joints: int, angle_unit: str = "rad",
     try:
         table = np.genfromtxt(path, delimiter=delimiter, names=True, dtype=float, encoding="utf-8")
     except (OSError, ValueError) as exc:
-        raise RecordingError(f"{path}: cannot parse CSV ({exc})") from exc
+        raise RecordingError(f"{path}: cannot parse CSV ({_csv_problem(exc)})") from None
     names = table.dtype.names or ()
     if table.ndim == 0:
         table = table.reshape(1)

@@ -223,8 +223,8 @@ def _run_locked(tasks: Sequence[Task], state: Path, store: Callable[[Task, Any],
     executed: list[str] = []
     failures: list[TaskFailure] = []
 
-    from tqdm.auto import tqdm
-    bar = tqdm(total=len(tasks), initial=len(skipped), desc=desc, unit="task", disable=not progress)
+    from proprio.progress import progress_bar
+    bar = progress_bar(total=len(tasks), initial=len(skipped), desc=desc, unit="task", enabled=progress)
 
     def finish(task: Task, result: Any = None, exc: BaseException | None = None, tb: str | None = None) -> None:
         name = _filename(task.key)

@@ -217,11 +217,11 @@ def tx40_fits():
     train, held = rec.slice(0, split), rec.slice(split, rec.n_samples)
     cfg = ConditioningConfig(cutoff_hz=100.0)                           # the upstream Butterworth cut-off
     robot = load_robot("staubli_tx40")
-    val = stack_recordings([held], 100, cfg)[0]
+    val = stack_recordings([held], 0.02, cfg)[0]   # 100 samples at 5 kHz
     out = {}
     for key, desc, method in (("drive", robot, "ols"), ("link", dataclasses.replace(robot, drive=None), "ols"),
                               ("sdp", robot, "sdp")):
-        model, _ = identify_recordings([train], [], desc, method, 100, True, None, cfg)
+        model, _ = identify_recordings([train], [], desc, method, 0.02, True, None, cfg)
         out[key] = (model, torque_error_table(val[3], model.torque(*val[:3]))[1]["rmse"])
     return out
 

@@ -74,8 +74,10 @@ def test_estimate_writes_no_value_inside_the_hole(holed, tmp_path, capsys):
     csv = np.genfromtxt(tmp_path / "estimates.csv", delimiter=",", names=True)
     assert np.isnan(csv["fx_jacobian"][inside(csv["t"])]).all() and not csv["valid"][inside(csv["t"])].any()
     # the statistics are over measured samples only: the constant 15 N push is recovered to well under 1 N
-    rmse = [float(x) for x in re.search(r"jacobian\s+\[([^\]]+)\]", out).group(1).split()]
+    row = re.search(r"^jacobian .*$", out, re.M).group(0)               # [RMS f̂] [RMSE] [σ]
+    rms, rmse = ([float(x) for x in v.split()] for v in re.findall(r"\[([^\]]+)\]", row)[:2])
     assert max(rmse) < 0.5, out
+    assert np.allclose(rms, np.abs(FORCE), rtol=0, atol=max(rmse)), out  # the force RMS per axis: the push
     assert "inside gaps of the log" in out
 
 
@@ -91,6 +93,8 @@ def test_view_html_shows_nothing_inside_the_hole(holed, tmp_path, capsys):
     assert main(["view", str(path), "--html", str(html), "--model", "iiwa14_nominal"] + CUTOFF) == 0
     page = html.read_text()
     summary = _page_summary(page)
+    said = re.search(r"(\d+) frames fall inside gaps of the log and show nothing", capsys.readouterr().out)
+    assert said and int(said.group(1)) == summary["hidden_frames"]           # the hole is said, not only drawn
     ((a, b),) = summary["gaps_s"]
     assert a == pytest.approx(HOLE[0], abs=3 / RATE) and b == pytest.approx(HOLE[1], abs=3 / RATE)
     frame_t = np.arange(summary["frames"]) * summary["frame_period_s"]
@@ -134,7 +138,7 @@ def test_identify_and_diagnose_use_no_sample_from_the_hole_or_its_filter_reach(h
     cs = condition(rec, config)
     reach = 3.0 / 10.0                                                 # edge_cycles periods of the cutoff [s]
     near = (cs.t > HOLE[0] - reach - 1e-6) & (cs.t < HOLE[1] + reach - 1e-6)
-    (q, _, _, _), _ = stack_recordings([rec], trim=50, config=config)
+    (q, _, _, _), _ = stack_recordings([rec], trim_s=50 / cs.rate_hz, config=config)   # 50 samples
     assert q.shape[0] == cs.n_samples - 100 - near.sum()                # identify: every such sample dropped
     assert not (kept(cs, 0.1) & near).any()                            # diagnose too
     assert kept(cs, 0.1).sum() == pytest.approx((~near).sum() - 2 * 50, abs=2)

@@ -100,6 +100,8 @@ def _csvs(d: Path, g: dict) -> None:
     (d / "header_only.csv").write_text(",".join(header) + "\n")
     (d / "empty.csv").write_text("")
     (d / "reversed.csv").write_text(",".join(header) + "\n" + "\n".join(reversed(lines)) + "\n")
+    (d / "extra_field.csv").write_text(",".join(header) + "\n" + "\n".join(         # every row but 4 one field long
+        line + (",9" if k >= 4 else "") for k, line in enumerate(lines)) + "\n")
 
 
 def _models(d: Path) -> None:
@@ -116,6 +118,10 @@ def _models(d: Path) -> None:
     good = (d / "model_wrong_state.pt").read_bytes()
     (d / "model_truncated.pt").write_bytes(good[: len(good) // 3])
     (d / "model_empty.pt").write_bytes(b"")
+    demo = torch.load(Path(__file__).parents[1] / "proprio" / "configs" / "demo_residual.pt", weights_only=True)
+    torch.save({**demo, "state_dict": {"w": torch.zeros(2)}}, d / "model_foreign_state.pt")   # right format tag
+    (d / "ckpt_exploit").mkdir()
+    torch.save({"payload": Exploit()}, d / "ckpt_exploit" / "m.pt.ckpt")   # a checkpoint weights_only refuses
 
 
 class Exploit:
@@ -238,7 +244,8 @@ for _bad, _word in BAD_RECORDINGS.items():
         CASES.append((f"{_cmd}-{_bad}", _line, _named))
 
 for _bad, _word in {"text_cell": "'abc' is not a number", "no_tau": "tau1", "header_only": "0 sample",
-                    "reversed": "increasing", "missing": "no such file"}.items():
+                    "reversed": "increasing", "missing": "no such file",
+                    "extra_field": r"line 6 has 16 fields where the header has 15; \d+ more"}.items():
     CASES.append((f"inspect-csv-{_bad}", f"inspect {{d}}/{_bad}.csv", _word))
 
 NUMBERS = [   # (command line, flag named)
@@ -287,9 +294,9 @@ NUMBERS = [   # (command line, flag named)
     ("payload-experiment --out {o}/p --masses 0 -1", "--masses"),
     ("payload-experiment --out {o}/p --masses nan", "--masses"),
     ("payload-experiment --out {o}/p --seed -1", "--seed"),
-    ("diagnose --model iiwa14_nominal --train {d}/good.npz --out {o}/d --cutoff 0", "--cutoff"),
-    ("diagnose --model iiwa14_nominal --train {d}/good.npz --out {o}/d --cutoff abc", "--cutoff"),
-    ("diagnose --model iiwa14_nominal --train {d}/good.npz --out {o}/d --cutoff nan", "--cutoff"),
+    ("diagnose --model iiwa14_nominal --train {d}/good.npz --out {o}/d --cutoff-hz 0", "--cutoff-hz"),
+    ("diagnose --model iiwa14_nominal --train {d}/good.npz --out {o}/d --cutoff-hz abc", "--cutoff-hz"),
+    ("diagnose --model iiwa14_nominal --train {d}/good.npz --out {o}/d --cutoff-hz nan", "--cutoff-hz"),
     ("diagnose --model iiwa14_nominal --train {d}/good.npz --out {o}/d --trim -5", "--trim"),
     ("diagnose --model iiwa14_nominal --train {d}/good.npz --out {o}/d --trim inf", "--trim"),
     ("view {d}/good.npz --html {o}/v.html --fps 0", "fps"),
@@ -349,6 +356,7 @@ MODEL_FILES = {"model_wrong_keys.npz": "model_wrong_keys", "model_pickled.npz": 
                "model_truncated.npz": "model_truncated", "model_garbage.pt": "model_garbage",
                "model_wrong_state.pt": "model_wrong_state", "model_exploit.pt": "model_exploit.*pickled Python",
                "model_truncated.pt": "model_truncated", "model_empty.pt": "model_empty",
+               "model_foreign_state.pt": "model_foreign_state.*do not fit",
                "no_such_model.npz": "no_such_model", "no_such_robot_xyz": "no_such_robot_xyz",
                "robot_syntax.yaml": "robot_syntax"}
 for _file, _word in MODEL_FILES.items():
@@ -412,8 +420,10 @@ CASES += [
      "--train {d}/good.npz --out {o}/d", "no_such_mod_xyz"),
     ("diagnose-candidate-relative", "diagnose --model iiwa14_nominal --candidate .rel:K --train {d}/good.npz "
      "--out {o}/d", "rel:K"),
-    ("diagnose-twin-needs-holdout", "diagnose --model iiwa14_identified --twin iiwa14_twin --train {d}/good.npz "
-     "--out {o}/d", "--holdout"),
+    ("diagnose-one-log-too-short", "diagnose --model iiwa14_identified --twin iiwa14_twin --train {d}/good.npz "
+     "--out {o}/d", "record ≥ .* s at this split.*--holdout REC"),
+    ("train-checkpoint-refused-by-weights-only", "train --config train_demo --backbone iiwa14_nominal --data "
+     "{d}/good.npz --out {d}/ckpt_exploit/m.pt", "m.pt.ckpt.*remove it.*pickled Python objects"),
     ("diagnose-friction-twice", "diagnose --model iiwa14_identified --effects viscous_coulomb --train "
      "{d}/good.npz --out {o}/d", "viscous_coulomb"),
     ("simulate-both-sources", "simulate --trajectory {d}/good.npz --replay {d}/good.npz --out {o}/s.npz",
@@ -473,6 +483,7 @@ def test_hostile_input_is_one_line_naming_it(files, tmp_path, capsys, line, word
     assert code == 2, stderr
     assert "Traceback" not in stderr + stdout
     assert len(lines) == 1 and lines[0].startswith("proprio: error: "), stderr
+    assert len(lines[0]) < 2000, f"{len(lines[0])} characters"   # a list of valid names fits; a dump of every bad row not
     assert re.search(word, lines[0], re.IGNORECASE), f"{word!r} not named in: {lines[0]}"
     assert not "allow_pickle" in stderr and "weights_only" not in stderr
     assert not out.exists() or not any(out.rglob("*")), "partial output written"

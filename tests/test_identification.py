@@ -186,7 +186,7 @@ def test_real_lwr_identification_beats_flobaroid(lwr_dir, tmp_path, capsys):
     out = tmp_path / "lwr.npz"
     rc = main(["identify", "--robot", str(lwr_dir), "--train", str(lwr_dir / "measurements_2.npz"),
                str(lwr_dir / "measurements_3.npz"), "--validate", str(lwr_dir / "measurements_1.npz"),
-               "--trim", "500", "--offsets", "--out", str(out)])
+               "--trim", "2.5", "--offsets", "--out", str(out)])
     assert rc == 0
     printed = capsys.readouterr().out
     assert "validation" in printed

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import logging
 import math
 import pkgutil
 import sys
@@ -29,7 +30,7 @@ import yaml
 
 from proprio.errors import UserError
 
-__all__ = ["main", "build_parser", "UserError", "check_output", "add_plugin_args", "add_chain_args", "load_robot_arg", "finite", "nonnegative", "positive",
+__all__ = ["main", "build_parser", "UserError", "check_output", "check_recording_robot", "add_plugin_args", "add_chain_args", "load_robot_arg", "finite", "nonnegative", "positive",
            "positive_int", "nonnegative_int"]
 
 
@@ -113,6 +114,43 @@ def load_robot_arg(value: str, args: argparse.Namespace):
     return load_robot(value, args.base, args.tip)
 
 
+def check_recording_robot(rec, robot, path: str | Path, flag: str, twin: bool = False):
+    """The one check that a Recording was made on ``robot`` (the model of a command; ``flag`` names the option that
+    gives it): joint count, limits and — when ``meta.robot`` names another robot — the same kinematics
+    (:func:`proprio.diagrams.estimation.check_recording_matches`). A mismatch is a :class:`UserError` whose advice is
+    a ``flag`` value that loads: ``meta.robot`` itself when it is a description, or the folder of the recording when
+    it holds that robot's ``robot.yaml`` (the LWR 4+ files); with ``twin`` (``flag`` takes a twin config) a twin config
+    of that robot."""
+    from proprio.diagrams.estimation import check_recording_matches
+    from proprio.recording import RecordingError
+
+    try:
+        return check_recording_matches(rec, robot)
+    except RecordingError as exc:
+        name = rec.meta.get("robot")
+        text = f"{path}: {str(exc).removeprefix('recording: ')}"
+        if not name or name == robot.name:
+            raise UserError(text) from None
+        found = None if twin else _description_of(name, Path(path))
+        advice = (f"pass {flag} {found}" if found else f"pass {flag} with a twin config of robot '{name}'" if twin else
+                  f"pass {flag} with the description of '{name}' (a robot YAML/URDF or a folder with its robot.yaml)")
+        raise UserError(f"{text}; {advice}") from None
+
+
+def _description_of(name: str, path: Path) -> str | None:
+    """A ``--model``/``--robot`` value that loads robot ``name``: the name itself, or the recording's folder when its
+    ``robot.yaml`` is that robot; None when neither is."""
+    from proprio.description import load_robot
+
+    for spec in (name, str(path.parent)):
+        try:
+            if load_robot(spec).name == name:
+                return spec
+        except (ValueError, OSError):
+            continue
+    return None
+
+
 def check_output(path: str | Path | None, flag: str, kind: str = "file") -> None:
     """Refuse, before any work, an output ``path`` (``kind`` ``"file"`` or ``"dir"``) that cannot be written: a
     directory where a file goes (or the reverse), a parent that is a file, a folder without write permission."""
@@ -154,8 +192,35 @@ def _one_line(exc: BaseException) -> str:
     return text.strip() or type(exc).__name__
 
 
+class _OneInertiaWarning(logging.Filter):
+    """Drake's warning for every link inertia that fails ``CouldBePhysicallyValid`` (a model identified without
+    ``--method sdp``: ≈ 8 lines per link, each time a plant is built) becomes one line, once per run."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.said = False
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if "CouldBePhysicallyValid" not in record.getMessage():
+            return True
+        if self.said:
+            return False
+        self.said = True
+        record.msg, record.args = (INERTIA_WARNING, ())
+        return True
+
+
+INERTIA_WARNING = ("the model's link inertias are not physically valid (Drake: CouldBePhysicallyValid fails; further "
+                   "such warnings are not shown), as an OLS/WLS identification may give; `proprio identify "
+                   "--method sdp` gives a physically consistent model")
+
+
 def main(argv: list[str] | None = None) -> int:
     warnings.formatwarning = _warning_line   # a library warning (e.g. a repaired inertia) is one line, no source
+    drake_log = logging.getLogger("drake")
+    for old in [f for f in drake_log.filters if isinstance(f, _OneInertiaWarning)]:
+        drake_log.removeFilter(old)
+    drake_log.addFilter(_OneInertiaWarning())
     parser = build_parser()
     try:
         args = parser.parse_args(argv)

@@ -6,6 +6,7 @@ from pathlib import Path
 
 from proprio.cli._backend import add_backend_args, check_backend_args, clear_state
 from proprio.cli import UserError, add_plugin_args, check_output, nonnegative, nonnegative_int, positive, positive_int
+from proprio.cli.flags import add_list, add_quiet, add_twin
 
 __all__ = ["register"]
 
@@ -18,12 +19,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "simulated with which twin config (and its SHA-256), which seeds and payloads, and each "
                     "recording's data and file digests. Tasks run here or on Ray (--backend ray [--address]); the "
                     "recordings are identical either way. A rerun simulates only what is missing.")
-    p.add_argument("--twin", default="iiwa14_twin",
-                   help="twin config: a shipped name (iiwa14_twin, iiwa14_nominal_twin) or a YAML path "
-                        "(default iiwa14_twin)")
-    p.add_argument("--seeds", nargs="+", required=True, metavar="SEED",
+    add_twin(p, "iiwa14_twin", "")
+    add_list(p, "--seeds", required=True, metavar="SEED",
                    help="RFMA trajectory seeds: integers or inclusive ranges A-B (e.g. 11 12 13 or 20-29)")
-    p.add_argument("--payload-kg", nargs="+", type=nonnegative, default=[0.0], metavar="M",
+    add_list(p, "--payload-kg", type=nonnegative, default=[0.0], metavar="M",
                    help="payload masses at the flange [kg], each simulated on every seed (default 0)")
     p.add_argument("--scaffolds", type=positive_int, default=150,
                    help="RFMA scaffolds per trajectory (default 150, ≈1 h)")
@@ -32,7 +31,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--twin-seed", type=nonnegative_int, default=None,
                    help="noise seed of the twin for every recording (default: each trajectory's seed)")
     p.add_argument("--out", required=True, type=Path, help="dataset directory")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_quiet(p)
     add_backend_args(p, "1 for local, os.cpu_count() for a local Ray instance")
     add_plugin_args(p)
     p.set_defaults(func=_dataset)

@@ -5,9 +5,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from proprio.cli import (UserError, add_chain_args, add_plugin_args, check_output, load_robot_arg, nonnegative,
+from proprio.cli import (UserError, add_chain_args, add_plugin_args, check_output, check_recording_robot, load_robot_arg,
                          nonnegative_int)
 from proprio.cli._backend import add_backend_args, check_backend_args, clear_state
+from proprio.cli.flags import add_cutoff_hz, add_list, add_split, add_trim, add_twin, conditioning_of, split_tails
+
+HOLDOUT_FRACTION = 1 / 3
+"""The share of every training recording held out at its end when no --holdout is given (the README's TX40 split:
+6 s of 9 train, 3 s held out)."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -22,36 +27,34 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "directory with robot.yaml (e.g. ../shared/data/kuka_lwr4), or an identified model .npz written "
                    "by `proprio identify` (its inertials, friction and offsets)")
     add_chain_args(p)
-    p.add_argument("--effects", nargs="*", default=[], metavar="EFFECT",
-                   help="effects the simulation already has: library names or your own effects as "
-                   "'package.module:Class' (at the parameters of --effects-config, else the class defaults)")
+    add_list(p, "--effects", nargs="*", default=[], metavar="EFFECT",
+             help="effects the simulation already has: library names or your own effects as 'package.module:Class' "
+             "(at the parameters of --effects-config, else the class defaults)")
     p.add_argument("--effects-config", type=Path, help="YAML with an 'effects:' mapping {name: parameters}")
-    p.add_argument("--train", nargs="+", required=True, type=Path, metavar="REC",
-                   help="training recordings (.npz Recording or FloBaRoID LWR measurement files)")
-    p.add_argument("--holdout", nargs="*", default=[], type=Path, metavar="REC",
-                   help="held-out recordings; without them the training recordings are cross-validated over time "
-                   "blocks (alternate blocks fit and score, two folds; ≥ 15 s of data)")
-    p.add_argument("--cutoff", default="auto", metavar="HZ|auto",
-                   help="low-pass cutoff of the signal conditioning [Hz], or 'auto' (per joint from the data's noise "
-                   "floor; default)")
-    p.add_argument("--candidates", nargs="*", metavar="NAME", help="test only these candidates")
+    add_list(p, "--train", required=True, type=Path, metavar="REC",
+             help="training recordings (.npz Recording or FloBaRoID LWR measurement files); without --holdout the "
+             "end of each is held out (--holdout-fraction, --split-at)")
+    add_list(p, "--holdout", nargs="*", default=[], type=Path, metavar="REC",
+             help="held-out recordings; without them the end of every training recording is held out (each part "
+             "must keep enough for the block test after trimming: a shorter log is refused up front with the "
+             "seconds it would need)")
+    add_split(p, None, f"{HOLDOUT_FRACTION:.3g} without --holdout")
+    add_cutoff_hz(p)
+    add_list(p, "--candidates", nargs="*", metavar="NAME", help="test only these candidates")
     p.add_argument("--candidate", action="append", default=[], metavar="MODULE:CLASS",
                    help="your own effect (a proprio.effects.JointEffect subclass, README 'Your own effect') tested "
                    "alongside the library candidates; repeatable")
-    p.add_argument("--trim", type=nonnegative, default=None, help="seconds dropped at both ends of every recording "
-                   "(filter start-up; default 0.5, at most 5 %% of a recording's length but never less than its "
-                   "low-pass's settling, 3 periods of the lowest cutoff)")
-    p.add_argument("--twin", metavar="BASE",
-                   help="base twin config of the --model robot (a shipped name such as kuka_lwr4_twin, or a YAML "
-                   "path): replay the held-out recordings through it and through it + twin_patch.yaml, and report the "
-                   "gap through the twin next to the offline prediction (needs --holdout)")
+    add_trim(p, None, "0.5, at most 5 %% of a recording's length but never less than its low-pass's settling, 3 "
+             "periods of the lowest cutoff")
+    add_twin(p, None, " of the --model robot, the base: replay the held-out recordings through it and through it + "
+             "twin_patch.yaml, and report the gap through the twin next to the offline prediction")
     p.add_argument("--out", required=True, type=Path, help="output directory for the report and twin_patch.yaml")
     p.add_argument("--design-experiment", action="store_true",
                    help="for every tied set of effects (the report's ambiguity section) design the motion that "
                    "separates them (≤ 60 s, within the limits, collision-checked) and write it to "
                    "OUT/experiment_<A>_vs_<B>.npz, the format of 'proprio trajectory': run it on the robot, then "
                    "diagnose again with --experiment REC")
-    p.add_argument("--experiment", nargs="+", default=[], type=Path, metavar="REC",
+    add_list(p, "--experiment", default=[], type=Path, metavar="REC",
                    help="recordings of designed experiments: each is cut between its two mirrored passes (at its "
                    "middle); the first pass joins the training recordings, the second the held-out ones")
     p.add_argument("--resolve", metavar="TWIN",
@@ -80,7 +83,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--quick", action="store_true", help="one magnitude per effect type, 2 null, 1 two-effect case "
                    "(with --twin: 4 effect types, 1 null, 1 two-effect case), 1 out-of-library and 1 time-varying "
                    "case")
-    b.add_argument("--cases", nargs="+", metavar="NAME", default=None,
+    add_list(b, "--cases", metavar="NAME", default=None,
                    help="run only these cases of the list (names as in benchmark.txt, e.g. viscous_coulomb@1 null#0; "
                    "the scores then cover only them)")
     b.add_argument("--out", required=True, type=Path,
@@ -138,20 +141,57 @@ def _model(args: argparse.Namespace):
         raise UserError(f"--effects: {exc}") from exc
 
 
+def _hold_out_tails(args: argparse.Namespace, train: list, hold: list) -> tuple[list, list]:
+    """``--split-at`` / ``--holdout-fraction`` (the latter by default when no --holdout is given): the end of every
+    training recording is held out; said in the output. Refused before any work when a part is too short for the block
+    test after trimming (``MIN_BLOCKS`` blocks of ≥ ``MIN_BLOCK_S``, :mod:`proprio.diagnosis.data`, the number the
+    diagnosis itself refuses a held-out set below), with the seconds the log would need."""
+    from proprio.diagnosis.data import MAX_TRIM_S, MIN_BLOCK_S, MIN_BLOCKS, TRIM_SHARE
+
+    default = not args.holdout and args.split_at is None and args.holdout_fraction is None
+    if default:
+        args.holdout_fraction = HOLDOUT_FRACTION
+    heads, tails, names = split_tails(args, train, args.train)
+    if not tails:
+        return train, hold
+    how = (f"all after the first {args.split_at:g} s (--split-at)" if args.split_at is not None else
+           f"the last {100 * args.holdout_fraction:.3g} % (--holdout-fraction {args.holdout_fraction:.3g}"
+           f"{', the default without --holdout' if default else ''})")
+    print(f"held out: {how} of every --train recording: " + ", ".join(names))
+    least = MIN_BLOCKS * MIN_BLOCK_S
+    for role, parts in (("held-out", tails), ("training", heads)):
+        spans = [float(r.t[-1] - r.t[0]) for r in parts]
+        # the trim is the given one, or at least the default's share of a short recording (data.default_trim_s)
+        usable = sum(s - 2 * (args.trim if args.trim is not None else min(MAX_TRIM_S, TRIM_SHARE * s))
+                     for s in spans)
+        if usable < least:
+            total = sum(float(r.t[-1] - r.t[0]) for r in train)
+            share = sum(spans) / total
+            trim = 2 * len(spans) * (args.trim if args.trim is not None else 0.0)
+            part = (least + trim) / (1 - (2 * TRIM_SHARE if args.trim is None else 0.0))
+            need = (f"a held-out part of ≥ {part:.1f} s: record ≥ {args.split_at + part / len(spans):.1f} s"
+                    if args.split_at is not None and role == "held-out" else
+                    f"a {role} part of ≥ {part:.1f} s: record ≥ {part / share:.1f} s at this split")
+            raise UserError(
+                f"--train: the {role} part is {sum(spans):.2f} s ({usable:.2f} s after trimming) of {total:.2f} s "
+                f"recorded; the block test needs ≥ {least:g} s ({MIN_BLOCKS} blocks of ≥ {MIN_BLOCK_S:g} s) "
+                f"after trimming, so {need}; or move the split (--holdout-fraction, --split-at) or give held-out "
+                "recordings (--holdout REC)")
+    return heads, hold + tails
+
+
 # candidates of the diagnosis that are not joint effects (proprio.diagnosis.candidate_set.candidate_set)
 _NON_EFFECT_CANDIDATES = ("rigid_body", "payload", "signal_lag", "sensor_offset", "sensor_gain", "rotor_inertia",
                           "motor_friction", "drive_offset")     # the last three: drive-torque arms only
 
 
 def _diagnose(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
-    from proprio.conditioning import ConditioningConfig
     from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING
     from proprio.diagnosis.report import diagnose
     from proprio.effects import EFFECTS, allow_plugins, resolve_effect
     from proprio.effects.plugins import is_plugin_path
     from proprio.identification.recordings import check_tau_kind
+    from proprio.progress import progress_bar
     from proprio.recording import load_recording
 
     check_output(args.out, "--out", "dir")
@@ -162,8 +202,7 @@ def _diagnose(args: argparse.Namespace) -> int:
                         "a plugin 'package.module:Class'")
     # plugins named on the command line itself are the user's consent; a config's are not (--allow-plugin)
     allow_plugins([name for name in args.candidate + args.effects if is_plugin_path(name)])
-    cutoff = args.cutoff if args.cutoff == "auto" else _positive_float(args.cutoff, "--cutoff")
-    conditioning = ConditioningConfig(**{**DIAGNOSIS_CONDITIONING.__dict__, "cutoff_hz": cutoff})
+    conditioning = conditioning_of(args, DIAGNOSIS_CONDITIONING)
     model = _model(args)
     for name in args.candidate:                     # a bad plugin is refused before any data are read
         try:
@@ -174,8 +213,6 @@ def _diagnose(args: argparse.Namespace) -> int:
     if args.twin is not None:
         from proprio.diagrams.twin import TwinConfigError, load_twin_config
 
-        if not args.holdout:
-            raise UserError("--twin: the replay through the twin needs held-out recordings (--holdout)")
         try:
             twin = load_twin_config(args.twin)
         except TwinConfigError as exc:
@@ -184,20 +221,22 @@ def _diagnose(args: argparse.Namespace) -> int:
             raise UserError(f"--twin: the twin's robot is '{twin.robot.name}' ({twin.robot.n} joints), --model is "
                             f"'{model.robot.name}' ({model.robot.n} joints)")
     resolve_twin = _resolve_twin(args.resolve, model) if args.resolve else None
-    train = [load_recording(p, model.robot) for p in args.train]
-    hold = [load_recording(p, model.robot) for p in args.holdout]
+    load = lambda p: check_recording_robot(load_recording(p, model.robot), model.robot, p, "--model")  # noqa: E731
+    train = [load(p) for p in args.train]
+    hold = [load(p) for p in args.holdout]
     try:                                           # what τ is decides the candidates: the Recordings must agree
         check_tau_kind(train + hold, list(args.train) + list(args.holdout), model.robot)
     except ValueError as exc:
         raise UserError(str(exc)) from exc
+    train, hold = _hold_out_tails(args, train, hold)
     if args.experiment:
         from proprio.diagnosis.resolve import with_experiments
 
         try:
-            train, hold = with_experiments(train, hold, [load_recording(p, model.robot) for p in args.experiment])
+            train, hold = with_experiments(train, hold, [load(p) for p in args.experiment])
         except ValueError as exc:
             raise UserError(f"--experiment: {exc}") from exc
-    bar = tqdm(desc="diagnose", bar_format="{desc}: {elapsed} {postfix}")
+    bar = progress_bar(desc="diagnose", bar_format="{desc}: {elapsed} {postfix}")
     try:
         d = diagnose(model, train, hold, args.out, candidates=args.candidates, trim_s=args.trim,
                      progress=lambda msg: bar.set_postfix_str(msg), conditioning=conditioning, twin=twin,
@@ -267,16 +306,6 @@ def _experiments(args: argparse.Namespace, model, d, train, hold, conditioning, 
             print(f"report after the experiment(s): {d2.files['report_html']}")
     print(f"experiments: {args.out / 'resolution.json'}")
     write_resolution(args.out / "resolution.json", designed, resolutions, refit)
-
-
-def _positive_float(text: str, flag: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise UserError(f"{flag}: expected a number or 'auto', got {text!r}") from None
-    if not value > 0:
-        raise UserError(f"{flag}: must be > 0, got {value}")
-    return value
 
 
 def _benchmark(args: argparse.Namespace) -> int:

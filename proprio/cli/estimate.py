@@ -8,7 +8,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from proprio.cli import UserError, check_output, nonnegative, nonnegative_int, positive
+from proprio.cli import check_output, check_recording_robot, nonnegative, nonnegative_int, positive
+from proprio.cli.flags import add_cutoff_hz, add_list, add_twin, conditioning_of
 
 __all__ = ["register", "run_estimate", "run_payload_experiment"]
 
@@ -21,8 +22,7 @@ MODEL_HELP = ("a shipped robot name or robot YAML/URDF (its rigid-body model + f
 def _add_observer_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gain", type=positive, default=100.0, help="momentum observer gain K_O [1/s] (default 100: time "
                    "constant 10 ms)")
-    p.add_argument("--cutoff-hz", default="auto", metavar="HZ|auto", help="zero-phase Butterworth cutoff of the "
-                   "signal conditioning for q and τ [Hz], or 'auto' (per joint from the data's noise floor; default)")
+    add_cutoff_hz(p, " for q and τ")
     p.add_argument("--force-only", action="store_true", help="estimate the 3-D force only (moment reported as 0); "
                    "right for a payload whose CoM is the contact point")
     p.add_argument("--sigma-threshold", type=nonnegative, default=0.02,
@@ -31,40 +31,18 @@ def _add_observer_options(p: argparse.ArgumentParser) -> None:
 
 
 def _options(args: argparse.Namespace):
-    from proprio.conditioning import ConditioningConfig
     from proprio.systems.observers import WrenchMapping
-    cutoff = args.cutoff_hz
-    if cutoff != "auto":
-        try:
-            cutoff = float(cutoff)
-        except ValueError:
-            raise UserError(f"--cutoff-hz: expected a number [Hz] or 'auto', got {cutoff!r}") from None
-    try:
-        conditioning = ConditioningConfig.from_dict({"cutoff_hz": cutoff}, "--cutoff-hz")
-    except ValueError as exc:
-        raise UserError(str(exc)) from None
     return (WrenchMapping(force_only=args.force_only, sigma_threshold=args.sigma_threshold,
-                          damping_max=args.sigma_threshold), conditioning)
+                          damping_max=args.sigma_threshold), conditioning_of(args))
 
 
 def run_estimate(args: argparse.Namespace) -> int:
-    from proprio.diagrams.estimation import OBSERVERS, check_recording_matches, estimate_wrench, load_torque_model
-    from proprio.recording import RecordingError, load_recording
+    from proprio.diagrams.estimation import OBSERVERS, estimate_wrench, load_torque_model
+    from proprio.recording import load_recording
 
     check_output(args.out, "--out", "dir")
     model = load_torque_model(args.model)
-    rec = load_recording(args.recording)
-    try:
-        check_recording_matches(rec, model.description)
-    except RecordingError as exc:
-        name, own = rec.meta.get("robot"), model.description.name
-        if not name or name == own:
-            raise
-        raise UserError(f"{args.recording}: {str(exc).removeprefix('recording: ')}. Pass --model for robot '{name}' "
-                        f"(e.g. --model {name} if that is a built-in name or a description file, or an identified "
-                        f"model from `proprio identify --robot {name} ...`); if the recording was made on '{own}', "
-                        f"re-import it with `proprio import MAPPING --robot {args.model}` so that meta.robot names "
-                        "it") from None
+    rec = check_recording_robot(load_recording(args.recording), model.description, args.recording, "--model")
     mapping, conditioning = _options(args)
     res = estimate_wrench(model, rec, gain=args.gain, mapping=mapping, conditioning=conditioning)
     out = Path(args.out)
@@ -75,13 +53,18 @@ def run_estimate(args: argparse.Namespace) -> int:
     gaps = f", {res.gap.sum()} inside gaps of the log (no estimate: NaN)" if res.gap.any() else ""
     print(f"{res.t.size} samples{gaps}, {res.unreliable.sum()} flagged unreliable (near a singularity); statistics "
           f"over the {res.valid().sum()} valid ones")
-    if res.f_true is not None and not res.valid().any():
+    if not res.valid().any():
         print("no force statistics: no sample is clear of the transients at the ends and around the gaps")
-    elif res.f_true is not None:
-        print(f"{'observer':<10} {'RMSE [fx fy fz] N':<28} {'σ [fx fy fz] N'}")
+    else:
+        truth = res.f_true is not None
+        print(f"{'observer':<10} {'RMS f̂ [fx fy fz] N':<28}"
+              + (f" {'RMSE [fx fy fz] N':<28} {'σ [fx fy fz] N'}" if truth else "  (no true force in the recording)"))
         for obs in OBSERVERS:
-            rmse, std = res.force_stats(obs)
-            print(f"{obs:<10} {_vec(rmse):<28} {_vec(std)}")
+            line = f"{obs:<10} {_vec(res.force_rms(obs)):<28}"
+            if truth:
+                rmse, std = res.force_stats(obs)
+                line += f" {_vec(rmse):<28} {_vec(std)}"
+            print(line)
     for path in written:
         print(f"wrote {path}")
     return 0
@@ -98,7 +81,7 @@ def run_payload_experiment(args: argparse.Namespace) -> int:
     mapping, conditioning = _options(args)
     result = payload_experiment(args.model, args.out, seconds=args.seconds, masses=tuple(args.masses),
                                 seed=args.seed, gain=args.gain, mapping=mapping, conditioning=conditioning,
-                                twin_config=args.twin_config, progress=True)
+                                twin_config=args.twin, progress=True)
     print(result.table_text)
     for path in result.files:
         print(f"wrote {path}")
@@ -127,10 +110,10 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--seconds", type=positive, default=30.0, help="duration of the validation trajectory [s] "
                    "(default 30; the thesis' Table 5.4 ran 563: 42260 samples at 75 Hz)")
-    p.add_argument("--masses", type=nonnegative, nargs="+", default=[0.0, 0.5, 1.0], help="payload masses [kg] "
+    add_list(p, "--masses", type=nonnegative, default=[0.0, 0.5, 1.0], help="payload masses [kg] "
                    "(default 0 0.5 1)")
     p.add_argument("--seed", type=nonnegative_int, default=7, help="seed of the RFMA trajectory and the twin's noise")
-    p.add_argument("--twin-config", default="iiwa14_twin", help="twin config name or YAML (default iiwa14_twin, "
-                   "the calibrated twin)")
+    add_twin(p, "iiwa14_twin", ", the twin the payloads are simulated on (--twin-config: its former name)",
+             "--twin-config")
     _add_observer_options(p)
     p.set_defaults(func=run_payload_experiment)

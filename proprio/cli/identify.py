@@ -5,8 +5,8 @@ import argparse
 import json
 
 import numpy as np
-from proprio.cli import (add_chain_args, check_output, load_robot_arg, nonnegative, nonnegative_int, positive,
-                         positive_int)
+from proprio.cli import add_chain_args, check_output, check_recording_robot, load_robot_arg, nonnegative, nonnegative_int, positive_int
+from proprio.cli.flags import add_cutoff_hz, add_list, add_split, add_trim, conditioning_of, split_tails
 
 
 __all__ = ["register"]
@@ -15,38 +15,34 @@ __all__ = ["register"]
 def _identify(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from proprio.conditioning import ConditioningConfig
     from proprio.data_quality import assess, format_findings
     from proprio.identification.estimators import torque_error_table
     from proprio.identification.model_io import save_model
-    from proprio.identification.recordings import check_tau_kind, identify_recordings, stack_recordings
+    from proprio.identification.recordings import TRIM_S, check_tau_kind, identify_recordings, stack_recordings
     from proprio.identification.regressor import drive_identified
     from proprio.recording import load_recording
 
     check_output(args.out, "--out", "file")
     robot = load_robot_arg(args.robot, args)
-    train = [load_recording(p, robot) for p in args.train]
-    validate = [load_recording(p, robot) for p in args.validate]
+    train = [check_recording_robot(load_recording(p, robot), robot, p, "--robot") for p in args.train]
+    validate = [check_recording_robot(load_recording(p, robot), robot, p, "--robot") for p in args.validate]
     check_tau_kind(train + validate, args.train + args.validate, robot)
-    val_names = list(args.validate)
-    if args.split_at is not None:                   # held-out tail of every training recording
-        cuts = [int(np.searchsorted(rec.t, rec.t[0] + args.split_at)) for rec in train]
-        bad = [p for p, c, rec in zip(args.train, cuts, train) if not 0 < c < rec.n_samples]
-        if bad:
-            raise ValueError(f"--split-at {args.split_at} s is outside the time span of {', '.join(bad)}")
-        validate += [rec.slice(c, rec.n_samples) for c, rec in zip(cuts, train)]
-        val_names += [f"{p} after {args.split_at:g} s" for p in args.train]
-        train = [rec.slice(0, c) for c, rec in zip(cuts, train)]
-        print(f"split: train on the first {args.split_at:g} s of each --train recording, validate on the rest")
+    trim_s = TRIM_S if args.trim is None else args.trim
+    train, tails, tail_names = split_tails(args, train, args.train)     # held-out tail of every training recording
+    validate, val_names = validate + tails, list(args.validate) + tail_names
+    if tails:
+        head = (f"{args.split_at:g} s" if args.split_at is not None else f"{100 * (1 - args.holdout_fraction):.3g} %")
+        print(f"split: train on the first {head} of each --train recording, validate on the rest: "
+              + ", ".join(tail_names))
     if args.no_drive and robot.drive is not None:
         robot = dataclasses.replace(robot, drive=None)
-    conditioning = ConditioningConfig() if args.cutoff_hz is None else ConditioningConfig(cutoff_hz=args.cutoff_hz)
+    conditioning = conditioning_of(args)
     offsets = args.offsets or drive_identified(robot)
     for role, paths, recs in (("train", args.train, train), ("validate", val_names, validate)):
         for path, rec in zip(paths, recs):          # warnings and problems only, and the conditioning line (once)
             print(format_findings(assess(rec, robot, conditioning=conditioning), "warning",
                                   title=f"data quality of {path} ({role}):"))
-    model, text = identify_recordings(train, [], robot, args.method, args.trim, offsets,
+    model, text = identify_recordings(train, [], robot, args.method, trim_s, offsets,
                                       args.coulomb_velocity_scale, conditioning)
     print(f"{args.method.upper()} on {model.n_train_samples} samples: {model.phi_b.size} parameters "
           f"({model.base.n_base} base{' incl. drive terms' if drive_identified(robot) else ''}"
@@ -55,11 +51,50 @@ def _identify(args: argparse.Namespace) -> int:
         print(model.parameter_table())
     print(text.split("\n\n", 1)[1])                # the tables: their conditioning lines were printed above
     for path, rec in zip(val_names, validate):      # one table per held-out file: runs are not pooled
-        (q, qd, qdd, tau), _ = stack_recordings([rec], args.trim, conditioning)
+        (q, qd, qdd, tau), _ = stack_recordings([rec], trim_s, conditioning)
         print("\n" + torque_error_table(tau, model.torque(q, qd, qdd), f"validation: {path}")[0])
+    for line in _advice(model, stack_recordings(train, trim_s, conditioning)[0], args.method, offsets):
+        print(line)
     save_model(model, args.out)
     print(f"wrote {args.out}")
     return 0
+
+
+OFFSET_ALPHA = 0.01
+"""Significance level of identify's test for a constant part in the residual (two-sided, over all joints)."""
+
+
+def _advice(model, data, method: str, offsets: bool) -> list[str]:
+    """What identify can tell beyond its tables: an OLS/WLS model that is not physically consistent (suggest
+    ``--method sdp``), and a training residual with a constant part beyond its noise (suggest ``--offsets``): per
+    joint the mean against its standard error, ``t = |ē| / (σ √(f / N))`` with ``f`` the residual's autocorrelation
+    factor N/N_eff (:func:`proprio.diagnosis.block_test.n_eff_factor`), named where ``t`` exceeds the two-sided
+    :data:`OFFSET_ALPHA` level Bonferroni-corrected over the joints."""
+    from scipy.stats import norm
+
+    from proprio.diagnosis.block_test import n_eff_factor
+    from proprio.identification.estimators import inconsistent_links
+
+    lines = []
+    bad = inconsistent_links(model) if method != "sdp" else []
+    if bad:
+        lines.append(f"advice: the {method.upper()} model is not physically consistent (the link inertia or friction "
+                     f"of joint(s) {', '.join(map(str, bad))}): Drake warns when it builds a plant from it (view, "
+                     "estimate, train); --method sdp identifies a physically consistent model")
+    if not offsets:
+        q, qd, qdd, tau = data
+        e = tau - model.torque(q, qd, qdd)
+        mean, sd = e.mean(axis=0), np.maximum(e.std(axis=0), 1e-12)
+        factor = np.array([n_eff_factor(e[:, [j]]) for j in range(e.shape[1])])
+        t = np.abs(mean) / (sd * np.sqrt(factor / e.shape[0]))
+        level = float(norm.isf(OFFSET_ALPHA / (2 * e.shape[1])))
+        hit = np.flatnonzero(t > level)
+        if hit.size:
+            said = ", ".join(f"joint {j + 1}: mean {mean[j]:+.3g} N·m, σ {sd[j]:.3g} N·m, t = {t[j]:.1f}" for j in hit)
+            lines.append(f"advice: the training residual has a constant part beyond its noise ({said}; t > "
+                         f"{level:.2f} is the {100 * OFFSET_ALPHA:g} % level over the joints, autocorrelation "
+                         "counted): --offsets fits a constant torque offset per joint")
+    return lines
 
 
 def _excite(args: argparse.Namespace) -> int:
@@ -108,24 +143,20 @@ def register(subparsers) -> None:
     p.add_argument("--robot", required=True, help="robot description: built-in name, YAML, URDF or directory "
                                                   "(kinematics + a-priori inertials)")
     add_chain_args(p)
-    p.add_argument("--train", nargs="+", required=True, metavar="REC", help="training recordings (.npz; FloBaRoID "
-                                                                            "LWR files accepted)")
-    p.add_argument("--validate", nargs="*", default=[], metavar="REC",
-                   help="validation recordings (one error table per file)")
+    add_list(p, "--train", required=True, metavar="REC",
+             help="training recordings (.npz; FloBaRoID LWR files accepted)")
+    add_list(p, "--validate", nargs="*", default=[], metavar="REC",
+             help="validation recordings (one error table per file)")
     p.add_argument("--method", choices=("ols", "wls", "sdp"), default="ols", help="estimator (default ols)")
     p.add_argument("--out", required=True, help="output model file (.npz)")
-    p.add_argument("--trim", type=nonnegative_int, default=100, help="samples dropped at both ends of every recording "
-                                                         "(filter start-up; default 100)")
+    add_trim(p, None, "0.5, as diagnose: proprio.identification.recordings.TRIM_S")
     p.add_argument("--offsets", action="store_true", help="also fit a constant torque offset per joint (always on "
                                                           "for a drive-torque arm)")
     p.add_argument("--no-drive", action="store_true",
                    help="leave out the drive columns (rotor inertia, coupled motor friction) of a robot whose "
                         "description has drive.tau_kind: drive — the ablation of the same identification")
-    p.add_argument("--split-at", type=positive, default=None, metavar="SECONDS",
-                   help="train on the first SECONDS of every --train recording and validate on the rest (added "
-                        "to --validate)")
-    p.add_argument("--cutoff-hz", type=positive, default=None,
-                   help="[Hz] low-pass cutoff of the conditioning (default: auto from the noise floor)")
+    add_split(p, None, "none: validate on --validate only; the held-out ends are added to it")
+    add_cutoff_hz(p)
     p.add_argument("--coulomb-velocity-scale", type=nonnegative, default=None,
                    help="[rad/s] Coulomb friction as tanh(qd/scale); 0 = sign(qd) (default: the library's smoothing, "
                         "proprio.friction_law.SMOOTH_VELOCITY = 0.05)")

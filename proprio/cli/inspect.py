@@ -8,7 +8,7 @@ from pathlib import Path
 from proprio.data_quality import assess, format_findings
 from proprio.description import load_robot
 from proprio.inspection import DEFAULT_DEADBAND, format_summary, load_any, plot_recording, summarize_recording
-from proprio.cli import check_output, nonnegative
+from proprio.cli import check_output, check_recording_robot, nonnegative
 
 __all__ = ["register"]
 
@@ -17,6 +17,8 @@ def run(args: argparse.Namespace) -> int:
     check_output(args.plot, "--plot", "file")
     robot = load_robot(args.robot) if args.robot else None
     rec = load_any(args.file, robot=robot, angle_unit=args.angle_unit)
+    if robot is not None:
+        rec = check_recording_robot(rec, robot, args.file, "--robot")
     summary = summarize_recording(rec, robot, deadband=args.deadband)
     print(format_summary(summary, title=str(args.file)))
     print("\n" + format_findings(assess(rec, robot), title="data quality (most severe first)"))

@@ -8,8 +8,9 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from proprio.cli import UserError, check_output, nonnegative_int, positive_int
+from proprio.cli import UserError, check_output, check_recording_robot, nonnegative_int, positive_int
 from proprio.cli._backend import add_backend_args, check_backend_args, clear_state
+from proprio.cli.flags import add_list
 from proprio.recording import Recording, load_recording
 
 if TYPE_CHECKING:                       # (the training stack imports torch: loaded by the commands that train)
@@ -27,15 +28,20 @@ def _load(paths: list[str]) -> tuple[list[Recording], list[str]]:
     return recs, [Path(p).stem for p in paths]
 
 
-def _backbone(spec: str | None, recs: list[Recording]):
+def _backbone(spec: str | None, recs: list[Recording], paths: list[str]):
+    """The ``--backbone`` (default: the first Recording's ``meta.robot``), every Recording checked to be of its
+    robot (:func:`proprio.cli.check_recording_robot`)."""
     from proprio.experiments.hybrid import resolve_backbone
     spec = spec or recs[0].meta.get("robot")
     if not spec:
         raise UserError("--backbone is required: the Recording's meta names no robot")
     try:
-        return resolve_backbone(spec)
+        backbone = resolve_backbone(spec)
     except FileNotFoundError as exc:
         raise UserError(f"--backbone {spec}: {exc}") from exc
+    for rec, path in zip(recs, paths):
+        check_recording_robot(rec, backbone.description, path, "--backbone")
+    return backbone
 
 
 def _check_device(device: str | None) -> None:
@@ -66,7 +72,7 @@ def _train(args: argparse.Namespace) -> int:
     cfg = _with_device(load_config(args.config), args.device)
     recs, names = _load(args.data)
     tests, tnames = _load(args.test_data or [])
-    backbone = _backbone(args.backbone, recs)
+    backbone = _backbone(args.backbone, recs + tests, args.data + (args.test_data or []))
     split = prepare_split(recs, backbone, cfg.data, tests, names + tnames)
     print("\n".join(split.conditioning))
     if args.init and not Path(args.init).is_file():
@@ -97,7 +103,8 @@ def _evaluate(args: argparse.Namespace) -> int:
     torch.set_num_threads(args.threads)
     recs, names = _load(args.data)
     tests, tnames = _load(args.test_data or [])
-    backbone = _backbone(args.backbone, recs) if args.backbone else None
+    backbone = (_backbone(args.backbone, recs + tests, args.data + (args.test_data or [])) if args.backbone
+                else None)
     _check_device(args.device)                          # cuda without a GPU: a one-line error
     print(evaluate_saved(args.model, recs, tests, backbone, names + tnames, device=args.device or "auto"))
     return 0
@@ -122,7 +129,8 @@ def _train_grid(args: argparse.Namespace) -> int:
         for f in out.glob("*.pt"):
             f.unlink()
         clear_state(out / ".tasks", True)
-    _, text = train_grid(cfg, recs, _backbone(args.backbone, recs), out, tests, names + tnames,
+    backbone = _backbone(args.backbone, recs + tests, args.data + (args.test_data or []))
+    _, text = train_grid(cfg, recs, backbone, out, tests, names + tnames,
                          backend=args.backend, address=args.address, workers=args.workers, threads=args.threads,
                          search=args.search)
     print(text)
@@ -131,10 +139,10 @@ def _train_grid(args: argparse.Namespace) -> int:
 
 
 def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--data", nargs="+", required=True, metavar="REC",
-                   help="training Recordings (.npz; LWR 4+ files are converted); split 80/20 by subsequences unless "
-                        "--test-data is given")
-    p.add_argument("--test-data", nargs="+", metavar="REC", help="held-out Recordings used as the whole test split")
+    add_list(p, "--data", required=True, metavar="REC",
+             help="training Recordings (.npz; LWR 4+ files are converted); split 80/20 by subsequences unless "
+                  "--test-data is given")
+    add_list(p, "--test-data", metavar="REC", help="held-out Recordings used as the whole test split")
     p.add_argument("--backbone", metavar="SPEC", help=_BACKBONE_HELP)
     p.add_argument("--threads", type=positive_int, default=1,
                    help="torch CPU threads (default 1; per task in train-grid)")

@@ -10,7 +10,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from proprio.cli import UserError, add_chain_args, add_plugin_args, check_output, finite, nonnegative, nonnegative_int, positive
+from proprio.cli import UserError, add_chain_args, add_plugin_args, check_output, check_recording_robot, finite, nonnegative, nonnegative_int, positive
+from proprio.cli.flags import add_quiet, add_trim, add_twin
 
 if TYPE_CHECKING:
     from proprio.diagrams.twin import TwinConfig
@@ -50,7 +51,7 @@ def _replay(args: argparse.Namespace, config: "TwinConfig", base: "TwinConfig | 
     if not path.exists():
         raise UserError(f"--replay: no such file: {path}")
     try:
-        rec = load_recording(path, config.robot)
+        rec = check_recording_robot(load_recording(path, config.robot), config.robot, path, "--twin", twin=True)
         gap = replay_gap(config, [rec], base=base, trim_s=args.trim, progress=not args.quiet)
     except (RecordingError, DiagnosisError, TwinConfigError) as exc:
         raise UserError(f"--replay {path}: {exc}") from exc
@@ -131,9 +132,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "(.npz) with measured q, tau, truth channels and the true flange wrench. The file is written "
                     "only when the simulation finishes (atomic write). --patch merges a twin_patch.yaml from "
                     "'proprio diagnose' into the twin; --replay re-simulates a measured recording and prints the gap.")
-    p.add_argument("--twin", default="iiwa14_twin",
-                   help="twin config: a shipped name (iiwa14_twin, iiwa14_nominal_twin, kuka_lwr4_twin, staubli_tx40_twin) "
-                        "or a YAML path")
+    add_twin(p, "iiwa14_twin", "")
     p.add_argument("--trajectory",
                    help="trajectory .npz from 'proprio trajectory' (breaks, q, qd) or a Recording whose q(t) is "
                         "replayed")
@@ -143,8 +142,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="instead of --trajectory: a measured (held-out) recording whose conditioned q is replayed "
                         "through the twin without its noise; writes the twin's Recording and prints the gap "
                         "RMS(tau_meas - tau_twin) per joint (with --patch: for the base twin and the patched one)")
-    p.add_argument("--trim", type=nonnegative, default=0.5,
-                   help="with --replay: seconds left out of the gap at both ends (default 0.5, as diagnose)")
+    add_trim(p, None, "diagnose's: 0.5, at most 5 %% of a recording's length but never less than its low-pass's "
+             "settling", what=" with --replay, left out of the gap")
     p.add_argument("--payload-kg", type=nonnegative, default=None,
                    help="payload mass at the flange [kg] (overrides the config's payload)")
     p.add_argument("--payload-com", type=finite, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),
@@ -152,7 +151,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seconds", type=positive, default=None, help="simulate only the first SECONDS of the trajectory")
     p.add_argument("--log-rate", type=positive, default=None, help="log rate [Hz] (default: the config's)")
     p.add_argument("--seed", type=nonnegative_int, default=None, help="noise seed (default: the config's)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_quiet(p)
     p.add_argument("--out", required=True, help="output Recording (.npz)")
     add_plugin_args(p)
     p.set_defaults(func=_simulate)
@@ -165,8 +164,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                    "speed limit, one joint after the other; plots measured tau vs angle for the 7 "
                                    "joints with a Savitzky-Golay overlay (hysteresis_test.png) and saves the "
                                    "Recording (hysteresis_test.npz).")
-    h.add_argument("--twin", default="iiwa14_twin", help="twin config name or YAML path")
-    h.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_twin(h, "iiwa14_twin", "")
+    add_quiet(h)
     h.add_argument("--out", required=True, help="output directory")
     add_plugin_args(h)
     h.set_defaults(func=_hysteresis_test)

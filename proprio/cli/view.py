@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 from proprio.cli import UserError, check_output, finite, nonnegative
+from proprio.cli.flags import add_cutoff_hz, conditioning_of
 
 __all__ = ["register", "run_view"]
 
@@ -31,22 +32,19 @@ def _describe(info) -> str:
             f"time); arrows {100 * info.force_scale:g} cm/N: {', '.join(info.arrow_paths) or 'none'}")
     if info.residual_scale is not None:
         text += f"; link tint saturates at ±{info.residual_scale:.3g} N·m"
+    if info.hidden.any():
+        text += (f"; {int(info.hidden.sum())} frames fall inside gaps of the log and show nothing (no motion is "
+                 "invented there)")
     return text
 
 
 def run_view(args: argparse.Namespace) -> int:
-    from proprio.conditioning import ConditioningConfig
     from proprio.diagrams.playback import load_playback, record_playback, start_meshcat, write_playback_html
 
     settings = _settings(args)
     check_output(args.html, "--html", "file")
-    try:
-        cutoff = args.cutoff_hz if args.cutoff_hz == "auto" else float(args.cutoff_hz)
-        conditioning = ConditioningConfig.from_dict({"cutoff_hz": cutoff}, "--cutoff-hz")
-    except ValueError as exc:
-        raise UserError(f"--cutoff-hz: {exc}") from None
     pb = load_playback(args.source, model=args.model, observer=args.observer, start_s=args.start, end_s=args.end,
-                       conditioning=conditioning)
+                       conditioning=conditioning_of(args))
     if args.html is not None:
         path, info = write_playback_html(pb, args.html, settings)
         print(_describe(info))
@@ -94,8 +92,7 @@ def register(subparsers) -> None:
     p.add_argument("--force-scale", type=float, default=0.02, help="arrow length per force [m/N] (default 0.02)")
     p.add_argument("--residual-scale", type=float, help="residual [N·m] at full tint (default: the 95th "
                    "percentile of |e|, at least 0.1)")
-    p.add_argument("--cutoff-hz", default="auto", metavar="HZ|auto", help="the conditioning's zero-phase cutoff for a "
-                   "Recording [Hz], or 'auto' (from the data's noise floor; default, as `proprio estimate`)")
+    add_cutoff_hz(p, " of a Recording")
     p.add_argument("--port", type=int, help="Meshcat port on localhost (default: the first free one from 7000)")
     p.add_argument("--serve-seconds", type=nonnegative, metavar="S",
                    help="without --html: stop serving after S seconds "

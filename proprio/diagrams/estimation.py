@@ -286,6 +286,13 @@ class EstimationResult:
             ok &= (t - last_gap >= self.skip_start_s) & (next_gap - t >= self.skip_end_s)
         return ok
 
+    def force_rms(self, observer: str) -> np.ndarray:
+        """RMS ``[3]`` [N] of the estimated force f̂ per axis over the :meth:`valid` samples (NaN where none is)."""
+        mask = self.valid()
+        if not mask.any():
+            return np.full(3, np.nan)
+        return np.sqrt(np.mean(self.wrench[observer][mask, :3] ** 2, axis=0))
+
     def force_stats(self, observer: str) -> tuple[np.ndarray, np.ndarray]:
         """RMSE ``[3]`` and standard deviation ``[3]`` [N] of the force error f̂ − f_true per axis (Table 5.4)."""
         if self.f_true is None:

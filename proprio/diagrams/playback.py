@@ -48,7 +48,7 @@ from pydrake.systems.framework import DiagramBuilder
 
 from proprio.conditioning import ConditioningConfig
 from proprio.description import RobotDescription
-from proprio.diagrams.estimation import (EstimationResult, TorqueModel, estimate_wrench,
+from proprio.diagrams.estimation import (EstimationResult, TorqueModel, check_recording_matches, estimate_wrench,
                                          load_torque_model)
 from proprio.io import atomic_write_text
 from proprio.kinematics import flange_position, point_jacobian
@@ -272,8 +272,12 @@ def load_playback(source: str | Path, model: str | Path | None = None, observer:
     rec = load_recording(path)
     keep = np.flatnonzero(_window_mask(rec.t, start_s, end_s))
     rec = rec.slice(int(keep[0]), int(keep[-1]) + 1)
-    return playback_from_recording(rec, _torque_model(model, [rec.meta.get("robot")], path), observer, conditioning,
-                                   title=str(path))
+    torque_model = _torque_model(model, [rec.meta.get("robot")], path)
+    try:                                                    # the one check that the log is of the model's robot
+        check_recording_matches(rec, torque_model.description)
+    except RecordingError as exc:
+        raise RecordingError(f"{path}: {str(exc).removeprefix('recording: ')}; pass --model for its robot") from None
+    return playback_from_recording(rec, torque_model, observer, conditioning, title=str(path))
 
 
 @dataclass(frozen=True)

@@ -64,7 +64,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import Multiplexer, VectorLogSink
 from pydrake.trajectories import PiecewisePolynomial, Trajectory
-from tqdm import tqdm
+from proprio.progress import progress_bar
 
 from proprio.description import RobotDescription
 from proprio.dynamics import inverse_dynamics
@@ -261,7 +261,7 @@ def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload |
 
     chunks, got = [], 0
     wall0, cpu0 = time.perf_counter(), time.process_time()
-    bar = tqdm(total=round(t1 - t0, 3), unit="s sim", disable=not progress, desc=f"twin {config.name}",
+    bar = progress_bar(total=round(t1 - t0, 3), unit="s sim", enabled=progress, desc=f"twin {config.name}",
                bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} s sim [{elapsed}<{remaining}{postfix}]")
     t = t0
     while got < n_steps:

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 from pydrake.trajectories import PiecewisePolynomial
-from tqdm.auto import tqdm
+from proprio.progress import progress_bar
 
 from proprio.description import load_robot
 from proprio.dynamics import inverse_dynamics
@@ -257,7 +257,7 @@ def payload_experiment(model: str | Path | TorqueModel, out_dir: str | Path, sec
     results: dict[float, EstimationResult] = {}
     budgets: dict[float, dict[str, np.ndarray]] = {}
     files: list[Path] = []
-    for k, m in enumerate(tqdm(masses, desc="payload experiment", unit="mass", disable=not progress)):
+    for k, m in enumerate(progress_bar(masses, desc="payload experiment", unit="mass", enabled=progress)):
         payload = Payload(float(m), tuple(com_flange)) if m > 0 else None
         run = dataclasses.replace(twin, seed=seed + k)           # an independent sensor-noise draw per run
         rec = simulate_twin(run.with_payload(payload), traj, progress=False)

@@ -296,10 +296,20 @@ def _clip_second_moments(phi: np.ndarray, n: int, floor: float = 1e-9) -> np.nda
     return out
 
 
-def _consistent(phi: np.ndarray, n: int, min_mass: float) -> bool:
+def inconsistent_links(model) -> list[int]:
+    """The joints (1-based) whose link parameters in ``model.phi`` (the full set an identification implies) are not
+    physically consistent: a pseudo-inertia with a negative eigenvalue, no positive mass, or negative friction."""
+    return _inconsistent_links(np.asarray(model.phi), model.description.n, np.finfo(float).tiny)
+
+
+def _inconsistent_links(phi: np.ndarray, n: int, min_mass: float) -> list[int]:
     p = phi[:PARAMS_PER_JOINT * n].reshape(n, PARAMS_PER_JOINT)
-    return bool(np.all(phi[PARAMS_PER_JOINT * n:] >= 0.0) and all(np.linalg.eigvalsh(_pseudo_inertia(row[:10]))[0] >= 0.0 and row[0] >= min_mass
-                    and row[10] >= 0.0 and row[11] >= 0.0 for row in p))
+    return [j + 1 for j, row in enumerate(p) if not (np.linalg.eigvalsh(_pseudo_inertia(row[:10]))[0] >= 0.0
+                                                     and row[0] >= min_mass and row[10] >= 0.0 and row[11] >= 0.0)]
+
+
+def _consistent(phi: np.ndarray, n: int, min_mass: float) -> bool:
+    return bool(np.all(phi[PARAMS_PER_JOINT * n:] >= 0.0) and not _inconsistent_links(phi, n, min_mass))
 
 
 def identify(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, tau: np.ndarray,
@@ -321,10 +331,10 @@ def torque_error_table(tau_meas: np.ndarray, tau_pred: np.ndarray, title: str = 
     sd = np.std(e, axis=0)
     rmse = np.sqrt(mse)
     lines = [title] if title else []
-    lines.append(f"{'joint':>7} {'MSE [Nm^2]':>11} {'sigma [Nm]':>11} {'RMSE [Nm]':>10}")
+    lines.append(f"{'joint':>7} {'MSE [N·m²]':>11} {'sigma [N·m]':>11} {'RMSE [N·m]':>10}")
     for j, (a, b, c) in enumerate(zip(mse, sd, rmse)):
         lines.append(f"{j + 1:>7} {a:>11.4f} {b:>11.4f} {c:>10.4f}")
     lines.append(f"{'average':>7} {mse.mean():>11.4f} {sd.mean():>11.4f} {rmse.mean():>10.4f}")
     norm = float(np.mean(np.linalg.norm(e, axis=1)))
-    lines.append(f"mean ||e||_2 over samples: {norm:.4f} Nm")
+    lines.append(f"mean ||e||_2 over samples: {norm:.4f} N·m")
     return "\n".join(lines), {"mse": mse, "sigma": sd, "rmse": rmse, "mean_norm": norm}

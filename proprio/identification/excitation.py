@@ -254,8 +254,8 @@ def optimise_excitation(desc: RobotDescription, config: ExcitationConfig | None 
     conds = []
     starts = range(op.starts)
     if progress:
-        from tqdm import tqdm
-        starts = tqdm(starts, desc="excitation starts", unit="start")
+        from proprio.progress import progress_bar
+        starts = progress_bar(starts, desc="excitation starts", unit="start")
     for _ in starts:
         prog = MathematicalProgram()
         a = prog.NewContinuousVariables(n, L, "a")

@@ -13,7 +13,14 @@ from proprio.identification.estimators import identify, torque_error_table
 from proprio.identification.regressor import drive_identified
 from proprio.recording import Recording
 
-__all__ = ["identify_recordings", "stack_recordings", "check_tau_kind"]
+__all__ = ["identify_recordings", "stack_recordings", "check_tau_kind", "TRIM_S", "TAU_KINDS"]
+
+TAU_KINDS = ("link_sensor", "drive")
+"""The values of a Recording's ``meta.tau_kind`` (written by ``proprio import``)."""
+
+TRIM_S = 0.5
+"""s, the default trim per end (filter start-up): the diagnosis' longest default (``proprio.diagnosis.data.MAX_TRIM_S``)
+and the 100 samples identify dropped at the LWR 4+'s 200 Hz before its ``--trim`` was in seconds."""
 
 
 def check_tau_kind(recs: Sequence[Recording], names: Sequence[str], robot) -> None:
@@ -23,6 +30,10 @@ def check_tau_kind(recs: Sequence[Recording], names: Sequence[str], robot) -> No
     want = robot.drive.tau_kind if robot.drive is not None else "link_sensor"
     for name, rec in zip(names, recs):
         got = rec.meta.get("tau_kind")
+        if got is not None and got not in TAU_KINDS:
+            raise ValueError(f"{name}: meta.tau_kind {got!r} is unknown; valid: 'link_sensor' (τ from a joint-torque "
+                             "sensor) or 'drive' (τ from the motor currents); set tau_kind in the import mapping and "
+                             "import the log again")
         if got is not None and got != want:
             fix = ("add a 'drive:' block with tau_kind: drive (gear_ratio, coupling) to the robot description"
                    if got == "drive" else "set the description's drive.tau_kind to link_sensor")
@@ -30,17 +41,19 @@ def check_tau_kind(recs: Sequence[Recording], names: Sequence[str], robot) -> No
                              f"{want!r}; {fix}")
 
 
-def stack_recordings(recs: Sequence[Recording], trim: int, config: ConditioningConfig = ConditioningConfig()
+def stack_recordings(recs: Sequence[Recording], trim_s: float, config: ConditioningConfig = ConditioningConfig()
                      ) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], list[ConditionedSignals]]:
-    """Condition each Recording and concatenate its ``q, qd, qdd, tau`` ``[N,n]``, dropping ``trim`` samples at both
-    ends (filter start-up) and the samples inside gaps of the log. Returns the stacked arrays and the conditioned
-    signals (for their ``describe()`` line)."""
+    """Condition each Recording and concatenate its ``q, qd, qdd, tau`` ``[N,n]``, dropping ``trim_s`` seconds at
+    both ends (filter start-up; rounded to the conditioned grid) and the samples inside gaps of the log. Returns the
+    stacked arrays and the conditioned signals (for their ``describe()`` line)."""
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("q", "qd", "qdd", "tau")}
     conditioned = []
     for k, rec in enumerate(recs):
         cs = condition(rec, config)
+        trim = int(round(trim_s * cs.rate_hz))
         if cs.n_samples <= 2 * trim:
-            raise ValueError(f"recording {k}: {cs.n_samples} samples are not more than 2 × --trim {trim}")
+            raise ValueError(f"recording {k}: {cs.n_samples / cs.rate_hz:.3g} s are not more than 2 × --trim "
+                             f"{trim_s:g} s")
         keep = np.zeros(cs.n_samples, dtype=bool)
         keep[trim:cs.n_samples - trim] = True
         keep &= cs.valid
@@ -51,21 +64,22 @@ def stack_recordings(recs: Sequence[Recording], trim: int, config: ConditioningC
 
 
 def identify_recordings(train_recs: Sequence[Recording], validate_recs: Sequence[Recording], robot,
-                        method: str = "ols", trim: int = 100, offsets: bool = True,
+                        method: str = "ols", trim_s: float = TRIM_S, offsets: bool = True,
                         coulomb_velocity_scale: float | None = None,
                         conditioning: ConditioningConfig = ConditioningConfig()):
     """Identify ``robot`` (a RobotDescription: kinematics + a-priori inertials) on Recordings and validate on
     others. Returns ``(model, table_text)`` with the Table 4.4-style per-joint MSE/σ on training and validation,
-    headed by each recording's conditioning line. ``coulomb_velocity_scale`` [rad/s]: the Coulomb smoothing
+    headed by each recording's conditioning line. ``trim_s`` [s]: dropped at both ends of every recording.
+    ``coulomb_velocity_scale`` [rad/s]: the Coulomb smoothing
     (``None``: the library's, :mod:`proprio.friction_law`). A drive-torque arm (``robot.drive.tau_kind == 'drive'``) always
     fits the constant drive offsets with its drive columns."""
     offsets = offsets or drive_identified(robot)
-    train, cond_tr = stack_recordings(train_recs, trim, conditioning)
+    train, cond_tr = stack_recordings(train_recs, trim_s, conditioning)
     model = identify(robot, *train, method, coulomb_velocity_scale=coulomb_velocity_scale, offsets=offsets)
     lines = sorted({f"{cs.describe()}" for cs in cond_tr})
     parts = ["\n".join(lines), torque_error_table(train[3], model.torque(*train[:3]), "training (Table 4.4 layout)")[0]]
     if validate_recs:
-        val, cond_v = stack_recordings(validate_recs, trim, conditioning)
+        val, cond_v = stack_recordings(validate_recs, trim_s, conditioning)
         parts[0] = "\n".join(sorted(set(lines) | {cs.describe() for cs in cond_v}))
         parts.append(torque_error_table(val[3], model.torque(*val[:3]), "validation")[0])
     return model, "\n\n".join(parts)

@@ -40,7 +40,8 @@ from proprio.io import atomic_path
 from proprio.learning.features import DEFAULT_DEADBAND_DEG, R_MAX_DEG, feature_columns
 from proprio.learning.sections import section_from_dict
 
-__all__ = ["ARCHS", "ModelConfig", "HybridModel", "StreamingStepper", "lstm2_step", "save_model", "load_model"]
+__all__ = ["ARCHS", "ModelConfig", "HybridModel", "StreamingStepper", "lstm2_step", "save_model", "load_model",
+           "first_line"]
 
 ARCHS = ("mlp7", "lstm2", "lstm2_fcl", "transformer")
 _LABEL = {"mlp7": "MLP-7", "lstm2": "LSTM-2", "lstm2_fcl": "LSTM-2-FCL", "transformer": "Transformer"}
@@ -276,9 +277,20 @@ def load_model(path: str | Path, dtype: torch.dtype = torch.float32) -> tuple[Hy
         raise ValueError(f"{path}: not a readable model file ({exc})") from exc
     if not isinstance(payload, dict) or payload.get("format") != _FORMAT:
         raise ValueError(f"{path}: not a proprio hybrid model (format tag missing)")
-    model = HybridModel(ModelConfig.from_dict(payload["config"]))
-    model.load_state_dict(payload["state_dict"])
+    try:                    # the format tag is right; the config and the weights must fit each other too
+        model = HybridModel(ModelConfig.from_dict(payload["config"]))
+        model.load_state_dict(payload["state_dict"])
+    except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+        raise ValueError(f"{path}: a proprio hybrid model file whose config and weights do not fit together "
+                         f"({first_line(exc)})") from None
     return model.to(dtype).eval(), payload.get("extra", {})
+
+
+def first_line(exc: BaseException, limit: int = 200) -> str:
+    """The first line of an exception's message, at most ``limit`` characters (torch's state-dict report lists
+    every key)."""
+    text = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+    return text if len(text) <= limit else text[:limit] + " …"
 
 
 @numba.njit(cache=True)

@@ -31,11 +31,11 @@ from typing import Any, Callable
 
 import numpy as np
 import torch
-from tqdm.auto import tqdm
+from proprio.progress import progress_bar
 
 from proprio.io import atomic_path
 from proprio.learning.datasets import Split, Windows
-from proprio.learning.models import HybridModel
+from proprio.learning.models import HybridModel, first_line
 from proprio.learning.sections import section_from_dict
 
 __all__ = ["TrainConfig", "TrainResult", "train_model", "pick_device"]
@@ -176,21 +176,29 @@ def train_model(model: HybridModel, split: Split, cfg: TrainConfig, checkpoint: 
 
     ckpt = Path(checkpoint) if checkpoint is not None else None
     if ckpt is not None and ckpt.exists():
-        state = torch.load(ckpt, map_location=device, weights_only=True)
-        if state.get("fingerprint") != fingerprint:
+        try:
+            state = torch.load(ckpt, map_location=device, weights_only=True)
+        except Exception as exc:  # noqa: BLE001 — torch raises several types (UnpicklingError, RuntimeError, EOFError)
+            raise ValueError(f"{ckpt}: not a readable training checkpoint, remove it or choose another output path "
+                             f"({exc})") from None
+        if not isinstance(state, dict) or state.get("fingerprint") != fingerprint:
             raise ValueError(f"{ckpt}: checkpoint belongs to a different model/config/dataset; remove it or choose "
                              "another output path")
-        model.load_state_dict(state["model"])
-        opt.load_state_dict(state["optimizer"])
-        sched.load_state_dict(state["scheduler"])
-        gen.set_state(state["rng_batches"])
-        torch.set_rng_state(state["rng_torch"])
+        try:
+            model.load_state_dict(state["model"])
+            opt.load_state_dict(state["optimizer"])
+            sched.load_state_dict(state["scheduler"])
+            gen.set_state(state["rng_batches"])
+            torch.set_rng_state(state["rng_torch"])
+        except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+            raise ValueError(f"{ckpt}: a damaged training checkpoint ({first_line(exc)}); remove it "
+                             "or choose another output path") from None
         if device.type == "cuda" and "rng_cuda" in state:
             torch.cuda.set_rng_state(state["rng_cuda"])
         start, best_val, bad = state["epoch"] + 1, state["best_val"], state["bad_epochs"]
         best_state, result = state["best_state"], TrainResult(**state["result"])
 
-    bar = tqdm(range(start, cfg.max_epochs), desc=model.cfg.label(), disable=not progress, unit="epoch",
+    bar = progress_bar(range(start, cfg.max_epochs), desc=model.cfg.label(), enabled=progress, unit="epoch",
                initial=start, total=cfg.max_epochs)
     for epoch in bar:
         if result.stopped_early:

@@ -44,7 +44,7 @@ from typing import Any, Iterator
 
 import numpy as np
 from scipy.spatial import cKDTree
-from tqdm.auto import tqdm
+from proprio.progress import progress_bar
 
 from proprio.description import RobotDescription, load_robot
 from proprio.kinematics import chain_geometry, flange_jacobian, flange_position
@@ -86,7 +86,7 @@ def sample_scaffolds(desc: RobotDescription, cfg: RfmaConfig, rng: np.random.Gen
                         f"{desc.joint_names[int(np.argmax(lo >= hi))]}")
     found: list[np.ndarray] = []
     tries = in_ws = 0
-    with tqdm(total=cfg.scaffolds, desc="scaffolds", unit="cfg", disable=not progress, leave=False) as bar:
+    with progress_bar(total=cfg.scaffolds, desc="scaffolds", unit="cfg", enabled=progress, leave=False) as bar:
         while len(found) < cfg.scaffolds and tries < cfg.max_tries:
             m = min(cfg.batch, cfg.max_tries - tries)
             cand = rng.uniform(lo, hi, size=(m, desc.n))
@@ -259,7 +259,7 @@ def generate_rfma_path(desc: RobotDescription, cfg: RfmaConfig, progress: bool =
         return None
 
     query = home
-    for l in tqdm(range(L), desc="explorations", disable=not progress, leave=False):
+    for l in progress_bar(range(L), desc="explorations", enabled=progress, leave=False):
         pick = nearest_free(query)
         if pick is None and not segment_in_collision(checker, state["current"], home, cfg.check_step):
             reach(home)                                      # boxed in: retract home, then go on from there
