@@ -58,8 +58,9 @@ stack encodes causally with a position deadband and ±10° clipping in :mod:`pro
 with a velocity deadband (Schmitt trigger on q̇) so that noise around standstill does not create spurious reversals;
 the travel is measured from the extremum of q reached before the reversal. Stateful effects are evaluated per
 segment between reversals; the values carried across segments follow an affine recursion that is solved with a
-vectorised prefix scan (no per-sample Python loop). The same laws run sample by sample, with the reversal state as
-Drake discrete state, in :class:`proprio.systems.sensors.TorqueSensorSystem` (tested equal to 1e-9).
+vectorised prefix scan (no per-sample Python loop). A motion can be taken in pieces with the reversal state carried
+between them (:class:`proprio.effects.sensor_chain.PathEffects`): the twin's Diagram applies its sensors so, once per
+block of samples, and the pieces give the whole motion's values (tests).
 """
 from __future__ import annotations
 

@@ -12,8 +12,8 @@ import numpy as np
 from proprio.reversals import ReversalTravel, reversal_travel
 from proprio.signals import MotionSignals
 
-__all__ = ["EffectConfigError", "JointEffect", "affine_scan", "diagonal_regressor", "motion_reversal_travel", "INF",
-           "TINY"]
+__all__ = ["EffectConfigError", "JointEffect", "affine_scan", "diagonal_regressor", "motion_reversal_travel",
+           "reversal_key", "INF", "TINY"]
 
 INF = math.inf
 TINY = 1e-9
@@ -28,10 +28,16 @@ def motion_reversal_travel(s: MotionSignals, reversal_velocity: float | np.ndarr
     [rad/s], computed once per signals and deadband (memoised in ``s.derived``: a fit evaluates the reversal effects
     many times on the same motion)."""
     eps = np.asarray(reversal_velocity, dtype=float)
-    key = ("reversal_travel", eps.shape, eps.tobytes())
+    key = reversal_key(eps)
     if key not in s.derived:
         s.derived[key] = reversal_travel(s.q, s.qd, eps if eps.ndim else float(eps))
     return s.derived[key]
+
+
+def reversal_key(reversal_velocity: float | np.ndarray) -> tuple:
+    """The key of the reversal travel with deadband ``reversal_velocity`` in ``MotionSignals.derived``."""
+    eps = np.asarray(reversal_velocity, dtype=float)
+    return ("reversal_travel", eps.shape, eps.tobytes())
 
 
 def affine_scan(a: np.ndarray, b: np.ndarray, x0: float) -> np.ndarray:

@@ -1,0 +1,168 @@
+"""Block-rate Systems: a compiled shift register that gathers a fixed-rate signal into blocks, and a Python System
+that applies a law once per block.
+
+The pip wheel of Drake has no C++ headers, so a custom System is Python, and a Python callback at every 1 ms step
+costs tens of µs. A law that needs no feedback into the simulated motion (the twin's sensors and logger) therefore
+runs at block rate:
+
+* :class:`BlockRegister` — a Diagram of Drake primitives only (``levels`` = chunks per level, e.g. three levels of
+  10 → blocks of 1 000 samples). Level 0 is a shift register of ``levels[0]`` samples: a ``ZeroOrderHold`` updated
+  every ``time_step`` at the step's instant, fed by a ``Selector`` that drops the oldest sample and appends the
+  newest (one compiled System; a ``Demultiplexer`` + ``Multiplexer`` pair would cost a port evaluation per chunk and
+  step). Level k ≥ 1 is ``levels[k]`` slots, each a ``ZeroOrderHold`` that copies the level below once per period
+  of level k, in turn, and a ``Multiplexer`` that joins them (nothing is shifted: a shift of the whole level per
+  lower period would copy it element by element). Level k's slot i fires at ``(i + 1)·P − 1 + 0.4 + 0.1 k`` steps
+  into its period (P the steps the level below spans): at a fractional phase of a step, so no two updates that feed
+  each other ever share an instant (event times ``i·dt + k·P·dt`` and ``(i + kP)·dt`` need not be the same double,
+  and simultaneous updates read the old state). Its output ``block`` holds the last block's samples, oldest first,
+  from the phase :attr:`BlockRegister.phase` of the block's last step until the next block's.
+* :class:`BlockStage` — one law ``law(inputs, carry) -> (block, carry')`` as a stateless Python System (no events);
+  :class:`BlockClock` — the one System with events: once per block, at a later phase, it evaluates the stages'
+  outputs (each law runs once, in the order the ports feed each other) and keeps every stage's ``carry`` (the law's
+  state between blocks: reversal state, random streams' states, ...) as numeric discrete state. In Drake, every
+  System with a timed event costs ≈ 0.5 µs per step of the simulation (the Simulator asks each for its next event
+  time), and each extra stop of the Simulator ≈ 5 µs: so the chain has four Systems with events (three register
+  levels and the clock) however many stages it has. Blocks of rows are passed as ``[count, final, rows ...]``
+  vectors (:func:`pack_rows`, :func:`unpack_rows`): ``count`` rows of a fixed width, padded to the capacity;
+  ``final`` = 1 on the run's last block.
+"""
+from __future__ import annotations
+
+import math
+from typing import Callable, Sequence
+
+import numpy as np
+from pydrake.systems.framework import Context, Diagram, DiagramBuilder, DiscreteValues, LeafSystem
+from pydrake.systems.primitives import Multiplexer, Selector, SelectorParams, ZeroOrderHold
+
+__all__ = ["BlockRegister", "BlockStage", "BlockClock", "pack_rows", "unpack_rows", "stage_block", "block_phase"]
+
+Law = Callable[[list[np.ndarray], np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+def block_phase(levels: Sequence[int]) -> float:
+    """The phase (fraction of a step past the block's last step) at which a :class:`BlockRegister` with ``levels``
+    has its block ready."""
+    return 0.4 + 0.1 * (len(levels) - 1) if len(levels) > 1 else 0.0
+
+
+def pack_rows(rows: np.ndarray, capacity: int, final: bool) -> np.ndarray:
+    """``[2 + capacity·width]``: ``[count, final, rows (padded with 0)]`` for ``rows [count, width]``."""
+    out = np.zeros(2 + capacity * rows.shape[1])
+    out[0], out[1] = rows.shape[0], float(final)
+    out[2:2 + rows.size] = rows.ravel()
+    return out
+
+
+def unpack_rows(v: np.ndarray, width: int) -> tuple[np.ndarray, bool]:
+    """The rows ``[count, width]`` and the final flag of a :func:`pack_rows` vector."""
+    count = int(v[0])
+    return np.asarray(v[2:2 + count * width]).reshape(count, width), bool(v[1])
+
+
+def _shift(size: int, chunk: int) -> Selector:
+    """``[held[chunk:], newest]``: the held ``size`` values shifted by one ``chunk``, the newest chunk last."""
+    pick = SelectorParams.OutputSelection
+    return Selector(SelectorParams(
+        inputs=[SelectorParams.InputPortParams(name="held", size=size),
+                SelectorParams.InputPortParams(name="newest", size=chunk)],
+        outputs=[SelectorParams.OutputPortParams(name="shifted", selections=(
+            [pick(input_port_index=0, input_offset=i) for i in range(chunk, size)]
+            + [pick(input_port_index=1, input_offset=i) for i in range(chunk)]))]))
+
+
+class BlockRegister(Diagram):
+    """Gathers a ``width``-vector sampled every ``time_step`` [s] into blocks of ``Π levels`` samples (module
+    docstring). Input port ``sample`` [width]; output port ``block`` [Π levels · width], the samples of the last
+    complete block, oldest first (sample i of block b is step ``b·B + i`` of the run, whose time 0 is step 0)."""
+
+    def __init__(self, width: int, time_step: float, levels: Sequence[int] = (10, 10, 10)):
+        super().__init__()
+        self.levels, self.width = tuple(int(k) for k in levels), int(width)
+        self.size = math.prod(self.levels)
+        self.phase = block_phase(self.levels)
+        builder = DiagramBuilder()
+        newest, chunk, steps = None, width, 1         # the newest chunk: its port, size [samples·width], period
+        for k, count in enumerate(self.levels):
+            size = chunk * count
+            offset = 0.0 if k == 0 else (steps - 1 + 0.4 + 0.1 * k) * time_step
+            hold = builder.AddNamedSystem(f"level{k}", ZeroOrderHold(steps * time_step, size, offset))
+            shift = builder.AddNamedSystem(f"level{k}_shift", _shift(size, chunk))
+            builder.Connect(hold.get_output_port(), shift.get_input_port(0))
+            if newest is None:
+                builder.ExportInput(shift.get_input_port(1), "sample")
+            else:
+                builder.Connect(newest, shift.get_input_port(1))
+            builder.Connect(shift.get_output_port(), hold.get_input_port())
+            newest, chunk, steps = hold.get_output_port(), size, steps * count
+        content = newest
+        builder.ExportOutput(content, "block")
+        builder.BuildInto(self)
+
+
+class BlockStage(LeafSystem):
+    """One law of a block-rate chain (module docstring), stateless: output port ``out`` = ``[carry', block]`` with
+    ``(block, carry') = law(inputs, carry)``, where ``inputs`` are the input ports ``inputs`` (name → size) and
+    ``carry`` [``carry_size``] the input port ``carry``, the law's state before this block (a :class:`BlockClock`
+    holds it). ``block`` is :func:`pack_rows` of at most ``capacity`` rows of ``width``. The port is evaluated once
+    per block, by the clock's update (outputs are cached), so the law runs once per block."""
+
+    def __init__(self, inputs: dict[str, int], carry0: np.ndarray, law: Law, capacity: int, width: int):
+        super().__init__()
+        self._law = law
+        self.carry0 = np.asarray(carry0, dtype=float)
+        self.width, self.capacity = int(width), int(capacity)
+        self._ports = [self.DeclareVectorInputPort(name, size) for name, size in inputs.items()]
+        self._carry = self.DeclareVectorInputPort("carry", self.carry0.size)
+        self.DeclareVectorOutputPort("out", self.carry0.size + 2 + self.capacity * self.width, self._out)
+
+    def _out(self, context: Context, output) -> None:
+        # read-only views, valid during this call (Eval would copy element by element: ~10 ns per value)
+        inputs = [port.EvalBasicVector(context).get_value() for port in self._ports]
+        block, carry = self._law(inputs, self._carry.EvalBasicVector(context).get_value())
+        value = output.get_mutable_value()
+        value[:carry.size] = carry
+        value[carry.size:] = block
+
+
+def stage_block(v: np.ndarray, stage: BlockStage) -> tuple[np.ndarray, bool]:
+    """The rows and the final flag of ``stage``'s ``out`` value ``v``."""
+    return unpack_rows(v[stage.carry0.size:], stage.width)
+
+
+class BlockClock(LeafSystem):
+    """Runs a chain of :class:`BlockStage` s once per block of ``block_steps`` steps of ``time_step`` [s], at ``phase``
+    steps past the block's last step: holds each stage's carry as discrete state (output port ``carry_<k>``, to be
+    connected to stage k's ``carry``), and at each block stores what every stage's ``out`` gives (input ports
+    ``stage_<k>``). The last stage's rows are the chain's output: a publish event right after the update appends
+    them to :attr:`log` (a list of ``[rows, width]`` arrays, in order)."""
+
+    def __init__(self, stages: Sequence[BlockStage], block_steps: int, time_step: float, phase: float):
+        super().__init__()
+        self._stages = list(stages)
+        self._in = [self.DeclareVectorInputPort(f"stage_{k}", st.get_output_port().size())
+                    for k, st in enumerate(self._stages)]
+        self._state = [self.DeclareDiscreteState(st.carry0) for st in self._stages]
+        for k, index in enumerate(self._state):
+            self.DeclareStateOutputPort(f"carry_{k}", index)
+        last = self._stages[-1]
+        self._rows = self.DeclareDiscreteState(np.zeros(2 + last.capacity * last.width))
+        period, offset = block_steps * time_step, (block_steps - 1 + phase) * time_step
+        self.DeclarePeriodicDiscreteUpdateEvent(period, offset, self._update)
+        self.DeclarePeriodicPublishEvent(period, offset + 0.05 * time_step, self._publish)
+        self.log: list[np.ndarray] = []
+
+    def carry(self, context: Context, k: int) -> np.ndarray:
+        """Stage ``k``'s carry in ``context`` (this System's)."""
+        return context.get_discrete_state(self._state[k]).get_value().copy()
+
+    def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
+        for port, index, stage in zip(self._in, self._state, self._stages):
+            v = port.EvalBasicVector(context).get_value()
+            discrete_state.get_mutable_vector(index).SetFromVector(v[:stage.carry0.size])
+        discrete_state.get_mutable_vector(self._rows).SetFromVector(v[self._stages[-1].carry0.size:])
+
+    def _publish(self, context: Context) -> None:
+        rows, _ = unpack_rows(context.get_discrete_state(self._rows).get_value(), self._stages[-1].width)
+        if rows.shape[0]:
+            self.log.append(rows.copy())
