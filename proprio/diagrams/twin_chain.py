@@ -196,10 +196,9 @@ def AddMeasurementChain(builder: DiagramBuilder, signals: OutputPort, config, dr
         q_meas = stage_block(inputs[3], encoder)[0]
         piece, after = logger.log(t, q_meas, LoggerCarry.from_vector(carry, n, config.logger), final)
         k = piece.keep
-        f_ext, tau_j, tau_rbd = tr[:, -6:], tr[:, :n], tr[:, n:2 * n]
+        torques = np.column_stack([tr[:, n:2 * n], tr[:, 2 * n:-6], tr[:, :n], sens[:, n:]])[k]  # rbd, link, J, sensor
         cols = [piece.stamps, q_meas[k], sens[k, :n]] + ([piece.qd] if reports_qd else []) + \
-            [f_ext[k], tau_rbd[k], tr[k, 2 * n:-6], tau_j[k], sens[k, n:], q[k], qd[k], qdd[k], t[k] - after.stamp0] + \
-            [m[k] for m in motor]
+            [tr[k, -6:], torques, q[k], qd[k], qdd[k], t[k] - after.stamp0] + [m[k] for m in motor]
         return pack_rows(np.column_stack(cols), B, final), after.vector()
 
     def stage(name: str, inputs: dict[str, int], width_k: int, carry0: np.ndarray, law) -> BlockStage:

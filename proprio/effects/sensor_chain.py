@@ -110,11 +110,13 @@ class TorqueSensor:
         self.order = self.gauge + [e for e in (self.offset_gain, self.drift, self.noise) if e is not None]
         self.n, self.seed = n, int(seed)
         self.path = PathEffects(self.order, n)
-        self.size = self.path.size + STATE_SIZE * len(self.order)
+        # the effects that may draw: the noise and any plugin (the library's other sensor effects are deterministic)
+        self.random = [e for e in self.order if isinstance(e, TorqueNoise) or e.name not in library]
+        self.size = self.path.size + STATE_SIZE * len(self.random)
 
     def start(self) -> np.ndarray:
-        """The state ``[size]`` before a motion: path state, then each effect's stream."""
-        return np.concatenate([self.path.start()] + [generator_state(stream(self.seed, e.name)) for e in self.order])
+        """The state ``[size]`` before a motion: path state, then the stream of each effect that may draw."""
+        return np.concatenate([self.path.start()] + [generator_state(stream(self.seed, e.name)) for e in self.random])
 
     def measure(self, s: MotionSignals, tau_j: np.ndarray, carry: np.ndarray | None = None
                 ) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:
@@ -124,22 +126,22 @@ class TorqueSensor:
         carry = self.start() if carry is None else carry
         p = self.path.size
         rngs = {e.name: generator_from_state(carry[p + STATE_SIZE * k:p + STATE_SIZE * (k + 1)])
-                for k, e in enumerate(self.order)}
+                for k, e in enumerate(self.random)}
         s = s.with_tau(tau_j)
         piece = self.path.begin(s, carry[:p])
         parts: dict[str, np.ndarray] = {}
         seen = tau_j.copy()
         for eff in self.gauge:
-            parts[eff.name] = piece.torque(eff, s, rngs[eff.name])
+            parts[eff.name] = piece.torque(eff, s, rngs.get(eff.name))
             seen += parts[eff.name]
         if self.offset_gain is not None:
-            parts[self.offset_gain.name] = piece.torque(self.offset_gain, s.with_tau(seen), rngs[self.offset_gain.name])
+            parts[self.offset_gain.name] = piece.torque(self.offset_gain, s.with_tau(seen), rngs.get(self.offset_gain.name))
             seen = seen + parts[self.offset_gain.name]
         for eff in (self.drift, self.noise):
             if eff is not None:
-                parts[eff.name] = piece.torque(eff, s, rngs[eff.name])
+                parts[eff.name] = piece.torque(eff, s, rngs.get(eff.name))
                 seen = seen + parts[eff.name]
-        out = np.concatenate([piece.end()] + [generator_state(rngs[e.name]) for e in self.order])
+        out = np.concatenate([piece.end()] + [generator_state(rngs[e.name]) for e in self.random])
         return seen, parts, out
 
 

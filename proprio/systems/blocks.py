@@ -33,7 +33,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 from pydrake.systems.framework import Context, Diagram, DiagramBuilder, DiscreteValues, LeafSystem
-from pydrake.systems.primitives import Multiplexer, Selector, SelectorParams, ZeroOrderHold
+from pydrake.systems.primitives import Demultiplexer, Multiplexer, Selector, SelectorParams, ZeroOrderHold
 
 __all__ = ["BlockRegister", "BlockStage", "BlockClock", "pack_rows", "unpack_rows", "stage_block", "block_phase"]
 
@@ -87,12 +87,17 @@ class BlockRegister(Diagram):
             size = chunk * count
             offset = 0.0 if k == 0 else (steps - 1 + 0.4 + 0.1 * k) * time_step
             hold = builder.AddNamedSystem(f"level{k}", ZeroOrderHold(steps * time_step, size, offset))
-            shift = builder.AddNamedSystem(f"level{k}_shift", _shift(size, chunk))
-            builder.Connect(hold.get_output_port(), shift.get_input_port(0))
-            if newest is None:
+            if k == 0:                  # small chunks, every step: one Selector
+                shift = builder.AddNamedSystem(f"level{k}_shift", _shift(size, chunk))
+                builder.Connect(hold.get_output_port(), shift.get_input_port(0))
                 builder.ExportInput(shift.get_input_port(1), "sample")
-            else:
-                builder.Connect(newest, shift.get_input_port(1))
+            else:                       # large chunks, rarely: block copies, one port per chunk
+                split = builder.AddNamedSystem(f"level{k}_split", Demultiplexer(size, chunk))
+                shift = builder.AddNamedSystem(f"level{k}_join", Multiplexer([chunk] * count))
+                builder.Connect(hold.get_output_port(), split.get_input_port())
+                for i in range(1, count):
+                    builder.Connect(split.get_output_port(i), shift.get_input_port(i - 1))
+                builder.Connect(newest, shift.get_input_port(count - 1))
             builder.Connect(shift.get_output_port(), hold.get_input_port())
             newest, chunk, steps = hold.get_output_port(), size, steps * count
         content = newest
