@@ -86,7 +86,7 @@ from proprio.diagrams.twin_config import (  # noqa: F401  (re-exported: callers 
 )
 
 __all__ = ["TwinConfig", "TwinConfigError", "load_twin_config", "merge_twin_patch", "PATCH_KEYS", "TwinDiagram",
-           "build_twin_diagram", "simulate_twin", "payload_wrench", "hysteresis_test_trajectory", "run_hysteresis_test"]
+           "build_twin_diagram", "start_simulator", "simulate_twin", "payload_wrench", "hysteresis_test_trajectory", "run_hysteresis_test"]
 
 
 # ------------------------------------------------------------------------------------------------------------------
@@ -204,6 +204,23 @@ def _check_trajectory(trajectory: Trajectory, desc: RobotDescription) -> None:
                               f"limits [{math.degrees(desc.lower[j]):.1f}°, {math.degrees(desc.upper[j]):.1f}°]")
 
 
+def start_simulator(twin: TwinDiagram, trajectory: Trajectory) -> Simulator:
+    """A Simulator of ``twin`` initialised at the start of ``trajectory``: the plant at its state, the drive in
+    equilibrium with it."""
+    desc, n = twin.config.robot, twin.config.robot.n
+    sim = Simulator(twin.diagram)        # every state is discrete (plant, controller integral, drive): no integrator
+    ctx = sim.get_mutable_context()
+    pctx = twin.plant.GetMyMutableContextFromRoot(ctx)
+    q0 = trajectory.value(0.0).ravel()
+    qd0 = trajectory.MakeDerivative(1).value(0.0).ravel()
+    twin.plant.SetPositions(pctx, q0)
+    twin.plant.SetVelocities(pctx, qd0)
+    twin.drive.set_motor_state(twin.drive.GetMyMutableContextFromRoot(ctx), q0, qd0,
+                               inverse_dynamics(attach_payload(desc, twin.config.payload), q0, qd0, np.zeros(n)))
+    sim.Initialize()
+    return sim
+
+
 def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload | None = None,
                   progress: bool = True, chunk_s: float = 2.0) -> Recording:
     """Simulate the twin along ``trajectory`` and return the Recording its robot logger wrote (see module docstring
@@ -222,17 +239,7 @@ def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload |
     n_steps = twin.n_steps
     t_end = (run_steps(n_steps, chain.block_steps) - 1 + 0.9) * dt     # past the last block's stages (phases < 0.9)
 
-    sim = Simulator(twin.diagram)        # every state is discrete (plant, controller integral, drive): no integrator
-    ctx = sim.get_mutable_context()
-    pctx = twin.plant.GetMyMutableContextFromRoot(ctx)
-    q0 = trajectory.value(0.0).ravel()
-    qd0 = trajectory.MakeDerivative(1).value(0.0).ravel()
-    twin.plant.SetPositions(pctx, q0)
-    twin.plant.SetVelocities(pctx, qd0)
-    twin.drive.set_motor_state(twin.drive.GetMyMutableContextFromRoot(ctx), q0, qd0,
-                               inverse_dynamics(attach_payload(desc, config.payload), q0, qd0, np.zeros(n)))
-    sim.Initialize()
-
+    sim = start_simulator(twin, trajectory)
     wall0, cpu0 = time.perf_counter(), time.process_time()
     span = (n_steps - 1) * dt
     bar = tqdm(total=round(span, 3), unit="s sim", disable=not progress, desc=f"twin {config.name}",
@@ -246,7 +253,7 @@ def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload |
         t = t_next
     bar.close()
     wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
-    logged = chain.clock.carry(chain.clock.GetMyContextFromRoot(ctx), 4)
+    logged = chain.clock.carry(chain.clock.GetMyContextFromRoot(sim.get_context()), 4)
     return _to_recording(config, chain, LoggerCarry.from_vector(logged, n, config.logger), span, wall, cpu)
 
 
