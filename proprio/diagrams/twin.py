@@ -53,6 +53,7 @@ that has one, or a patch for another robot or joint count is an error naming the
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
@@ -234,6 +235,10 @@ def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload |
         config = config.with_payload(payload)
     desc, n, dt = config.robot, config.robot.n, config.time_step
     _check_trajectory(trajectory, desc)
+    if trajectory.start_time() != 0.0:       # the Diagram's clock starts at 0: the session clock keeps the offset
+        config = dataclasses.replace(config, session_time_s=config.session_time_s + trajectory.start_time())
+        trajectory = trajectory.Clone()
+        trajectory.shiftRight(-trajectory.start_time())
     twin = build_twin_diagram(config, trajectory)
     chain = twin.chain
     n_steps = twin.n_steps
