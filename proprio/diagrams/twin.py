@@ -6,9 +6,9 @@ Python JointDrive, proprio.systems.joint_drive) → MultibodyPlant
 per block of 1 000 steps, the log sampler, the transmitted torque, the torque sensor, the encoder and the robot's
 logger (lost samples, jittered stamps, the channels the robot reports) apply their laws to the block, in the Diagram
 (:mod:`proprio.diagrams.twin_chain`). Output: a :class:`~proprio.recording.Recording` — what the Diagram's robot
-logger wrote — whose measured channels are what that robot logs — stamps ``t``, encoder ``q``, ``tau`` (τ_J) and, only for a robot
-that reports one, its own filtered ``qd``; never ``qdd`` — plus the true flange wrench ``f_ext`` (for scoring) and
-truth channels:
+logger wrote — whose measured channels are what that robot logs: stamps ``t``, encoder ``q``, ``tau`` (τ_J) and,
+only for a robot that reports one, its own filtered ``qd``; never ``qdd`` — plus the true flange wrench ``f_ext``
+(for scoring) and truth channels:
 
 * ``tau_rbd``: rigid-body torque of the logged motion incl. payload, the plant's own dynamics in each step
   (``DriveLaw.rigid_body_torque``: net actuation less the rotor inertia the plant carries; equal to
@@ -19,6 +19,10 @@ truth channels:
 * ``tau_<effect>``: each effect's contribution (``tau_viscous_coulomb``, ``tau_hysteresis``, ...);
 * ``q_true``, ``qd``, ``qdd``: the plant's exact link position, velocity and acceleration at the true sampling
   instants ``t_true`` (on the clock of ``t``); ``q_motor``, ``qd_motor``: θ, θ̇ of an elastic drive.
+
+Every random draw (each sensor effect's noise, the encoder's, the logger's losses, burst lengths and stamp jitter) has
+its own stream under the config's ``seed`` (:mod:`proprio.random_streams`), so the chain's blocks draw what the whole
+run would, and one effect's draws do not change when another is added.
 
 Every stage gets q̇, q̈ from the one conditioning path (:mod:`proprio.conditioning`); truth serves scoring only. The
 motor side (``drive`` block, ``elasticity``) has no torque channel: it is
@@ -87,7 +91,8 @@ from proprio.diagrams.twin_config import (  # noqa: F401  (re-exported: callers 
 )
 
 __all__ = ["TwinConfig", "TwinConfigError", "load_twin_config", "merge_twin_patch", "PATCH_KEYS", "TwinDiagram",
-           "build_twin_diagram", "start_simulator", "simulate_twin", "payload_wrench", "hysteresis_test_trajectory", "run_hysteresis_test"]
+           "build_twin_diagram", "start_simulator", "simulate_twin", "payload_wrench", "hysteresis_test_trajectory",
+           "run_hysteresis_test"]
 
 
 # ------------------------------------------------------------------------------------------------------------------

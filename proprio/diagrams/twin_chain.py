@@ -113,8 +113,8 @@ def run_steps(n_steps: int, block_steps: int) -> int:
 
 def AddMeasurementChain(builder: DiagramBuilder, signals: OutputPort, config, drive: DriveLaw, n_steps: int,
                         levels: tuple[int, ...] = BLOCK_LEVELS) -> MeasurementChain:
-    """Add the measurement chain (module docstring) of the twin ``config`` (a :class:`~proprio.diagrams.twin_config.TwinConfig`)
-    for a run of ``n_steps`` steps from time 0, fed by ``signals`` = ``[q; q̇; q̈; net actuation (; θ; θ̇)]`` (the
+    """Add the measurement chain (module docstring) of the twin ``config`` (a
+    :class:`~proprio.diagrams.twin_config.TwinConfig`) for a run of ``n_steps`` steps from time 0, fed by ``signals`` = ``[q; q̇; q̈; net actuation (; θ; θ̇)]`` (the
     plant's, at its own instants) and the ``drive``'s law."""
     desc, n, dt = config.robot, config.robot.n, config.time_step
     width = signals.size()

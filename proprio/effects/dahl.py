@@ -27,8 +27,8 @@ from proprio.effects.base import INF, TINY, JointEffect, affine_scan, motion_rev
 from proprio.reversals import ReversalTravel
 from proprio.signals import MotionSignals
 
-__all__ = ["DahlState", "DahlCarry", "DahlEffect", "dahl_start", "dahl_advance", "dahl_value", "dahl_batch", "PreSliding",
-           "MAX_PRESLIDING_TRAVEL"]
+__all__ = ["DahlState", "DahlCarry", "DahlEffect", "dahl_start", "dahl_advance", "dahl_value", "dahl_batch",
+           "PreSliding", "MAX_PRESLIDING_TRAVEL"]
 
 MAX_PRESLIDING_TRAVEL = math.radians(2.0)
 """Upper bound of ``presliding_travel`` [rad]: pre-sliding is the gear's micro-displacement (well under a degree at

@@ -5,8 +5,8 @@ path-dependent effects between pieces (:class:`PathEffects`).
 A motion can be measured at once (``carry=None``: the piece is the whole motion) or piece by piece, each call taking
 the state the previous one returned — a vector of numbers, which the twin's Diagram keeps as Drake discrete state
 (:mod:`proprio.diagrams.twin_chain`). Both give the same samples (tests): the reversal travel and the Dahl law
-continue their segments across pieces (:class:`proprio.reversals.ReversalCarry`, :class:`~proprio.effects.dahl.DahlCarry`)
-and every effect draws from its own random stream (:mod:`proprio.random_streams`, named by the effect).
+continue their segments across pieces (:class:`proprio.reversals.ReversalCarry`,
+:class:`~proprio.effects.dahl.DahlCarry`) and every effect draws from its own random stream (:mod:`proprio.random_streams`, named by the effect).
 
 Torque sensor chain (thesis §2.1): ``τ_meas = (1 + g)·(τ_J + τ_hyst + τ_lost + τ_ripple) + o + o_d(t) + noise``,
 i.e. the strain-gauge effects act on the transmitted τ_J, the gain/offset error on everything the gauge sees, a
@@ -135,7 +135,8 @@ class TorqueSensor:
             parts[eff.name] = piece.torque(eff, s, rngs.get(eff.name))
             seen += parts[eff.name]
         if self.offset_gain is not None:
-            parts[self.offset_gain.name] = piece.torque(self.offset_gain, s.with_tau(seen), rngs.get(self.offset_gain.name))
+            gain = self.offset_gain
+            parts[gain.name] = piece.torque(gain, s.with_tau(seen), rngs.get(gain.name))
             seen = seen + parts[self.offset_gain.name]
         for eff in (self.drift, self.noise):
             if eff is not None:
