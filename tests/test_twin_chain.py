@@ -56,7 +56,7 @@ def motion():
 
 def test_block_register_holds_each_block_at_its_phase():
     """Levels (2, 3, 4): blocks of 24 steps; the output at phase .75 of a block's last step is that block, oldest
-    first, whatever the rounding of the levels' event times."""
+    first, whatever the rounding of the levels' event times (the twin's register has levels (10, 10))."""
     dt, levels = 1e-3, (2, 3, 4)
     builder = DiagramBuilder()
     from pydrake.systems.primitives import TrajectorySource
@@ -248,9 +248,10 @@ def test_twin_diagram_holds_the_chain_and_python_runs_at_block_rate(calibrated):
         sim.AdvanceTo(2.5)
         return sim.get_num_discrete_updates(), sim.get_num_publishes()
 
-    # the chain's Python Systems: events only on the clock, once per block of 1 000 steps
+    # the chain's Python Systems: events only on the clock, an update per chunk of 100 steps (a copy; the laws once
+    # per block of 1 000) and a publish per block
     chain = {"log_sampler", "transmission", "torque_sensor", "encoder", "robot_logger", "block_clock"}
     assert {s.get_name(): events(s) for s in python if s.get_name() in chain} == {
-        **{k: (0, 0) for k in chain - {"block_clock"}}, "block_clock": (2, 2)}
-    assert twin.chain.clock.GetUniquePeriodicDiscreteUpdateAttribute().period_sec() == pytest.approx(1.0)
-    assert math.prod(twin.chain.register.levels) == 1000
+        **{k: (0, 0) for k in chain - {"block_clock"}}, "block_clock": (25, 2)}
+    assert twin.chain.clock.GetUniquePeriodicDiscreteUpdateAttribute().period_sec() == pytest.approx(0.1)
+    assert math.prod(twin.chain.register.levels) == 100 and twin.chain.block_steps == 1000

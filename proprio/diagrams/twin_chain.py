@@ -1,10 +1,11 @@
 """The twin's measurement chain inside its Diagram: the log sampler, the transmitted torque, the torque sensor, the
 encoder and the robot's logger, as block-rate Systems behind a compiled shift register.
 
-The plant's logged signals ``[q; q̇; q̈; net actuation (; θ; θ̇)]`` enter a :class:`~proprio.systems.blocks.BlockRegister`
-(Drake primitives only, at the 1 kHz step); once per block of ``B`` steps, at fractional phases of the block's last
-step, the ``block_clock`` (:class:`~proprio.systems.blocks.BlockClock`, the chain's one System with events) has five
-stateless :class:`~proprio.systems.blocks.BlockStage` s apply the laws of the layers below in order:
+The plant's logged signals ``[q; q̇; q̈; net actuation (; θ; θ̇)]`` enter a
+:class:`~proprio.systems.blocks.BlockRegister` (Drake primitives only at the 1 kHz step: chunks of 100 steps); the
+``block_clock`` (:class:`~proprio.systems.blocks.BlockClock`, the chain's one Python System with events) gathers the
+chunks into blocks of ``B`` = 1 000 steps and, at a fractional phase of each block's last step, has five stateless
+:class:`~proprio.systems.blocks.BlockStage` s apply the laws of the layers below in order:
 
 1. ``log_sampler`` — the steps the robot logs (:func:`proprio.robot_log.logged_steps`) and their instants;
 2. ``transmission`` — the truth of the motion: τ_RBD and the link-side effects' torques (reversal state carried,
@@ -16,8 +17,8 @@ stateless :class:`~proprio.systems.blocks.BlockStage` s apply the laws of the la
    (:attr:`TwinChannels.names`), which are the twin's Recording.
 
 Each stage's state between blocks (reversal and Dahl state, the random streams' states, the logger's open bursts
-and filter) is numeric discrete state of the clock. The run is simulated to the end of the block that holds its last step
-(:func:`run_steps`): the last block is flushed through the same Systems.
+and filter) is numeric discrete state of the clock. The run is simulated to the end of the block that holds its last
+step (:func:`run_steps`): the last block is flushed through the same Systems.
 """
 from __future__ import annotations
 
@@ -36,11 +37,14 @@ from proprio.signals import MotionSignals
 from proprio.systems.blocks import BlockClock, BlockRegister, BlockStage, pack_rows, stage_block
 from proprio.systems.joint_drive import DriveLaw
 
-__all__ = ["TwinChannels", "MeasurementChain", "AddMeasurementChain", "run_steps", "payload_wrench", "BLOCK_LEVELS"]
+__all__ = ["TwinChannels", "MeasurementChain", "AddMeasurementChain", "run_steps", "payload_wrench",
+           "REGISTER_LEVELS", "BLOCK_CHUNKS"]
 
-BLOCK_LEVELS = (10, 10, 10)
-"""Chunks per level of the twin's shift register: blocks of 1 000 steps (per-joint Python loops at block rate need
-blocks of ≥ 500 samples to stay cheap)."""
+REGISTER_LEVELS = (10, 10)
+"""Chunks per level of the twin's shift register: chunks of 100 steps."""
+BLOCK_CHUNKS = 10
+"""Chunks per block: the laws run on blocks of 1 000 steps (per-joint Python loops at block rate need blocks of
+≥ 500 samples to stay cheap)."""
 
 
 def payload_wrench(desc: RobotDescription, payload: Payload | None, q: np.ndarray, qd: np.ndarray,
@@ -112,7 +116,7 @@ def run_steps(n_steps: int, block_steps: int) -> int:
 
 
 def AddMeasurementChain(builder: DiagramBuilder, signals: OutputPort, config, drive: DriveLaw, n_steps: int,
-                        levels: tuple[int, ...] = BLOCK_LEVELS) -> MeasurementChain:
+                        levels: tuple[int, ...] = REGISTER_LEVELS, chunks: int = BLOCK_CHUNKS) -> MeasurementChain:
     """Add the measurement chain (module docstring) of the twin ``config`` (a
     :class:`~proprio.diagrams.twin_config.TwinConfig`) for a run of ``n_steps`` steps from time 0, fed by ``signals`` = ``[q; q̇; q̈; net actuation (; θ; θ̇)]`` (the
     plant's, at its own instants) and the ``drive``'s law."""
@@ -121,14 +125,15 @@ def AddMeasurementChain(builder: DiagramBuilder, signals: OutputPort, config, dr
     elastic = width > 4 * n
     register = builder.AddNamedSystem("block_register", BlockRegister(width, dt, levels))
     builder.Connect(signals, register.get_input_port())
-    B, phase = register.size, register.phase
+    B, phase = register.size * chunks, register.phase
     session = config.session_time_s
 
     # 1. the steps the robot logs, and their instants
     def sample(inputs: list[np.ndarray], carry: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         lo = int(carry[0]) * B
         idx = logged_steps(lo, lo + B, n_steps, dt, config.logger.rate_hz)
-        rows = np.column_stack([idx * dt, inputs[0].reshape(B, width)[idx - lo]])
+        block = np.concatenate([inputs[0], inputs[1]]).reshape(B, width)      # earlier chunks, the last one
+        rows = np.column_stack([idx * dt, block[idx - lo]])
         return pack_rows(rows, B, lo + B >= n_steps), carry + 1.0
 
     def motion(v: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -204,7 +209,8 @@ def AddMeasurementChain(builder: DiagramBuilder, signals: OutputPort, config, dr
     def stage(name: str, inputs: dict[str, int], width_k: int, carry0: np.ndarray, law) -> BlockStage:
         return builder.AddNamedSystem(name, BlockStage(inputs, carry0, law, B, width_k))
 
-    sampler = stage("log_sampler", {"block": B * width}, 1 + width, np.zeros(1), sample)
+    chunk = register.get_output_port().size()
+    sampler = stage("log_sampler", {"held": (chunks - 1) * chunk, "newest": chunk}, 1 + width, np.zeros(1), sample)
     sampled = sampler.get_output_port().size()
     transmission = stage("transmission", {"samples": sampled}, tw, link_path.start(), transmit)
     transmitted = transmission.get_output_port().size()
@@ -216,8 +222,10 @@ def AddMeasurementChain(builder: DiagramBuilder, signals: OutputPort, config, dr
                                           "position": encoder.get_output_port().size()},
                          channels.width, logger.start().vector(), log)
     stages = [sampler, transmission, sensor, encoder, robot_logger]
-    clock = builder.AddNamedSystem("block_clock", BlockClock(stages, B, dt, phase + 0.1))
-    builder.Connect(register.get_output_port(), sampler.GetInputPort("block"))
+    clock = builder.AddNamedSystem("block_clock", BlockClock(stages, chunk, chunks, register.size, dt, phase + 0.1))
+    builder.Connect(register.get_output_port(), clock.GetInputPort("chunk"))
+    builder.Connect(clock.GetOutputPort("held"), sampler.GetInputPort("held"))
+    builder.Connect(register.get_output_port(), sampler.GetInputPort("newest"))
     for system in (transmission, sensor, encoder, robot_logger):
         builder.Connect(sampler.GetOutputPort("out"), system.GetInputPort("samples"))
     builder.Connect(transmission.GetOutputPort("out"), sensor.GetInputPort("transmission"))

@@ -1,30 +1,34 @@
-"""Block-rate Systems: a compiled shift register that gathers a fixed-rate signal into blocks, and a Python System
-that applies a law once per block.
+"""Block-rate Systems: a compiled shift register that gathers a fixed-rate signal into chunks, and Python Systems that
+gather the chunks into blocks and apply laws once per block.
 
 The pip wheel of Drake has no C++ headers, so a custom System is Python, and a Python callback at every 1 ms step
 costs tens of µs. A law that needs no feedback into the simulated motion (the twin's sensors and logger) therefore
-runs at block rate:
+runs at block rate. Measured costs that shape the design (this machine, per 1 ms step of the twin): every System
+with a timed event ≈ 0.5 µs (the Simulator asks each for its next event time at every step, due or not); every
+extra stop of the Simulator ≈ 5 µs; a ``Selector`` ≈ 5 ns per element; a ``Demultiplexer``/``Multiplexer`` port
+≈ 0.3 µs; ``OutputPort.Eval`` of a vector in Python ≈ 10 ns per element (``EvalBasicVector(...).get_value()`` is
+a view: 1 µs).
 
-* :class:`BlockRegister` — a Diagram of Drake primitives only (``levels`` = chunks per level, e.g. three levels of
-  10 → blocks of 1 000 samples). Level 0 is a shift register of ``levels[0]`` samples: a ``ZeroOrderHold`` updated
+* :class:`BlockRegister` — a Diagram of Drake primitives only (``levels`` = chunks per level, e.g. two levels of
+  10 → chunks of 100 samples). Level 0 is a shift register of ``levels[0]`` samples: a ``ZeroOrderHold`` updated
   every ``time_step`` at the step's instant, fed by a ``Selector`` that drops the oldest sample and appends the
-  newest (one compiled System; a ``Demultiplexer`` + ``Multiplexer`` pair would cost a port evaluation per chunk and
-  step). Level k ≥ 1 is ``levels[k]`` slots, each a ``ZeroOrderHold`` that copies the level below once per period
-  of level k, in turn, and a ``Multiplexer`` that joins them (nothing is shifted: a shift of the whole level per
-  lower period would copy it element by element). Level k's slot i fires at ``(i + 1)·P − 1 + 0.4 + 0.1 k`` steps
-  into its period (P the steps the level below spans): at a fractional phase of a step, so no two updates that feed
-  each other ever share an instant (event times ``i·dt + k·P·dt`` and ``(i + kP)·dt`` need not be the same double,
-  and simultaneous updates read the old state). Its output ``block`` holds the last block's samples, oldest first,
-  from the phase :attr:`BlockRegister.phase` of the block's last step until the next block's.
-* :class:`BlockStage` — one law ``law(inputs, carry) -> (block, carry')`` as a stateless Python System (no events);
-  :class:`BlockClock` — the one System with events: once per block, at a later phase, it evaluates the stages'
-  outputs (each law runs once, in the order the ports feed each other) and keeps every stage's ``carry`` (the law's
-  state between blocks: reversal state, random streams' states, ...) as numeric discrete state. In Drake, every
-  System with a timed event costs ≈ 0.5 µs per step of the simulation (the Simulator asks each for its next event
-  time), and each extra stop of the Simulator ≈ 5 µs: so the chain has four Systems with events (three register
-  levels and the clock) however many stages it has. Blocks of rows are passed as ``[count, final, rows ...]``
-  vectors (:func:`pack_rows`, :func:`unpack_rows`): ``count`` rows of a fixed width, padded to the capacity;
-  ``final`` = 1 on the run's last block.
+  newest (one compiled System, where a ``Demultiplexer`` + ``Multiplexer`` pair would evaluate a port per sample at
+  every step). Level k ≥ 1 shifts whole chunks of the level below with a ``Demultiplexer`` + ``Multiplexer`` (a few
+  ports, rarely) and fires once per ``Π levels[:k]`` steps at a fractional phase of a step (``+ 0.4 + 0.1 k``
+  steps), so no two updates that feed each other ever share an instant (event times ``i·dt + k·P·dt`` and
+  ``(i + kP)·dt`` need not be the same double, and simultaneous updates read the old state). Its output ``block``
+  holds the last chunk's samples, oldest first, from the phase :attr:`BlockRegister.phase` of the chunk's last step
+  until the next chunk's.
+* :class:`BlockStage` — one law ``law(inputs, carry) -> (block, carry')`` as a stateless Python System (no events).
+* :class:`BlockClock` — the one Python System with events: once per chunk it copies the register's chunk into its
+  discrete state (a chunk at a time: a third register level would copy the whole block element by element every
+  chunk), and on a block's last chunk it evaluates the stages' outputs (each law runs once, in the order the ports
+  feed each other) and keeps every stage's ``carry`` (the law's state between blocks: reversal state, random
+  streams' states, ...) as numeric discrete state. So the chain has three Systems with events (two register levels
+  and the clock) however many stages it has.
+
+Blocks of rows are passed as ``[count, final, rows ...]`` vectors (:func:`pack_rows`, :func:`unpack_rows`): ``count``
+rows of a fixed width, padded to the capacity; ``final`` = 1 on the run's last block.
 """
 from __future__ import annotations
 
@@ -72,9 +76,9 @@ def _shift(size: int, chunk: int) -> Selector:
 
 
 class BlockRegister(Diagram):
-    """Gathers a ``width``-vector sampled every ``time_step`` [s] into blocks of ``Π levels`` samples (module
+    """Gathers a ``width``-vector sampled every ``time_step`` [s] into chunks of ``Π levels`` samples (module
     docstring). Input port ``sample`` [width]; output port ``block`` [Π levels · width], the samples of the last
-    complete block, oldest first (sample i of block b is step ``b·B + i`` of the run, whose time 0 is step 0)."""
+    complete chunk, oldest first (sample i of chunk b is step ``b·Π levels + i`` of the run, whose time 0 is step 0)."""
 
     def __init__(self, width: int, time_step: float, levels: Sequence[int] = (10, 10, 10)):
         super().__init__()
@@ -136,25 +140,39 @@ def stage_block(v: np.ndarray, stage: BlockStage) -> tuple[np.ndarray, bool]:
 
 
 class BlockClock(LeafSystem):
-    """Runs a chain of :class:`BlockStage` s once per block of ``block_steps`` steps of ``time_step`` [s], at ``phase``
-    steps past the block's last step: holds each stage's carry as discrete state (output port ``carry_<k>``, to be
-    connected to stage k's ``carry``), and at each block stores what every stage's ``out`` gives (input ports
-    ``stage_<k>``). The last stage's rows are the chain's output: a publish event right after the update appends
-    them to :attr:`log` (a list of ``[rows, width]`` arrays, in order)."""
+    """Gathers the chunks of a :class:`BlockRegister` into blocks and runs a chain of :class:`BlockStage` s once per
+    block.
 
-    def __init__(self, stages: Sequence[BlockStage], block_steps: int, time_step: float, phase: float):
+    Input port ``chunk`` [``chunk_size``]: the register's output, a chunk of ``chunk_steps`` steps of ``time_step``
+    [s]; ``chunks`` chunks make a block. Once per chunk, at ``phase`` steps past the chunk's last step, the update
+    copies the chunk into the discrete state ``held`` (output port ``held`` [(chunks − 1)·chunk_size]: the block's
+    earlier chunks), or, on a block's last chunk, evaluates the stages — which read ``held`` and the last chunk from
+    the register, and their carries from this System's output ports ``carry_<k>`` (each the discrete state of stage
+    k's law, to be connected to the stage's ``carry``) — and stores what every stage's ``out`` gives (input ports
+    ``stage_<k>``). The last stage's rows are the chain's output: a publish event right after each block's update
+    appends them to :attr:`log` (a list of ``[rows, width]`` arrays, in order)."""
+
+    def __init__(self, stages: Sequence[BlockStage], chunk_size: int, chunks: int, chunk_steps: int,
+                 time_step: float, phase: float):
         super().__init__()
         self._stages = list(stages)
+        self._chunk_size, self._chunks = int(chunk_size), int(chunks)
+        self._chunk = self.DeclareVectorInputPort("chunk", chunk_size)
         self._in = [self.DeclareVectorInputPort(f"stage_{k}", st.get_output_port().size())
                     for k, st in enumerate(self._stages)]
+        self._held = self.DeclareDiscreteState(np.zeros((chunks - 1) * chunk_size))
+        self._count = self.DeclareDiscreteState(np.zeros(1))
+        self.DeclareStateOutputPort("held", self._held)
         self._state = [self.DeclareDiscreteState(st.carry0) for st in self._stages]
         for k, index in enumerate(self._state):
             self.DeclareStateOutputPort(f"carry_{k}", index)
         last = self._stages[-1]
         self._rows = self.DeclareDiscreteState(np.zeros(2 + last.capacity * last.width))
-        period, offset = block_steps * time_step, (block_steps - 1 + phase) * time_step
-        self.DeclarePeriodicDiscreteUpdateEvent(period, offset, self._update)
-        self.DeclarePeriodicPublishEvent(period, offset + 0.05 * time_step, self._publish)
+        period = chunk_steps * time_step
+        self.DeclarePeriodicDiscreteUpdateEvent(period, (chunk_steps - 1 + phase) * time_step, self._update)
+        block_steps = chunk_steps * chunks
+        self.DeclarePeriodicPublishEvent(block_steps * time_step, (block_steps - 1 + phase + 0.05) * time_step,
+                                         self._publish)
         self.log: list[np.ndarray] = []
 
     def carry(self, context: Context, k: int) -> np.ndarray:
@@ -162,10 +180,18 @@ class BlockClock(LeafSystem):
         return context.get_discrete_state(self._state[k]).get_value().copy()
 
     def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
+        count = int(context.get_discrete_state(self._count).get_value()[0])
+        if count < self._chunks - 1:
+            held = discrete_state.get_mutable_vector(self._held).get_mutable_value()
+            held[count * self._chunk_size:(count + 1) * self._chunk_size] = \
+                self._chunk.EvalBasicVector(context).get_value()
+            discrete_state.get_mutable_vector(self._count).SetAtIndex(0, count + 1)
+            return
         for port, index, stage in zip(self._in, self._state, self._stages):
             v = port.EvalBasicVector(context).get_value()
             discrete_state.get_mutable_vector(index).SetFromVector(v[:stage.carry0.size])
         discrete_state.get_mutable_vector(self._rows).SetFromVector(v[self._stages[-1].carry0.size:])
+        discrete_state.get_mutable_vector(self._count).SetAtIndex(0, 0.0)
 
     def _publish(self, context: Context) -> None:
         rows, _ = unpack_rows(context.get_discrete_state(self._rows).get_value(), self._stages[-1].width)
