@@ -1,9 +1,14 @@
 """Direction reversals of joint motion: the Schmitt-trigger direction of q̇ and the reversal travel r (signed joint
-travel since the last reversal, the state of hysteresis and lost motion and the thesis' feature r, §4.2)."""
+travel since the last reversal, the state of hysteresis and lost motion and the thesis' feature r, §4.2).
+
+The law is a recursion over samples (the held direction, the running extrema of the segment), written once as numba
+kernels (``cache=True``: compiled on the first call of a fresh install, a few seconds, then loaded from the cache).
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 __all__ = ["ReversalCarry", "ReversalTravel", "motion_direction", "reversal_travel"]
@@ -56,18 +61,85 @@ class ReversalTravel:
     end: ReversalCarry | None = None
 
 
+@numba.njit(cache=True)
+def _held(v: float, eps: float, d: float) -> float:
+    """The Schmitt trigger: the direction after a sample of velocity ``v`` with deadband ``eps``, ``d`` held before."""
+    return 1.0 if v > eps else (-1.0 if v < -eps else d)
+
+
+@numba.njit(cache=True)
+def _direction_kernel(qd, eps, d0):                                       # pragma: no cover (compiled)
+    n_s, n = qd.shape
+    out = np.empty((n_s, n))
+    for j in range(n):
+        d = d0[j]
+        for i in range(n_s):
+            d = _held(qd[i, j], eps[j], d)
+            out[i, j] = d
+    return out
+
+
+@numba.njit(cache=True)
+def _travel_kernel(q, qd, eps, d0, hi0, lo0, anc0, seg0, offsets, starts, anchors, seg_dirs):  # pragma: no cover
+    """Fill r, direction, segment [N, n] and each joint's segments (at ``offsets[j]`` of the flat ``starts``,
+    ``anchors``, ``seg_dirs``); returns them with the end state ``[5, n]``."""
+    n_s, n = q.shape
+    r = np.empty((n_s, n))
+    direction = np.empty((n_s, n))
+    segment = np.empty((n_s, n), dtype=np.int64)
+    end = np.empty((5, n))
+    for j in range(n):
+        d, hi, lo, anc, k, o = d0[j], hi0[j], lo0[j], anc0[j], 0, offsets[j]
+        starts[o] = 0
+        anchors[o] = anc
+        for i in range(n_s):
+            x = q[i, j]
+            nd = _held(qd[i, j], eps[j], d)
+            if nd != d and d != 0.0:          # a reversal: the ending segment's extremum anchors the new one
+                seg_dirs[o + k] = d
+                anc = hi if d > 0 else lo
+                k += 1
+                starts[o + k] = i
+                anchors[o + k] = anc
+                hi = x
+                lo = x
+            else:
+                hi = max(hi, x)
+                lo = min(lo, x)
+            d = nd
+            r[i, j] = x - anc
+            direction[i, j] = d
+            segment[i, j] = seg0[j] + k
+        seg_dirs[o + k] = d
+        end[0, j], end[1, j], end[2, j], end[3, j], end[4, j] = d, hi, lo, anc, seg0[j] + k
+    return r, direction, segment, end
+
+
+@numba.njit(cache=True)
+def _reversal_count(qd, eps, d0):                                        # pragma: no cover (compiled)
+    n_s, n = qd.shape
+    count = np.zeros(n, dtype=np.int64)
+    for j in range(n):
+        d = d0[j]
+        for i in range(n_s):
+            nd = _held(qd[i, j], eps[j], d)
+            if nd != d and d != 0.0:
+                count[j] += 1
+            d = nd
+    return count
+
+
 def motion_direction(qd: np.ndarray, reversal_velocity: float | np.ndarray,
                      initial: np.ndarray | None = None) -> np.ndarray:
     """Direction of motion per joint, ``[N,n]`` ∈ {−1, 0, +1}: +1 while ``q̇ > reversal_velocity``, −1 while
     ``q̇ < −reversal_velocity``, and the last such value inside the band (a Schmitt trigger, so noise around a
     standstill does not flip it); ``initial [n]`` (default 0) until the joint first leaves the band — the direction
     held before these samples. ``reversal_velocity`` [rad/s], scalar or per joint."""
-    qd = np.atleast_2d(np.asarray(qd, dtype=float))
-    eps = np.broadcast_to(np.asarray(reversal_velocity, dtype=float), (qd.shape[1],))
-    raw = np.where(qd > eps, 1.0, np.where(qd < -eps, -1.0, 0.0))
-    raw = np.vstack([np.zeros(qd.shape[1]) if initial is None else np.asarray(initial, dtype=float), raw])
-    last = np.maximum.accumulate(np.where(raw != 0, np.arange(raw.shape[0])[:, None], 0), axis=0)
-    return np.take_along_axis(raw, last, axis=0)[1:]                      # forward-filled direction
+    qd = np.ascontiguousarray(np.atleast_2d(np.asarray(qd, dtype=float)))
+    n = qd.shape[1]
+    eps = np.ascontiguousarray(np.broadcast_to(np.asarray(reversal_velocity, dtype=float), (n,)))
+    d0 = np.zeros(n) if initial is None else np.asarray(initial, dtype=float)
+    return _direction_kernel(qd, eps, d0)
 
 
 def reversal_travel(q: np.ndarray, qd: np.ndarray, reversal_velocity: float | np.ndarray = 2e-3,
@@ -82,40 +154,17 @@ def reversal_travel(q: np.ndarray, qd: np.ndarray, reversal_velocity: float | np
     the motion starts here (:meth:`ReversalCarry.start`). The first segment is then the one carried in (it may end
     at the first sample: ``starts[j]`` begins ``[0, 0, ...]``), ``segment`` and ``anchors`` continue the carried ones.
     """
-    q = np.asarray(q, dtype=float)
-    qd = np.asarray(qd, dtype=float)
+    q = np.ascontiguousarray(q, dtype=float)
+    qd = np.ascontiguousarray(qd, dtype=float)
     n_s, n = q.shape
     c = ReversalCarry.start(q[0]) if carry is None else carry
-    held = motion_direction(qd, reversal_velocity, c.d)
-    r = np.empty_like(q)
-    direction = np.empty((n_s, n))
-    segment = np.empty((n_s, n), dtype=np.int64)
-    starts, anchors, seg_dirs, end = [], [], [], []
-    for j in range(n):                                                    # loop over joints only
-        d = held[:, j]
-        flip = np.empty(n_s, dtype=bool)
-        flip[0] = (d[0] != c.d[j]) & (c.d[j] != 0)
-        flip[1:] = (d[1:] != d[:-1]) & (d[:-1] != 0)
-        seg = np.cumsum(flip)
-        later = np.flatnonzero(flip)                                      # first sample of each later segment
-        st = np.concatenate([[0], later])
-        ends = np.concatenate([st[1:] - 1, [n_s - 1]])
-        sd = np.where(ends >= 0, d[np.maximum(ends, 0)], c.d[j])           # direction of each segment
-        head = q[:st[1] if later.size else n_s, j]                        # the carried segment's samples here
-        hi = np.empty(st.size)
-        lo = np.empty(st.size)
-        hi[0] = max(c.hi[j], head.max()) if head.size else c.hi[j]
-        lo[0] = min(c.lo[j], head.min()) if head.size else c.lo[j]
-        if later.size:
-            hi[1:] = np.maximum.reduceat(q[:, j], later)
-            lo[1:] = np.minimum.reduceat(q[:, j], later)
-        anc = np.concatenate([[c.anchor[j]], np.where(sd[:-1] > 0, hi[:-1], lo[:-1])])
-        r[:, j] = q[:, j] - anc[seg]
-        direction[:, j] = d
-        segment[:, j] = int(c.segments[j]) + seg
-        starts.append(st)
-        anchors.append(anc)
-        seg_dirs.append(sd)
-        end.append((d[-1], hi[-1], lo[-1], anc[-1], float(segment[-1, j])))
-    carry_out = ReversalCarry(*(np.array(v, dtype=float) for v in zip(*end)))
-    return ReversalTravel(r, direction, segment, tuple(starts), tuple(anchors), tuple(seg_dirs), carry_out)
+    eps = np.ascontiguousarray(np.broadcast_to(np.asarray(reversal_velocity, dtype=float), (n,)))
+    seg0 = c.segments.astype(np.int64)
+    sizes = _reversal_count(qd, eps, c.d) + 1
+    offsets = np.concatenate([[0], np.cumsum(sizes)])
+    starts, anchors, seg_dirs = np.empty(offsets[-1], dtype=np.int64), np.empty(offsets[-1]), np.empty(offsets[-1])
+    r, direction, segment, end = _travel_kernel(q, qd, eps, c.d, c.hi, c.lo, c.anchor, seg0, offsets, starts,
+                                                anchors, seg_dirs)
+    cut = [slice(offsets[j], offsets[j + 1]) for j in range(n)]
+    return ReversalTravel(r, direction, segment, tuple(starts[k] for k in cut), tuple(anchors[k] for k in cut),
+                          tuple(seg_dirs[k] for k in cut), ReversalCarry(*end.copy()))

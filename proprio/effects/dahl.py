@@ -7,8 +7,8 @@ Schmitt trigger of :func:`proprio.reversals.motion_direction`), ``r`` the travel
 extremum reached before it), ``L`` the level it saturates at [N·m], ``ρ`` [rad] a third of the travel after which it is
 within 5 % of ``L`` and ``τ_rev`` the value carried over the reversal (0 in the virgin state). The per-step form keeps
 the reversal state explicitly (:class:`DahlState`); the batch form segments the whole motion at once
-(:func:`proprio.reversals.reversal_travel`) and solves the recursion of the carried values with a prefix scan
-(:func:`proprio.effects.base.affine_scan`) — the same recursion, so the two agree to rounding (tests).
+(:func:`proprio.reversals.reversal_travel`) and runs the recursion of the carried values once per reversal (a numba
+kernel) — the same recursion, so the two agree to rounding (tests).
 
 Two effects are this law: the torque sensor's hysteresis (:class:`proprio.effects.Hysteresis`, a strain gauge's loop
 over degrees of travel) and the drive's pre-sliding friction (:class:`PreSliding`, the gear and bearings' elastic
@@ -21,9 +21,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
-from proprio.effects.base import INF, TINY, JointEffect, affine_scan, motion_reversal_travel
+from proprio.effects.base import INF, TINY, JointEffect, motion_reversal_travel
 from proprio.reversals import ReversalTravel
 from proprio.signals import MotionSignals
 
@@ -109,29 +110,44 @@ class DahlCarry:
         return cls(*np.split(np.asarray(v, dtype=float), 2))
 
 
+@numba.njit(cache=True)
+def _carried_kernel(starts, anchors, seg_dirs, offsets, level, rho, tau_rev0, level_prev0):  # pragma: no cover
+    """The value carried into each segment (flat, at ``offsets[j]`` per joint): the recursion of
+    :func:`dahl_advance` at each reversal, ``τ_rev ← e·τ_rev + (1 − e)·d·L_end`` with ``e = exp(−|Δanchor| / ρ)``."""
+    out = np.empty(anchors.size)
+    for j in range(offsets.size - 1):
+        o, m = offsets[j], offsets[j + 1] - offsets[j]
+        x = tau_rev0[j]
+        out[o] = x
+        for k in range(m - 1):
+            last = starts[o + k + 1] - 1                       # last sample of segment k (-1: it ended before)
+            lv = level_prev0[j] if last < 0 else level[last, j]
+            e = np.exp(-abs(anchors[o + k + 1] - anchors[o + k]) / rho[j])
+            x = e * x + (1.0 - e) * seg_dirs[o + k] * lv
+            out[o + k + 1] = x
+    return out
+
+
 def dahl_batch(rt: ReversalTravel, level: np.ndarray, rho: np.ndarray, carry: DahlCarry | None = None
                ) -> tuple[np.ndarray, DahlCarry]:
     """The law over a whole motion ``[N,n]`` [N·m] and its end state: ``rt`` its reversal travel, ``level [N,n]``
     [N·m] per sample, ``rho [n]`` [rad], ``carry`` the state at the end of the previous piece (``rt`` segmented with
     its reversal carry; default: the virgin state). Per joint, the value carried into each segment is the ending
-    segment's law at the next anchor with the level of its last sample (the recursion of :func:`dahl_advance`,
-    solved by a prefix scan)."""
+    segment's law at the next anchor with the level of its last sample (the recursion of :func:`dahl_advance`, a
+    numba kernel over the reversals); within a segment the law is vectorised over samples and joints."""
     n_s, n = rt.r.shape
     c = DahlCarry.virgin(n) if carry is None else carry
-    out = np.empty((n_s, n))
-    tau_end = np.empty(n)
-    for j in range(n):                                                   # loop over joints only
-        st, anc, sd = rt.starts[j], rt.anchors[j], rt.seg_direction[j]
-        ends = np.concatenate([st[1:] - 1, [n_s - 1]])                   # -1: the carried segment ended before
-        lvl = np.concatenate([[c.level_prev[j]], level[:, j]])
-        e = np.exp(-np.abs(anc[1:] - anc[:-1]) / rho[j])
-        target = sd[:-1] * lvl[ends[:-1] + 1]
-        tau_rev = affine_scan(e, (1.0 - e) * target, float(c.tau_rev[j]))
-        d_level = rt.direction[:, j] * level[:, j]
-        local = rt.segment[:, j] - (rt.segment[-1, j] - (st.size - 1))     # segment index within this piece
-        out[:, j] = d_level + (tau_rev[local] - d_level) * np.exp(-np.abs(rt.r[:, j]) / rho[j])
-        tau_end[j] = tau_rev[-1]
-    return out, DahlCarry(tau_end, np.array(level[-1], dtype=float))
+    level = np.ascontiguousarray(np.broadcast_to(level, (n_s, n)), dtype=float)
+    rho = np.broadcast_to(np.asarray(rho, dtype=float), (n,))
+    sizes = np.array([st.size for st in rt.starts])
+    offsets = np.concatenate([[0], np.cumsum(sizes)])
+    tau_rev = _carried_kernel(np.concatenate(rt.starts), np.concatenate(rt.anchors),
+                              np.concatenate(rt.seg_direction), offsets, level, np.ascontiguousarray(rho),
+                              np.asarray(c.tau_rev, dtype=float), np.asarray(c.level_prev, dtype=float))
+    local = rt.segment - (rt.segment[-1] - (sizes - 1))                  # segment index within this piece
+    d_level = rt.direction * level
+    out = d_level + (tau_rev[offsets[:-1] + local] - d_level) * np.exp(-np.abs(rt.r) / rho)
+    return out, DahlCarry(tau_rev[offsets[1:] - 1], level[-1].copy())
 
 
 class DahlEffect(JointEffect):
