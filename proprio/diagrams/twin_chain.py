@@ -34,7 +34,7 @@ from proprio.kinematics import flange_pose, point_jacobian
 from proprio.payload import Payload
 from proprio.robot_log import LoggerCarry, RobotLogger, logged_steps
 from proprio.signals import MotionSignals
-from proprio.systems.blocks import BlockClock, BlockRegister, BlockStage, pack_rows, stage_block
+from proprio.systems.blocks import BlockClock, BlockRegister, BlockStage, stage_block
 from proprio.systems.joint_drive import DriveLaw
 
 __all__ = ["TwinChannels", "MeasurementChain", "AddMeasurementChain", "run_steps", "payload_wrench",
@@ -134,7 +134,7 @@ def AddMeasurementChain(builder: DiagramBuilder, signals: OutputPort, config, dr
         idx = logged_steps(lo, lo + B, n_steps, dt, config.logger.rate_hz)
         block = np.concatenate([inputs[0], inputs[1]]).reshape(B, width)      # earlier chunks, the last one
         rows = np.column_stack([idx * dt, block[idx - lo]])
-        return pack_rows(rows, B, lo + B >= n_steps), carry + 1.0
+        return rows, lo + B >= n_steps, carry + 1.0
 
     def motion(v: np.ndarray) -> tuple[np.ndarray, ...]:
         rows, final = stage_block(v, sampler)
@@ -147,7 +147,7 @@ def AddMeasurementChain(builder: DiagramBuilder, signals: OutputPort, config, dr
     def transmit(inputs: list[np.ndarray], carry: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         t, q, qd, qdd, u, *_, final = motion(inputs[0])
         if t.size == 0:
-            return pack_rows(np.zeros((0, (2 + len(link)) * n + 6)), B, final), carry
+            return np.zeros((0, tw)), final, carry
         s_drive = MotionSignals(t + session, q, qd, np.zeros_like(qdd))      # link-side effects act with q̈ = 0
         piece = link_path.begin(s_drive, carry)
         parts = [piece.torque(eff, s_drive) for eff in link]
@@ -157,7 +157,7 @@ def AddMeasurementChain(builder: DiagramBuilder, signals: OutputPort, config, dr
         tau_j = drive.sensed_torque(u, t, q, qd, qdd, tau_link=tau_link)
         rows = np.column_stack([tau_j, drive.rigid_body_torque(u, qdd), *parts,
                                 payload_wrench(desc, config.payload, q, qd, qdd)])
-        return pack_rows(rows, B, final), piece.end()
+        return rows, final, piece.end()
 
     # 3. the torque sensor; 4. the encoder
     sensor_effects = [e for e in config.effects if e.place == "sensor" and not isinstance(e, EncoderNoise)]
@@ -169,15 +169,15 @@ def AddMeasurementChain(builder: DiagramBuilder, signals: OutputPort, config, dr
     def sense(inputs: list[np.ndarray], carry: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         t, q, qd, qdd, *_, final = motion(inputs[0])
         if t.size == 0:
-            return pack_rows(np.zeros((0, (1 + len(torque_sensor.order)) * n)), B, final), carry
+            return np.zeros((0, (1 + len(torque_sensor.order)) * n)), final, carry
         tau_j = stage_block(inputs[1], transmission)[0][:, :n]
         tau, parts, carry = torque_sensor.measure(MotionSignals(t + session, q, qd, qdd), tau_j, carry)
-        return pack_rows(np.column_stack([tau, *parts.values()]), B, final), carry
+        return np.column_stack([tau, *parts.values()]), final, carry
 
     def encode(inputs: list[np.ndarray], carry: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         _, q, *_, final = motion(inputs[0])
         q_meas, carry = position_sensor.measure(q, carry)
-        return pack_rows(q_meas, B, final), carry
+        return q_meas, final, carry
 
     # 5. the robot's logger
     logger = RobotLogger(config.logger, n, config.seed)
@@ -195,7 +195,7 @@ def AddMeasurementChain(builder: DiagramBuilder, signals: OutputPort, config, dr
     def log(inputs: list[np.ndarray], carry: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         t, q, qd, qdd, _, *motor, final = motion(inputs[0])
         if t.size == 0:
-            return pack_rows(np.zeros((0, channels.width)), B, final), carry
+            return np.zeros((0, channels.width)), final, carry
         tr = stage_block(inputs[1], transmission)[0]
         sens = stage_block(inputs[2], sensor)[0]
         q_meas = stage_block(inputs[3], encoder)[0]
@@ -204,7 +204,7 @@ def AddMeasurementChain(builder: DiagramBuilder, signals: OutputPort, config, dr
         torques = np.column_stack([tr[:, n:2 * n], tr[:, 2 * n:-6], tr[:, :n], sens[:, n:]])[k]  # rbd, link, J, sensor
         cols = [piece.stamps, q_meas[k], sens[k, :n]] + ([piece.qd] if reports_qd else []) + \
             [tr[k, -6:], torques, q[k], qd[k], qdd[k], t[k] - after.stamp0] + [m[k] for m in motor]
-        return pack_rows(np.column_stack(cols), B, final), after.vector()
+        return np.column_stack(cols), final, after.vector()
 
     def stage(name: str, inputs: dict[str, int], width_k: int, carry0: np.ndarray, law) -> BlockStage:
         return builder.AddNamedSystem(name, BlockStage(inputs, carry0, law, B, width_k))

@@ -27,8 +27,8 @@ a view: 1 µs).
   streams' states, ...) as numeric discrete state. So the chain has three Systems with events (two register levels
   and the clock) however many stages it has.
 
-Blocks of rows are passed as ``[count, final, rows ...]`` vectors (:func:`pack_rows`, :func:`unpack_rows`): ``count``
-rows of a fixed width, padded to the capacity; ``final`` = 1 on the run's last block.
+Blocks of rows are passed as ``[count, final, rows ...]`` vectors (:func:`unpack_rows`): ``count`` rows of a fixed
+width, then what the capacity leaves (not read); ``final`` = 1 on the run's last block.
 """
 from __future__ import annotations
 
@@ -39,9 +39,9 @@ import numpy as np
 from pydrake.systems.framework import Context, Diagram, DiagramBuilder, DiscreteValues, LeafSystem
 from pydrake.systems.primitives import Demultiplexer, Multiplexer, Selector, SelectorParams, ZeroOrderHold
 
-__all__ = ["BlockRegister", "BlockStage", "BlockClock", "pack_rows", "unpack_rows", "stage_block", "block_phase"]
+__all__ = ["BlockRegister", "BlockStage", "BlockClock", "unpack_rows", "stage_block", "block_phase"]
 
-Law = Callable[[list[np.ndarray], np.ndarray], tuple[np.ndarray, np.ndarray]]
+Law = Callable[[list[np.ndarray], np.ndarray], tuple[np.ndarray, bool, np.ndarray]]
 
 
 def block_phase(levels: Sequence[int]) -> float:
@@ -50,16 +50,8 @@ def block_phase(levels: Sequence[int]) -> float:
     return 0.4 + 0.1 * (len(levels) - 1) if len(levels) > 1 else 0.0
 
 
-def pack_rows(rows: np.ndarray, capacity: int, final: bool) -> np.ndarray:
-    """``[2 + capacity·width]``: ``[count, final, rows (padded with 0)]`` for ``rows [count, width]``."""
-    out = np.zeros(2 + capacity * rows.shape[1])
-    out[0], out[1] = rows.shape[0], float(final)
-    out[2:2 + rows.size] = rows.ravel()
-    return out
-
-
 def unpack_rows(v: np.ndarray, width: int) -> tuple[np.ndarray, bool]:
-    """The rows ``[count, width]`` and the final flag of a :func:`pack_rows` vector."""
+    """The rows ``[count, width]`` and the final flag of a ``[count, final, rows ...]`` vector (module docstring)."""
     count = int(v[0])
     return np.asarray(v[2:2 + count * width]).reshape(count, width), bool(v[1])
 
@@ -110,10 +102,10 @@ class BlockRegister(Diagram):
 
 
 class BlockStage(LeafSystem):
-    """One law of a block-rate chain (module docstring), stateless: output port ``out`` = ``[carry', block]`` with
-    ``(block, carry') = law(inputs, carry)``, where ``inputs`` are the input ports ``inputs`` (name → size) and
-    ``carry`` [``carry_size``] the input port ``carry``, the law's state before this block (a :class:`BlockClock`
-    holds it). ``block`` is :func:`pack_rows` of at most ``capacity`` rows of ``width``. The port is evaluated once
+    """One law of a block-rate chain (module docstring), stateless: output port ``out`` = ``[carry', count, final,
+    rows ...]`` with ``(rows, final, carry') = law(inputs, carry)``, where ``inputs`` are the input ports ``inputs``
+    (name → size) and ``carry`` the input port ``carry``, the law's state before this block (a :class:`BlockClock`
+    holds it); ``rows`` are at most ``capacity`` rows of ``width``. The port is evaluated once
     per block, by the clock's update (outputs are cached), so the law runs once per block."""
 
     def __init__(self, inputs: dict[str, int], carry0: np.ndarray, law: Law, capacity: int, width: int):
@@ -128,10 +120,12 @@ class BlockStage(LeafSystem):
     def _out(self, context: Context, output) -> None:
         # read-only views, valid during this call (Eval would copy element by element: ~10 ns per value)
         inputs = [port.EvalBasicVector(context).get_value() for port in self._ports]
-        block, carry = self._law(inputs, self._carry.EvalBasicVector(context).get_value())
+        rows, final, carry = self._law(inputs, self._carry.EvalBasicVector(context).get_value())
         value = output.get_mutable_value()
-        value[:carry.size] = carry
-        value[carry.size:] = block
+        c = carry.size
+        value[:c] = carry
+        value[c], value[c + 1] = rows.shape[0], float(final)
+        value[c + 2:c + 2 + rows.size] = rows.ravel()
 
 
 def stage_block(v: np.ndarray, stage: BlockStage) -> tuple[np.ndarray, bool]:
