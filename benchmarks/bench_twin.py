@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
 
 import numpy as np
@@ -56,7 +57,7 @@ def main() -> None:
 
     dyn = [dynamics_only()]
     t0, c0 = time.perf_counter(), time.process_time()
-    rec = simulate_twin(config, traj, progress=True)
+    rec = simulate_twin(config, traj, progress=sys.stderr.isatty())
     total, cpu = time.perf_counter() - t0, time.process_time() - c0
     dyn.append(dynamics_only())
     sim_s = traj.end_time()
