@@ -8,7 +8,7 @@ A hybrid sees only what the robot logs: q and τ at jittered stamps, conditioned
 ``noise_calibration.py --table53`` bounds what the sensor's noise and ripple leave in the target; this script asks
 what the rest of the chain leaves. The *exact* model of the twin — its robot, friction and every sensor law with the
 parameters it simulated (``Recording.meta``, read here for scoring only; the link side by
-:class:`~proprio.diagnosis.data.SimModel`, the sensor by the twin's :class:`~proprio.systems.sensors.TorqueSensor`)
+:class:`~proprio.diagnosis.data.SimModel`, the sensor by the twin's :class:`~proprio.effects.sensor_chain.TorqueSensor`)
 — is evaluated on the same conditioned signals as the hybrid and scored against the same targets. It is a
 reference, not a bound: a learned model may do better where the exact laws commit to one reading of an ambiguous
 turn and a network can hedge.
@@ -45,7 +45,7 @@ from proprio.experiments.payload import payload_experiment
 from proprio.recording import Recording, load_recording
 from proprio.signals import MotionSignals
 from proprio.systems.observers import WrenchMapping
-from proprio.systems.sensors import TorqueSensor
+from proprio.effects.sensor_chain import TorqueSensor
 
 TOLERANCE_N = 0.5          # Table 5.4's per-sample criterion for the tared 1 kg [N]
 
@@ -64,8 +64,8 @@ def exact_torque(model: SimModel, s: MotionSignals, s_sensor: MotionSignals | No
     on what the gauge sees, as the twin applies them); with ``s_sensor`` the sensor laws read that motion (the true
     one) instead, the link-side torque still from ``s``."""
     link = SimModel(model.robot, tuple(e for e in model.effects if e.place != "sensor")).predict(s)
-    sensor = TorqueSensor([e for e in model.effects if e.place == "sensor"])
-    return sensor.measure(s if s_sensor is None else s_sensor, link, np.random.default_rng(0))[0]
+    sensor = TorqueSensor([e for e in model.effects if e.place == "sensor"], model.robot.n)
+    return sensor.measure(s if s_sensor is None else s_sensor, link)[0]
 
 
 class ExactTorqueModel:

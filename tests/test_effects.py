@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from proprio.effects import (EFFECTS, EffectConfigError, Hysteresis, LostMotion, Ripple, ViscousCoulomb, affine_scan,
+from proprio.effects import (EFFECTS, EffectConfigError, Hysteresis, LostMotion, Ripple, ViscousCoulomb,
                              make_effects)
 from proprio.reversals import reversal_travel
 from proprio.signals import MotionSignals
@@ -162,15 +162,6 @@ def test_noise_is_seeded_and_encoder_quantises():
     steps = qm / math.radians(0.01)
     np.testing.assert_allclose(steps, np.round(steps), atol=1e-9)
     assert np.max(np.abs(qm - s.q)) <= math.radians(0.005) + 1e-12
-
-
-def test_affine_scan_matches_recursion():
-    rng = np.random.default_rng(0)
-    a, b = rng.uniform(0, 1, 1000), rng.normal(size=1000)
-    x = [0.7]
-    for ai, bi in zip(a, b):
-        x.append(ai * x[-1] + bi)
-    np.testing.assert_allclose(affine_scan(a, b, 0.7), x, rtol=1e-12, atol=1e-12)
 
 
 def test_config_errors_name_the_problem():

@@ -17,8 +17,6 @@ from proprio.payload import Payload, attach_payload
 from proprio.plant import DrakeRobot
 from proprio.recording import Recording, load_recording, save_recording
 from proprio.effects import make_effects
-from proprio.reversals import reversal_travel
-from proprio.signals import MotionSignals
 
 Q_A = np.array([0.1, 0.5, -0.2, -1.2, 0.3, 0.7, 0.2])
 
@@ -231,46 +229,6 @@ def test_hysteresis_test_trajectory_is_fig_2_5(nominal):
         cruise = np.abs(qd[inside, j])
         assert np.median(cruise) == pytest.approx(0.1 * nominal.robot.velocity_limits[j], rel=0.02)   # 10 % speed
     assert cli_main(["twin"]) == 2                                               # no experiment given: help
-
-
-def test_streaming_torque_sensor_system_matches_the_vectorised_sensor(calibrated):
-    from pydrake.common import RandomGenerator
-    from pydrake.systems.analysis import Simulator
-    from pydrake.systems.framework import DiagramBuilder
-    from pydrake.systems.primitives import TrajectorySource, VectorLogSink
-
-    from proprio.systems.sensors import AddTorqueSensor, TorqueSensor
-
-    rng = np.random.default_rng(2)
-    knots = np.linspace(0.0, 3.0, 13)
-    motion = PiecewisePolynomial.CubicShapePreserving(knots, (Q_A + rng.uniform(-0.2, 0.2, (13, 7))).T, True)
-    torque = PiecewisePolynomial.FirstOrderHold(knots, rng.uniform(-40, 40, (13, 7)).T)
-    sensor_effects = [e for e in calibrated.effects if e.place == "sensor" and e.name != "encoder_noise"]
-    builder = DiagramBuilder()
-    state_src = builder.AddSystem(TrajectorySource(motion, output_derivative_order=1))
-    tau_src = builder.AddSystem(TrajectorySource(torque))
-    sensor, out = AddTorqueSensor(builder, 7, sensor_effects)
-    builder.Connect(state_src.get_output_port(), sensor.GetInputPort("link_state"))
-    builder.Connect(tau_src.get_output_port(), sensor.GetInputPort("tau_J"))
-    clean_log = builder.AddSystem(VectorLogSink(7, 1e-3))
-    noisy_log = builder.AddSystem(VectorLogSink(7, 1e-3))
-    builder.Connect(sensor.GetOutputPort("tau_measured"), clean_log.get_input_port())
-    builder.Connect(out.get_output_port(), noisy_log.get_input_port())
-    diagram = builder.Build()
-    sim = Simulator(diagram)
-    diagram.SetRandomContext(sim.get_mutable_context(), RandomGenerator(4))
-    sim.AdvanceTo(3.0)
-    log = clean_log.FindLog(sim.get_context())
-    t = log.sample_times()
-    q, qd = motion.vector_values(t).T, motion.MakeDerivative(1).vector_values(t).T
-    offline = TorqueSensor([e for e in sensor_effects if e.name != "torque_noise"])
-    expected, _ = offline.measure(MotionSignals(t, q, qd, np.zeros_like(q)), torque.vector_values(t).T, rng)
-    assert len(offline.gauge) == 3 and t.size == 3001
-    assert min(len(st) for st in reversal_travel(q, qd).starts) >= 3          # every joint reverses
-    np.testing.assert_allclose(log.data().T, expected, atol=1e-9)
-    noise = noisy_log.FindLog(sim.get_context()).data().T - log.data().T
-    std = calibrated.effect("torque_noise").std
-    assert np.all(np.abs(noise.std(axis=0) / std - 1.0) < 0.1)
 
 
 def test_cli_hysteresis_test_writes_the_fig_2_5_plot(calibrated, tmp_path):

@@ -2,12 +2,13 @@
 
 ``JointTrajectorySource → DiscreteInverseDynamicsController → drive (motor side + link friction: a C++ FrictionDrive or the
 Python JointDrive, proprio.systems.joint_drive) → MultibodyPlant
-(discrete 1 ms, payload) → VectorLogSink``; the logged true motion then passes the sensor models
-(:mod:`proprio.systems.sensors`) and the robot's logger (:mod:`proprio.systems.robot_logger`: lost samples, jittered
-stamps, the channels the robot reports) in one vectorised pass. Output: a :class:`~proprio.recording.Recording`
-whose measured channels are what that robot logs — stamps ``t``, encoder ``q``, ``tau`` (τ_J) and, only for a robot
-that reports one, its own filtered ``qd``; never ``qdd`` — plus the true flange wrench ``f_ext`` (for scoring) and
-truth channels:
+(discrete 1 ms, payload) → measurement chain``: the plant's true motion enters a compiled shift register and, once
+per block of 1 000 steps, the log sampler, the transmitted torque, the torque sensor, the encoder and the robot's
+logger (lost samples, jittered stamps, the channels the robot reports) apply their laws to the block, in the Diagram
+(:mod:`proprio.diagrams.twin_chain`). Output: a :class:`~proprio.recording.Recording` — what the Diagram's robot
+logger wrote — whose measured channels are what that robot logs: stamps ``t``, encoder ``q``, ``tau`` (τ_J) and,
+only for a robot that reports one, its own filtered ``qd``; never ``qdd`` — plus the true flange wrench ``f_ext``
+(for scoring) and truth channels:
 
 * ``tau_rbd``: rigid-body torque of the logged motion incl. payload, the plant's own dynamics in each step
   (``DriveLaw.rigid_body_torque``: net actuation less the rotor inertia the plant carries; equal to
@@ -18,6 +19,10 @@ truth channels:
 * ``tau_<effect>``: each effect's contribution (``tau_viscous_coulomb``, ``tau_hysteresis``, ...);
 * ``q_true``, ``qd``, ``qdd``: the plant's exact link position, velocity and acceleration at the true sampling
   instants ``t_true`` (on the clock of ``t``); ``q_motor``, ``qd_motor``: θ, θ̇ of an elastic drive.
+
+Every random draw (each sensor effect's noise, the encoder's, the logger's losses, burst lengths and stamp jitter) has
+its own stream under the config's ``seed`` (:mod:`proprio.random_streams`), so the chain's blocks draw what the whole
+run would, and one effect's draws do not change when another is added.
 
 Every stage gets q̇, q̈ from the one conditioning path (:mod:`proprio.conditioning`); truth serves scoring only. The
 motor side (``drive`` block, ``elasticity``) has no torque channel: it is
@@ -30,7 +35,7 @@ A twin is described by one YAML file (``proprio/configs/iiwa14_twin.yaml``)::
     time_step: 0.001                  # s, discrete plant and drive period
     seed: 7
     session_time_s: 0.0               # s, the session clock at the run's t = 0 (time-varying effects see t + it)
-    logger: {rate_hz: 1000, channels: [q, tau], stamp_jitter_ms: 0.1, dropout_prob: 0.002}   # see robot_logger
+    logger: {rate_hz: 1000, channels: [q, tau], stamp_jitter_ms: 0.1, dropout_prob: 0.002}   # see robot_log
     controller: {kp: [...], ki: [...], kd: [...], payload_model: false}   # IDC gains (1/s², 1/s³, 1/s)
     drive: {motor_inertia: [...], motor_viscous: [...], motor_coulomb: [...]}   # motor side (hidden), or null
     payload: {mass: 1.0, com_flange: [0, 0, 0.05]}                        # or null
@@ -52,6 +57,7 @@ that has one, or a patch for another robot or joint count is an error naming the
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
@@ -62,13 +68,12 @@ from typing import Any
 import numpy as np
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder
-from pydrake.systems.primitives import Multiplexer, VectorLogSink
+from pydrake.systems.primitives import Multiplexer
 from pydrake.trajectories import PiecewisePolynomial, Trajectory
 from proprio.progress import progress_bar
 
 from proprio.description import RobotDescription
 from proprio.dynamics import inverse_dynamics
-from proprio.kinematics import flange_pose, point_jacobian
 from proprio.payload import Payload, attach_payload
 from proprio.plant import DrakeRobot, robot_plant
 from proprio.recording import Recording
@@ -76,18 +81,18 @@ from proprio.systems.joint_drive import (
     AddJointDrive, DriveLaw, check_elastic_stability, check_explicit_friction, friction_slope, reflected_inertia,
 )
 from proprio.identification.regressor import drive_identified
-from proprio.effects import Elasticity, EncoderNoise
-from proprio.signals import MotionSignals
+from proprio.effects import Elasticity
+from proprio.robot_log import LoggerCarry
 from proprio.systems.controller import AddDiscreteInverseDynamicsController, DiscreteInverseDynamicsController
-from proprio.systems.robot_logger import RobotLogger
-from proprio.systems.sensors import PositionSensor, TorqueSensor
 from proprio.systems.trajectories import AddTrajectorySource, sample_trajectory
+from proprio.diagrams.twin_chain import AddMeasurementChain, MeasurementChain, payload_wrench, run_steps
 from proprio.diagrams.twin_config import (  # noqa: F401  (re-exported: callers import them from here)
     PATCH_KEYS, TwinConfig, TwinConfigError, load_twin_config, merge_twin_patch,
 )
 
 __all__ = ["TwinConfig", "TwinConfigError", "load_twin_config", "merge_twin_patch", "PATCH_KEYS", "TwinDiagram",
-           "build_twin_diagram", "simulate_twin", "payload_wrench", "hysteresis_test_trajectory", "run_hysteresis_test"]
+           "build_twin_diagram", "start_simulator", "simulate_twin", "payload_wrench", "hysteresis_test_trajectory",
+           "run_hysteresis_test"]
 
 
 # ------------------------------------------------------------------------------------------------------------------
@@ -100,9 +105,10 @@ class TwinDiagram:
     plant: Any
     drive: DriveLaw                # FrictionDrive or JointDrive
     controller: DiscreteInverseDynamicsController
-    logger: VectorLogSink          # logs [q; q̇; q̈; net actuation (; θ; θ̇ if elastic)] every time_step
-    config: TwinConfig
+    chain: MeasurementChain | None  # sensors and logger on [q; q̇; q̈; net actuation (; θ; θ̇ if elastic)]; None:
+    config: TwinConfig              # the dynamics alone (measurement_chain=False)
     control_plant: Any             # keeps the controller's model alive
+    n_steps: int                   # logged steps of the run: the trajectory's span at time_step, both ends included
 
 
 def _effective_inertia(desc: RobotDescription, payload: Payload | None, trajectory: Trajectory,
@@ -115,12 +121,22 @@ def _effective_inertia(desc: RobotDescription, payload: Payload | None, trajecto
     return 1.0 / np.max(inv, axis=0)
 
 
-def build_twin_diagram(config: TwinConfig, trajectory: Trajectory) -> TwinDiagram:
-    """Wire the twin for ``trajectory`` (joint positions vs. time; velocity/acceleration by differentiation).
+def _run_length(trajectory: Trajectory, time_step: float) -> int:
+    """Steps of a run along ``trajectory``, both ends included."""
+    return int(math.floor((trajectory.end_time() - trajectory.start_time()) / time_step + 1e-9)) + 1
+
+
+def build_twin_diagram(config: TwinConfig, trajectory: Trajectory, measurement_chain: bool = True) -> TwinDiagram:
+    """Wire the twin for ``trajectory`` (joint positions vs. time from t = 0; velocity/acceleration by
+    differentiation); ``measurement_chain=False``: the dynamics alone, without the sensors and the logger (for
+    benchmarks).
 
     Raises ``ValueError`` when the friction or the elasticity is too stiff for the time step on this trajectory.
     """
     desc, n, dt = config.robot, config.robot.n, config.time_step
+    if trajectory.start_time() != 0.0:
+        raise TwinConfigError(f"the twin's trajectory must start at t = 0, got {trajectory.start_time()} s "
+                              "(Trajectory.shiftRight)")
     link = [e for e in config.effects if e.place == "link"]
     motor, coupling = config.motor, config.motor_coupling
     elastic = next((e for e in config.effects if isinstance(e, Elasticity)), None)
@@ -166,15 +182,16 @@ def build_twin_diagram(config: TwinConfig, trajectory: Trajectory) -> TwinDiagra
     logged = [state, plant.get_generalized_acceleration_output_port(instance), net_actuation]
     if elastic is not None:
         logged.append(drive.GetOutputPort("motor_state"))
-    mux = builder.AddSystem(Multiplexer([port.size() for port in logged]))
-    for k, port in enumerate(logged):
-        builder.Connect(port, mux.get_input_port(k))
-    logger = builder.AddSystem(VectorLogSink(mux.get_output_port().size(), dt))
-    logger.set_name("logger")
-    builder.Connect(mux.get_output_port(), logger.get_input_port())
+    n_steps = _run_length(trajectory, dt)
+    chain = None
+    if measurement_chain:
+        mux = builder.AddNamedSystem("true_motion", Multiplexer([port.size() for port in logged]))
+        for k, port in enumerate(logged):
+            builder.Connect(port, mux.get_input_port(k))
+        chain = AddMeasurementChain(builder, mux.get_output_port(), config, drive, n_steps)
     diagram = builder.Build()
     diagram.set_name(f"twin:{config.name}")
-    return TwinDiagram(diagram, plant, drive, ctrl, logger, config, control_plant)
+    return TwinDiagram(diagram, plant, drive, ctrl, chain, config, control_plant, n_steps)
 
 
 # ------------------------------------------------------------------------------------------------------------------
@@ -193,137 +210,75 @@ def _check_trajectory(trajectory: Trajectory, desc: RobotDescription) -> None:
                               f"limits [{math.degrees(desc.lower[j]):.1f}°, {math.degrees(desc.upper[j]):.1f}°]")
 
 
-def payload_wrench(desc: RobotDescription, payload: Payload | None, q: np.ndarray, qd: np.ndarray,
-                   qdd: np.ndarray) -> np.ndarray:
-    """True wrench ``[N,6]`` = [f; m] (N, N·m) the payload exerts on the robot at the flange origin, world frame.
-
-    Newton–Euler of the payload body: ``F = m(a_c − g)``, ``N = I α + ω × I ω`` act on the payload, the robot
-    receives ``f = −F``, ``m = −(N + (p_c − p_f) × F)``. ``J̇q̇`` from a central difference of the batched
-    Jacobian along q̇ (h = 1e-6 s; error ~1e-10). Zero without a payload.
-    """
-    n_s = q.shape[0]
-    if payload is None:
-        return np.zeros((n_s, 6))
-    com = np.asarray(payload.com_flange, dtype=float)
-    h = 1e-6
-    jac = point_jacobian(desc, q, com)                                     # [N,6,n] rows [ω; v_c]
-    djac = (point_jacobian(desc, q + h * qd, com) - point_jacobian(desc, q - h * qd, com)) / (2 * h)
-    acc = np.einsum("sij,sj->si", jac, qdd) + np.einsum("sij,sj->si", djac, qd)   # [α; a_c]
-    omega = np.einsum("sij,sj->si", jac[:, :3], qd)
-    pose = flange_pose(desc, q)
-    rot, p_f = pose[:, :3, :3], pose[:, :3, 3]
-    ixx, iyy, izz, ixy, ixz, iyz = payload.inertia
-    i_fl = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
-    i_w = rot @ i_fl @ np.swapaxes(rot, 1, 2)
-    force = payload.mass * (acc[:, 3:] - np.asarray(desc.gravity))
-    moment = np.einsum("sij,sj->si", i_w, acc[:, :3]) + np.cross(omega, np.einsum("sij,sj->si", i_w, omega))
-    p_c = p_f + np.einsum("sij,j->si", rot, com)
-    return np.concatenate([-force, -(moment + np.cross(p_c - p_f, force))], axis=1)
-
-
-def _log_indices(n_steps: int, time_step: float, rate_hz: float) -> np.ndarray:
-    """Indices of the 1/time_step log kept at ``rate_hz`` (nearest step; 150 Hz → 6/7 ms jitter like the iiwa)."""
-    if abs(rate_hz * time_step - 1.0) < 1e-9:
-        return np.arange(n_steps)
-    t_want = np.arange(0.0, n_steps * time_step, 1.0 / rate_hz)
-    return np.unique(np.minimum(np.round(t_want / time_step).astype(int), n_steps - 1))
+def start_simulator(twin: TwinDiagram, trajectory: Trajectory) -> Simulator:
+    """A Simulator of ``twin`` initialised at the start of ``trajectory``: the plant at its state, the drive in
+    equilibrium with it."""
+    desc, n = twin.config.robot, twin.config.robot.n
+    sim = Simulator(twin.diagram)        # every state is discrete (plant, controller integral, drive): no integrator
+    ctx = sim.get_mutable_context()
+    pctx = twin.plant.GetMyMutableContextFromRoot(ctx)
+    q0 = trajectory.value(0.0).ravel()
+    qd0 = trajectory.MakeDerivative(1).value(0.0).ravel()
+    twin.plant.SetPositions(pctx, q0)
+    twin.plant.SetVelocities(pctx, qd0)
+    twin.drive.set_motor_state(twin.drive.GetMyMutableContextFromRoot(ctx), q0, qd0,
+                               inverse_dynamics(attach_payload(desc, twin.config.payload), q0, qd0, np.zeros(n)))
+    sim.Initialize()
+    return sim
 
 
 def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload | None = None,
                   progress: bool = True, chunk_s: float = 2.0) -> Recording:
-    """Simulate the twin along ``trajectory`` and return the Recording (see module docstring for the channels).
+    """Simulate the twin along ``trajectory`` and return the Recording its robot logger wrote (see module docstring
+    for the channels).
 
     ``payload`` overrides the config's payload. Raises :class:`TwinConfigError` before simulating when the
     trajectory leaves the joint limits or the friction is too stiff for the time step. The simulation advances in
-    ``chunk_s`` pieces (progress bar with the real-time factor); only the samples at ``logger.rate_hz`` are kept.
+    ``chunk_s`` pieces (progress bar with the real-time factor), to the end of the block that holds the last step.
     """
     if payload is not None:
         config = config.with_payload(payload)
     desc, n, dt = config.robot, config.robot.n, config.time_step
     _check_trajectory(trajectory, desc)
+    if trajectory.start_time() != 0.0:       # the Diagram's clock starts at 0: the session clock keeps the offset
+        config = dataclasses.replace(config, session_time_s=config.session_time_s + trajectory.start_time())
+        trajectory = trajectory.Clone()
+        trajectory.shiftRight(-trajectory.start_time())
     twin = build_twin_diagram(config, trajectory)
-    t0, t1 = trajectory.start_time(), trajectory.end_time()
-    n_steps = int(math.floor((t1 - t0) / dt + 1e-9)) + 1
-    keep = _log_indices(n_steps, dt, config.logger.rate_hz)
+    chain = twin.chain
+    n_steps = twin.n_steps
+    t_end = (run_steps(n_steps, chain.block_steps) - 1 + 0.9) * dt     # past the last block's stages (phases < 0.9)
 
-    sim = Simulator(twin.diagram)        # every state is discrete (plant, controller integral, drive): no integrator
-    ctx = sim.get_mutable_context()
-    ctx.SetTime(t0)
-    pctx = twin.plant.GetMyMutableContextFromRoot(ctx)
-    q0 = trajectory.value(t0).ravel()
-    qd0 = trajectory.MakeDerivative(1).value(t0).ravel()
-    twin.plant.SetPositions(pctx, q0)
-    twin.plant.SetVelocities(pctx, qd0)
-    twin.drive.set_motor_state(twin.drive.GetMyMutableContextFromRoot(ctx), q0, qd0,
-                               inverse_dynamics(attach_payload(desc, config.payload), q0, qd0, np.zeros(n)))
-    log = twin.logger.FindMutableLog(ctx)
-    sim.Initialize()
-
-    chunks, got = [], 0
+    sim = start_simulator(twin, trajectory)
     wall0, cpu0 = time.perf_counter(), time.process_time()
-    bar = progress_bar(total=round(t1 - t0, 3), unit="s sim", enabled=progress, desc=f"twin {config.name}",
+    span = (n_steps - 1) * dt
+    bar = progress_bar(total=round(span, 3), unit="s sim", enabled=progress, desc=f"twin {config.name}",
                bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} s sim [{elapsed}<{remaining}{postfix}]")
-    t = t0
-    while got < n_steps:
-        t = min(t + chunk_s, t0 + (n_steps - 1) * dt)
-        sim.AdvanceTo(t)
-        data = log.data().T.copy()
-        log.Clear()
-        data = data[: n_steps - got]
-        idx = keep[(keep >= got) & (keep < got + data.shape[0])] - got
-        chunks.append(data[idx])
-        got += data.shape[0]
-        bar.update(round(data.shape[0] * dt, 3))
-        bar.set_postfix_str(f"{(got * dt) / max(time.perf_counter() - wall0, 1e-9):.1f}x real time")
-        if t >= t0 + (n_steps - 1) * dt and got < n_steps:
-            raise RuntimeError(f"twin logged {got} of {n_steps} samples")
+    t = 0.0
+    while t < t_end:
+        t_next = min(t + chunk_s, t_end)
+        sim.AdvanceTo(t_next)
+        bar.update(round(min(t_next, span) - min(t, span), 3))
+        bar.set_postfix_str(f"{min(t_next, span) / max(time.perf_counter() - wall0, 1e-9):.1f}x real time")
+        t = t_next
     bar.close()
     wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
-    data = np.concatenate(chunks)
-    return _to_recording(config, twin.drive, t0 + keep * dt, data, wall, cpu)
+    logged = chain.clock.carry(chain.clock.GetMyContextFromRoot(sim.get_context()), 4)
+    return _to_recording(config, chain, LoggerCarry.from_vector(logged, n, config.logger), span, wall, cpu)
 
 
-def _to_recording(config: TwinConfig, drive: DriveLaw, t: np.ndarray, data: np.ndarray, wall_s: float,
+def _to_recording(config: TwinConfig, chain: MeasurementChain, logger: LoggerCarry, span_s: float, wall_s: float,
                   cpu_s: float) -> Recording:
-    """Sensor models, the robot's logger and truth channels from the logged true motion ``[q; q̇; q̈; net actuation
-    (; θ; θ̇)]`` at the true instants ``t`` [s]."""
-    desc, n = config.robot, config.robot.n
-    q, qd, qdd, u = (data[:, k * n:(k + 1) * n] for k in range(4))
-    rng = np.random.default_rng(config.seed)
-    s = MotionSignals(t=t + config.session_time_s, q=q, qd=qd, qdd=qdd)      # effects see the session clock
-    truth: dict[str, np.ndarray] = {}
-    truth["tau_rbd"] = drive.rigid_body_torque(u, qdd)
-    # link-side effects act with q̈ = 0, on the session clock
-    s_drive = MotionSignals(t=t + config.session_time_s, q=q, qd=qd, qdd=np.zeros_like(qdd))
-    for eff in config.effects:
-        if eff.place == "link":
-            truth[f"tau_{eff.name}"] = eff.torque(s_drive)
-    tau_j = drive.sensed_torque(u, t, q, qd, qdd)
-    truth["tau_J_true"] = tau_j
-    sensor_effects = [e for e in config.effects if e.place == "sensor" and not isinstance(e, EncoderNoise)]
-    tau_meas, parts = TorqueSensor(sensor_effects).measure(s, tau_j, rng)
-    truth.update({f"tau_{k}": v for k, v in parts.items()})
-    encoder = next((e for e in config.effects if isinstance(e, EncoderNoise)), None)
-    q_meas = PositionSensor(encoder).measure(q, rng)
-    truth.update(q_true=q, qd=qd, qdd=qdd, t_true=t)
-    if data.shape[1] > 4 * n:                          # elastic drive: θ, θ̇ (what a motor-side sensor reads)
-        truth["q_motor"], truth["qd_motor"] = data[:, 4 * n:5 * n], data[:, 5 * n:6 * n]
-    f_ext = _in_batches(lambda d, *x: payload_wrench(d, config.payload, *x), desc, q, qd, qdd)
-    logged = RobotLogger(config.logger).log(t, q_meas, rng)
-    k, t0 = logged.keep, float(logged.stamps[0])
-    truth = {name: v[k] for name, v in truth.items()}
-    truth["t_true"] = truth["t_true"] - t0
+    """The Recording of the rows the chain's robot logger wrote (``logger``: its state at the run's end)."""
+    rows = np.concatenate(chain.clock.log) if chain.clock.log else np.zeros((0, chain.channels.width))
+    ch = chain.channels.split(rows)
+    truth = {k.removeprefix("truth:"): v for k, v in ch.items() if k.startswith("truth:")}
     meta = {**config.meta(), "rate_hz": config.logger.rate_hz, "source": "twin",
-            "channels": list(config.logger.channels), "samples_lost": int(t.size - k.size),
+            "channels": list(config.logger.channels), "samples_lost": int(logger.seen) - rows.shape[0],
             "sim_wall_s": round(wall_s, 3), "sim_cpu_s": round(cpu_s, 3),
-            "real_time_factor": round(float(t[-1] - t[0]) / max(wall_s, 1e-9), 2)}
-    return Recording(t=logged.stamps - t0, q=q_meas[k], tau=tau_meas[k], qd=logged.qd, f_ext=f_ext[k],
-                     truth=truth, meta=json.loads(json.dumps(meta)))
-
-
-def _in_batches(fn, desc: RobotDescription, *arrays: np.ndarray, size: int = 100_000) -> np.ndarray:
-    """``fn(desc, *arrays)`` over sample batches (the batched kinematics hold ~1 kB per sample in temporaries)."""
-    return np.concatenate([fn(desc, *(a[i:i + size] for a in arrays)) for i in range(0, arrays[0].shape[0], size)])
+            "real_time_factor": round(span_s / max(wall_s, 1e-9), 2)}
+    return Recording(t=ch["t"], q=ch["q"], tau=ch["tau"], qd=ch.get("qd"), f_ext=ch["f_ext"], truth=truth,
+                     meta=json.loads(json.dumps(meta)))
 
 
 # ------------------------------------------------------------------------------------------------------------------

@@ -16,7 +16,7 @@ from proprio.effects import Elasticity, JointEffect, Motor, effect_key, make_eff
 from proprio.effects.schema import check_effect_block, check_effects_block
 from proprio.payload import Payload, PayloadBlock
 from proprio.systems.joint_drive import coupling_from_description, motor_from_description
-from proprio.systems.robot_logger import LoggerConfig
+from proprio.robot_log import LoggerConfig
 from proprio.typed_yaml import load_typed, per_joint, read_yaml
 
 __all__ = ["TwinConfig", "TwinConfigError", "TwinYaml", "TwinPatchYaml", "ControllerBlock", "PatchFor",
@@ -39,7 +39,7 @@ class ControllerBlock:
 @dataclass
 class TwinYaml:
     """The schema of a twin YAML file (module :mod:`proprio.diagrams.twin` docstring). The ``logger`` block is a
-    :class:`~proprio.systems.robot_logger.LoggerConfig`, ``payload`` a :class:`~proprio.payload.PayloadBlock`,
+    :class:`~proprio.robot_log.LoggerConfig`, ``payload`` a :class:`~proprio.payload.PayloadBlock`,
     ``drive`` and ``effects`` blocks are checked against the effect classes' declarations
     (:mod:`proprio.effects.schema`) once the robot's joint count is known."""
     robot: str | dict[str, Any]

@@ -57,13 +57,14 @@ direction reversal, :func:`reversal_travel`) — the quantity behind the thesis'
 stack encodes causally with a position deadband and ±10° clipping in :mod:`proprio.learning.features`. Reversals are detected
 with a velocity deadband (Schmitt trigger on q̇) so that noise around standstill does not create spurious reversals;
 the travel is measured from the extremum of q reached before the reversal. Stateful effects are evaluated per
-segment between reversals; the values carried across segments follow an affine recursion that is solved with a
-vectorised prefix scan (no per-sample Python loop). The same laws run sample by sample, with the reversal state as
-Drake discrete state, in :class:`proprio.systems.sensors.TorqueSensorSystem` (tested equal to 1e-9).
+segment between reversals; the values carried across segments follow an affine recursion, run once per reversal
+(the reversal travel and this recursion are numba kernels; no per-sample Python loop). A motion can be taken in
+pieces with the reversal state carried between them (:class:`proprio.effects.sensor_chain.PathEffects`): the twin's
+Diagram applies its sensors so, once per block of samples, and the pieces give the whole motion's values (tests).
 """
 from __future__ import annotations
 
-from proprio.effects.base import EffectConfigError, JointEffect, affine_scan
+from proprio.effects.base import EffectConfigError, JointEffect
 from proprio.effects.dahl import PreSliding
 from proprio.effects.drive import Elasticity, Motor
 from proprio.effects.friction import SmoothFriction, Stribeck, ViscousCoulomb, robot_friction
@@ -74,7 +75,7 @@ from proprio.effects.schema import make_effects
 from proprio.effects.sensor import EncoderNoise, Ripple, SensorOffsetGain, TorqueNoise
 from proprio.effects.time_varying import FrictionWarmup, OffsetDrift
 
-__all__ = ["JointEffect", "EffectConfigError", "affine_scan", "SmoothFriction", "ViscousCoulomb", "Stribeck",
+__all__ = ["JointEffect", "EffectConfigError", "SmoothFriction", "ViscousCoulomb", "Stribeck",
            "robot_friction", "Hysteresis", "PreSliding",
            "LostMotion", "Ripple", "SensorOffsetGain", "TorqueNoise", "EncoderNoise", "Motor", "Elasticity",
            "OffsetDrift", "FrictionWarmup", "EFFECTS", "make_effects", "resolve_effect", "effect_key", "register_plugin",

@@ -12,8 +12,8 @@ import numpy as np
 from proprio.reversals import ReversalTravel, reversal_travel
 from proprio.signals import MotionSignals
 
-__all__ = ["EffectConfigError", "JointEffect", "affine_scan", "diagonal_regressor", "motion_reversal_travel", "INF",
-           "TINY"]
+__all__ = ["EffectConfigError", "JointEffect", "diagonal_regressor", "motion_reversal_travel",
+           "reversal_key", "INF", "TINY"]
 
 INF = math.inf
 TINY = 1e-9
@@ -28,24 +28,16 @@ def motion_reversal_travel(s: MotionSignals, reversal_velocity: float | np.ndarr
     [rad/s], computed once per signals and deadband (memoised in ``s.derived``: a fit evaluates the reversal effects
     many times on the same motion)."""
     eps = np.asarray(reversal_velocity, dtype=float)
-    key = ("reversal_travel", eps.shape, eps.tobytes())
+    key = reversal_key(eps)
     if key not in s.derived:
         s.derived[key] = reversal_travel(s.q, s.qd, eps if eps.ndim else float(eps))
     return s.derived[key]
 
 
-def affine_scan(a: np.ndarray, b: np.ndarray, x0: float) -> np.ndarray:
-    """Solve ``x[s+1] = a[s]·x[s] + b[s]`` for all s at once (Hillis–Steele prefix scan of affine maps, log₂ S
-    vectorised passes; stable for |a| ≤ 1). Returns ``x[0..S]``."""
-    big_a, big_b = np.asarray(a, dtype=float).copy(), np.asarray(b, dtype=float).copy()
-    shift = 1
-    while shift < big_a.size:
-        new_a, new_b = big_a.copy(), big_b.copy()
-        new_a[shift:] = big_a[shift:] * big_a[:-shift]
-        new_b[shift:] = big_a[shift:] * big_b[:-shift] + big_b[shift:]
-        big_a, big_b = new_a, new_b
-        shift *= 2
-    return np.concatenate([[x0], big_a * x0 + big_b])
+def reversal_key(reversal_velocity: float | np.ndarray) -> tuple:
+    """The key of the reversal travel with deadband ``reversal_velocity`` in ``MotionSignals.derived``."""
+    eps = np.asarray(reversal_velocity, dtype=float)
+    return ("reversal_travel", eps.shape, eps.tobytes())
 
 
 class JointEffect(ABC):

@@ -7,8 +7,8 @@ Schmitt trigger of :func:`proprio.reversals.motion_direction`), ``r`` the travel
 extremum reached before it), ``L`` the level it saturates at [N·m], ``ρ`` [rad] a third of the travel after which it is
 within 5 % of ``L`` and ``τ_rev`` the value carried over the reversal (0 in the virgin state). The per-step form keeps
 the reversal state explicitly (:class:`DahlState`); the batch form segments the whole motion at once
-(:func:`proprio.reversals.reversal_travel`) and solves the recursion of the carried values with a prefix scan
-(:func:`proprio.effects.base.affine_scan`) — the same recursion, so the two agree to rounding (tests).
+(:func:`proprio.reversals.reversal_travel`) and runs the recursion of the carried values once per reversal (a numba
+kernel) — the same recursion, so the two agree to rounding (tests).
 
 Two effects are this law: the torque sensor's hysteresis (:class:`proprio.effects.Hysteresis`, a strain gauge's loop
 over degrees of travel) and the drive's pre-sliding friction (:class:`PreSliding`, the gear and bearings' elastic
@@ -21,13 +21,15 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
-from proprio.effects.base import INF, TINY, JointEffect, affine_scan, motion_reversal_travel
+from proprio.effects.base import INF, TINY, JointEffect, motion_reversal_travel
 from proprio.reversals import ReversalTravel
 from proprio.signals import MotionSignals
 
-__all__ = ["DahlState", "dahl_start", "dahl_advance", "dahl_value", "dahl_batch", "PreSliding", "MAX_PRESLIDING_TRAVEL"]
+__all__ = ["DahlState", "DahlCarry", "DahlEffect", "dahl_start", "dahl_advance", "dahl_value", "dahl_batch",
+           "PreSliding", "MAX_PRESLIDING_TRAVEL"]
 
 MAX_PRESLIDING_TRAVEL = math.radians(2.0)
 """Upper bound of ``presliding_travel`` [rad]: pre-sliding is the gear's micro-displacement (well under a degree at
@@ -88,24 +90,93 @@ def dahl_value(st: DahlState, q: np.ndarray, rho: np.ndarray) -> np.ndarray:
     return d_level + (st.tau_rev - d_level) * np.exp(-np.abs(q - st.anchor) / rho)
 
 
-def dahl_batch(rt: ReversalTravel, level: np.ndarray, rho: np.ndarray) -> np.ndarray:
-    """The law over a whole motion ``[N,n]`` [N·m]: ``rt`` its reversal travel, ``level [N,n]`` [N·m] per sample,
-    ``rho [n]`` [rad]. Per joint, the value carried into each segment is the ending segment's law at the next anchor
-    with the level of its last sample (the recursion of :func:`dahl_advance`, solved by a prefix scan)."""
-    n_s, n = rt.r.shape
-    out = np.empty((n_s, n))
-    for j in range(n):                                                   # loop over joints only
-        st, anc, sd = rt.starts[j], rt.anchors[j], rt.seg_direction[j]
-        ends = np.concatenate([st[1:] - 1, [n_s - 1]])
-        e = np.exp(-np.abs(anc[1:] - anc[:-1]) / rho[j])
-        target = sd[:-1] * level[ends[:-1], j]
-        tau_rev = affine_scan(e, (1.0 - e) * target, 0.0)
-        d_level = rt.direction[:, j] * level[:, j]
-        out[:, j] = d_level + (tau_rev[rt.segment[:, j]] - d_level) * np.exp(-np.abs(rt.r[:, j]) / rho[j])
+@dataclass(frozen=True)
+class DahlCarry:
+    """What the batch law carries from one piece of a motion into the next (each ``[n]``): the value carried into
+    the current segment ``tau_rev`` [N·m] and the level of the last sample ``level_prev`` [N·m] (with the reversal
+    state :class:`proprio.reversals.ReversalCarry`)."""
+    tau_rev: np.ndarray
+    level_prev: np.ndarray
+
+    @classmethod
+    def virgin(cls, n: int) -> "DahlCarry":
+        return cls(np.zeros(n), np.zeros(n))
+
+    def vector(self) -> np.ndarray:
+        return np.concatenate([self.tau_rev, self.level_prev])
+
+    @classmethod
+    def from_vector(cls, v: np.ndarray) -> "DahlCarry":
+        return cls(*np.split(np.asarray(v, dtype=float), 2))
+
+
+@numba.njit(cache=True)
+def _carried_kernel(starts, anchors, seg_dirs, offsets, level, rho, tau_rev0, level_prev0):  # pragma: no cover
+    """The value carried into each segment (flat, at ``offsets[j]`` per joint): the recursion of
+    :func:`dahl_advance` at each reversal, ``τ_rev ← e·τ_rev + (1 − e)·d·L_end`` with ``e = exp(−|Δanchor| / ρ)``."""
+    out = np.empty(anchors.size)
+    for j in range(offsets.size - 1):
+        o, m = offsets[j], offsets[j + 1] - offsets[j]
+        x = tau_rev0[j]
+        out[o] = x
+        for k in range(m - 1):
+            last = starts[o + k + 1] - 1                       # last sample of segment k (-1: it ended before)
+            lv = level_prev0[j] if last < 0 else level[last, j]
+            e = np.exp(-abs(anchors[o + k + 1] - anchors[o + k]) / rho[j])
+            x = e * x + (1.0 - e) * seg_dirs[o + k] * lv
+            out[o + k + 1] = x
     return out
 
 
-class PreSliding(JointEffect):
+def dahl_batch(rt: ReversalTravel, level: np.ndarray, rho: np.ndarray, carry: DahlCarry | None = None
+               ) -> tuple[np.ndarray, DahlCarry]:
+    """The law over a whole motion ``[N,n]`` [N·m] and its end state: ``rt`` its reversal travel, ``level [N,n]``
+    [N·m] per sample, ``rho [n]`` [rad], ``carry`` the state at the end of the previous piece (``rt`` segmented with
+    its reversal carry; default: the virgin state). Per joint, the value carried into each segment is the ending
+    segment's law at the next anchor with the level of its last sample (the recursion of :func:`dahl_advance`, a
+    numba kernel over the reversals); within a segment the law is vectorised over samples and joints."""
+    n_s, n = rt.r.shape
+    c = DahlCarry.virgin(n) if carry is None else carry
+    level = np.ascontiguousarray(np.broadcast_to(level, (n_s, n)), dtype=float)
+    rho = np.broadcast_to(np.asarray(rho, dtype=float), (n,))
+    sizes = np.array([st.size for st in rt.starts])
+    offsets = np.concatenate([[0], np.cumsum(sizes)])
+    tau_rev = _carried_kernel(np.concatenate(rt.starts), np.concatenate(rt.anchors),
+                              np.concatenate(rt.seg_direction), offsets, level, np.ascontiguousarray(rho),
+                              np.asarray(c.tau_rev, dtype=float), np.asarray(c.level_prev, dtype=float))
+    local = rt.segment - (rt.segment[-1] - (sizes - 1))                  # segment index within this piece
+    d_level = rt.direction * level
+    out = d_level + (tau_rev[offsets[:-1] + local] - d_level) * np.exp(-np.abs(rt.r) / rho)
+    return out, DahlCarry(tau_rev[offsets[1:] - 1], level[-1].copy())
+
+
+class DahlEffect(JointEffect):
+    """An effect that is the Dahl law (module docstring): :meth:`torque` over a whole motion and
+    :meth:`torque_carried` over a piece of it with the carried state. Subclasses give the level [N·m] per sample
+    (:meth:`dahl_level`) and ``ρ`` [rad] (:attr:`rho`)."""
+
+    @property
+    def rho(self) -> np.ndarray:
+        raise NotImplementedError
+
+    def dahl_level(self, s: MotionSignals) -> np.ndarray:
+        """The level ``L [N,n]`` [N·m] the law saturates at, per sample."""
+        raise NotImplementedError
+
+    def torque(self, s: MotionSignals, rng: np.random.Generator | None = None,
+               travel: ReversalTravel | None = None) -> np.ndarray:
+        self._check_n(s)
+        return self.torque_carried(s, travel or motion_reversal_travel(s, self.reversal_velocity))[0]
+
+    def torque_carried(self, s: MotionSignals, travel: ReversalTravel, carry: DahlCarry | None = None
+                       ) -> tuple[np.ndarray, DahlCarry]:
+        """The torque ``[N,n]`` N·m over ``s`` (segmented as ``travel``, with its reversal carry) continuing the
+        state ``carry`` of the motion's previous piece, and the state at its end."""
+        self._check_n(s)
+        return dahl_batch(travel, self.dahl_level(s), self.rho, carry)
+
+
+class PreSliding(DahlEffect):
     """Pre-sliding friction of the drive: a rate-independent Dahl law in the travel since the last reversal
     (module docstring), ``τ_ps = d·F + (τ_rev − d·F)·exp(−3|r| / r_ps)`` [N·m] — after a reversal the friction
     turns over within ``r_ps`` of joint travel whatever the speed, where the velocity law of
@@ -129,6 +200,9 @@ class PreSliding(JointEffect):
         """``ρ = r_ps / 3`` [rad] per joint."""
         return self.presliding_travel / 3.0
 
+    def dahl_level(self, s: MotionSignals) -> np.ndarray:
+        return np.broadcast_to(self.level, s.q.shape)
+
     def start(self, q: np.ndarray, qd: np.ndarray) -> DahlState:
         """The per-step state before the first sample ``(q, q̇)`` ``[n]`` (:func:`dahl_start`)."""
         return dahl_start(q, qd, self.level, self.reversal_velocity)
@@ -137,9 +211,3 @@ class PreSliding(JointEffect):
         """One sample of the per-step law: the state advanced by ``(q, q̇)`` ``[n]`` and the torque ``[n]`` N·m."""
         new = dahl_advance(st, q, qd, self.level, self.rho, self.reversal_velocity)
         return new, dahl_value(new, q, self.rho)
-
-    def torque(self, s: MotionSignals, rng: np.random.Generator | None = None,
-               travel: ReversalTravel | None = None) -> np.ndarray:
-        self._check_n(s)
-        rt = travel or motion_reversal_travel(s, self.reversal_velocity)
-        return dahl_batch(rt, np.broadcast_to(self.level, s.q.shape), self.rho)

@@ -6,7 +6,7 @@ import math
 import numpy as np
 
 from proprio.effects.base import INF, TINY, JointEffect, motion_reversal_travel
-from proprio.effects.dahl import dahl_batch
+from proprio.effects.dahl import DahlEffect
 from proprio.reversals import ReversalTravel
 from proprio.signals import MotionSignals
 
@@ -17,7 +17,7 @@ MAX_LOAD_GAIN = 0.1
 has 2 %, Fig. 2.5's gravity-loaded joints); a fit beyond it is a light joint's loop taken for a load law."""
 
 
-class Hysteresis(JointEffect):
+class Hysteresis(DahlEffect):
     """Torque-sensor hysteresis vs. joint travel since the last reversal (thesis §2.1, Fig. 2.5).
 
     The Dahl law of :mod:`proprio.effects.dahl` (the rate-independent solution of ``dτ/dr = σ(1 − τ/(d·τ_sat))``):
@@ -39,11 +39,13 @@ class Hysteresis(JointEffect):
                   "saturation_travel": (math.radians(6.0), TINY, INF)}
     settings = {"reversal_velocity": (2e-3, 0.0, INF)}
 
-    def torque(self, s: MotionSignals, rng: np.random.Generator | None = None,
-               travel: ReversalTravel | None = None) -> np.ndarray:
-        self._check_n(s)
-        rt = travel or motion_reversal_travel(s, self.reversal_velocity)
-        return dahl_batch(rt, self._load_scale(s, self.saturation, self.load_gain), self.saturation_travel / 3.0)
+    @property
+    def rho(self) -> np.ndarray:
+        """``ρ = saturation_travel / 3`` [rad] per joint."""
+        return self.saturation_travel / 3.0
+
+    def dahl_level(self, s: MotionSignals) -> np.ndarray:
+        return self._load_scale(s, self.saturation, self.load_gain)
 
 
 class LostMotion(JointEffect):

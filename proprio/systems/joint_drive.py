@@ -210,11 +210,12 @@ class DriveLaw:
         return out
 
     def sensed_torque(self, net_actuation: np.ndarray, t: np.ndarray, q: np.ndarray, qd: np.ndarray,
-                      qdd: np.ndarray) -> np.ndarray:
+                      qdd: np.ndarray, tau_link: np.ndarray | None = None) -> np.ndarray:
         """True τ_J ``[N,n]`` from the plant's logged net actuation and link motion (``u + τ_link``, minus
         ``B q̈`` for the rigid drive whose motor inertia the plant carries as rotor inertia); with ``drive_offset``
-        (a drive-torque arm) the motor's torque ``u + τ_link + τ_f,m(q̇) + τ_0`` instead."""
-        tau_link = self.link_torque(t, q, qd)
+        (a drive-torque arm) the motor's torque ``u + τ_link + τ_f,m(q̇) + τ_0`` instead. ``tau_link``: τ_link
+        already evaluated (a piece of a motion with the reversal state carried), else :meth:`link_torque`."""
+        tau_link = self.link_torque(t, q, qd) if tau_link is None else tau_link
         if self.drive_offset is not None:
             return net_actuation + tau_link + self.drive_offset + self.motor_friction(qd) + qdd @ self._off
         return self.rigid_body_torque(net_actuation, qdd) + tau_link

@@ -1,0 +1,193 @@
+"""Block-rate Systems: a compiled shift register that gathers a fixed-rate signal into chunks, and Python Systems that
+gather the chunks into blocks and apply laws once per block.
+
+The pip wheel of Drake has no C++ headers, so a custom System is Python, and a Python callback at every 1 ms step
+costs tens of µs. A law that needs no feedback into the simulated motion (the twin's sensors and logger) therefore
+runs at block rate. Measured costs that shape the design (this machine, per 1 ms step of the twin): every System
+with a timed event ≈ 0.5 µs (the Simulator asks each for its next event time at every step, due or not); every
+extra stop of the Simulator ≈ 5 µs; a ``Selector`` ≈ 5 ns per element; a ``Demultiplexer``/``Multiplexer`` port
+≈ 0.3 µs; ``OutputPort.Eval`` of a vector in Python ≈ 10 ns per element (``EvalBasicVector(...).get_value()`` is
+a view: 1 µs).
+
+* :class:`BlockRegister` — a Diagram of Drake primitives only (``levels`` = chunks per level, e.g. two levels of
+  10 → chunks of 100 samples). Level 0 is a shift register of ``levels[0]`` samples: a ``ZeroOrderHold`` updated
+  every ``time_step`` at the step's instant, fed by a ``Selector`` that drops the oldest sample and appends the
+  newest (one compiled System, where a ``Demultiplexer`` + ``Multiplexer`` pair would evaluate a port per sample at
+  every step). Level k ≥ 1 shifts whole chunks of the level below with a ``Demultiplexer`` + ``Multiplexer`` (a few
+  ports, rarely) and fires once per ``Π levels[:k]`` steps at a fractional phase of a step (``+ 0.4 + 0.1 k``
+  steps), so no two updates that feed each other ever share an instant (event times ``i·dt + k·P·dt`` and
+  ``(i + kP)·dt`` need not be the same double, and simultaneous updates read the old state). Its output ``block``
+  holds the last chunk's samples, oldest first, from the phase :attr:`BlockRegister.phase` of the chunk's last step
+  until the next chunk's.
+* :class:`BlockStage` — one law ``law(inputs, carry) -> (block, carry')`` as a stateless Python System (no events).
+* :class:`BlockClock` — the one Python System with events: once per chunk it copies the register's chunk into its
+  discrete state (a chunk at a time: a third register level would copy the whole block element by element every
+  chunk), and on a block's last chunk it evaluates the stages' outputs (each law runs once, in the order the ports
+  feed each other) and keeps every stage's ``carry`` (the law's state between blocks: reversal state, random
+  streams' states, ...) as numeric discrete state. So the chain has three Systems with events (two register levels
+  and the clock) however many stages it has.
+
+Blocks of rows are passed as ``[count, final, rows ...]`` vectors (:func:`unpack_rows`): ``count`` rows of a fixed
+width, then what the capacity leaves (not read); ``final`` = 1 on the run's last block.
+"""
+from __future__ import annotations
+
+import math
+from typing import Callable, Sequence
+
+import numpy as np
+from pydrake.systems.framework import Context, Diagram, DiagramBuilder, DiscreteValues, LeafSystem
+from pydrake.systems.primitives import Demultiplexer, Multiplexer, Selector, SelectorParams, ZeroOrderHold
+
+__all__ = ["BlockRegister", "BlockStage", "BlockClock", "unpack_rows", "stage_block", "block_phase"]
+
+Law = Callable[[list[np.ndarray], np.ndarray], tuple[np.ndarray, bool, np.ndarray]]
+
+
+def block_phase(levels: Sequence[int]) -> float:
+    """The phase (fraction of a step past the block's last step) at which a :class:`BlockRegister` with ``levels``
+    has its block ready."""
+    return 0.4 + 0.1 * (len(levels) - 1) if len(levels) > 1 else 0.0
+
+
+def unpack_rows(v: np.ndarray, width: int) -> tuple[np.ndarray, bool]:
+    """The rows ``[count, width]`` and the final flag of a ``[count, final, rows ...]`` vector (module docstring)."""
+    count = int(v[0])
+    return np.asarray(v[2:2 + count * width]).reshape(count, width), bool(v[1])
+
+
+def _shift(size: int, chunk: int) -> Selector:
+    """``[held[chunk:], newest]``: the held ``size`` values shifted by one ``chunk``, the newest chunk last."""
+    pick = SelectorParams.OutputSelection
+    return Selector(SelectorParams(
+        inputs=[SelectorParams.InputPortParams(name="held", size=size),
+                SelectorParams.InputPortParams(name="newest", size=chunk)],
+        outputs=[SelectorParams.OutputPortParams(name="shifted", selections=(
+            [pick(input_port_index=0, input_offset=i) for i in range(chunk, size)]
+            + [pick(input_port_index=1, input_offset=i) for i in range(chunk)]))]))
+
+
+class BlockRegister(Diagram):
+    """Gathers a ``width``-vector sampled every ``time_step`` [s] into chunks of ``Π levels`` samples (module
+    docstring). Input port ``sample`` [width]; output port ``block`` [Π levels · width], the samples of the last
+    complete chunk, oldest first (sample i of chunk b is step ``b·Π levels + i`` of the run, whose time 0 is step 0)."""
+
+    def __init__(self, width: int, time_step: float, levels: Sequence[int] = (10, 10, 10)):
+        super().__init__()
+        self.levels, self.width = tuple(int(k) for k in levels), int(width)
+        self.size = math.prod(self.levels)
+        self.phase = block_phase(self.levels)
+        builder = DiagramBuilder()
+        newest, chunk, steps = None, width, 1         # the newest chunk: its port, size [samples·width], period
+        for k, count in enumerate(self.levels):
+            size = chunk * count
+            offset = 0.0 if k == 0 else (steps - 1 + 0.4 + 0.1 * k) * time_step
+            hold = builder.AddNamedSystem(f"level{k}", ZeroOrderHold(steps * time_step, size, offset))
+            if k == 0:                  # small chunks, every step: one Selector
+                shift = builder.AddNamedSystem(f"level{k}_shift", _shift(size, chunk))
+                builder.Connect(hold.get_output_port(), shift.get_input_port(0))
+                builder.ExportInput(shift.get_input_port(1), "sample")
+            else:                       # large chunks, rarely: block copies, one port per chunk
+                split = builder.AddNamedSystem(f"level{k}_split", Demultiplexer(size, chunk))
+                shift = builder.AddNamedSystem(f"level{k}_join", Multiplexer([chunk] * count))
+                builder.Connect(hold.get_output_port(), split.get_input_port())
+                for i in range(1, count):
+                    builder.Connect(split.get_output_port(i), shift.get_input_port(i - 1))
+                builder.Connect(newest, shift.get_input_port(count - 1))
+            builder.Connect(shift.get_output_port(), hold.get_input_port())
+            newest, chunk, steps = hold.get_output_port(), size, steps * count
+        content = newest
+        builder.ExportOutput(content, "block")
+        builder.BuildInto(self)
+
+
+class BlockStage(LeafSystem):
+    """One law of a block-rate chain (module docstring), stateless: output port ``out`` = ``[carry', count, final,
+    rows ...]`` with ``(rows, final, carry') = law(inputs, carry)``, where ``inputs`` are the input ports ``inputs``
+    (name → size) and ``carry`` the input port ``carry``, the law's state before this block (a :class:`BlockClock`
+    holds it); ``rows`` are at most ``capacity`` rows of ``width``. The port is evaluated once
+    per block, by the clock's update (outputs are cached), so the law runs once per block."""
+
+    def __init__(self, inputs: dict[str, int], carry0: np.ndarray, law: Law, capacity: int, width: int):
+        super().__init__()
+        self._law = law
+        self.carry0 = np.asarray(carry0, dtype=float)
+        self.width, self.capacity = int(width), int(capacity)
+        self._ports = [self.DeclareVectorInputPort(name, size) for name, size in inputs.items()]
+        self._carry = self.DeclareVectorInputPort("carry", self.carry0.size)
+        self.DeclareVectorOutputPort("out", self.carry0.size + 2 + self.capacity * self.width, self._out)
+
+    def _out(self, context: Context, output) -> None:
+        # read-only views, valid during this call (Eval would copy element by element: ~10 ns per value)
+        inputs = [port.EvalBasicVector(context).get_value() for port in self._ports]
+        rows, final, carry = self._law(inputs, self._carry.EvalBasicVector(context).get_value())
+        value = output.get_mutable_value()
+        c = carry.size
+        value[:c] = carry
+        value[c], value[c + 1] = rows.shape[0], float(final)
+        value[c + 2:c + 2 + rows.size] = rows.ravel()
+
+
+def stage_block(v: np.ndarray, stage: BlockStage) -> tuple[np.ndarray, bool]:
+    """The rows and the final flag of ``stage``'s ``out`` value ``v``."""
+    return unpack_rows(v[stage.carry0.size:], stage.width)
+
+
+class BlockClock(LeafSystem):
+    """Gathers the chunks of a :class:`BlockRegister` into blocks and runs a chain of :class:`BlockStage` s once per
+    block.
+
+    Input port ``chunk`` [``chunk_size``]: the register's output, a chunk of ``chunk_steps`` steps of ``time_step``
+    [s]; ``chunks`` chunks make a block. Once per chunk, at ``phase`` steps past the chunk's last step, the update
+    copies the chunk into the discrete state ``held`` (output port ``held`` [(chunks − 1)·chunk_size]: the block's
+    earlier chunks), or, on a block's last chunk, evaluates the stages — which read ``held`` and the last chunk from
+    the register, and their carries from this System's output ports ``carry_<k>`` (each the discrete state of stage
+    k's law, to be connected to the stage's ``carry``) — and stores what every stage's ``out`` gives (input ports
+    ``stage_<k>``). The last stage's rows are the chain's output: a publish event right after each block's update
+    appends them to :attr:`log` (a list of ``[rows, width]`` arrays, in order)."""
+
+    def __init__(self, stages: Sequence[BlockStage], chunk_size: int, chunks: int, chunk_steps: int,
+                 time_step: float, phase: float):
+        super().__init__()
+        self._stages = list(stages)
+        self._chunk_size, self._chunks = int(chunk_size), int(chunks)
+        self._chunk = self.DeclareVectorInputPort("chunk", chunk_size)
+        self._in = [self.DeclareVectorInputPort(f"stage_{k}", st.get_output_port().size())
+                    for k, st in enumerate(self._stages)]
+        self._held = self.DeclareDiscreteState(np.zeros((chunks - 1) * chunk_size))
+        self._count = self.DeclareDiscreteState(np.zeros(1))
+        self.DeclareStateOutputPort("held", self._held)
+        self._state = [self.DeclareDiscreteState(st.carry0) for st in self._stages]
+        for k, index in enumerate(self._state):
+            self.DeclareStateOutputPort(f"carry_{k}", index)
+        last = self._stages[-1]
+        self._rows = self.DeclareDiscreteState(np.zeros(2 + last.capacity * last.width))
+        period = chunk_steps * time_step
+        self.DeclarePeriodicDiscreteUpdateEvent(period, (chunk_steps - 1 + phase) * time_step, self._update)
+        block_steps = chunk_steps * chunks
+        self.DeclarePeriodicPublishEvent(block_steps * time_step, (block_steps - 1 + phase + 0.05) * time_step,
+                                         self._publish)
+        self.log: list[np.ndarray] = []
+
+    def carry(self, context: Context, k: int) -> np.ndarray:
+        """Stage ``k``'s carry in ``context`` (this System's)."""
+        return context.get_discrete_state(self._state[k]).get_value().copy()
+
+    def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
+        count = int(context.get_discrete_state(self._count).get_value()[0])
+        if count < self._chunks - 1:
+            held = discrete_state.get_mutable_vector(self._held).get_mutable_value()
+            held[count * self._chunk_size:(count + 1) * self._chunk_size] = \
+                self._chunk.EvalBasicVector(context).get_value()
+            discrete_state.get_mutable_vector(self._count).SetAtIndex(0, count + 1)
+            return
+        for port, index, stage in zip(self._in, self._state, self._stages):
+            v = port.EvalBasicVector(context).get_value()
+            discrete_state.get_mutable_vector(index).SetFromVector(v[:stage.carry0.size])
+        discrete_state.get_mutable_vector(self._rows).SetFromVector(v[self._stages[-1].carry0.size:])
+        discrete_state.get_mutable_vector(self._count).SetAtIndex(0, 0.0)
+
+    def _publish(self, context: Context) -> None:
+        rows, _ = unpack_rows(context.get_discrete_state(self._rows).get_value(), self._stages[-1].width)
+        if rows.shape[0]:
+            self.log.append(rows.copy())
