@@ -1,4 +1,4 @@
-"""What the gap diagnosis returns (:func:`proprio.diagnosis.selection.attribute`): the accepted steps, the verdict's
+"""What the gap diagnosis returns (:func:`proprio.diagnosis.selection.forward.attribute`): the accepted steps, the verdict's
 parts (undecided leader, stand-ins dropped, cross-validation, noise, residual structure, hints, time dependence,
 encoder floor, ambiguity sets) in one :class:`Attribution`."""
 from __future__ import annotations
@@ -8,11 +8,11 @@ from typing import Any
 
 import numpy as np
 
-from proprio.diagnosis.candidates import Candidate
+from proprio.diagnosis.candidates.base import Candidate
 from proprio.diagnosis.encoder_floor import EncoderFloor
 from proprio.diagnosis.hints import Hint
 from proprio.diagnosis.residual import NoiseFinding, ResidualStructure
-from proprio.diagnosis.time_variation import TimeVariation
+from proprio.diagnosis.selection.time_variation import TimeVariation
 
 __all__ = ["Step", "Undecided", "CrossValidation", "Superseded", "Attribution"]
 
@@ -67,7 +67,7 @@ class CrossValidation:
 class Superseded:
     """A physical effect the forward selection named at step ``step`` (1-based) that, in the context of the effects
     named with it (``context``), adds a held-out gain of only ``gain`` (< the minimum gain): a stand-in for them,
-    dropped by the backward check (:mod:`proprio.diagnosis.selection`, "Stand-ins")."""
+    dropped by the backward check (:mod:`proprio.diagnosis.selection.forward`, "Stand-ins")."""
     name: str
     step: int
     gain: float
@@ -76,7 +76,7 @@ class Superseded:
 
 @dataclass
 class Attribution:
-    """Result of :func:`proprio.diagnosis.selection.attribute`. ``fitted``: the selected candidates by name (their
+    """Result of :func:`proprio.diagnosis.selection.forward.attribute`. ``fitted``: the selected candidates by name (their
     final parameters are the last step's ``params``), for :func:`proprio.diagnosis.patch.twin_patch`. ``encoder``:
     the data's position-noise floor against the model's encoder noise (:mod:`proprio.diagnosis.encoder_floor`; a
     data-path comparison over all the recordings). ``undecided``: the physical candidate still leading, without

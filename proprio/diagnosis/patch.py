@@ -2,13 +2,13 @@
 config format (``twin_patch.yaml``), so that ``proprio simulate --twin BASE --patch twin_patch.yaml`` runs the base
 twin with them added (:func:`proprio.diagrams.twin.merge_twin_patch`).
 
-Each selected *physical* step contributes its candidate's :meth:`~proprio.diagnosis.candidates.Candidate.patch` of
+Each selected *physical* step contributes its candidate's :meth:`~proprio.diagnosis.candidates.base.Candidate.patch` of
 the final joint fit (the last step's ``params``): library effects as ``effects:`` blocks (``sensor_offset`` and
 ``sensor_gain`` merge into one ``sensor_offset_gain`` block), an unmodelled payload as ``payload:``, a rigid-body
 parameter error as a corrected robot description (physically consistent inertials, written as a robot YAML next
 to the patch and named by its ``robot:`` key). An unmodelled white noise adds a ``torque_noise`` block — only on
 joints whose residual passes both whiteness tests, at the level the raw τ itself carries at the robot's rate
-(:func:`proprio.diagnosis.selection.attribute`'s noise finding): a structured residual is never patched as noise. Data-path
+(:func:`proprio.diagnosis.selection.forward.attribute`'s noise finding): a structured residual is never patched as noise. Data-path
 (processing) steps never go into a patch; the comments at the top say what was left out and why, and give each
 entry's held-out gain and fitted parameters with their 95 % CI.
 """

@@ -1,4 +1,4 @@
-"""What stays unexplained on the held-out data after the selection (:mod:`proprio.diagnosis.selection`): its structure
+"""What stays unexplained on the held-out data after the selection (:mod:`proprio.diagnosis.selection.forward`): its structure
 per joint — Ljung–Box over time, held-out R² against the motion state, the part within the conditioning's own error —
 and unmodelled white torque noise.
 

@@ -55,7 +55,7 @@ Elasticity leaves τ_J exact for a link-side position sensor; it is tested as th
 sensor would miss (``ElasticityCandidate``).
 
 **Time variation.** Before the selection the residual of all recordings is tested for dependence on the session
-time (drift, warm-up, steps between sessions: :mod:`proprio.diagnosis.time_variation`, reported in
+time (drift, warm-up, steps between sessions: :mod:`proprio.diagnosis.selection.time_variation`, reported in
 ``Attribution.time_variation``). When it is detected, the time-varying library effects join the candidates and every
 static candidate is fitted with a time-trend nuisance, so that none (rigid body, payload) can win by fitting a trend.
 
@@ -70,19 +70,19 @@ import numpy as np
 from scipy import stats
 
 from proprio.description import RobotDescription
-from proprio.diagnosis.candidate_set import candidate_set
-from proprio.diagnosis.candidates import Candidate
+from proprio.diagnosis.candidates.registry import candidate_set
+from proprio.diagnosis.candidates.base import Candidate
 from proprio.conditioning import ConditionedSignals, ConditioningConfig, processing_torque_sigma
 from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, MAX_TRIM_S, MIN_BLOCK_S, MIN_BLOCKS, DiagnosisError, GapData,
                                     SimModel, condition_all, kept, session_motion, session_time)
-from proprio.diagnosis.ambiguity import ambiguity_sets
+from proprio.diagnosis.selection.ambiguity import ambiguity_sets
 from proprio.diagnosis.attribution import Attribution, CrossValidation, Step, Superseded, Undecided
-from proprio.diagnosis.block_test import block_gain, n_eff_factor, t_stat
+from proprio.diagnosis.selection.block_test import block_gain, n_eff_factor, t_stat
 from proprio.diagnosis.encoder_floor import encoder_floor
 from proprio.diagnosis.fitting import Fit, fit_candidates, predict_candidates
 from proprio.diagnosis.residual import noise_findings, residual_structure, split_by_recording
 from proprio.diagnosis.hints import find_hints, shifted_joints
-from proprio.diagnosis.time_variation import TimeTrendNuisance, TimeVariation, time_variation
+from proprio.diagnosis.selection.time_variation import TimeTrendNuisance, TimeVariation, time_variation
 from proprio.recording import Recording, validate_recording
 
 __all__ = ["attribute"]

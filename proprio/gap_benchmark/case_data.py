@@ -1,5 +1,5 @@
-"""The withheld-effect benchmark's data: what each case of :mod:`proprio.diagnosis.benchmark_cases` records and the
-model it is diagnosed with (:mod:`proprio.diagnosis.benchmark` runs and scores them).
+"""The withheld-effect benchmark's data: what each case of :mod:`proprio.gap_benchmark.cases` records and the
+model it is diagnosed with (:mod:`proprio.gap_benchmark.run` runs and scores them).
 
 **How the data are made (stated, as the benchmark is offline):** motion is an RFMA-like sequence generated here in
 closed form (min-jerk *reach* segments between random configurations at up to ≈70 % of the speed limits, then
@@ -23,8 +23,8 @@ magnitude) and the background noise; a withheld payload is attached with ``TwinC
 the shipped twin's logger at 200 Hz: encoder q and τ only, jittered stamps and lost samples, as a real robot logs
 (q̇, q̈ come from the diagnosis' conditioning). The model
 is ``iiwa14_identified`` without friction + the modelled effects. Effect types: those of ``iiwa14_twin.yaml``
-(:data:`proprio.diagnosis.benchmark_cases.TWIN_EFFECT_TYPES`) and payload; null and two-effect cases as above.
-Scores are computed by the same :func:`proprio.diagnosis.benchmark.summarise`. The measured shrinkage still counts
+(:data:`proprio.gap_benchmark.cases.TWIN_EFFECT_TYPES`) and payload; null and two-effect cases as above.
+Scores are computed by the same :func:`proprio.gap_benchmark.run.summarise`. The measured shrinkage still counts
 only the sensor noise as what remains, so in twin mode it is an upper bound: the controller's tracking and the
 differentiation of q leave a little more.
 """
@@ -37,7 +37,7 @@ import numpy as np
 from scipy import signal
 
 from proprio.description import Link, RobotDescription, load_robot
-from proprio.diagnosis.benchmark_cases import TIME_TYPES, TWIN_EFFECT_TYPES, BenchmarkCase, _draw, is_drive_case
+from proprio.gap_benchmark.cases import TIME_TYPES, TWIN_EFFECT_TYPES, BenchmarkCase, _draw, is_drive_case
 from proprio.dynamics import inverse_dynamics
 from proprio.effects import EFFECTS, resolve_effect
 from proprio.effects.plugins import is_plugin_path
@@ -163,7 +163,7 @@ def generate_case_data(case: BenchmarkCase, robot: RobotDescription | None = Non
     …: own noise seeds), all returned as training recordings. ``overrides``: ``{effect: {parameter: value}}`` set
     over the drawn parameters of a withheld effect (offline only; e.g. a hysteresis that saturates within 0.5°)."""
     if is_drive_case(case):
-        from proprio.diagnosis.benchmark_drive import generate_drive_case_data
+        from proprio.gap_benchmark.drive import generate_drive_case_data
         return generate_drive_case_data(case, omit_withheld)
     if case.twin:
         return generate_twin_case_data(case, omit_withheld)

@@ -1,5 +1,5 @@
 """The gap diagnosis as one call and one report: :func:`diagnose` localises the residual
-(:mod:`~proprio.diagnosis.localisation`), attributes it (:mod:`~proprio.diagnosis.selection`)
+(:mod:`~proprio.diagnosis.localisation`), attributes it (:mod:`~proprio.diagnosis.selection.forward`)
 and writes ``report.md`` / ``report.html`` with the gap map, the ranked effects, per-joint before/after plots and a
 plain-language verdict (all files written atomically).
 """
@@ -16,7 +16,7 @@ import numpy as np
 from proprio.data_quality import assess, findings_markdown
 from proprio.description import RobotDescription
 from proprio.conditioning import ConditioningConfig
-from proprio.diagnosis.ambiguity import ambiguity_markdown
+from proprio.diagnosis.selection.ambiguity import ambiguity_markdown
 from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, DiagnosisError, SimModel, kept, session_motion, session_time,
                                     signals_of)
 from proprio.diagnosis.localisation import (
@@ -29,10 +29,10 @@ from proprio.diagnosis.localisation import (
 from proprio.diagnosis.patch import patch_entries, twin_patch, write_twin_patch
 from proprio.diagnosis.replay import ReplayGap, replay_gap
 from proprio.diagnosis.attribution import Attribution
-from proprio.diagnosis.selection import attribute
-from proprio.diagnosis.truth import TruthComparison, compare_to_truth, truth_summary
-from proprio.diagnosis.drive_candidates import tau_kind
-from proprio.diagnosis.verdict import data_and_processing_text, verdict_text
+from proprio.diagnosis.selection.forward import attribute
+from proprio.diagnosis.report.truth import TruthComparison, compare_to_truth, truth_summary
+from proprio.diagnosis.candidates.drive import tau_kind
+from proprio.diagnosis.report.verdict import data_and_processing_text, verdict_text
 from proprio.io import atomic_write_text
 from proprio.plots.gap import plot_before_after, plot_gap_map, plot_spectra
 from proprio.recording import Recording
@@ -138,7 +138,7 @@ def _hints_section(att: Attribution) -> str:
 
 
 def _time_table(att: Attribution) -> str:
-    """The time-dependence test (:mod:`~proprio.diagnosis.time_variation`): its sentence and a per-joint table."""
+    """The time-dependence test (:mod:`~proprio.diagnosis.selection.time_variation`): its sentence and a per-joint table."""
     tv = att.time_variation
     if tv is None:
         return "Not tested."
@@ -168,7 +168,7 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
 
     ``model``: a :class:`RobotDescription` (rigid body + its friction, if any) or a :class:`SimModel` (+ the effects
     the simulation already has); ``train_recs`` fit the candidate effects, ``holdout_recs`` score them (empty: the
-    training recordings are cross-validated over time blocks, see :func:`~proprio.diagnosis.selection.attribute`);
+    training recordings are cross-validated over time blocks, see :func:`~proprio.diagnosis.selection.forward.attribute`);
     ``candidates`` restricts the candidate set; ``plugins`` adds user-defined effects (``"package.module:Class"``,
     :mod:`proprio.effects.plugins`) to it; ``trim_s`` [s] is dropped at both ends of every recording;
     ``conditioning`` the signal conditioning (:mod:`proprio.conditioning`).

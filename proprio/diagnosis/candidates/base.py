@@ -1,8 +1,8 @@
-"""Candidate explanations of the torque gap (see :mod:`proprio.diagnosis.selection`): the :class:`Candidate` interface,
+"""Candidate explanations of the torque gap (see :mod:`proprio.diagnosis.selection.forward`): the :class:`Candidate` interface,
 every library effect the model lacks (:class:`EffectCandidate`, :func:`ripple_candidate`), the data path's signal lag
 and encoder noise, and elasticity. The rigid-body and payload candidates:
-:mod:`proprio.diagnosis.rigid_body_candidates`; a drive torque's: :mod:`proprio.diagnosis.drive_candidates`; the set
-a diagnosis tests: :func:`proprio.diagnosis.candidate_set.candidate_set`."""
+:mod:`proprio.diagnosis.candidates.rigid_body`; a drive torque's: :mod:`proprio.diagnosis.candidates.drive`; the set
+a diagnosis tests: :func:`proprio.diagnosis.candidates.registry.candidate_set`."""
 from __future__ import annotations
 
 import inspect

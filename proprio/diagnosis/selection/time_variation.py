@@ -64,9 +64,9 @@ import numpy as np
 from scipy import stats
 
 from proprio import friction_law
-from proprio.diagnosis.candidates import Candidate, EffectCandidate
+from proprio.diagnosis.candidates.base import Candidate, EffectCandidate
 from proprio.diagnosis.data import GapData, SimModel
-from proprio.diagnosis.rigid_body_candidates import RigidBodyCandidate
+from proprio.diagnosis.candidates.rigid_body import RigidBodyCandidate
 from proprio.effects import Hysteresis
 
 __all__ = ["TimeVariation", "TimeTrendNuisance", "time_variation", "reversal_shapes", "BLOCK_S", "MIN_SHARE",
