@@ -31,7 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from proprio.gap_benchmark.case_data import ENCODER, NOISE_STD, twin_case_config
+from proprio.gap_benchmark.case_data import twin_case_config
+from proprio.gap_benchmark.recordings import ENCODER, NOISE_STD
 from proprio.gap_benchmark.cases import BenchmarkCase
 from proprio.recording import Recording, merge_duplicate_stamps, validate_recording
 

@@ -197,7 +197,7 @@ def _growing(robot, seed: int, effects):
     """A recording whose motion grows with time at a steady speed (a designed experiment's growing triangles): per
     joint ``q = A(t)·sin θ(t)`` with the amplitude ramping 0.3° → 12° over :data:`SHORT_S` and ``θ̇ = v/A`` (peak
     speed ``v`` throughout, ever slower reversals); the rigid body + ``effects``, noise as the benchmark's."""
-    from proprio.gap_benchmark.case_data import NOISE_STD
+    from proprio.gap_benchmark.recordings import NOISE_STD
     from proprio.dynamics import inverse_dynamics
     from proprio.recording import Recording
 

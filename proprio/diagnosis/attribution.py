@@ -12,9 +12,8 @@ from proprio.diagnosis.candidates.base import Candidate
 from proprio.diagnosis.encoder_floor import EncoderFloor
 from proprio.diagnosis.hints import Hint
 from proprio.diagnosis.residual import NoiseFinding, ResidualStructure
-from proprio.diagnosis.selection.time_variation import TimeVariation
 
-__all__ = ["Step", "Undecided", "CrossValidation", "Superseded", "Attribution"]
+__all__ = ["Step", "Undecided", "CrossValidation", "Superseded", "TimeVariation", "Attribution"]
 
 
 @dataclass
@@ -72,6 +71,25 @@ class Superseded:
     step: int
     gain: float
     context: list[str]
+
+
+@dataclass
+class TimeVariation:
+    """Result of the time-dependence test (:mod:`proprio.diagnosis.selection.time_variation`). ``joints [n] bool``: joints whose residual depends on
+    the time the data were taken; ``p_value [n]``: per joint (Bonferroni over the two series, not over joints);
+    ``kind``: what varies ("offset drift", "offset step between recordings", "friction change", joined by " + ";
+    empty when nothing is detected); ``text``: one sentence for the report. ``change [n]`` N·m: the range of the
+    fitted time dependence over the data (the offset, or the Coulomb-like friction level); ``share [n]``: the
+    fraction of the state-cleared residual variance it explains; ``span_s``: the session time the data cover [s]."""
+    detected: bool
+    joints: np.ndarray
+    p_value: np.ndarray
+    kind: str
+    text: str
+    change: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    share: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    span_s: float = 0.0
+    joint_kinds: list[str] = field(default_factory=list)
 
 
 @dataclass

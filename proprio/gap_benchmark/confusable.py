@@ -41,7 +41,8 @@ from typing import Any
 
 import numpy as np
 
-from proprio.gap_benchmark.case_data import ENCODER, NOISE_STD, CaseData, _perturbed
+from proprio.gap_benchmark.case_data import _perturbed
+from proprio.gap_benchmark.recordings import ENCODER, NOISE_STD, CaseData
 from proprio.gap_benchmark.cases import BenchmarkCase, _draw, expected_name
 from proprio.effects import EFFECTS
 

@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from proprio.gap_benchmark.case_data import ENCODER, CaseData, twin_recordings
+from proprio.gap_benchmark.recordings import ENCODER, CaseData, twin_recordings
 from proprio.gap_benchmark.cases import BenchmarkCase, _draw
 from proprio.drive_description import drive_from_dict
 from proprio.effects import EFFECTS, PreSliding
