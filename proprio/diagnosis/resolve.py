@@ -4,8 +4,8 @@ file, and — with twin data — run it on the twin and diagnose again with the 
 
 Which sets get an experiment (:func:`design_experiments`):
 
-* every tied set (:func:`~proprio.diagnosis.selection.ambiguity.tied_sets`) — except one whose members were all named and
-  whose held-out torques are uncorrelated (|r| < :data:`UNRELATED_CORRELATION` for every tied alternative): both
+* every tied set (:func:`~proprio.diagnosis.selection.ambiguity.tied_sets`) — except one whose members were all named
+  and whose held-out torques are uncorrelated (|r| < :data:`UNRELATED_CORRELATION` for every tied alternative): both
   stay in the twin and explain different parts, there is nothing to decide;
 * with the training data given, every *confounded pair* of named effects
   (:func:`~proprio.diagnosis.discriminate.confounded_pairs`): both are kept, but their parameters trade off (the

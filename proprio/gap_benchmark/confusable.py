@@ -28,10 +28,10 @@ The model is ``iiwa14_identified`` without friction + the background noise.
   motion of the family separates is said so (``experiments[..]["decides"]`` false) and not recorded.
 
 The truth's expected name (:func:`proprio.gap_benchmark.cases.expected_name`): on a link-side torque sensor
-(the iiwa's) the drive's pre-sliding friction is, in τ_J, the Dahl law the diagnosis offers as the gauge's ``hysteresis``
-(:data:`proprio.diagnosis.candidates.drive.DRIVE_ONLY`), so that is the right name for it; a load-dependent friction
-(a direction-flipping level that grows with the transmitted torque) is the Dahl law with a ``load_gain``: the
-library's ``hysteresis`` with a short travel (the library has no other load-dependent friction law).
+(the iiwa's) the drive's pre-sliding friction is, in τ_J, the Dahl law the diagnosis offers as the gauge's
+``hysteresis`` (:data:`proprio.diagnosis.candidates.drive.DRIVE_ONLY`), so that is the right name for it; a
+load-dependent friction (a direction-flipping level that grows with the transmitted torque) is the Dahl law with a
+``load_gain``: the library's ``hysteresis`` with a short travel (the library has no other load-dependent friction law).
 """
 from __future__ import annotations
 
@@ -132,9 +132,10 @@ def _noise(case: BenchmarkCase) -> float:
 
 
 def confusable_params(case: BenchmarkCase, n: int) -> dict[str, Any]:
-    """The withheld effect's parameters for ``n`` joints: the benchmark's draw (:func:`proprio.gap_benchmark.cases._draw`) at the
-    case's magnitude, changed by its variant (:data:`VARIANTS`); pre-sliding: a level of 0.15–0.4 N·m turning over
-    within 0.5–1.5° (at most :data:`proprio.effects.dahl.MAX_PRESLIDING_TRAVEL`)."""
+    """The withheld effect's parameters for ``n`` joints: the benchmark's draw
+    (:func:`proprio.gap_benchmark.cases._draw`) at the case's magnitude, changed by its variant (:data:`VARIANTS`);
+    pre-sliding: a level of 0.15–0.4 N·m turning over within 0.5–1.5° (at most
+    :data:`proprio.effects.dahl.MAX_PRESLIDING_TRAVEL`)."""
     rng = np.random.default_rng(case.seed)
     kind, m, var = case.withheld[0], case.magnitude, _variant(case)
     u = lambda a, b: rng.uniform(a, b, n)  # noqa: E731

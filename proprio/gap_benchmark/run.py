@@ -15,7 +15,8 @@ scoring them (:func:`summarise`, :func:`write_results`). Out-of-library cases (a
 expresses) are scored apart: flagged as structured-unexplained with no library effect above 5 % held-out gain, and
 whether a hint (``Attribution.hints``) names the expected signal; time-varying cases by whether the diagnosis
 detects the time dependence (``Attribution.time_variation``). Per case it also reports the held-out RMS after the
-last step (``final_rms``) and the floor (``floor_rms``: the same model on held-out data made without the withheld effects).
+last step (``final_rms``) and the floor (``floor_rms``: the same model on held-out data made without the withheld
+effects).
 """
 from __future__ import annotations
 

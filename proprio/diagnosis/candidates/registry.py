@@ -23,8 +23,9 @@ def candidate_set(model: SimModel, train: GapData, names: Sequence[str] | None =
     path in ``names`` counts as one). What τ is decides the rest (:func:`tau_kind`): for drive torques the drive's
     terms (:data:`DRIVE_CANDIDATES`; an uncoupled motor's friction only when the model has link friction, else it is
     the ``viscous_coulomb`` candidate) and pre-sliding friction, never the gauge's effects (:data:`GAUGE_ONLY`); for a
-    link-side torque sensor never those of :data:`DRIVE_ONLY`. The time-varying library effects are offered only when ``time_varying`` (the
-    residual depends on the session time, :mod:`proprio.diagnosis.selection.time_variation`) or when named. Raises
+    link-side torque sensor never those of :data:`DRIVE_ONLY`. The time-varying library effects are offered only when
+    ``time_varying`` (the residual depends on the session time, :mod:`proprio.diagnosis.selection.time_variation`) or
+    when named. Raises
     :class:`DiagnosisError` for a plugin that cannot be resolved or that the model already has."""
     n = model.robot.n
     present = model.effect_names
