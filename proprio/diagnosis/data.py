@@ -215,7 +215,6 @@ def condition_all(recs: Sequence[Recording], config: ConditioningConfig, role: s
     return out
 
 
-
 @dataclass(frozen=True)
 class Conditioned:
     """The recordings of a diagnosis, conditioned once (:func:`condition_recordings`): the raw Recordings (``train``,
@@ -309,6 +308,7 @@ def condition_recordings(model: SimModel, train: Sequence[Recording], holdout: S
                              f"{2 * MIN_BLOCKS * MIN_BLOCK_S + 2 * (MAX_TRIM_S if trim_s is None else trim_s):.1f} s")
     return Conditioned(list(train), list(holdout), cond_tr, cond_h, keep_tr, keep_h, sess_tr, sess_h, train_s, held_s,
                        trim_s, config)
+
 
 @dataclass
 class GapData:

@@ -47,10 +47,10 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
 
     ``model``: a :class:`RobotDescription` (rigid body + its friction, if any) or a :class:`SimModel` (+ the effects
     the simulation already has); ``train_recs`` fit the candidate effects, ``holdout_recs`` score them (empty: the
-    training recordings are cross-validated over time blocks, see :func:`~proprio.diagnosis.selection.forward.attribute`);
-    ``candidates`` restricts the candidate set; ``plugins`` adds user-defined effects (``"package.module:Class"``,
-    :mod:`proprio.effects.plugins`) to it; ``trim_s`` [s] is dropped at both ends of every recording;
-    ``conditioning`` the signal conditioning (:mod:`proprio.conditioning`).
+    training recordings are cross-validated over time blocks, see
+    :func:`~proprio.diagnosis.selection.forward.attribute`); ``candidates`` restricts the candidate set; ``plugins``
+    adds user-defined effects (``"package.module:Class"``, :mod:`proprio.effects.plugins`) to it; ``trim_s`` [s] is
+    dropped at both ends of every recording; ``conditioning`` the signal conditioning (:mod:`proprio.conditioning`).
     Writes ``report.md``, ``report.html``, ``gap_map.png``, ``spectra.png``, ``before_after.png``,
     ``diagnosis.json`` and ``twin_patch.yaml`` (:mod:`~proprio.diagnosis.patch`). ``twin``: a base twin config of
     the model's robot; the held-out recordings are then replayed through it and through it + the patch
