@@ -5,7 +5,9 @@ diagnosis: it uses the diagnosis, the diagnosis never imports it (import-linter 
 Modules:
 
 - :mod:`~proprio.gap_benchmark.cases` — the cases (library, null, two-effect, out-of-library, time-varying);
-- :mod:`~proprio.gap_benchmark.case_data` — their data and model (offline, or through the Drake twin);
+- :mod:`~proprio.gap_benchmark.recordings` — what every family's data share: :class:`CaseData`, the background
+  sensor noise, a case's recordings through the twin;
+- :mod:`~proprio.gap_benchmark.case_data` — the library cases' data and model (offline, or through the Drake twin);
 - :mod:`~proprio.gap_benchmark.drive` — the drive-torque family (``--drive``);
 - :mod:`~proprio.gap_benchmark.confusable` — the confusable-pairs family, before and after the designed experiment
   (``--confusable``);
