@@ -11,7 +11,7 @@ from proprio.collision import CollisionChecker
 from proprio.description import load_robot
 from proprio.diagnosis.selection.ambiguity import ambiguity_markdown
 from proprio.gap_benchmark.confusable import (CONFUSABLE_PAIRS, ConfusableResult, confusable_cases,
-                                                    summarise_confusable)
+                                              summarise_confusable)
 from proprio.diagnosis.data import SimModel
 from proprio.diagnosis.discriminate import PASS_S, design_experiment, resolution, split_passes
 from proprio.diagnosis.resolve import with_experiments
@@ -100,7 +100,7 @@ def test_rediagnosis_with_the_experiment_names_the_true_effect(tie):
 
 def test_confusable_family_lists_the_pairs_on_confusable_motions_and_scores_before_and_after():
     from proprio.gap_benchmark.confusable import (LEG_DEG, confusable_data, confusable_motion,
-                                                        confusable_params)
+                                                  confusable_params)
     from proprio.reversals import reversal_travel
 
     cases = confusable_cases(seed=3)

@@ -30,7 +30,7 @@ import numpy as np
 
 from proprio.gap_benchmark.case_data import generate_case_data
 from proprio.gap_benchmark.cases import (PROCESSING_TYPES, BenchmarkCase, expected_name, is_drive_case,
-                                               is_open_world, is_time_varying)
+                                         is_open_world, is_time_varying)
 from proprio.effects import EFFECTS
 from proprio.io import atomic_write_text
 

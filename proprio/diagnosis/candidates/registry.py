@@ -7,7 +7,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from proprio.diagnosis.candidates.base import (Candidate, EffectCandidate, ElasticityCandidate, EncoderNoiseCandidate,
-                                          SignalLagCandidate, ripple_candidate)
+                                               SignalLagCandidate, ripple_candidate)
 from proprio.diagnosis.data import DiagnosisError, GapData, SimModel
 from proprio.diagnosis.candidates.drive import DRIVE_CANDIDATES, DRIVE_ONLY, GAUGE_ONLY, DriveCandidate, tau_kind
 from proprio.diagnosis.candidates.rigid_body import PayloadCandidate, RigidBodyCandidate
