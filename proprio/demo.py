@@ -152,7 +152,7 @@ def _stage_payload(ctx: dict[str, Any], out: Path) -> list[Path]:
 
 def _stage_diagnosis(ctx: dict[str, Any], out: Path) -> list[Path]:
     from proprio.diagrams.twin import load_twin_config
-    from proprio.diagnosis.report import diagnose
+    from proprio.diagnosis import diagnose
 
     step = DIAGNOSIS_DOWNSAMPLE
     result = diagnose(load_robot(NOMINAL_ROBOT), [ctx["twin_excitation"].downsample(step)],

@@ -11,14 +11,14 @@ from proprio.conditioning import ConditioningConfig, condition
 from proprio.description import load_robot
 from proprio.dynamics import inverse_dynamics
 from proprio.diagnosis.data import DiagnosisError, SimModel
-from proprio.diagnosis.selection import attribute
-from proprio.diagnosis.benchmark_case_data import generate_case_data, rfma_like_motion
-from proprio.diagnosis.benchmark_cases import BenchmarkCase, make_cases
+from proprio.diagnosis.selection.forward import attribute
+from proprio.gap_benchmark.case_data import generate_case_data, rfma_like_motion
+from proprio.gap_benchmark.cases import BenchmarkCase, make_cases
 from proprio.diagnosis.localisation import REVERSAL_DEADBAND, gap_map, regime_families
 from proprio.reversals import reversal_travel
 from proprio.diagnosis.encoder_floor import encoder_floor
-from proprio.diagnosis.report import diagnose
-from proprio.diagnosis.verdict import data_and_processing_text
+from proprio.diagnosis import diagnose
+from proprio.diagnosis.report.verdict import data_and_processing_text
 from proprio.recording import Recording
 from proprio.effects import EFFECTS
 from proprio.signals import MotionSignals
@@ -231,7 +231,7 @@ def test_twin_case_records_the_withheld_effects_through_the_twin():
 
 
 def test_quick_lists_hold_one_out_of_library_case_reached_through_its_plugin_path():
-    from proprio.diagnosis.benchmark_cases import OPEN_WORLD_TYPES, is_open_world
+    from proprio.gap_benchmark.cases import OPEN_WORLD_TYPES, is_open_world
     from proprio.effects import resolve_effect
 
     for twin in (False, True):
@@ -250,7 +250,7 @@ def test_quick_lists_hold_one_out_of_library_case_reached_through_its_plugin_pat
 
 
 def test_open_world_and_time_metrics_are_scored_and_old_results_still_read():
-    from proprio.diagnosis.benchmark import CaseResult, case_result_from_dict, case_result_to_dict, summarise
+    from proprio.gap_benchmark.run import CaseResult, case_result_from_dict, case_result_to_dict, summarise
 
     path = "proprio.effects.open_world:TorqueCrossTalk"
     case = BenchmarkCase("open:x@1", (path,), 1.0, 0, open_joint=0, expected_signal="tau_2")

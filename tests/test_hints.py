@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from proprio.description import load_robot
-from proprio.diagnosis.benchmark_case_data import rfma_like_motion
+from proprio.gap_benchmark.case_data import rfma_like_motion
 from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING, GapData, SimModel, condition_all, kept
 from proprio.diagnosis.hints import find_hints
-from proprio.diagnosis.report import diagnose
-from proprio.diagnosis.selection import _time_blocks, attribute
+from proprio.diagnosis import diagnose
+from proprio.diagnosis.selection.forward import _time_blocks, attribute
 from proprio.dynamics import inverse_dynamics
 from proprio.effects import EFFECTS
 from proprio.recording import Recording

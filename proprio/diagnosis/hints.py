@@ -1,6 +1,6 @@
 """Hints beyond the library: when a structured residual remains after the greedy attribution
-(:mod:`~proprio.diagnosis.selection`) — autocorrelated or state-dependent, or off zero on average on the held-out data
-(:func:`shifted_joints`) — a sparse regression per such joint over a broad dictionary of measured
+(:mod:`~proprio.diagnosis.selection.forward`) — autocorrelated or state-dependent, or off zero on average on the
+held-out data (:func:`shifted_joints`) — a sparse regression per such joint over a broad dictionary of measured
 and modelled signals says *what* the remaining residual follows — labelled as a hint with its held-out gain, never
 as a library effect.
 

@@ -23,10 +23,11 @@ from typing import Sequence
 import numpy as np
 from scipy import signal
 
+from proprio.diagnosis.data import Conditioned, SimModel, session_motion
 from proprio.reversals import reversal_travel
 
-__all__ = ["RegimeFamily", "GapMap", "Spectra", "regime_families", "gap_map",
-           "spectra", "order_spectrum", "peak_orders"]
+__all__ = ["RegimeFamily", "GapMap", "Spectra", "Localisation", "regime_families", "gap_map", "spectra", "localise",
+           "order_spectrum", "peak_orders"]
 
 REVERSAL_WINDOW_RAD = np.radians(1.0)       # lost-motion window after a reversal (§2.1)
 REVERSAL_DEADBAND = 1e-3                     # rad/s: |q̇| below this never counts as a direction change
@@ -269,3 +270,29 @@ def spectra(residuals: Sequence[np.ndarray], qs: Sequence[np.ndarray], qds: Sequ
             peak[j] = orders[k]
             share[j] = 0.5 * pw[k] / max(var, 1e-300)
     return Spectra(f, psd, orders, power, peak, np.clip(share, 0.0, 1.0), dominant)
+
+
+@dataclass(frozen=True)
+class Localisation:
+    """*Where* the gap lies, before any effect is fitted: the gap map by joint × motion regime and the residual's
+    frequency content, over all recordings (training and held-out)."""
+    gap_map: GapMap
+    spectra: Spectra
+
+
+def localise(model: SimModel, data: Conditioned) -> Localisation:
+    """The model residual ``e = τ_meas − τ_sim`` of every conditioned recording of ``data`` at its kept samples,
+    mapped by joint × regime (:func:`gap_map`) and by frequency (:func:`spectra`, at the recordings' median rate)."""
+    es, fams, taus, qs, qds = [], [], [], [], []
+    rob = model.robot
+    for cs, t0, keep in zip(data.signals, data.sessions, data.keep):
+        rec, s = cs.as_recording(), session_motion(cs, t0)
+        e = (rec.tau - model.predict(s))[keep]
+        fam = regime_families(s.q, s.qd, rob.lower, rob.upper, rob.velocity_limits, rec)
+        fams.append([type(f)(f.name, f.names, f.labels[keep]) for f in fam])
+        es.append(e)
+        taus.append(rec.tau[keep])
+        qs.append(s.q[keep])
+        qds.append(s.qd[keep])
+    rate = float(np.median([r.rate_hz for r in data.recordings]))
+    return Localisation(gap_map(es, fams, taus, rob.joint_names), spectra(es, qs, qds, rate))

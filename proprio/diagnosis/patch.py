@@ -2,15 +2,15 @@
 config format (``twin_patch.yaml``), so that ``proprio simulate --twin BASE --patch twin_patch.yaml`` runs the base
 twin with them added (:func:`proprio.diagrams.twin.merge_twin_patch`).
 
-Each selected *physical* step contributes its candidate's :meth:`~proprio.diagnosis.candidates.Candidate.patch` of
+Each selected *physical* step contributes its candidate's :meth:`~proprio.diagnosis.candidates.base.Candidate.patch` of
 the final joint fit (the last step's ``params``): library effects as ``effects:`` blocks (``sensor_offset`` and
 ``sensor_gain`` merge into one ``sensor_offset_gain`` block), an unmodelled payload as ``payload:``, a rigid-body
 parameter error as a corrected robot description (physically consistent inertials, written as a robot YAML next
 to the patch and named by its ``robot:`` key). An unmodelled white noise adds a ``torque_noise`` block — only on
 joints whose residual passes both whiteness tests, at the level the raw τ itself carries at the robot's rate
-(:func:`proprio.diagnosis.selection.attribute`'s noise finding): a structured residual is never patched as noise. Data-path
-(processing) steps never go into a patch; the comments at the top say what was left out and why, and give each
-entry's held-out gain and fitted parameters with their 95 % CI.
+(:func:`proprio.diagnosis.selection.forward.attribute`'s noise finding): a structured residual is never patched as
+noise. Data-path (processing) steps never go into a patch; the comments at the top say what was left out and why, and
+give each entry's held-out gain and fitted parameters with their 95 % CI.
 """
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ from proprio.diagnosis.data import DiagnosisError, SimModel
 from proprio.diagnosis.attribution import Attribution
 from proprio.io import atomic_write_text
 
-__all__ = ["PatchEntry", "patch_entries", "twin_patch", "write_twin_patch", "MAX_COMMENT_PARAMS"]
+__all__ = ["PatchEntry", "Patch", "patch_entries", "twin_patch", "write_twin_patch", "make_patch", "MAX_COMMENT_PARAMS"]
 
 MAX_COMMENT_PARAMS = 14          # parameters listed per entry in the comments (a rigid-body step has dozens)
 
@@ -174,3 +174,21 @@ def write_twin_patch(att: Attribution, model: SimModel, path: str | Path,
     text = "".join(f"# {line}\n" for line in head) + _dump(patch)
     atomic_write_text(path, text)
     return files
+
+
+@dataclass(frozen=True)
+class Patch:
+    """The diagnosis as a twin patch: its ``entries``, the patch itself (``twin_patch``, the mapping a base twin's
+    config is merged with; a rigid-body correction as a robot mapping) and the ``files`` written
+    (:func:`write_twin_patch`)."""
+    entries: list[PatchEntry]
+    twin_patch: dict[str, Any]
+    files: dict[str, Path]
+
+
+def make_patch(att: Attribution, model: SimModel, path: str | Path) -> Patch:
+    """The patch of ``att`` for ``model``, written to ``path`` (``twin_patch.yaml``, :func:`write_twin_patch`)."""
+    entries = patch_entries(att)
+    files = write_twin_patch(att, model, path, entries)
+    return Patch(entries, twin_patch(att, model, entries), files)
+

@@ -1,78 +1,36 @@
-"""The gap diagnosis as one call and one report: :func:`diagnose` localises the residual
-(:mod:`~proprio.diagnosis.localisation`), attributes it (:mod:`~proprio.diagnosis.selection`)
-and writes ``report.md`` / ``report.html`` with the gap map, the ranked effects, per-joint before/after plots and a
-plain-language verdict (all files written atomically).
+"""The report of a diagnosis (the last step of :func:`proprio.diagnosis.route.diagnose`): ``report.md`` /
+``report.html`` with the data quality, the verdict, the gap map, the ranked effects, per-joint before/after plots, the
+ambiguity sets, the fitted parameters, the twin patch, the hints and (on twin data) the twin's truth, and
+``diagnosis.json`` with the same findings (all files written atomically).
 """
 from __future__ import annotations
 
 import html
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from proprio.data_quality import assess, findings_markdown
-from proprio.description import RobotDescription
-from proprio.conditioning import ConditioningConfig
-from proprio.diagnosis.ambiguity import ambiguity_markdown
-from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, DiagnosisError, SimModel, kept, session_motion, session_time,
-                                    signals_of)
-from proprio.diagnosis.localisation import (
-    GapMap,
-    Spectra,
-    gap_map,
-    regime_families,
-    spectra,
-)
-from proprio.diagnosis.patch import patch_entries, twin_patch, write_twin_patch
-from proprio.diagnosis.replay import ReplayGap, replay_gap
 from proprio.diagnosis.attribution import Attribution
-from proprio.diagnosis.selection import attribute
-from proprio.diagnosis.truth import TruthComparison, compare_to_truth, truth_summary
-from proprio.diagnosis.drive_candidates import tau_kind
-from proprio.diagnosis.verdict import data_and_processing_text, verdict_text
+from proprio.diagnosis.candidates.drive import tau_kind
+from proprio.diagnosis.data import Conditioned, SimModel
+from proprio.diagnosis.localisation import Localisation
+from proprio.diagnosis.patch import Patch
+from proprio.diagnosis.replay import ReplayGap
+from proprio.diagnosis.report.truth import TruthComparison, compare_to_truth, truth_summary
+from proprio.diagnosis.report.verdict import data_and_processing_text
+from proprio.diagnosis.selection.ambiguity import ambiguity_markdown
 from proprio.io import atomic_write_text
 from proprio.plots.gap import plot_before_after, plot_gap_map, plot_spectra
-from proprio.recording import Recording
 from proprio.timeseries_html import timeseries_html
 
 if TYPE_CHECKING:
     from proprio.diagrams.twin import TwinConfig
 
-__all__ = ["Diagnosis", "diagnose"]
-
-@dataclass
-class Diagnosis:
-    """Everything :func:`diagnose` found; ``files`` maps a role (``report_md``, ``gap_map_png``, ...) to a path."""
-    gap_map: GapMap
-    spectra: Spectra
-    attribution: Attribution
-    verdict: str
-    files: dict[str, Path] = field(default_factory=dict)
-    truth: TruthComparison | None = None      # twin data only: the twin's effects against what was named
-    replay: ReplayGap | None = None           # the held-out gap through the twin (``diagnose(twin=...)``)
-
-
-def _localise(model: SimModel, recs: Sequence[Recording], trim_s: float | None,
-              conditioning: ConditioningConfig) -> tuple[GapMap, Spectra]:
-    es, fams, taus, qs, qds = [], [], [], [], []
-    rob = model.robot
-    for raw in recs:
-        cs = signals_of(raw, conditioning)
-        rec, s = cs.as_recording(), session_motion(cs, session_time(raw))
-        keep = kept(cs, trim_s)
-        e = (rec.tau - model.predict(s))[keep]
-        fam = regime_families(s.q, s.qd, rob.lower, rob.upper, rob.velocity_limits, rec)
-        fams.append([type(f)(f.name, f.names, f.labels[keep]) for f in fam])
-        es.append(e)
-        taus.append(rec.tau[keep])
-        qs.append(s.q[keep])
-        qds.append(s.qd[keep])
-    rate = float(np.median([r.rate_hz for r in recs]))
-    return gap_map(es, fams, taus, rob.joint_names), spectra(es, qs, qds, rate)
-
+__all__ = ["Report", "write_report"]
 
 def _plot_before_after(att: Attribution, path: Path) -> Path:
     e = att.holdout_e[0]
@@ -138,7 +96,8 @@ def _hints_section(att: Attribution) -> str:
 
 
 def _time_table(att: Attribution) -> str:
-    """The time-dependence test (:mod:`~proprio.diagnosis.time_variation`): its sentence and a per-joint table."""
+    """The time-dependence test (:mod:`~proprio.diagnosis.selection.time_variation`): its sentence and a per-joint
+    table."""
     tv = att.time_variation
     if tv is None:
         return "Not tested."
@@ -159,42 +118,23 @@ def _md_to_html_table(md: str) -> str:
     return "\n".join(out + ["</table>"])
 
 
-def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording],
-             holdout_recs: Sequence[Recording], out_dir: str | Path, candidates: Sequence[str] | None = None,
-             trim_s: float | None = None, progress: Callable[[str], None] | None = None,
-             conditioning: ConditioningConfig = DIAGNOSIS_CONDITIONING, twin: TwinConfig | None = None,
-             plugins: Sequence[str | type] = ()) -> Diagnosis:
-    """Diagnose the torque gap of ``model`` on measured recordings and write the report to ``out_dir``.
+@dataclass(frozen=True)
+class Report:
+    """What the report step wrote: ``files`` maps a role (``report_md``, ``gap_map_png``, ``twin_patch``, ...) to a
+    path; ``truth``: twin data only, the twin's effects against what was named."""
+    files: dict[str, Path]
+    truth: TruthComparison | None
 
-    ``model``: a :class:`RobotDescription` (rigid body + its friction, if any) or a :class:`SimModel` (+ the effects
-    the simulation already has); ``train_recs`` fit the candidate effects, ``holdout_recs`` score them (empty: the
-    training recordings are cross-validated over time blocks, see :func:`~proprio.diagnosis.selection.attribute`);
-    ``candidates`` restricts the candidate set; ``plugins`` adds user-defined effects (``"package.module:Class"``,
-    :mod:`proprio.effects.plugins`) to it; ``trim_s`` [s] is dropped at both ends of every recording;
-    ``conditioning`` the signal conditioning (:mod:`proprio.conditioning`).
-    Writes ``report.md``, ``report.html``, ``gap_map.png``, ``spectra.png``, ``before_after.png``,
-    ``diagnosis.json`` and ``twin_patch.yaml`` (:mod:`~proprio.diagnosis.patch`). ``twin``: a base twin config of
-    the model's robot; the held-out recordings are then replayed through it and through it + the patch
-    (:mod:`~proprio.diagnosis.replay`) and the report gives the gap through the twin next to the offline
-    prediction. Raises :class:`DiagnosisError` (a ``ValueError``) on bad input."""
-    from proprio.diagrams.twin import TwinConfig, merge_twin_patch
 
-    model = SimModel.of(model)
-    out = Path(out_dir)
-    if twin is not None and not holdout_recs:
-        raise DiagnosisError("twin: the replay through the twin needs held-out recordings (--holdout)")
-    att = attribute(model, train_recs, holdout_recs, candidates=candidates, trim_s=trim_s, progress=progress,
-                    conditioning=conditioning, plugins=plugins)
-    entries = patch_entries(att)
-    patch_files = write_twin_patch(att, model, out / "twin_patch.yaml", entries)
-    replay = None
-    if twin is not None:
-        (progress or (lambda msg: None))("replaying the held-out recordings through the twin")
-        patched = TwinConfig.from_dict(merge_twin_patch(twin.raw, twin_patch(att, model, entries)),
-                                       f"{twin.name} + twin_patch.yaml")
-        replay = replay_gap(patched, holdout_recs, base=twin, att=att, trim_s=trim_s, conditioning=conditioning)
-    gm, sp = _localise(model, list(train_recs) + list(holdout_recs), trim_s, conditioning)
-    verdict = verdict_text(att, gm, tau_kind(model.robot))
+def write_report(out: Path, model: SimModel, data: Conditioned, where: Localisation, att: Attribution, verdict: str,
+                 patch: Patch, replay: ReplayGap | None, twin: TwinConfig | None) -> Report:
+    """Write ``report.md``, ``report.html``, ``gap_map.png``, ``spectra.png``, ``before_after.png`` and
+    ``diagnosis.json`` to ``out`` (atomically): the data quality of every recording of ``data``, the verdict, the gap
+    map (``where``), the ranked effects and their shrinkage (``att``), the twin ``patch``, the replay through the
+    ``twin`` (if any) and, on twin data, the comparison with the twin's truth."""
+    gm, sp = where.gap_map, where.spectra
+    train_recs, holdout_recs, conditioning = data.train, data.holdout, data.config
+    entries, patch_files = patch.entries, patch.files
     files = {"gap_map_png": plot_gap_map(out / "gap_map.png", gm.share, gm.columns, gm.joint_names),
              "spectra_png": plot_spectra(out / "spectra.png", sp.freq, sp.psd, sp.orders, sp.order_power,
                                          gm.joint_names),
@@ -210,8 +150,10 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
             "|---|---|---|---|"]
     for j, nm in enumerate(gm.joint_names):
         freq.append(f"| {nm} | {sp.dominant_hz[j]:.2f} | {sp.peak_order[j]:.2f} | {100 * sp.peak_order_share[j]:.1f} % |")
-    quality = [(f"{role} {i + 1}", assess(r, model.robot, conditioning=conditioning)) for role, recs in (("train", train_recs),
-               ("held-out", holdout_recs)) for i, r in enumerate(recs)]
+    quality = [(f"{role} {i + 1}", assess(r, model.robot, conditioning=conditioning, conditioned=cs))
+               for role, recs, conds in (("train", train_recs, data.train_cs),
+                                         ("held-out", holdout_recs, data.holdout_cs))
+               for i, (r, cs) in enumerate(zip(recs, conds))]
     sections = [
         ("Data quality of each recording (before any fitting)", findings_markdown(quality)),
         ("Verdict", verdict),
@@ -294,7 +236,7 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
     atomic_write_text(out / "diagnosis.json", json.dumps(summary, indent=1))
     files.update(report_md=out / "report.md", report_html=out / "report.html", json=out / "diagnosis.json",
                  **patch_files)
-    return Diagnosis(gm, sp, att, verdict, files, truth, replay)
+    return Report(files, truth)
 
 
 def _patch_text(entries: list, files: dict[str, Path]) -> str:
@@ -309,5 +251,3 @@ def _patch_text(entries: list, files: dict[str, Path]) -> str:
     out += "." + (f" Not in the patch: {', '.join(left)} (see the comments in the file)." if left else "")
     return out
 
-
-__all__ += ["DiagnosisError"]

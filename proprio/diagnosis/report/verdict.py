@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from proprio.diagnosis.ambiguity import tied_sets
+from proprio.diagnosis.selection.ambiguity import tied_sets
 from proprio.diagnosis.localisation import GapMap
 from proprio.diagnosis.attribution import Attribution
 
@@ -31,7 +31,7 @@ _DRIVE_WORDS = {"sensor_offset_gain": "drive-torque offset / gain error (torque-
 
 def plain_names(tau_kind: str = "link_sensor") -> dict[str, str]:
     """Plain-language names of the candidates for a τ of kind ``tau_kind`` (``link_sensor`` | ``drive``,
-    :func:`proprio.diagnosis.drive_candidates.tau_kind`): a drive torque (current × torque constant × gear ratio) has no
+    :func:`proprio.diagnosis.candidates.drive.tau_kind`): a drive torque (current × torque constant × gear ratio) has no
     torque sensor, so its gain, offset and noise are named for the drive, not for a sensor."""
     return {**PLAIN, **_DRIVE_WORDS} if tau_kind == "drive" else dict(PLAIN)
 
