@@ -1,15 +1,25 @@
 """The gap diagnosis as one call and one report: :func:`diagnose` localises the residual
 (:mod:`~proprio.diagnosis.localisation`), attributes it (:mod:`~proprio.diagnosis.selection.forward`)
-and writes ``report.md`` / ``report.html`` with the gap map, the ranked effects, per-joint before/after plots and a
-plain-language verdict (all files written atomically).
+and writes ``report.md`` / ``report.html`` (all files written atomically).
+
+**The report reads in a minute.** It opens with a summary — one sentence of verdict
+(:func:`~proprio.diagnosis.report.verdict.verdict_sentence`) and a table, one row per named effect or finding
+(:func:`~proprio.diagnosis.report.verdict.summary_rows`) — then the two figures (gap map, held-out residual before /
+after), then the details, each section present only when it says something (:class:`Section`). The Markdown is the
+source; ``report.html`` is that Markdown rendered by the ``markdown`` library into the Jinja2 template
+``templates/report.html.j2`` (package data): tables escape their cells' pipes, so they render.
+
+**A run that found something never ends in an error.** Everything after the attribution (the twin patch, the replay
+through the twin, localisation, figures, the truth comparison) runs as a stage whose failure is one line of
+``Diagnosis.failures`` — in the report's summary and, through the CLI, on stderr — while everything else is written.
 """
 from __future__ import annotations
 
-import html
 import json
+import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 
@@ -26,13 +36,15 @@ from proprio.diagnosis.localisation import (
     regime_families,
     spectra,
 )
-from proprio.diagnosis.patch import patch_entries, twin_patch, write_twin_patch
+from proprio.diagnosis.patch import PatchEntry, merge_entries, patch_entries, write_twin_patch
 from proprio.diagnosis.replay import ReplayGap, replay_gap
 from proprio.diagnosis.attribution import Attribution
 from proprio.diagnosis.selection.forward import attribute
 from proprio.diagnosis.report.truth import TruthComparison, compare_to_truth, truth_summary
 from proprio.diagnosis.candidates.drive import tau_kind
-from proprio.diagnosis.report.verdict import data_and_processing_text, verdict_text
+from proprio.diagnosis.report.verdict import (SummaryRow, data_and_processing_text, effects_text, hint_texts,
+                                              offset_advice, remains_text, summary_rows, verdict_sentence,
+                                              verdict_text, where_text)
 from proprio.io import atomic_write_text
 from proprio.plots.gap import plot_before_after, plot_gap_map, plot_spectra
 from proprio.recording import Recording
@@ -41,24 +53,74 @@ from proprio.timeseries_html import timeseries_html
 if TYPE_CHECKING:
     from proprio.diagrams.twin import TwinConfig
 
-__all__ = ["Diagnosis", "diagnose"]
+__all__ = ["Diagnosis", "diagnose", "Section", "md_table", "render_html", "PARAM_UNITS"]
 
 @dataclass
 class Diagnosis:
-    """Everything :func:`diagnose` found; ``files`` maps a role (``report_md``, ``gap_map_png``, ...) to a path."""
-    gap_map: GapMap
-    spectra: Spectra
+    """Everything :func:`diagnose` found; ``files`` maps a role (``report_md``, ``gap_map_png``, ...) to a path.
+    ``verdict``: the one-sentence verdict the report opens with; ``explanation``: the plain-language details
+    (:func:`~proprio.diagnosis.report.verdict.verdict_text`); ``failures``: one line per stage after the attribution
+    that failed (its output missing, everything else written); ``advice``: what the person could do next."""
+    gap_map: GapMap | None
+    spectra: Spectra | None
     attribution: Attribution
     verdict: str
     files: dict[str, Path] = field(default_factory=dict)
     truth: TruthComparison | None = None      # twin data only: the twin's effects against what was named
     replay: ReplayGap | None = None           # the held-out gap through the twin (``diagnose(twin=...)``)
+    explanation: str = ""
+    failures: list[str] = field(default_factory=list)
+    advice: list[str] = field(default_factory=list)
+
+
+@dataclass
+class Section:
+    """One details section of the report: ``title``, ``body`` (Markdown) and, for the HTML only, ``extra_html``
+    (an interactive plot) after it."""
+    title: str
+    body: str
+    extra_html: str = ""
+
+
+PARAM_UNITS = {"viscous": "N·m·s/rad", "coulomb": "N·m", "static": "N·m", "stribeck_velocity": "rad/s",
+               "saturation": "N·m", "load_gain": "1", "saturation_travel": "rad", "amplitude": "N·m", "window": "rad",
+               "sin_amplitude": "N·m", "cos_amplitude": "N·m", "gain": "1", "offset": "N·m", "std": "N·m",
+               "stiffness": "N·m/rad", "damping": "N·m·s/rad", "drift": "N·m", "time_constant": "s",
+               "level": "N·m", "presliding_travel": "rad", "I_a": "kg·m²", "F_v,m": "N·m·s/rad", "F_c,m": "N·m",
+               "share": "1", "compliance": "rad/(N·m)", "lag": "s", "m": "kg", "mass": "kg"}
+"""Units of the fitted parameters by name (the part before ``[joint]``), SI; a rigid-body or payload parameter's
+unit follows from its name (:func:`_unit`)."""
+
+
+def _unit(name: str) -> str:
+    key = name.split("[")[0]
+    if key in PARAM_UNITS:
+        return PARAM_UNITS[key]
+    head = key.split("_")[0]
+    if head in ("m", "mass"):
+        return "kg"
+    if head in ("mx", "my", "mz", "mc", "hx", "hy", "hz") or key.startswith("m·c"):
+        return "kg·m"
+    if head.startswith("I") or head.startswith("XX") or head.startswith("L"):
+        return "kg·m²"
+    return ""
+
+
+def md_table(header: Sequence[str], rows: Sequence[Sequence[Any]], caption: str = "") -> str:
+    r"""A Markdown table whose cells' pipes are escaped (``\|``: the ``markdown`` library's tables keep them in the
+    cell); ``caption`` (which data the table covers) is a line above it."""
+    esc = lambda x: str(x).replace("|", "\\|").replace("\n", " ")  # noqa: E731
+    lines = ["| " + " | ".join(esc(h) for h in header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(esc(c) for c in r) + " |" for r in rows]
+    return (f"{caption}\n\n" if caption else "") + "\n".join(lines)
 
 
 def _localise(model: SimModel, recs: Sequence[Recording], trim_s: float | None,
-              conditioning: ConditioningConfig) -> tuple[GapMap, Spectra]:
-    es, fams, taus, qs, qds = [], [], [], [], []
+              conditioning: ConditioningConfig) -> tuple[GapMap, Spectra, float]:
+    """The gap map and spectra of the model as given over all ``recs``; also their seconds of kept data."""
+    es, fams, taus, qs, qds, rates = [], [], [], [], [], []
     rob = model.robot
+    seconds = 0.0
     for raw in recs:
         cs = signals_of(raw, conditioning)
         rec, s = cs.as_recording(), session_motion(cs, session_time(raw))
@@ -70,8 +132,10 @@ def _localise(model: SimModel, recs: Sequence[Recording], trim_s: float | None,
         taus.append(rec.tau[keep])
         qs.append(s.q[keep])
         qds.append(s.qd[keep])
-    rate = float(np.median([r.rate_hz for r in recs]))
-    return gap_map(es, fams, taus, rob.joint_names), spectra(es, qs, qds, rate)
+        seconds += float(np.ptp(rec.t[keep])) if keep.any() else 0.0
+        rates.append(rec.rate_hz)
+    rate = float(np.median(rates))          # the conditioned grid's (a decimated log's is not the raw rate)
+    return gap_map(es, fams, taus, rob.joint_names), spectra(es, qs, qds, rate), seconds
 
 
 def _plot_before_after(att: Attribution, path: Path) -> Path:
@@ -93,70 +157,117 @@ def _fmt(x: float) -> str:
     return f"{x:.4g}"
 
 
-def _tables(att: Attribution) -> tuple[str, str, str]:
-    rank = ["| candidate | held-out gain alone [%] | t (blocks) | parameters | significant |", "|---|---|---|---|---|"]
-    for r in att.ranking:
-        kind = " (data path)" if r.get("processing") else ""
-        rank.append(f"| {r['name']}{kind} | {100 * r['gain']:.2f} | {r['t']:.1f} | {r['n_params']} | "
-                    f"{'yes' if r['significant'] else 'no'} |")
-    n = len(att.joint_names)
-    shr = ["| step | " + " | ".join(att.joint_names) + " |", "|---" * (n + 1) + "|"]
-    fmt_row = lambda rm: " | ".join(f"{x:.3f} ({100 * x / max(s, 1e-12):.1f} %)"  # noqa: E731
-                                    for x, s in zip(rm, att.signal_rms))
-    shr.append(f"| model | {fmt_row(att.rmse_before)} |")
+def _held_out_words(att: Attribution) -> str:
+    return (f"held-out data ({att.data_seconds[1]:.1f} s"
+            + (", alternate time blocks of the one recording" if att.cv is not None else "") + ")")
+
+
+def _ranking_table(att: Attribution) -> str:
+    rows = [[r["name"] + (" (data path)" if r.get("processing") else ""), f"{100 * r['gain']:.2f}", f"{r['t']:.1f}",
+             r["n_params"], "yes" if r["significant"] else "no"] for r in att.ranking]
+    return md_table(["candidate", "held-out gain alone [%]", "t (blocks)", "parameters", "significant"], rows,
+                    f"Each candidate alone against the model, step 1; {_held_out_words(att)}.")
+
+
+def _shrink_table(att: Attribution) -> str:
+    fmt = lambda rm: [f"{x:.3f} ({100 * x / max(s, 1e-12):.1f} %)" for x, s in zip(rm, att.signal_rms)]  # noqa: E731
+    rows = [["model", *fmt(att.rmse_before)]]
     for st in att.steps:
         tie = f" (tied: {', '.join(st.tied)})" if st.tied else ""
         kind = " [data path]" if st.processing else ""
-        shr.append(f"| + {st.name}{tie}{kind} | {fmt_row(st.rmse_after)} |")
-    par = ["| effect | parameter | value | 95 % CI ± |", "|---|---|---|---|"]
-    if att.steps:
-        for name, (theta, ci, names) in att.steps[-1].params.items():
-            if len(theta) > 3 * n:
-                par.append(f"| {name} | {len(theta)} identifiable combinations | ‖δ‖ = {_fmt(np.linalg.norm(theta))}"
-                           f" | median CI {_fmt(float(np.median(ci)))} |")
-                continue
-            for v, c, nm in zip(theta, ci, names):
-                par.append(f"| {name} | {nm} | {_fmt(v)} | {_fmt(c)} |")
-    return "\n".join(rank), "\n".join(shr), "\n".join(par)
+        rows.append([f"+ {st.name}{tie}{kind}", *fmt(st.rmse_after)])
+    return md_table(["step", *att.joint_names], rows,
+                    f"RMSE [N·m] (% of the signal RMS) per joint on the {_held_out_words(att)}, after each step.")
 
 
-def _hints_section(att: Attribution) -> str:
+def _param_table(att: Attribution) -> str:
+    """The final joint fit's parameters: value, σ (= the 95 % CI / 1.96) and unit; "" when nothing was fitted."""
+    if not att.steps or not att.steps[-1].params:
+        return ""
+    n = len(att.joint_names)
+    rows = []
+    for name, (theta, ci, names) in att.steps[-1].params.items():
+        theta, ci = np.asarray(theta, dtype=float), np.asarray(ci, dtype=float)
+        if len(theta) > 3 * n:
+            rows.append([name, f"{len(theta)} identifiable combinations", f"‖δ‖ = {_fmt(np.linalg.norm(theta))}",
+                         f"median {_fmt(float(np.median(ci)) / 1.96)}", "SI (mixed)"])
+            continue
+        for v, c, nm in zip(theta, ci, names):
+            rows.append([name, nm, _fmt(v), _fmt(c / 1.96), _unit(nm) or "—"])
+    return md_table(["effect", "parameter", "value", "σ", "unit"], rows,
+                    "The final joint fit on the training data; σ from the fit Jacobian, autocorrelation-corrected "
+                    "(95 % CI = ±1.96 σ).")
+
+
+def _hints_section(att: Attribution, texts: list[str]) -> str:
     """The hints beyond the library (:mod:`~proprio.diagnosis.hints`): a table and their plain-language lines."""
-    head = ("Hints, not library effects: a sparse regression of the remaining residual of each structured (or, on the held-out data, "
-            "shifted) joint on "
-            "the measured and modelled signals (every joint's modelled τ, q, q̇, q̈, smooth sign(q̇), harmonics of q, "
-            "time and a few products), fitted on the training data and kept only with a significant held-out gain.")
-    if not att.hints:
-        return head + ("\n\nNo hint: the remaining residual is white and centred on every joint, or no few terms "
-                       "explain a significant share (≥ 5 %, block t-test) of it on the held-out data.")
-    tab = ["| joint | terms (most important first) | signals | coefficients | held-out gain [%] | t (blocks) |",
-           "|---|---|---|---|---|---|"]
-    for h in att.hints:
-        tab.append(f"| {att.joint_names[h.joint]} | {', '.join(h.terms)} | {', '.join(h.signals)} | "
-                   f"{', '.join(_fmt(c) for c in h.coefficients)} | {100 * h.gain:.1f} | {h.t_stat:.1f} |")
-    return "\n\n".join([head, "\n".join(tab)] + [h.text for h in att.hints])
+    head = ("A sparse regression of the remaining residual of each structured (or shifted) joint on the measured and "
+            "modelled signals (every joint's modelled τ, q, q̇, q̈, smooth sign(q̇), harmonics of q, time and a few "
+            "products), fitted on the training data and kept only with a significant held-out gain — a hint about "
+            "what the unexplained part follows, not a library effect.")
+    rows = [[att.joint_names[h.joint], ", ".join(h.terms),
+             ", ".join(f"{_fmt(c)} {u}".strip() for c, u in zip(h.coefficients, h.units or [""] * len(h.terms))),
+             f"{h.rms:.3g}", f"{100 * h.gain:.1f}", f"{h.t_stat:.1f}"] for h in att.hints]
+    tab = md_table(["joint", "terms (most important first)", "coefficients", "residual fitted [N·m RMS]",
+                    "held-out gain [%]", "t (blocks)"], rows)
+    return "\n\n".join([head, tab] + texts)
 
 
 def _time_table(att: Attribution) -> str:
-    """The time-dependence test (:mod:`~proprio.diagnosis.selection.time_variation`): its sentence and a per-joint table."""
+    """The time-dependence test (:mod:`~proprio.diagnosis.selection.time_variation`) when it found something:
+    its sentence and the joints that vary; "" otherwise."""
     tv = att.time_variation
-    if tv is None:
-        return "Not tested."
-    rows = ["| joint | p-value | what varies | change [N·m] | share of the static model's residual [%] |",
-            "|---|---|---|---|---|"]
+    if tv is None or not tv.detected:
+        return ""
+    rows = [[nm, f"{tv.p_value[j]:.2g}", tv.joint_kinds[j], f"{tv.change[j]:.3g}", f"{100 * tv.share[j]:.1f}"]
+            for j, nm in enumerate(att.joint_names) if tv.joints[j]]
+    return (tv.text[0].upper() + tv.text[1:] + ".\n\n"
+            + md_table(["joint", "p-value", "what varies", "change [N·m]", "share of the static model's residual [%]"],
+                       rows, "Over the session clock of all the recordings."))
+
+
+def _spectra_section(sp: Spectra, names: Sequence[str], seconds: float) -> str:
+    rows = []
+    for j, nm in enumerate(names):
+        peak = "no peak" if not np.isfinite(sp.dominant_hz[j]) else f"{sp.dominant_hz[j]:.2f}"
+        rows.append([nm, peak, f"{sp.peak_order[j]:.2f}", f"{100 * sp.peak_order_share[j]:.1f} %"])
+    head = (f"The residual of the model as given over all {seconds:.1f} s of data (training and held-out). Welch "
+            f"spectrum with a resolution of {sp.resolution_hz:.2g} Hz: a peak is a local maximum above its "
+            "neighbourhood beyond the estimate's χ² spread, never in the two lowest bins (there the slow motion "
+            "leaks); the order spectrum is against each joint's own angle.")
+    if not np.isfinite(sp.dominant_hz).any():
+        head += (f" No joint's spectrum has a peak: the residual's power lies at the motion's own low frequencies "
+                 f"(below {2 * sp.resolution_hz:.2g} Hz) and falls from there.")
+    return "![spectra](spectra.png)\n\n" + head + "\n\n" + md_table(
+        ["joint", "spectral peak [Hz]", "strongest order [cycles/rev]", "variance share of that order"], rows)
+
+
+def _residual_table(att: Attribution) -> str:
+    rs = att.residual
+    rows = []
     for j, nm in enumerate(att.joint_names):
-        what = tv.joint_kinds[j] if tv.joints[j] else "—"
-        rows.append(f"| {nm} | {tv.p_value[j]:.2g} | {what} | {tv.change[j]:.3g} | {100 * tv.share[j]:.1f} |")
-    return tv.text[0].upper() + tv.text[1:] + ".\n\n" + "\n".join(rows)
+        v = "white" if rs.white_joints[j] else ("structured" if rs.structured_time[j] or rs.structured_state[j]
+                                                 else "structured, within the conditioning error")
+        rows.append([nm, f"{rs.rmse[j]:.3f}", f"{rs.ljung_box_p[j]:.3g}", f"{rs.r2_state[j]:.3f}", v])
+    return md_table(["joint", "RMSE [N·m]", "Ljung–Box p", "held-out R² vs state", "verdict"], rows,
+                    f"After every named effect, on the {_held_out_words(att)}.")
 
 
-def _md_to_html_table(md: str) -> str:
-    rows = [r.strip().strip("|").split("|") for r in md.splitlines() if not r.startswith("|---")]
-    out = ["<table>"]
-    for k, cells in enumerate(rows):
-        tag = "th" if k == 0 else "td"
-        out.append("<tr>" + "".join(f"<{tag}>{html.escape(c.strip())}</{tag}>" for c in cells) + "</tr>")
-    return "\n".join(out + ["</table>"])
+def render_html(title: str, verdict: str, summary: str, failures: Sequence[str], figures: Sequence[tuple[str, str]],
+                sections: Sequence[Section]) -> str:
+    """``report.html``: the Markdown of the summary table and of each section rendered by the ``markdown`` library
+    (tables extension) into the Jinja2 template ``templates/report.html.j2``; ``figures`` are ``(file, caption)``."""
+    import jinja2
+    import markdown
+
+    md = lambda text: markdown.markdown(text, extensions=["tables"])  # noqa: E731
+    env = jinja2.Environment(loader=jinja2.PackageLoader("proprio.diagnosis.report", "templates"),
+                             autoescape=jinja2.select_autoescape(["html", "j2"]))
+    return env.get_template("report.html.j2").render(
+        title=title, verdict=verdict, summary_html=jinja2.filters.Markup(md(summary)), failures=list(failures),
+        figures=list(figures),
+        sections=[{"title": sec.title, "html": jinja2.filters.Markup(md(sec.body) + sec.extra_html)}
+                  for sec in sections])
 
 
 def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording],
@@ -176,94 +287,81 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
     ``diagnosis.json`` and ``twin_patch.yaml`` (:mod:`~proprio.diagnosis.patch`). ``twin``: a base twin config of
     the model's robot; the held-out recordings are then replayed through it and through it + the patch
     (:mod:`~proprio.diagnosis.replay`) and the report gives the gap through the twin next to the offline
-    prediction. Raises :class:`DiagnosisError` (a ``ValueError``) on bad input."""
+    prediction. Raises :class:`DiagnosisError` (a ``ValueError``) on bad input, before the attribution; a stage
+    after it that fails is a line of ``Diagnosis.failures`` (module docstring)."""
     from proprio.diagrams.twin import TwinConfig, merge_twin_patch
 
     model = SimModel.of(model)
     out = Path(out_dir)
+    say = progress or (lambda msg: None)
     if twin is not None and not holdout_recs:
         raise DiagnosisError("twin: the replay through the twin needs held-out recordings (--holdout)")
     att = attribute(model, train_recs, holdout_recs, candidates=candidates, trim_s=trim_s, progress=progress,
                     conditioning=conditioning, plugins=plugins)
-    entries = patch_entries(att)
-    patch_files = write_twin_patch(att, model, out / "twin_patch.yaml", entries)
+    kind = tau_kind(model.robot)
+    failures: list[str] = []
+
+    def stage(what: str, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
+        """``fn(*args)``, or ``None`` with one line in ``failures`` when it raises (module docstring)."""
+        try:
+            return fn(*args, **kwargs)
+        except Exception as exc:                  # noqa: BLE001 — the run keeps its answer (module docstring)
+            where = traceback.extract_tb(exc.__traceback__)[-1]
+            line = " ".join(f"{type(exc).__name__}: {exc}".split())
+            failures.append(f"{what} failed, not written: {line[:300]} ({Path(where.filename).name}:{where.lineno})")
+            return None
+
+    entries: list[PatchEntry] = stage("twin patch", patch_entries, att) or []
+    merged = stage("twin patch", merge_entries, entries, model)
+    patch_files = stage("twin patch", write_twin_patch, att, model, out / "twin_patch.yaml", entries) or {}
     replay = None
-    if twin is not None:
-        (progress or (lambda msg: None))("replaying the held-out recordings through the twin")
-        patched = TwinConfig.from_dict(merge_twin_patch(twin.raw, twin_patch(att, model, entries)),
-                                       f"{twin.name} + twin_patch.yaml")
-        replay = replay_gap(patched, holdout_recs, base=twin, att=att, trim_s=trim_s, conditioning=conditioning)
-    gm, sp = _localise(model, list(train_recs) + list(holdout_recs), trim_s, conditioning)
-    verdict = verdict_text(att, gm, tau_kind(model.robot))
-    files = {"gap_map_png": plot_gap_map(out / "gap_map.png", gm.share, gm.columns, gm.joint_names),
-             "spectra_png": plot_spectra(out / "spectra.png", sp.freq, sp.psd, sp.orders, sp.order_power,
-                                         gm.joint_names),
-             "before_after_png": _plot_before_after(att, out / "before_after.png")}
-    rank, shr, par = _tables(att)
-    rs = att.residual
-    resid = ["| joint | RMSE [N·m] | Ljung–Box p | held-out R² vs state | verdict |", "|---|---|---|---|---|"]
-    for j, nm in enumerate(att.joint_names):
-        v = "white" if rs.white_joints[j] else ("structured" if rs.structured_time[j] or rs.structured_state[j]
-                                                 else "structured, within the conditioning error")
-        resid.append(f"| {nm} | {rs.rmse[j]:.3f} | {rs.ljung_box_p[j]:.3g} | {rs.r2_state[j]:.3f} | {v} |")
-    freq = ["| joint | dominant frequency [Hz] | strongest order [cycles/rev] | variance share of that order |",
-            "|---|---|---|---|"]
-    for j, nm in enumerate(gm.joint_names):
-        freq.append(f"| {nm} | {sp.dominant_hz[j]:.2f} | {sp.peak_order[j]:.2f} | {100 * sp.peak_order_share[j]:.1f} % |")
-    quality = [(f"{role} {i + 1}", assess(r, model.robot, conditioning=conditioning)) for role, recs in (("train", train_recs),
-               ("held-out", holdout_recs)) for i, r in enumerate(recs)]
-    sections = [
-        ("Data quality of each recording (before any fitting)", findings_markdown(quality)),
-        ("Verdict", verdict),
-        ("Data and processing", data_and_processing_text(att, tau_kind(model.robot))),
-        ("When the data were taken: time dependence of the gap", _time_table(att)),
-        ("Where the gap lies: gap map (share of the total squared residual, %)",
-         "![gap map](gap_map.png)\n\n" + gm.table(min_share=0.002)),
-        ("Frequency content", "![spectra](spectra.png)\n\n" + "\n".join(freq)),
-        ("Which effect: candidates ranked by held-out gain (each alone, step 1)", rank),
-        ("How far it shrinks: held-out RMSE per joint [N·m] (% of signal RMS) after each added effect",
-         shr + "\n\n![before/after](before_after.png)"),
-        ("Which effects could take each other's place (ambiguity)", ambiguity_markdown(att.ambiguity)),
-        ("Fitted parameters (final joint fit, 95 % CI from the fit Jacobian, autocorrelation-corrected)", par),
-        ("What remains unexplained", "\n".join(resid)),
-        ("The twin patch", _patch_text(entries, patch_files)),
-        ("Hints beyond the library (not library effects)", _hints_section(att)),
-    ]
-    truth = compare_to_truth(att, model, holdout_recs)
-    if truth is not None:
-        sections.append(("Against the twin's truth (scoring only: the diagnosis never reads it)",
-                         truth.markdown(att.joint_names)))
-    if replay is not None:
-        sections.append(("The gap through the twin: held-out recordings replayed through the base twin and the "
-                         "patched twin (no twin noise), RMS(τ_meas − τ_twin) per joint [N·m]",
-                         f"Twin `{twin.name}`: {replay.text()}.\n\n{replay.table()}"))
+    if twin is not None and merged is not None:
+        say("replaying the held-out recordings through the twin")
+        patched = stage("replay through the twin", lambda: TwinConfig.from_dict(
+            merge_twin_patch(twin.raw, merged.patch), f"{twin.name} + twin_patch.yaml"))
+        if patched is not None:
+            replay = stage("replay through the twin", replay_gap, patched, holdout_recs, base=twin, att=att,
+                           trim_s=trim_s, conditioning=conditioning)
+    gm, sp, seconds = stage("gap map and spectra", _localise, model, list(train_recs) + list(holdout_recs), trim_s,
+                            conditioning) or (None, None, 0.0)
+    verdict = verdict_sentence(att, kind)
+    explanation = verdict_text(att, gm, kind, sorted(model.effect_names))
+    advice = [a for a in [offset_advice(att, kind).text] if a]
+    files: dict[str, Path] = {}
+    for role, fn in (("gap_map_png", lambda: plot_gap_map(out / "gap_map.png", gm.share, gm.columns,
+                                                          gm.joint_names) if gm is not None else None),
+                     ("spectra_png", lambda: plot_spectra(out / "spectra.png", sp.freq, sp.psd, sp.orders,
+                                                          sp.order_power, gm.joint_names) if sp is not None else None),
+                     ("before_after_png", lambda: _plot_before_after(att, out / "before_after.png"))):
+        path = stage(f"figure {role[:-4]}.png", fn)
+        if path is not None:
+            files[role] = path
+    truth = stage("comparison with the twin's truth", compare_to_truth, att, model, holdout_recs)
+    quality = stage("data quality", lambda: [(f"{role} {i + 1}", assess(r, model.robot, conditioning=conditioning))
+                                             for role, recs in (("train", train_recs), ("held-out", holdout_recs))
+                                             for i, r in enumerate(recs)]) or []
+
+    sections = _sections(att, model, kind, gm, sp, seconds, entries, merged, patch_files, quality, truth, replay,
+                         twin, advice, holdout_recs, len(train_recs))
     title = f"Sim-to-real gap diagnosis — {model.robot.name}"
-    sim_desc = (f"Model: `{model.robot.name}`"
-                + (f" + {', '.join(sorted(model.effect_names))}" if model.effect_names else " (rigid body only)")
-                + f". Training recordings: {len(train_recs)}, held-out: "
-                + (f"{len(holdout_recs)}" if holdout_recs else "none (cross-validated over time blocks)") + ". "
-                f"Candidates tested: {', '.join(att.candidates)}.")
-    md = f"# {title}\n\n{sim_desc}\n\n" + "\n\n".join(f"## {h}\n\n{b}" for h, b in sections) + "\n"
-    body = []
-    for h, b in sections:
-        chunks = []
-        for para in b.split("\n\n"):
-            if para.startswith("|"):
-                chunks.append(_md_to_html_table(para))
-            elif para.startswith("![before/after]"):     # interactive in the HTML report, the PNG beside it
-                chunks.append(_residual_html(att) + '<p><a href="before_after.png">static figure</a></p>')
-            elif para.startswith("!["):
-                src = para[para.index("(") + 1:para.index(")")]
-                chunks.append(f'<img src="{html.escape(src)}" style="max-width:100%">')
-            else:
-                chunks.append(f"<p>{html.escape(para)}</p>")
-        body.append(f"<h2>{html.escape(h)}</h2>\n" + "\n".join(chunks))
-    page = ("<!doctype html><html><head><meta charset='utf-8'><title>" + html.escape(title) + "</title><style>"
-            "body{font-family:sans-serif;max-width:1100px;margin:auto}table{border-collapse:collapse;font-size:12px}"
-            "td,th{border:1px solid #bbb;padding:2px 6px;text-align:right}</style></head><body>"
-            f"<h1>{html.escape(title)}</h1><p>{html.escape(sim_desc)}</p>" + "\n".join(body) + "</body></html>")
-    atomic_write_text(out / "report.md", md)
-    atomic_write_text(out / "report.html", page)
+    summary_md = md_table(SummaryRow.HEADER, [r.cells() for r in summary_rows(att, kind)])
+    figures = [(f, cap) for role, f, cap in (
+        ("gap_map_png", "gap_map.png", "Where the gap lies: share of the total squared residual of the model as "
+                                       "given by joint and motion regime, over all the data (training and "
+                                       "held-out)."),
+        ("before_after_png", "before_after.png", f"How far it shrinks: the residual on the first held-out recording "
+                                                 "before and after the named effects, and the held-out RMSE per "
+                                                 "step.")) if role in files]
+
+    def write_report() -> None:
+        md = (f"# {title}\n\n## Summary\n\n{verdict}\n\n{summary_md}\n\n"
+              + "".join(f"**Not written:** {f}\n\n" for f in failures)
+              + "".join(f"![{cap}]({f})\n\n" for f, cap in figures)
+              + "\n\n".join(f"## {sec.title}\n\n{sec.body}" for sec in sections) + "\n")
+        atomic_write_text(out / "report.md", md)
+        atomic_write_text(out / "report.html", render_html(title, verdict, summary_md, failures, figures, sections))
+        files.update(report_md=out / "report.md", report_html=out / "report.html")
+
     summary = {"robot": model.robot.name, "model_effects": sorted(model.effect_names),
                "rmse_before": att.rmse_before.tolist(), "signal_rms": att.signal_rms.tolist(),
                "steps": [{"name": s.name, "tied": s.tied, "gain": s.gain, "t": s.t_stat,
@@ -274,31 +372,92 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
                "ambiguity": [a.to_dict() for a in att.ambiguity],
                "processing": att.processing_findings,
                "encoder_floor": att.encoder.to_dict() if att.encoder is not None else None,
-               "residual_white": rs.white, "white_joints": rs.white_joints.tolist(),
+               "residual_white": att.residual.white, "white_joints": att.residual.white_joints.tolist(),
                "processing_sigma": att.processing_sigma.tolist(),
                "superseded": [{"name": x.name, "step": x.step, "gain": x.gain, "context": x.context}
                               for x in att.superseded],
                "undecided": None if att.undecided is None else {
                    "name": att.undecided.name, "gain": att.undecided.gain, "t": att.undecided.t_stat,
-                   "t_crit": att.undecided.t_crit, "more_holdout_s": att.undecided.more_s}, "hints": [h.to_dict() for h in att.hints], "verdict": verdict,
+                   "t_crit": att.undecided.t_crit, "more_holdout_s": att.undecided.more_s},
+               "hints": [h.to_dict() for h in att.hints], "verdict": verdict, "explanation": explanation,
+               "advice": advice,
                "time_variation": None if att.time_variation is None else {
                    "detected": att.time_variation.detected, "joints": att.time_variation.joints.tolist(),
                    "p_value": att.time_variation.p_value.tolist(), "kind": att.time_variation.kind,
                    "change": att.time_variation.change.tolist(), "text": att.time_variation.text},
                "data_quality": [{"name": n, **q.to_dict()} for n, q in quality],
-               "truth": truth_summary(truth) if truth is not None else None}
+               "truth": truth_summary(truth) if truth is not None else None,
+               "patch_unmerged": merged.unmerged if merged is not None else []}
     if replay is not None:
         summary["twin_replay"] = {"twin": twin.name, "rms_before": replay.rms_before.tolist(),
                                   "rms_after": replay.rms_after.tolist(), "reduction": replay.reduction,
                                   "predicted_reduction": replay.predicted_reduction}
+    stage("report", write_report)
+    summary["failures"] = failures
     atomic_write_text(out / "diagnosis.json", json.dumps(summary, indent=1))
-    files.update(report_md=out / "report.md", report_html=out / "report.html", json=out / "diagnosis.json",
-                 **patch_files)
-    return Diagnosis(gm, sp, att, verdict, files, truth, replay)
+    files.update(json=out / "diagnosis.json", **patch_files)
+    return Diagnosis(gm, sp, att, verdict, files, truth, replay, explanation, failures, advice)
 
 
-def _patch_text(entries: list, files: dict[str, Path]) -> str:
-    """The patch section: what went into ``twin_patch.yaml`` and what did not."""
+def _sections(att: Attribution, model: SimModel, kind: str, gm: GapMap | None, sp: Spectra | None, seconds: float,
+              entries: list[PatchEntry], merged: Any, patch_files: dict[str, Path], quality: list, truth: Any,
+              replay: ReplayGap | None, twin: Any, advice: list[str], holdout_recs: Sequence[Recording],
+              n_train: int) -> list[Section]:
+    """The details sections, each only when it says something (module docstring)."""
+    out: list[Section] = []
+    if advice:
+        out.append(Section("Advice", "\n\n".join(advice)))
+    where = where_text(att, gm)
+    if gm is not None:
+        where += "\n\n" + gm.table(min_share=0.002) + (f"\n\nShares [%] of the total squared residual of the model as given, "
+                                           f"over all {seconds:.1f} s of data (training and held-out); the RMSE "
+                                           "column covers the same data (the summary's gap is the held-out data "
+                                           "only).")
+    out.append(Section("Where the gap lies", where))
+    out.append(Section("Which effect", effects_text(att, kind) + "\n\n" + _ranking_table(att)))
+    if att.steps:
+        out.append(Section("How far it shrinks", _shrink_table(att), _residual_html(att)
+                           + '<p><a href="before_after.png">static figure</a></p>'))
+        out.append(Section("Which effects could take each other's place", ambiguity_markdown(att.ambiguity)))
+    par = _param_table(att)
+    if par:
+        out.append(Section("Fitted parameters", par))
+    out.append(Section("What remains unexplained", remains_text(att, kind) + "\n\n" + _residual_table(att)))
+    if att.hints:
+        out.append(Section("Hints beyond the library", _hints_section(att, hint_texts(att, kind,
+                                                                                      sorted(model.effect_names)))))
+    tv = _time_table(att)
+    if tv:
+        out.append(Section("When the data were taken: the gap changes over time", tv))
+    if sp is not None and gm is not None:
+        out.append(Section("Frequency content", _spectra_section(sp, gm.joint_names, seconds)))
+    desc = (f"Model: {model.robot.name}"
+            + (f" + {', '.join(sorted(model.effect_names))}" if model.effect_names else " (rigid body only)")
+            + f". Training recordings: {n_train}, held-out: "
+            + (f"{len(holdout_recs)}" if holdout_recs else "none (cross-validated over time blocks)") + ". "
+            f"Candidates tested: {', '.join(att.candidates)}.")
+    tv_line = ("" if att.time_variation is None or att.time_variation.detected else
+               f"\n\nTime dependence: none found (smallest p = {float(np.min(att.time_variation.p_value)):.2g} "
+               "over the joints).")
+    out.append(Section("Data and processing", desc + "\n\n" + data_and_processing_text(att, kind) + tv_line))
+    if quality:
+        out.append(Section("Data quality of each recording (before any fitting)", findings_markdown(quality)))
+    if patch_files:
+        out.append(Section("The twin patch", _patch_text(entries, patch_files,
+                                                         merged.unmerged if merged is not None else [])))
+    if truth is not None:
+        out.append(Section("Against the twin's truth (scoring only: the diagnosis never reads it)",
+                           truth.markdown(att.joint_names)))
+    if replay is not None:
+        out.append(Section("The gap through the twin",
+                           f"The held-out recordings replayed through the base twin {twin.name} and the patched twin "
+                           f"(no twin noise), RMS(τ_meas − τ_twin) per joint [N·m]: {replay.text()}.\n\n"
+                           + replay.table()))
+    return out
+
+
+def _patch_text(entries: list, files: dict[str, Path], unmerged: Sequence[str] = ()) -> str:
+    """The patch section: what went into ``twin_patch.yaml``, what did not and what could not be merged."""
     used = [e.name for e in entries if e.fragment is not None]
     left = [e.name for e in entries if e.fragment is None]
     out = (f"`{files['twin_patch'].name}` adds {', '.join(used)} to a base twin of this robot "
@@ -307,6 +466,9 @@ def _patch_text(entries: list, files: dict[str, Path]) -> str:
     if "patch_robot" in files:
         out += f"; the corrected robot description is `{files['patch_robot'].name}`"
     out += "." + (f" Not in the patch: {', '.join(left)} (see the comments in the file)." if left else "")
+    if unmerged:
+        out += ("\n\nNot merged — two effects change the same value of the robot differently (the first one's is "
+                "kept):\n\n" + "\n".join(f"- {line}" for line in unmerged))
     return out
 
 
