@@ -226,9 +226,16 @@ def _time_table(att: Attribution) -> str:
                        rows, "Over the session clock of all the recordings."))
 
 
+MIN_ORDER_SHARE = 0.1
+"""An order of the joint angle is shown in the report's frequency table from this share of the residual's variance
+(a display choice: the ripple candidate, not this table, decides whether an order is an effect)."""
+
+
 def _spectra_section(sp: Spectra, names: Sequence[str], seconds: float) -> str:
     rows = []
-    for j, nm in enumerate(names):
+    for j, nm in enumerate(names):          # the joints where the spectra say something
+        if not np.isfinite(sp.dominant_hz[j]) and sp.peak_order_share[j] < MIN_ORDER_SHARE:
+            continue
         peak = "no peak" if not np.isfinite(sp.dominant_hz[j]) else f"{sp.dominant_hz[j]:.2f}"
         rows.append([nm, peak, f"{sp.peak_order[j]:.2f}", f"{100 * sp.peak_order_share[j]:.1f} %"])
     head = (f"The residual of the model as given over all {seconds:.1f} s of data (training and held-out). Welch "
@@ -238,8 +245,12 @@ def _spectra_section(sp: Spectra, names: Sequence[str], seconds: float) -> str:
     if not np.isfinite(sp.dominant_hz).any():
         head += (f" No joint's spectrum has a peak: the residual's power lies at the motion's own low frequencies "
                  f"(below {2 * sp.resolution_hz:.2g} Hz) and falls from there.")
+    if not rows:
+        return "![spectra](spectra.png)\n\n" + head + (f" No joint's residual has an angle-locked order with "
+                                                     f"{100 * MIN_ORDER_SHARE:.0f} % of its variance or more.")
     return "![spectra](spectra.png)\n\n" + head + "\n\n" + md_table(
-        ["joint", "spectral peak [Hz]", "strongest order [cycles/rev]", "variance share of that order"], rows)
+        ["joint", "spectral peak [Hz]", "strongest order [cycles/rev]", "variance share of that order"], rows,
+        f"Joints with a spectral peak or an order holding ≥ {100 * MIN_ORDER_SHARE:.0f} % of the variance.")
 
 
 def _residual_table(att: Attribution) -> str:
@@ -437,8 +448,8 @@ def _sections(att: Attribution, model: SimModel, kind: str, gm: GapMap | None, s
             + (f"{len(holdout_recs)}" if holdout_recs else "none (cross-validated over time blocks)") + ". "
             f"Candidates tested: {', '.join(att.candidates)}.")
     tv_line = ("" if att.time_variation is None or att.time_variation.detected else
-               f"\n\nTime dependence: none found (smallest p = {float(np.min(att.time_variation.p_value)):.2g} "
-               "over the joints).")
+               f"\n\nTime dependence: none found (the smallest Bonferroni-corrected p over the joints: "
+               f"{float(np.min(att.time_variation.p_value)):.2g}).")
     out.append(Section("Data and processing", desc + "\n\n" + data_and_processing_text(att, kind) + tv_line))
     if quality:
         out.append(Section("Data quality of each recording (before any fitting)", findings_markdown(quality)))
