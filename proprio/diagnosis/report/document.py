@@ -181,22 +181,33 @@ def _shrink_table(att: Attribution) -> str:
 
 
 def _param_table(att: Attribution) -> str:
-    """The final joint fit's parameters: value, σ (= the 95 % CI / 1.96) and unit; "" when nothing was fitted."""
+    """The final joint fit's parameters, one row per effect and parameter, one column per joint: value ± σ (σ = the
+    95 % CI / 1.96) and the unit; "" when nothing was fitted."""
     if not att.steps or not att.steps[-1].params:
         return ""
-    n = len(att.joint_names)
-    rows = []
+    names_j = att.joint_names
+    n = len(names_j)
+    rows, other = [], []
     for name, (theta, ci, names) in att.steps[-1].params.items():
         theta, ci = np.asarray(theta, dtype=float), np.asarray(ci, dtype=float)
         if len(theta) > 3 * n:
-            rows.append([name, f"{len(theta)} identifiable combinations", f"‖δ‖ = {_fmt(np.linalg.norm(theta))}",
-                         f"median {_fmt(float(np.median(ci)) / 1.96)}", "SI (mixed)"])
+            other.append(f"{name}: {len(theta)} identifiable combinations, ‖δ‖ = {_fmt(np.linalg.norm(theta))} "
+                         f"(SI, mixed units; median σ {_fmt(float(np.median(ci)) / 1.96)}) — the corrected "
+                         "inertials are in the patch's robot description.")
             continue
+        per: dict[str, list[str]] = {}
         for v, c, nm in zip(theta, ci, names):
-            rows.append([name, nm, _fmt(v), _fmt(c / 1.96), _unit(nm) or "—"])
-    return md_table(["effect", "parameter", "value", "σ", "unit"], rows,
-                    "The final joint fit on the training data; σ from the fit Jacobian, autocorrelation-corrected "
-                    "(95 % CI = ±1.96 σ).")
+            key, _, joint = nm.partition("[")
+            if joint.endswith("]") and joint[:-1].isdigit():
+                per.setdefault(key, [""] * n)[int(joint[:-1]) - 1] = f"{_fmt(v)} ± {_fmt(c / 1.96)}"
+            else:
+                other.append(f"{name}: {nm} = {_fmt(v)} ± {_fmt(c / 1.96)} {_unit(nm)}".rstrip())
+        rows += [[name, key, _unit(key) or "—", *[x or "—" for x in vals]] for key, vals in per.items()]
+    out = ("The final joint fit on the training data: value ± σ (σ from the fit Jacobian, autocorrelation-corrected; "
+           "95 % CI = ±1.96 σ).")
+    if rows:
+        out += "\n\n" + md_table(["effect", "parameter", "unit", *names_j], rows)
+    return out + "".join(f"\n\n{line}" for line in other)
 
 
 def _hints_section(att: Attribution, texts: list[str]) -> str:
@@ -259,8 +270,9 @@ def _residual_table(att: Attribution) -> str:
     for j, nm in enumerate(att.joint_names):
         v = "white" if rs.white_joints[j] else ("structured" if rs.structured_time[j] or rs.structured_state[j]
                                                  else "structured, within the conditioning error")
-        rows.append([nm, f"{rs.rmse[j]:.3f}", f"{rs.ljung_box_p[j]:.3g}", f"{rs.r2_state[j]:.3f}", v])
-    return md_table(["joint", "RMSE [N·m]", "Ljung–Box p", "held-out R² vs state", "verdict"], rows,
+        r2 = f"{rs.r2_state[j]:.3f}" if rs.r2_state[j] >= 0 else "< 0 (not predictable)"
+        rows.append([nm, f"{rs.rmse[j]:.3f}", f"{rs.ljung_box_p[j]:.3g}", r2, v])
+    return md_table(["joint", "RMSE [N·m]", "Ljung–Box p", "held-out R² vs motion state", "verdict"], rows,
                     f"After every named effect, on the {_held_out_words(att)}.")
 
 
