@@ -43,7 +43,8 @@ than the whole residual it explains (the terms cancel each other) is not reporte
 
 **Resemblance.** A term on the joint's own signals that is the law of a library candidate (its velocity: viscous
 friction; the smooth sign of its velocity: Coulomb friction; its acceleration: rotor inertia or a rigid-body error;
-its own modelled τ: a gain error; ``sin/cos(q)``: a rigid-body (gravity) error; the time: a drifting offset) is
+its own modelled τ: a gain error; ``sin/cos(q)`` of any joint: a rigid-body (gravity) error; the time: a drifting
+offset) is
 named in :attr:`Hint.resembles`, so that the report says which library effect the hint resembles and why that effect
 was not taken.
 """
@@ -287,7 +288,8 @@ def find_hints(train: GapData, hold: GapData, r_tr: np.ndarray, r_h: np.ndarray,
         sel_terms = [names[sel[i]] for i in order]
         c_si = c_z[order] / sd[np.flatnonzero(use)[sel[order]]]         # back to the terms' own units
         signals = list(dict.fromkeys(s for tm in sel_terms for s in tm.signals))
-        resembles = [(tm.name, tm.library) for tm in sel_terms if tm.library and tm.joint in (0, j + 1)]
+        resembles = [(tm.name, tm.library) for tm in sel_terms                 # gravity: any joint's angle
+                     if tm.library and (tm.joint in (0, j + 1) or tm.library == ("rigid_body",))]
         hints.append(Hint(int(j), [tm.name for tm in sel_terms], signals, gain, _hint_text(j, sel_terms, c_si, gain),
                           [float(c) for c in c_si], float(t_stat), [tm.unit or "N·m" for tm in sel_terms],
                           resembles, rms))

@@ -92,7 +92,8 @@ def verdict_sentence(att: Attribution, tau_kind: str = "link_sensor") -> str:
         out += "; what remains is white noise"
     elif rs.structured_time.any() or rs.structured_state.any():
         js = [att.joint_names[j] for j in np.flatnonzero(rs.structured_time | rs.structured_state)]
-        out += f"; what remains on {_join(js)} is structured (see What remains)"
+        on = "every joint" if len(js) == len(att.joint_names) > 1 else _join(js)
+        out += f"; what remains on {on} is structured (see What remains unexplained)"
     out += "."
     return out if len(out) <= MAX_VERDICT_CHARS else out[:MAX_VERDICT_CHARS - 1] + "…"
 
