@@ -282,14 +282,15 @@ def render_html(title: str, verdict: str, summary: str, failures: Sequence[str],
     (tables extension) into the Jinja2 template ``templates/report.html.j2``; ``figures`` are ``(file, caption)``."""
     import jinja2
     import markdown
+    from markupsafe import Markup
 
     md = lambda text: markdown.markdown(text, extensions=["tables"])  # noqa: E731
     env = jinja2.Environment(loader=jinja2.PackageLoader("proprio.diagnosis.report", "templates"),
                              autoescape=jinja2.select_autoescape(["html", "j2"]))
     return env.get_template("report.html.j2").render(
-        title=title, verdict=verdict, summary_html=jinja2.filters.Markup(md(summary)), failures=list(failures),
+        title=title, verdict=verdict, summary_html=Markup(md(summary)), failures=list(failures),
         figures=list(figures),
-        sections=[{"title": sec.title, "html": jinja2.filters.Markup(md(sec.body) + sec.extra_html)}
+        sections=[{"title": sec.title, "html": Markup(md(sec.body) + sec.extra_html)}
                   for sec in sections])
 
 
