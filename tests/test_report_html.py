@@ -187,9 +187,12 @@ def test_a_hint_on_a_library_law_says_which_effect_and_why_it_was_not_taken():
                 [("q̇₄", ("viscous_coulomb", "motor_friction"))], 0.3)
     ranking = [{"name": "viscous_coulomb", "gain": 0.02, "t": 1.1, "n_params": 14, "processing": False,
                 "significant": False}]
-    att = SimpleNamespace(hints=[hint], steps=[], ranking=ranking)
+    att = SimpleNamespace(hints=[hint], steps=[], ranking=ranking, joint_names=[f"joint_{k}" for k in range(1, 8)])
     text = hint_texts(att)[0]
     assert "q̇₄ is the law of viscous + Coulomb friction" in text and "was tested" in text and "2.0 %" in text
     assert "the model already has viscous + Coulomb friction" in hint_texts(att, model_effects=["viscous_coulomb"])[0]
     att.ranking = []
     assert "not among the candidates tested" in hint_texts(att)[0]
+    att.joint_names = [f"lwr_{k}_joint" for k in range(7)]                    # named joints: which number is which
+    legend, text = hint_texts(att)
+    assert "joint 4 = lwr_3_joint" in legend and text.startswith("Hint: joint 4's")

@@ -276,9 +276,14 @@ def _why_not_taken(candidates: Sequence[str], att: Attribution, model_effects: S
 
 def hint_texts(att: Attribution, tau_kind: str = "link_sensor", model_effects: Sequence[str] = ()) -> list[str]:
     """One text per hint: what the remaining residual follows and, where a term is a library candidate's law on the
-    joint, which effect it resembles and why that effect was not taken (:func:`_why_not_taken`)."""
+    joint, which effect it resembles and why that effect was not taken (:func:`_why_not_taken`); first, where the
+    joints have names, which number is which (the hints count the joints from 1)."""
     plain = plain_names(tau_kind)
     out = []
+    names = list(att.joint_names)
+    if att.hints and names != [f"joint_{k + 1}" for k in range(len(names))]:
+        out.append("Joints are numbered from 1 in the hints (q₃ is joint 3's angle): "
+                   + ", ".join(f"joint {k + 1} = {nm}" for k, nm in enumerate(names)) + ".")
     for h in att.hints:
         text = h.text
         for term, cands in h.resembles:
@@ -355,7 +360,7 @@ def verdict_text(att: Attribution, gm: GapMap | None, tau_kind: str = "link_sens
     parts = [where_text(att, gm), effects_text(att, tau_kind), remains_text(att, tau_kind)]
     hints = hint_texts(att, tau_kind, model_effects)
     if hints:
-        parts.append(f"A sparse regression of what remains on the measured and modelled signals gives {len(hints)} "
+        parts.append(f"A sparse regression of what remains on the measured and modelled signals gives {len(att.hints)} "
                      "hint(s) — what the unexplained part follows, scored on the held-out data: " + " ".join(hints))
     parts.append(offset_advice(att, tau_kind).text)
     return "\n\n".join(p for p in parts if p)
