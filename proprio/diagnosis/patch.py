@@ -9,8 +9,8 @@ parameter error as a corrected robot description (physically consistent inertial
 to the patch and named by its ``robot:`` key), a drive term (rotor inertia, motor friction, drive offsets) as the
 same description with its drive block corrected. Every step's description changes the same base robot: they merge
 leaf by leaf into ONE corrected description (:func:`merge_entries`); only two steps setting the same value
-differently is a conflict, kept out of the patch and said in its comments — never an error. An unmodelled white noise adds a ``torque_noise`` block — only on
-joints whose residual passes both whiteness tests, at the level the raw τ itself carries at the robot's rate
+differently is a conflict, kept out of the patch and said in its comments — never an error. An unmodelled white
+noise adds a ``torque_noise`` block — only on joints whose residual passes both whiteness tests, at the level the raw τ itself carries at the robot's rate
 (:func:`proprio.diagnosis.selection.forward.attribute`'s noise finding): a structured residual is never patched as noise. Data-path
 (processing) steps never go into a patch; the comments at the top say what was left out and why, and give each
 entry's held-out gain and fitted parameters with their 95 % CI.

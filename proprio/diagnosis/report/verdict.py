@@ -319,8 +319,9 @@ def offset_advice(att: Attribution, tau_kind: str = "link_sensor", alpha: float 
     """Whether the remaining held-out residual (after every named effect) has a constant part beyond its noise: per
     joint, a two-sided t-test of the means of the held-out time blocks (``att.block_s`` long: the selection's
     blocks, about twice the residual's correlation time, so the block means are nearly independent; a named
-    offset's own fit σ added to the mean's variance) at ``α / n`` (Bonferroni over the joints). Where it rejects "mean 0" the model lacks an offset (or the offset moved between
-    the training and held-out data), and the advice names the candidate that adds one."""
+    offset's own fit σ added to the mean's variance) at ``α / n`` (Bonferroni over the joints). Where it rejects
+    "mean 0" the model lacks an offset (or the offset moved between the training and held-out data), and the advice
+    names the candidate that adds one."""
     means, n = [], len(att.joint_names)
     for t, e, p in zip(att.holdout_t, att.holdout_e, att.holdout_pred):
         r = e - p
