@@ -101,7 +101,7 @@ def test_coulomb_friction_is_found_and_recovered(robot, tmp_path):
     assert not (rs.structured_time.any() or rs.structured_state.any())
     assert np.all(rs.white_joints | rs.within_processing)
     if not rs.white:
-        assert "What remains is white" not in d.verdict and "is not white" in d.verdict
+        assert "What remains is white" not in d.explanation and "is not white" in d.explanation
     assert not any(np.any(f.rms[~rs.white_joints] > 0) for f in att.noise)
     for key in ("report_md", "report_html", "gap_map_png", "before_after_png"):
         assert d.files[key].exists() and d.files[key].stat().st_size > 0
@@ -113,9 +113,9 @@ def test_coulomb_friction_is_found_and_recovered(robot, tmp_path):
     assert data["samples"] == e.shape[0] and [p["name"] for p in data["panels"]] == att.joint_names
     np.testing.assert_allclose(data["panels"][3]["y"][0], e[:, 3], rtol=1e-4, atol=1e-6)
     np.testing.assert_allclose(data["panels"][3]["y"][1], e[:, 3] - pred[:, 3], rtol=1e-4, atol=1e-6)
-    assert "![before/after](before_after.png)" in d.files["report_md"].read_text()
-    md = d.files["report_md"].read_text()                     # data-quality findings come first
-    assert "| train 1 |" in md and md.index("## Data quality") < md.index("## Verdict")
+    md = d.files["report_md"].read_text()                     # the summary first, the figures, then the details
+    assert "(before_after.png)" in md and md.index("## Summary") < md.index("(before_after.png)")
+    assert "| train 1 |" in md and md.index("## Summary") < md.index("## Data quality")
     # the data's position-noise floor is reported (the model has no encoder noise: information, not a finding)
     summary = json.loads(d.files["json"].read_text())
     assert summary["processing"] == [] and summary["encoder_floor"]["modelled_sigma"] is None

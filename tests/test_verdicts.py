@@ -10,7 +10,7 @@ from proprio.description import load_robot
 from proprio.gap_benchmark.case_data import rfma_like_motion
 from proprio.diagnosis.data import SimModel
 from proprio.diagnosis.patch import twin_patch
-from proprio.diagnosis.report.document import _tables
+from proprio.diagnosis.report.document import _ranking_table
 from proprio.diagnosis.residual import ResidualStructure
 from proprio.diagnosis.selection.forward import attribute
 from proprio.diagnosis.report.verdict import data_and_processing_text, undecided_text
@@ -75,7 +75,7 @@ def test_a_structured_residual_is_neither_sensor_noise_nor_patched_as_torque_noi
     assert att.noise == []
     assert "torque_noise" not in twin_patch(att, model).get("effects", {})
     assert all(r["gain"] >= 0.0 for r in att.ranking)                # rule: no negative gains in rankings
-    rank = _tables(att)[0]
+    rank = _ranking_table(att)
     assert " -" not in rank and "| -" not in rank
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from proprio.cli import (UserError, add_chain_args, add_plugin_args, check_output, check_recording_robot, load_robot_arg,
@@ -246,6 +247,10 @@ def _diagnose(args: argparse.Namespace) -> int:
     for line in d.attribution.conditioning:
         print(line)
     print(d.verdict)
+    for line in d.advice:
+        print(f"advice: {line}")
+    for line in d.failures:                        # the rest was written: the run keeps its answer (exit 0)
+        print(f"proprio: warning: {line}", file=sys.stderr)
     if d.replay is not None:
         print(d.replay.text())
     if args.experiment:
@@ -254,8 +259,9 @@ def _diagnose(args: argparse.Namespace) -> int:
         refit = refit_jointly(d.attribution, training_data(model, train, conditioning, args.trim))
         if refit is not None:
             print(refit.text())
-    print(f"twin patch: {d.files['twin_patch']}")
-    print(f"report: {d.files['report_html']}")
+    if "twin_patch" in d.files:
+        print(f"twin patch: {d.files['twin_patch']}")
+    print(f"report: {d.files.get('report_html', d.files['json'])}")
     if args.design_experiment or resolve_twin is not None:
         _experiments(args, model, d, train, hold, conditioning, resolve_twin)
     return 0
