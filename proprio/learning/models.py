@@ -301,9 +301,9 @@ def _lstm_cell(w, z, c, c_out, h_out):  # pragma: no cover (compiled)
 
 
 @numba.njit(cache=True)
-def lstm2_step(cell1, cell2, w_out, x, state, state_out, tau_out, hybrid):  # pragma: no cover (compiled)
-    """One step of the LSTM-2(-FCL) on the features ``x`` (the model's columns): τ [n] N·m into ``tau_out`` (+ the
-    first feature block, τ_RBD, when ``hybrid``) and the next state ``[h₁, c₁, h₂, c₂]`` into ``state_out`` (which
+def lstm2_step(cell1, cell2, w_out, x, state, state_out, tau_out):  # pragma: no cover (compiled)
+    """One step of the LSTM-2(-FCL) on the features ``x`` (the model's columns): the network's output τ_NN [n] N·m
+    (a hybrid's τ_RBD not added) into ``tau_out`` and the next state ``[h₁, c₁, h₂, c₂]`` into ``state_out`` (which
     must not alias ``state``) — the streaming law of :class:`StreamingStepper`, compiled."""
     k1, k2, f = cell1.shape[0] // 4, cell2.shape[0] // 4, x.shape[0]
     z1 = np.empty(f + k1 + 1)
@@ -316,16 +316,16 @@ def lstm2_step(cell1, cell2, w_out, x, state, state_out, tau_out, hybrid):  # pr
         s = w_out[i, k2]
         for j in range(k2):
             s += w_out[i, j] * state_out[2 * k1 + j]
-        tau_out[i] = s + x[i] if hybrid else s
+        tau_out[i] = s
 
 
 @numba.njit(cache=True)
-def lstm2_run(cell1, cell2, w_out, x, state, tau_out, hybrid):  # pragma: no cover (compiled)
+def lstm2_run(cell1, cell2, w_out, x, state, tau_out):  # pragma: no cover (compiled)
     """:func:`lstm2_step` over the samples ``x [N, f]`` in order, the state carried from ``state`` (updated in place to
-    the final state): τ ``[N, n]`` N·m into ``tau_out`` — the batch form of the streaming law, one compiled loop."""
+    the final state): τ_NN ``[N, n]`` N·m into ``tau_out`` — the batch form of the streaming law, one compiled loop."""
     nxt = np.empty_like(state)
     for k in range(x.shape[0]):
-        lstm2_step(cell1, cell2, w_out, x[k], state, nxt, tau_out[k], hybrid)
+        lstm2_step(cell1, cell2, w_out, x[k], state, nxt, tau_out[k])
         state[:] = nxt
 
 
@@ -385,9 +385,8 @@ class StreamingStepper:
             self.w_out = np.ascontiguousarray(np.hstack([w_out, b_out[:, None]]))       # [W | b] on [h₂; 1]
             f = self.cells[0].shape[1] - self.sizes[0] - 1                      # the LSTM's input size
             lstm2_step(*self.cells, self.w_out, np.zeros(f), np.zeros(self.state_size), np.empty(self.state_size),
-                       np.empty(self.n), False)                                                  # compile / load
-            lstm2_run(*self.cells, self.w_out, np.zeros((1, f)), np.zeros(self.state_size), np.empty((1, self.n)),
-                      False)
+                       np.empty(self.n))                                                         # compile / load
+            lstm2_run(*self.cells, self.w_out, np.zeros((1, f)), np.zeros(self.state_size), np.empty((1, self.n)))
 
     def _mlp(self, z: np.ndarray) -> np.ndarray:
         """MLP-7's τ_NN ``[..., n]`` for the model's columns ``z [..., F]`` (one sample or many: the same law)."""
@@ -407,7 +406,7 @@ class StreamingStepper:
         if r is not None:
             z = np.concatenate((z, r))
         nxt, tau = np.empty_like(state), np.empty(self.n)
-        lstm2_step(*self.cells, self.w_out, z, state, nxt, tau, False)
+        lstm2_step(*self.cells, self.w_out, z, state, nxt, tau)
         return tau, nxt
 
     def step(self, x: np.ndarray, state: np.ndarray, r: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -430,5 +429,5 @@ class StreamingStepper:
             tau = np.vstack([self._mlp(z[i:i + _MLP_BLOCK]) for i in range(0, max(z.shape[0], 1), _MLP_BLOCK)])
         else:
             tau = np.empty((x.shape[0], self.n))
-            lstm2_run(*self.cells, self.w_out, np.ascontiguousarray(z), final, tau, False)
+            lstm2_run(*self.cells, self.w_out, np.ascontiguousarray(z), final, tau)
         return (tau + x[:, :self.n] if self.hybrid else tau), final

@@ -41,7 +41,7 @@ def _lstm_residual_step(inputs, memory, memory_out, tau_out, h, r_max, cell1, ce
     x = np.empty(5 * n)
     x[:4 * n] = inputs
     reversal_step(enc[:n], enc[n:2 * n], enc[2 * n:], q, h, r_max, x[4 * n:])
-    lstm2_step(cell1, cell2, w_out, x, net, memory_out[1 + 3 * n:], tau_out, False)
+    lstm2_step(cell1, cell2, w_out, x, net, memory_out[1 + 3 * n:], tau_out)
     memory_out[0] = 1.0
 
 
