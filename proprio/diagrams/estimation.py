@@ -199,7 +199,7 @@ class WrenchEstimator(Diagram):
     def _add_residual(self, builder: DiagramBuilder, n: int, tau_rbd: OutputPort, tau_int_rbd: OutputPort
                       ) -> tuple[OutputPort, OutputPort]:
         """Feed the backbone's τ_RBD to the residual network and return the ports of τ_dyn and τ_int: for a hybrid
-        network Drake ``Adder`` s, τ_HYB = τ_RBD + τ_NN and τ_int = τ_int,RBD + τ_NN; for a standalone one τ_NN and
+        network two Drake ``Adder`` Systems, τ_HYB = τ_RBD + τ_NN and τ_int = τ_int,RBD + τ_NN; for a standalone one τ_NN and
         τ_NN − τ_rigid (``Multiplexer`` → ``MatrixGain [I −I]``)."""
         residual = self.residual
         builder.Connect(tau_rbd, residual.GetInputPort("tau_rbd"))

@@ -4,7 +4,7 @@ the estimation diagram (:mod:`proprio.diagrams.estimation`), so both wrench obse
 Online, two stages on the τ_rigid of the estimator's RBD stage, as the design card draws them: the backbone adds its
 friction and offsets (τ_RBD, :class:`~proprio.diagrams.torque_model.TorqueModelSystem`), the residual network runs on
 vec(τ_RBD, q, q̇, q̈, r) (τ_NN, :class:`~proprio.systems.residual_network.ResidualNetworkSystem`, its memory held by a
-C++ ``ZeroOrderHold``), and Drake ``Adder`` s sum them. The streaming estimator (:mod:`proprio.online`) chains the
+C++ ``ZeroOrderHold``), and Drake ``Adder`` Systems sum them. The streaming estimator (:mod:`proprio.online`) chains the
 same laws directly (:class:`HybridTorqueStep`).
 
 ``tau_dyn`` = τ_HYB = τ_RBD + τ_NN feeds the Jacobian observer; ``tau_int`` = τ_HYB − τ_rigid = the backbone's
