@@ -31,7 +31,7 @@ def _toy(q, qd, qdd):
 
 
 def _cfg(**train):
-    return training_config({"model": {"arch": "lstm2_fcl", "lstm_hidden": 8}, "data": {"window": 20},
+    return training_config({"model": {"arch": "lstm2_fcl", "lstm_hidden": 8}, "data": {"window": 20, "val_fraction": 0.25},
                             "train": {"max_epochs": 6, "batch_size": 8, "lr": 3e-3, "seed": 0, **train}}, "test")
 
 
