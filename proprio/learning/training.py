@@ -19,7 +19,8 @@ repeat is not taken for one. The validation split is a contiguous block at the e
 (:func:`~proprio.learning.datasets.make_split`): motion later in time than anything trained on, never the test
 split. A warm start (``warm``: fine-tuning a pretrained model, ``proprio train --init``) keeps the
 model's normalisation and scores its weights as given on the validation split too: the saved model is the best of
-backbone, pretrained weights and fine-tuned epochs, the per-joint fallback still against the backbone.
+backbone, pretrained weights and fine-tuned epochs, the per-joint fallback still against the backbone once an epoch
+has run (scored at 0 epochs, the pretrained model keeps its own per-joint decisions and falls back only whole).
 
 The checkpoint (written atomically after each epoch) holds the model, optimizer, scheduler, epoch, best weights,
 history and every RNG state (torch global, the batch-order generator, CUDA), so a resumed run continues exactly where
@@ -258,7 +259,9 @@ def train_model(model: HybridModel, split: Split, cfg: TrainConfig, checkpoint: 
     if hybrid and best_state is None:
         model.zero_output()
         result.fallback = "all"
-    elif hybrid and model.per_joint_output:
+    elif hybrid and model.per_joint_output and not (warm and not result.history):
+        # a warm start scored without an epoch keeps the pretrained model's own per-joint decisions (made on its
+        # training's validation blocks): nothing was trained here for this split's few windows to decide on
         model.eval()
         worse = insignificant_joints(_window_mse(model, x_va, y_va, 4 * cfg.batch_size),
                                      _window_mse(backbone, x_va, y_va, 4 * cfg.batch_size))
