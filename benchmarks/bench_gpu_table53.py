@@ -58,14 +58,14 @@ def synthetic_recording(minutes: float, seed: int) -> PreparedRecording:
     """``minutes`` of smooth 7-joint motion at :data:`RATE` with a learnable residual [N·m] (module docstring)."""
     rng = np.random.default_rng(seed)
     t = np.arange(int(minutes * 60 * RATE)) / RATE
-    w = rng.uniform(0.05, 0.6, (3, N))
-    a = rng.uniform(0.1, 0.5, (3, N))
-    q = sum(a[k] * np.sin(np.outer(t, w[k]) + rng.uniform(0, 6, N)) for k in range(3))
-    qd = sum(a[k] * w[k] * np.cos(np.outer(t, w[k])) for k in range(3))
-    qdd = -sum(a[k] * w[k] ** 2 * np.sin(np.outer(t, w[k])) for k in range(3))
+    w, a, phase = rng.uniform(0.05, 0.6, (3, N)), rng.uniform(0.1, 0.5, (3, N)), rng.uniform(0, 6, (3, N))
+
+    def series(power: int, fn) -> np.ndarray:          # Σ_k a_k w_k^power fn(w_k t + φ_k)
+        return sum(a[k] * w[k] ** power * fn(np.outer(t, w[k]) + phase[k]) for k in range(3))
+    q, qd, qdd = series(0, np.sin), series(1, np.cos), -series(2, np.sin)
     r = rotational_displacement(q)
     tau_rbd = 10 * np.sin(q)
-    tau = tau_rbd + 0.3 * np.tanh(qd / 0.05) + 0.2 * np.tanh(r / np.radians(2.0)) + rng.normal(0, 0.02, q.shape)
+    tau = tau_rbd + 0.3 * np.tanh(qd / 0.05) + 0.2 * np.tanh(r / 0.035) + rng.normal(0, 0.02, q.shape)
     return PreparedRecording(f"synthetic{seed}", t, feature_matrix(tau_rbd, q, qd, qdd, r), tau)
 
 
