@@ -1,6 +1,6 @@
 """The floor of Table 5.4 through the hybrid's signal chain (``benchmarks/chain_floor.py``, README "Hybrid models on
-the twin"): the twin's exact model, told only the conditioned measured channels, is what its laws allow; lost motion
-is the effect that keeps it above the thesis' 0.1 N."""
+the twin"): the twin's exact model, told only the conditioned measured channels, is what its laws allow; the lost
+motion is the effect the chain follows worst, which is why the twin's is bounded by the thesis' Table 5.4."""
 import numpy as np
 import pytest
 import torch
@@ -30,13 +30,15 @@ def _twin_recipe_chain() -> HybridTorqueModel:
 
 @pytest.fixture(scope="module")
 def floor_runs(tmp_path_factory, benchmark_module):
-    """Table 5.4's 0 g run (30 s, seed 7) on the calibrated twin and on the same twin without lost motion."""
+    """Table 5.4's 0 g run (30 s, seed 7) on the calibrated twin and on the same twin with the earlier lost motion
+    (10×: the Coulomb level the thesis' wording gave, before the Table 5.4 rule bounded it)."""
     cf = benchmark_module("chain_floor")
     hyb = _twin_recipe_chain()
     twin = load_twin_config("iiwa14_twin")
+    earlier = [type(e)(e.n, amplitude=10 * e.amplitude, load_gain=10 * e.load_gain, window=e.window,
+                       reversal_velocity=e.reversal_velocity) if e.name == "lost_motion" else e for e in twin.effects]
     runs = {}
-    for label, effects in (("calibrated", twin.effects),
-                           ("no lost motion", [e for e in twin.effects if e.name != "lost_motion"])):
+    for label, effects in (("calibrated", twin.effects), ("earlier lost motion", earlier)):
         out = tmp_path_factory.mktemp(label.replace(" ", "_"))
         errors = cf.table54(hyb, out, 30.0, 7, twin.with_effects(effects), masses=(0.0,))
         runs[label] = (errors, out)
@@ -59,11 +61,12 @@ def test_the_exact_model_is_the_twins_own(floor_runs):
     assert "lost_motion" in {e.name for e in cf.exact_model(rec).effects}
 
 
-def test_lost_motion_keeps_the_exact_model_above_the_theses_table_54(floor_runs):
-    """Through train_hybrid_twin's chain the exact model stays above the thesis' 0.1 N per axis at 0 g on the
-    calibrated twin (y ≈ 0.29 N measured), and meets it on every axis once the twin has no lost motion
-    (≈ 0.02–0.09 N): the lost motion's release and its slow-turn reversals are what the 5 Hz chain cannot follow."""
+def test_the_calibrated_twins_exact_model_meets_the_theses_table_54_and_the_earlier_lost_motion_did_not(floor_runs):
+    """Through train_hybrid_twin's chain the calibrated twin's exact model meets the thesis' 0 g error [0.08 0.09
+    0.12] N on every axis (the calibration rule asks half of it on the 563 s run, benchmarks/chain_floor.py; this
+    30 s run is a small sample), while the lost motion at the earlier amplitude keeps it above 0.15 N: its release
+    and its slow-turn reversals are what the 5 Hz chain cannot follow."""
     _, runs = floor_runs
     rmse = {k: np.sqrt(np.mean(errors["exact model"][0.0] ** 2, axis=0)) for k, (errors, _) in runs.items()}
-    assert np.all(rmse["no lost motion"] <= 0.1), rmse
-    assert np.max(rmse["calibrated"]) > 0.15, rmse
+    assert np.all(rmse["calibrated"] <= np.array([0.08, 0.09, 0.12])), rmse
+    assert np.max(rmse["earlier lost motion"]) > 0.15, rmse

@@ -121,6 +121,28 @@ def test_split_uses_whole_subsequences_and_keeps_their_order():
     np.testing.assert_array_equal(again.test.origin, split.test.origin)   # seeded
 
 
+
+@pytest.mark.parametrize("separate_test", [False, True])
+def test_the_validation_blocks_are_contiguous_and_at_the_end_of_each_recording(separate_test):
+    """Early stopping and the never-worse fallback decide on motion unseen in time: each training recording's
+    validation windows are one run of consecutive windows ending at its last whole window, later than every training
+    and test window cut from it (not random windows sharing their neighbours' motion)."""
+    cfg = DataConfig(window=20, decimate=2, val_fraction=0.1)
+    prep = [prepare_recording(_recording(n, s), _toy_backbone, cfg, f"r{s}") for s, n in ((0, 3000), (1, 5000))]
+    test = [prepare_recording(_recording(2000, 9), _toy_backbone, cfg, "r9")] if separate_test else []
+    split = make_split(prep, cfg, test)
+    share = 0.1 * (1.0 if separate_test else 0.8)
+    for k, p in enumerate(prep):
+        starts = np.sort(split.val.origin[split.val.origin[:, 0] == k, 1])
+        n_windows = p.tau.shape[0] // cfg.window
+        assert len(starts) == round(share * n_windows) >= 1
+        np.testing.assert_array_equal(np.diff(starts), cfg.window)               # contiguous
+        assert starts[-1] == (n_windows - 1) * cfg.window                        # ends with the recording
+        for other in (split.train, split.test):
+            assert np.all(other.origin[other.origin[:, 0] == k, 1] < starts[0])  # everything else earlier
+    assert set(split.test.origin[:, 0]) == ({len(prep)} if separate_test else {0, 1})
+
+
 def test_normalisation_comes_from_the_training_split_only():
     split, _, _ = _split()
     model = HybridModel(ModelConfig(arch="mlp7", mlp_hidden=8))

@@ -11,10 +11,12 @@
 3. τ_RBD from any backbone ``(q, q̇, q̈) -> τ`` and the reversal encoding r on the decimated samples
    (35 features vec(τ_RBD, q, q̇, q̈, r), eq. 4.30).
 4. Each Recording is cut into whole non-overlapping subsequences of T samples (the remainder < T is dropped);
-   the subsequence ORDER is shuffled with ``seed`` (never the samples inside one) and split ``1 − test_fraction`` /
-   ``test_fraction``; ``val_fraction`` of the training subsequences is held out for early stopping, so the test
-   split is never seen during training. With separate test Recordings (e.g. LWR file 1), all their subsequences
-   are the test split instead.
+   the validation split is a contiguous block at the END of each training Recording (its last ``val_fraction`` of
+   the training share of its subsequences): early stopping and the never-worse fallback decide on motion later in
+   time than anything they train on, not on random windows that share their neighbours' motion. The rest — the
+   subsequence ORDER shuffled with ``seed`` (never the samples inside one) — is split ``1 − test_fraction`` /
+   ``test_fraction``, so the test split is never seen during training. With separate test Recordings (e.g. LWR
+   file 1), all their subsequences are the test split instead.
 """
 from __future__ import annotations
 
@@ -171,23 +173,37 @@ def _windows(recs: Sequence[PreparedRecording], T: int, offset: int = 0) -> Wind
     return Windows(np.concatenate(feats), np.concatenate(taus), np.concatenate(origin))
 
 
+def _end_blocks(origin: np.ndarray, share: float) -> np.ndarray:
+    """Per recording (``origin[:, 0]``), the indices of its last ``round(share × its windows)`` windows by start
+    (at least one where the share is > 0 and the recording has two windows or more): a contiguous block at its end."""
+    picked = []
+    for k in np.unique(origin[:, 0]):
+        mine = np.flatnonzero(origin[:, 0] == k)
+        n = int(round(share * len(mine)))
+        n = min(max(n, 1 if share > 0 and len(mine) > 1 else 0), len(mine) - 1)
+        picked.append(mine[np.argsort(origin[mine, 1])][len(mine) - n:])
+    return np.sort(np.concatenate(picked)) if picked else np.zeros(0, dtype=int)
+
+
 def make_split(train_recs: Sequence[PreparedRecording], cfg: DataConfig,
                test_recs: Sequence[PreparedRecording] = ()) -> Split:
     """Step 4 of the module docstring. The split depends only on the data, ``window`` and ``seed``."""
     rng = np.random.default_rng(cfg.seed)
     pool = _windows(train_recs, cfg.window)
-    order = rng.permutation(len(pool))
+    test_share = 0.0 if test_recs else cfg.test_fraction
+    val_idx = _end_blocks(pool.origin, cfg.val_fraction * (1.0 - test_share))
+    earlier = np.setdiff1d(np.arange(len(pool)), val_idx)
+    order = earlier[rng.permutation(len(earlier))]
     if test_recs:
         test = _windows(test_recs, cfg.window, offset=len(train_recs))
         rest = order
     else:
         n_test = max(1, int(round(cfg.test_fraction * len(pool))))
         test, rest = pool.take(np.sort(order[:n_test])), order[n_test:]
-    n_val = int(round(cfg.val_fraction * len(rest)))
-    if len(rest) - n_val < 1:
+    if len(rest) < 1:
         raise ValueError(f"data: only {len(pool)} window(s) of {cfg.window} samples — too few for a train/test split; "
                          "use more data or a shorter window")
-    val, train = pool.take(rest[:n_val]), pool.take(rest[n_val:])
+    val, train = pool.take(val_idx), pool.take(rest)
     rates = [1.0 / float(np.median(np.diff(p.t))) for p in list(train_recs) + list(test_recs)]
     return Split(train=train, val=val, test=test, recordings=list(train_recs) + list(test_recs),
                  rate_hz=float(np.median(rates)))

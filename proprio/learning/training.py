@@ -11,11 +11,16 @@ early stopping watch the validation loss; the weights of the best validation epo
 A hybrid never ends worse than its backbone on the validation split: τ_RBD alone (what
 :meth:`~proprio.learning.models.HybridModel.zero_output` makes of a hybrid) is the score to beat from the start, so
 when no epoch beats it the model falls back to the backbone exactly (``TrainResult.fallback`` = "all"); otherwise,
-where the network has a separate output row per joint, each joint whose validation MSE is not below the backbone's
-is zeroed (falls back to τ_RBD; ``fallback`` lists those joints). The validation split is part of the training data,
-never the test split. A warm start (``warm``: fine-tuning a pretrained model, ``proprio train --init``) keeps the
+where the network has a separate output row per joint, each joint whose validation gain over the backbone is not
+significant is zeroed (falls back to τ_RBD; ``fallback`` lists those joints): per validation window, the residual's
+MSE minus the backbone's; the joint keeps its residual only where their mean lies below zero by more than
+:data:`FALLBACK_Z` standard errors (one-sided, 95 %), so a gain of 1 % on a few windows that a later run does not
+repeat is not taken for one. The validation split is a contiguous block at the end of each training recording
+(:func:`~proprio.learning.datasets.make_split`): motion later in time than anything trained on, never the test
+split. A warm start (``warm``: fine-tuning a pretrained model, ``proprio train --init``) keeps the
 model's normalisation and scores its weights as given on the validation split too: the saved model is the best of
-backbone, pretrained weights and fine-tuned epochs, the per-joint fallback still against the backbone.
+backbone, pretrained weights and fine-tuned epochs, the per-joint fallback still against the backbone once an epoch
+has run (scored at 0 epochs, the pretrained model keeps its own per-joint decisions and falls back only whole).
 
 The checkpoint (written atomically after each epoch) holds the model, optimizer, scheduler, epoch, best weights,
 history and every RNG state (torch global, the batch-order generator, CUDA), so a resumed run continues exactly where
@@ -38,13 +43,16 @@ from proprio.learning.datasets import Split, Windows
 from proprio.learning.models import HybridModel, first_line
 from proprio.learning.sections import section_from_dict
 
-__all__ = ["TrainConfig", "TrainResult", "train_model", "pick_device"]
+__all__ = ["TrainConfig", "TrainResult", "train_model", "pick_device", "insignificant_joints", "FALLBACK_Z"]
 
 _LOSS_WEIGHT_POWER = {"nm2": 0, "inv_std": 1, "normalised": 2}
 """Per-joint weight of the squared error: 1/σ_j^power (module docstring)."""
 _REL_IMPROVEMENT = 1e-4
 """A validation loss counts as better only if it is this much lower (relative) — ReduceLROnPlateau's default
 threshold, so early stopping and the scheduler agree on what a plateau is."""
+FALLBACK_Z = 1.645
+"""A joint keeps its residual only where its validation gain over the backbone (per window, paired) lies this many
+standard errors below zero: a one-sided test at 95 % (module docstring)."""
 
 
 @dataclass
@@ -89,8 +97,9 @@ class TrainResult:
             return (f"residual not kept: no epoch beat the backbone on the validation split (loss "
                     f"{self.backbone_val:.4g}); the saved hybrid predicts τ_RBD exactly")
         if self.fallback:
-            return (f"residual zeroed on joint(s) {', '.join(str(j + 1) for j in self.fallback)}: not better than the "
-                    "backbone on the validation split there; those joints predict τ_RBD exactly")
+            return (f"residual zeroed on joint(s) {', '.join(str(j + 1) for j in self.fallback)}: not significantly "
+                    "better than the backbone on the validation split there (one-sided 95 %); those joints predict "
+                    "τ_RBD exactly")
         return ""
 
     @property
@@ -125,6 +134,21 @@ def _joint_mse(pred: Callable[[torch.Tensor], torch.Tensor], x: torch.Tensor, ta
     sq = sum(((pred(x[i:i + batch]) - tau[i:i + batch]) ** 2).reshape(-1, tau.shape[-1]).sum(0)
              for i in range(0, len(x), batch))
     return sq / max(tau.shape[0] * tau.shape[1], 1)
+
+
+@torch.no_grad()
+def _window_mse(pred: Callable[[torch.Tensor], torch.Tensor], x: torch.Tensor, tau: torch.Tensor, batch: int
+                ) -> torch.Tensor:
+    """Per-window, per-joint MSE ``[W, n]`` [N·m²] of ``pred(x)`` against ``tau``."""
+    return torch.cat([((pred(x[i:i + batch]) - tau[i:i + batch]) ** 2).mean(1) for i in range(0, len(x), batch)])
+
+
+def insignificant_joints(model_mse: torch.Tensor, backbone_mse: torch.Tensor, z: float = FALLBACK_Z) -> list[int]:
+    """The joints (0-based) whose per-window validation MSE ``[W, n]`` does not beat the backbone's significantly:
+    the paired difference's mean is not below ``−z`` standard errors (with one window: not below zero)."""
+    d = (model_mse - backbone_mse).double()
+    se = d.std(0) / len(d) ** 0.5 if len(d) > 1 else torch.zeros(d.shape[1], dtype=d.dtype)
+    return (d.mean(0) >= -z * se).nonzero().flatten().tolist()
 
 
 @torch.no_grad()
@@ -243,9 +267,12 @@ def train_model(model: HybridModel, split: Split, cfg: TrainConfig, checkpoint: 
     if hybrid and best_state is None:
         model.zero_output()
         result.fallback = "all"
-    elif hybrid and model.per_joint_output:
+    elif hybrid and model.per_joint_output and not (warm and not result.history):
+        # a warm start scored without an epoch keeps the pretrained model's own per-joint decisions (made on its
+        # training's validation blocks): nothing was trained here for this split's few windows to decide on
         model.eval()
-        worse = (_joint_mse(model, x_va, y_va, 4 * cfg.batch_size) >= base).nonzero().flatten().tolist()
+        worse = insignificant_joints(_window_mse(model, x_va, y_va, 4 * cfg.batch_size),
+                                     _window_mse(backbone, x_va, y_va, 4 * cfg.batch_size))
         if worse:
             model.zero_output(worse)
         result.fallback = worse
