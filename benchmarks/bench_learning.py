@@ -1,7 +1,8 @@
 """Learning-stack benchmarks: CPU training time per epoch for each architecture, and µs per sample of the streaming
 hybrid estimator in a Drake Diagram.
 
-    .venv/bin/python benchmarks/bench_learning.py [--samples 20000] [--epochs 2] [--steps 3000] [--trained M.pt ...]
+    .venv/bin/python benchmarks/bench_learning.py [--samples 20000] [--epochs 2] [--steps 3000] [--log-minutes 10]
+                                                  [--batch-only] [--trained M.pt ...]
 
 1. Training: synthetic 7-joint data at 75 Hz (``--samples`` samples, windows of T = 100; Transformer also T = 500),
    one torch thread, batch 32 windows; prints s/epoch and training samples/s per architecture (thesis sizes:
@@ -13,7 +14,12 @@ hybrid estimator in a Drake Diagram.
    sample for the full Diagram and for the replay + residual System alone. Target: ≤ 100 µs per sample on one core.
    Also: the estimation diagram ``proprio estimate`` builds for a hybrid ``.pt`` (C++ backbone, residual, Jacobian
    AND momentum observer, one logger), for reference; ``bench_online.py`` times it per configuration.
-3. ``--trained M.pt ...``: models saved by ``proprio train`` (their training history): epochs run, s/epoch, the time
+3. Batch inference over one long log (``--log-minutes`` 10 at 75 Hz and at 1 kHz, float64, one thread): the training
+   form (torch ``HybridModel.run``) against the inference law every path outside training calls
+   (:func:`~proprio.learning.evaluation.predict_streaming` = ``StreamingStepper.run``: an LSTM's streaming kernel
+   looped over the samples in one numba call, MLP-7 vectorised) — samples/s, the same-run ratio and the largest
+   difference [N·m]. ``--batch-only`` runs this part alone.
+4. ``--trained M.pt ...``: models saved by ``proprio train`` (their training history): epochs run, s/epoch, the time
    to the saved (best) epoch — the time it took to reach the test figure printed beside it (the Table 5.3 cell the
    run made) — on the threads it was trained with.
 """
@@ -35,6 +41,7 @@ from proprio.description import load_robot
 from proprio.diagrams.estimation import RigidBodyTorqueModel, build_estimation_diagram
 from proprio.diagrams.hybrid_torque_model import HybridTorqueModel
 from proprio.learning.datasets import DataConfig, PreparedRecording, make_split
+from proprio.learning.evaluation import predict_streaming
 from proprio.learning.features import feature_matrix, rotational_displacement
 from proprio.learning.models import ARCHS, HybridModel, ModelConfig, load_model
 from proprio.learning.training import TrainConfig, train_model
@@ -191,11 +198,51 @@ def report_trained(paths: list[Path]) -> None:
               f"{mse.get(label + ' (streaming)', float('nan')):>9.4f}")
 
 
+def bench_batch_inference(minutes: float) -> None:
+    """CPU s and samples/s of torch's streaming forward and of the numba batch law over one ``minutes``-long log."""
+    print(f"\nBatch streaming inference over one {minutes:g}-minute log (float64, 1 thread, CPU time, best of 3)")
+    print(f"{'model':<16}{'rate':>8}{'samples':>9}{'torch run':>14}{'numba/numpy':>14}{'speed-up':>10}{'max |Δ| N·m':>13}")
+    for rate in (RATE, 1000.0):
+        samples = int(minutes * 60 * rate)
+        rng = np.random.default_rng(0)
+        t = np.arange(samples) / rate
+        w = rng.uniform(0.1, 0.6, N)
+        q = 0.5 * np.sin(np.outer(t, w)) + 0.02 * np.sin(np.outer(t, 3 * w))
+        qd, qdd = 0.5 * w * np.cos(np.outer(t, w)), -0.5 * w ** 2 * np.sin(np.outer(t, w))
+        x = feature_matrix(10 * np.sin(q), q, qd, qdd, rotational_displacement(q))
+        for arch in ("mlp7", "lstm2", "lstm2_fcl"):
+            torch.manual_seed(0)
+            model = HybridModel(ModelConfig(arch=arch, rate_hz=rate))
+            with torch.no_grad():                       # a network that does something (untrained: τ_RBD exactly)
+                for p in model.net.parameters():
+                    p.copy_(0.3 * torch.randn_like(p))
+            model.set_normalisation(x, x[:, :N] + rng.normal(0, 0.3, (samples, N)))
+            model = model.double().eval()
+
+            def torch_run() -> np.ndarray:
+                with torch.no_grad():
+                    return model.run(torch.as_tensor(x[None]))[0][0].numpy()
+
+            times, out = {}, {}
+            for name, run in (("torch", torch_run), ("numba", lambda: predict_streaming(model, x))):
+                best = np.inf
+                for _ in range(3):
+                    start = time.process_time()
+                    out[name] = run()
+                    best = min(best, time.process_time() - start)
+                times[name] = best
+            diff = float(np.abs(out["torch"] - out["numba"]).max())
+            print(f"{model.cfg.label():<16}{rate:>6.0f}Hz{samples:>9}{samples / times['torch'] / 1e3:>10.1f} k/s"
+                  f"{samples / times['numba'] / 1e3:>10.1f} k/s{times['torch'] / times['numba']:>9.2f}×{diff:>13.1e}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", type=int, default=20000, help="training samples per epoch benchmark")
     parser.add_argument("--epochs", type=int, default=2, help="epochs timed per architecture")
     parser.add_argument("--steps", type=int, default=3000, help="Diagram steps timed")
+    parser.add_argument("--log-minutes", type=float, default=10.0, help="length of the batch-inference log [min]")
+    parser.add_argument("--batch-only", action="store_true", help="time only the batch inference, then stop")
     parser.add_argument("--trained", nargs="+", type=Path, default=[], metavar="MODEL",
                         help="saved models (.pt): report their training time to the best epoch, then stop")
     args = parser.parse_args()
@@ -203,7 +250,11 @@ def main() -> None:
         report_trained(args.trained)
         return
     torch.set_num_threads(1)
+    if args.batch_only:
+        bench_batch_inference(args.log_minutes)
+        return
     bench_streaming(args.steps)
+    bench_batch_inference(args.log_minutes)
     bench_training(args.samples, args.epochs)
 
 

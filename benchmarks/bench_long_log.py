@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/bench_long_log.py [--minutes 10] [--compare-seconds 30] [--no-long] [--work DIR]
 
-**Data.** The twin's friction-withheld case of the gap benchmark (:func:`proprio.diagnosis.benchmark_case_data.
+**Data.** The twin's friction-withheld case of the gap benchmark (:func:`proprio.gap_benchmark.case_data.
 twin_case_config`: ``iiwa14_twin`` with its link friction, background torque and encoder noise) along long RFMA
 trajectories, two recordings (training, held out) of ``minutes / 2`` each, logged like a robot: 1 kHz, host-stamp
 jitter σ = 0.1 ms, 2 % of the samples followed by a burst of 1–7 lost ones, q and τ only — and 5 % repeated packets
@@ -10,7 +10,7 @@ jitter σ = 0.1 ms, 2 % of the samples followed by a burst of 1–7 lost ones, q
 predecessor), merged where they enter by :func:`proprio.recording.merge_duplicate_stamps`, as the importer does. The
 raw logs are cached under ``--work`` (``np.savez``, written atomically), so a rerun skips the simulation.
 
-**Diagnosis.** :func:`proprio.diagnosis.report.diagnose` of the model without friction (``iiwa14_identified``'s rigid
+**Diagnosis.** :func:`proprio.diagnosis.diagnose` of the model without friction (``iiwa14_identified``'s rigid
 body + the background torque and encoder noise) on the two recordings with the diagnosis' conditioning
 (``DIAGNOSIS_CONDITIONING``: the decimation it chooses itself), timed in wall and CPU seconds of this process; it
 prints samples/s and the ratio to real time. **Verdict check**: the named effects and the data-path findings, in
@@ -31,8 +31,9 @@ from pathlib import Path
 
 import numpy as np
 
-from proprio.diagnosis.benchmark_case_data import ENCODER, NOISE_STD, twin_case_config
-from proprio.diagnosis.benchmark_cases import BenchmarkCase
+from proprio.gap_benchmark.case_data import twin_case_config
+from proprio.gap_benchmark.recordings import ENCODER, NOISE_STD
+from proprio.gap_benchmark.cases import BenchmarkCase
 from proprio.recording import Recording, merge_duplicate_stamps, validate_recording
 
 LOGGER = (("rate_hz", 1000.0), ("stamp_jitter_ms", 0.1), ("dropout_prob", 0.02), ("dropout_max_samples", 7))
@@ -108,7 +109,7 @@ def model_of(seed: int):
 def run(model, train: Recording, hold: Recording, decimate: bool, out: Path) -> dict:
     """One diagnosis, timed: its verdict ``(named, data path)``, wall and CPU seconds, the conditioning lines."""
     from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING
-    from proprio.diagnosis.report import diagnose
+    from proprio.diagnosis import diagnose
 
     cond = dataclasses.replace(DIAGNOSIS_CONDITIONING, decimate=decimate)
     w0, c0 = time.perf_counter(), time.process_time()

@@ -12,7 +12,8 @@ plus noise, one step per sample:
 * RBD — replay of conditioned q, q̇, q̈, τ_J → the RBD stage (``RigidBodyTermsSystem``: τ_rigid, momentum terms and
   J on one plant context) → ``TorqueModelSystem`` (friction) → Jacobian AND momentum observers → ``WrenchMap`` → one
   logger;
-* hybrid — the same with a hybrid LSTM-2-FCL (thesis sizes: 35→35→7 + linear) on that backbone;
+* hybrid — the same with a hybrid LSTM-2-FCL (thesis sizes: 35→35→7 + linear) on that backbone, its network the
+  next stage (``ResidualNetworkSystem``: τ_NN; C++ ``Adder`` Systems: τ_dyn = τ_RBD + τ_NN, τ_int = τ_int,RBD + τ_NN);
 * … + causal conditioning — raw q, τ_J replayed into the ``CausalConditioner`` (C++ LinearSystem) first: the
   Diagram the real robot would run;
 * streaming — :meth:`OnlineEstimator.step` called from a Python loop (raw q, τ_J in, conditioning included): the

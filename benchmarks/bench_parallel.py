@@ -46,8 +46,8 @@ def bench_dataset(workers: int, seeds: int, seconds: float) -> tuple[float, floa
 
 
 def bench_gap(workers: int, cases: list[str]) -> tuple[float, float]:
-    from proprio.diagnosis.benchmark import run_benchmark
-    from proprio.diagnosis.benchmark_cases import make_cases, select_cases
+    from proprio.gap_benchmark.run import run_benchmark
+    from proprio.gap_benchmark.cases import make_cases, select_cases
 
     chosen = select_cases(make_cases(quick=True), cases)
 

@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/bench_robot_log.py [--seeds 3] [--workers 2]
 
-Twin cases of the gap benchmark (:mod:`proprio.diagnosis.benchmark`, ``--twin``) with the twin's logger at 1 kHz,
+Twin cases of the gap benchmark (:mod:`proprio.gap_benchmark.run`, ``--twin``) with the twin's logger at 1 kHz,
 host-stamp jitter σ = 0.1 ms (steps 0.7–1.3 ms) and 2 % of the samples followed by a burst of 1–7 lost ones (steps
 up to 8 ms): a null case (friction in the data and in the model) and a friction-withheld case per seed. Prints per
 case what was named (physical effects and, apart, the data-path candidates), the held-out RMS after the last step
@@ -17,8 +17,8 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from proprio.diagnosis.benchmark import run_case
-from proprio.diagnosis.benchmark_cases import BenchmarkCase
+from proprio.gap_benchmark.run import run_case
+from proprio.gap_benchmark.cases import BenchmarkCase
 
 LOGGER = (("rate_hz", 1000.0), ("stamp_jitter_ms", 0.1), ("dropout_prob", 0.02), ("dropout_max_samples", 7))
 

@@ -152,7 +152,7 @@ def _stage_payload(ctx: dict[str, Any], out: Path) -> list[Path]:
 
 def _stage_diagnosis(ctx: dict[str, Any], out: Path) -> list[Path]:
     from proprio.diagrams.twin import load_twin_config
-    from proprio.diagnosis.report import diagnose
+    from proprio.diagnosis import diagnose
 
     step = DIAGNOSIS_DOWNSAMPLE
     result = diagnose(load_robot(NOMINAL_ROBOT), [ctx["twin_excitation"].downsample(step)],
@@ -204,7 +204,8 @@ def _stage_hybrid(ctx: dict[str, Any], out: Path) -> list[Path]:
     res = estimate_wrench(load_torque_model(out / "hybrid_lstm.pt"), payload_recs["1000 g"],
                           mapping=WrenchMapping(force_only=True))
     jac, mom = (" ".join(f"{x:.2f}" for x in res.force_stats(obs)[0]) for obs in ("jacobian", "momentum"))
-    text += (f"\n\nOnline: the model inside the estimation diagram (TorqueModelSystem, {res.t.size} steps), "
+    text += (f"\n\nOnline: the model inside the estimation diagram (backbone, then ResidualNetworkSystem, "
+             f"{res.t.size} steps), "
              f"1000 g: force-only RMSE [{jac}] N (Jacobian observer), [{mom}] N (momentum observer), after "
              f"{res.skip_start_s:.1f} s of filter start-up")
     print(_indent(text))

@@ -9,13 +9,13 @@ import pytest
 
 from proprio.collision import CollisionChecker
 from proprio.description import load_robot
-from proprio.diagnosis.ambiguity import ambiguity_markdown
-from proprio.diagnosis.benchmark_confusable import (CONFUSABLE_PAIRS, ConfusableResult, confusable_cases,
-                                                    summarise_confusable)
+from proprio.diagnosis.selection.ambiguity import ambiguity_markdown
+from proprio.gap_benchmark.confusable import (CONFUSABLE_PAIRS, ConfusableResult, confusable_cases,
+                                              summarise_confusable)
 from proprio.diagnosis.data import SimModel
 from proprio.diagnosis.discriminate import PASS_S, design_experiment, resolution, split_passes
 from proprio.diagnosis.resolve import with_experiments
-from proprio.diagnosis.selection import attribute
+from proprio.diagnosis.selection.forward import attribute
 from proprio.dynamics import inverse_dynamics
 from proprio.effects import EFFECTS
 from proprio.recording import Recording
@@ -99,8 +99,8 @@ def test_rediagnosis_with_the_experiment_names_the_true_effect(tie):
 
 
 def test_confusable_family_lists_the_pairs_on_confusable_motions_and_scores_before_and_after():
-    from proprio.diagnosis.benchmark_confusable import (LEG_DEG, confusable_data, confusable_motion,
-                                                        confusable_params)
+    from proprio.gap_benchmark.confusable import (LEG_DEG, confusable_data, confusable_motion,
+                                                  confusable_params)
     from proprio.reversals import reversal_travel
 
     cases = confusable_cases(seed=3)
@@ -161,7 +161,7 @@ def test_cli_refuses_a_bad_resolve_twin_and_a_short_experiment_before_any_diagno
 
 
 def test_the_tie_rule_needs_alike_torques_and_a_shared_gain_not_only_similar_strength():
-    from proprio.diagnosis.ambiguity import TIE_CORRELATION, is_tie
+    from proprio.diagnosis.selection.ambiguity import TIE_CORRELATION, is_tie
     t_crit = 1.7
     # the true tie above (82 % shared, correlation 0.95) and the real LWR 4+ friction ↔ rigid body pair (comparable
     # strength, the block test cannot order them, but 11 % shared and correlation 0.23: both are needed)
@@ -188,7 +188,7 @@ def two_effects():
 
 
 def test_two_effects_that_each_explain_their_own_part_are_both_named_and_not_tied(two_effects):
-    from proprio.diagnosis.ambiguity import TIE_CORRELATION, TIE_SHARE
+    from proprio.diagnosis.selection.ambiguity import TIE_CORRELATION, TIE_SHARE
     att = two_effects
     named = {s.name for s in att.physical_steps}
     assert {"viscous_coulomb"} <= named and named & {"sensor_offset", "sensor_offset_gain"}, named
@@ -204,7 +204,7 @@ def test_two_effects_that_each_explain_their_own_part_are_both_named_and_not_tie
 @pytest.mark.slow
 def test_confusable_family_through_the_twin_scores_right_or_tied_before_and_right_after():
     """The whole family through the twin (8 cases, ≈ 5–15 min each on one core; README "Confusable effects")."""
-    from proprio.diagnosis.benchmark_confusable import run_confusable_case
+    from proprio.gap_benchmark.confusable import run_confusable_case
     results = [run_confusable_case(c) for c in confusable_cases(seed=0, twin=True)]
     scores, text = summarise_confusable(results)
     assert scores["cases"] == len(CONFUSABLE_PAIRS), text

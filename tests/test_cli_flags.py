@@ -22,7 +22,7 @@ ROBOT = "iiwa14_nominal"
 
 def _rec(path: Path, seconds: float, offset: np.ndarray | None = None, **meta) -> Path:
     from proprio.description import load_robot
-    from proprio.diagnosis.benchmark_case_data import rfma_like_motion
+    from proprio.gap_benchmark.case_data import rfma_like_motion
     from proprio.dynamics import inverse_dynamics
 
     robot = load_robot(ROBOT)

@@ -504,7 +504,7 @@ def test_tx40_identify_cli_split_and_tau_kind_check(tmp_path, capsys):
 def test_tx40_cad_description_is_the_published_model_without_drive_and_friction_terms():
     """The CAD model of a drive-torque arm: the published model's link inertials and transmission, τ a drive torque,
     and nothing a diagnosis of the log should find (friction, rotor inertia, motor friction, offsets)."""
-    from proprio.diagnosis.drive_candidates import tau_kind
+    from proprio.diagnosis.candidates.drive import tau_kind
 
     cad, pub = load_robot("staubli_tx40_cad"), load_robot("staubli_tx40")
     assert tau_kind(cad) == "drive" and cad.drive.coupled
@@ -518,9 +518,9 @@ def test_drive_candidates_without_joint_friction_and_their_names():
     """Without joint friction in the model, friction is the viscous_coulomb candidate and the motor friction
     candidate keeps only the coupled motor (motor 6 turns with joints 5 and 6); a drive torque's gain, offset and
     noise are named for the drive (no torque sensor)."""
-    from proprio.diagnosis.candidate_set import candidate_set
+    from proprio.diagnosis.candidates.registry import candidate_set
     from proprio.diagnosis.data import SimModel
-    from proprio.diagnosis.verdict import plain_names
+    from proprio.diagnosis.report.verdict import plain_names
 
     model = SimModel(load_robot("staubli_tx40_cad"))
     cands = {c.name: c for c in candidate_set(model, None, ["viscous_coulomb", "motor_friction"])}
@@ -542,7 +542,7 @@ def test_tx40_diagnosis_against_its_cad_model(tmp_path):
     ≈ 5 s more held-out data."""
     if not TX40.is_dir():
         pytest.skip("../shared/data/staubli_tx40 not present")
-    from proprio.diagnosis.report import diagnose
+    from proprio.diagnosis import diagnose
     from proprio.importer import import_recording
 
     rec = import_recording(Path(__file__).resolve().parents[1] / "proprio" / "configs" / "import_tx40.yaml",

@@ -121,7 +121,7 @@ def _drive_robot(coupled: bool = False, **fields):
 
 
 def _gap_data(model, seed: int = 0):
-    from proprio.diagnosis.benchmark_case_data import rfma_like_motion
+    from proprio.gap_benchmark.case_data import rfma_like_motion
     from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING, GapData, condition_all, kept
     from proprio.recording import Recording
 
@@ -132,8 +132,8 @@ def _gap_data(model, seed: int = 0):
 
 
 def test_tau_kind_decides_the_candidates():
-    from proprio.diagnosis.candidate_set import candidate_set
-    from proprio.diagnosis.drive_candidates import DRIVE_ONLY, GAUGE_ONLY, tau_kind
+    from proprio.diagnosis.candidates.registry import candidate_set
+    from proprio.diagnosis.candidates.drive import DRIVE_ONLY, GAUGE_ONLY, tau_kind
     from proprio.diagnosis.data import DiagnosisError, SimModel
 
     link = SimModel(load_robot("iiwa14_identified"))
@@ -158,7 +158,7 @@ def test_tau_kind_decides_the_candidates():
 def test_drive_candidates_follow_the_coupled_law_and_patch():
     """A coupled motor's friction candidate is the identification's drive law (τ = Cᵀ(F_v,m C q̇ + F_c,m sgn_s(C q̇)));
     the model of a drive arm predicts its drive terms; a fitted candidate patches the description's drive block."""
-    from proprio.diagnosis.drive_candidates import DriveCandidate
+    from proprio.diagnosis.candidates.drive import DriveCandidate
     from proprio.diagnosis.data import SimModel
     from proprio.identification.regressor import drive_torque
 
@@ -191,7 +191,7 @@ def test_diagnose_refuses_recordings_of_the_other_tau_kind(tmp_path, capsys):
     """``proprio diagnose``: a Recording whose ``meta.tau_kind`` contradicts the robot description (drive torques
     against a link-sensor model) is refused before any diagnosis, naming the file and what to change."""
     from proprio.cli import main
-    from proprio.diagnosis.benchmark_case_data import rfma_like_motion
+    from proprio.gap_benchmark.case_data import rfma_like_motion
     from proprio.recording import Recording, save_recording
 
     robot = load_robot("iiwa14_identified")

@@ -12,7 +12,7 @@ from pydrake.systems.framework import DiagramBuilder
 
 from proprio import friction_law
 from proprio.description import load_robot
-from proprio.diagnosis.candidates import EffectCandidate
+from proprio.diagnosis.candidates.base import EffectCandidate
 from proprio.diagnosis.data import SimModel
 from proprio.diagrams.estimation import RigidBodyTorqueModel
 from proprio.diagrams.twin import TwinConfig

@@ -11,14 +11,14 @@ from proprio.conditioning import ConditioningConfig, condition
 from proprio.description import load_robot
 from proprio.dynamics import inverse_dynamics
 from proprio.diagnosis.data import DiagnosisError, SimModel
-from proprio.diagnosis.selection import attribute
-from proprio.diagnosis.benchmark_case_data import generate_case_data, rfma_like_motion
-from proprio.diagnosis.benchmark_cases import BenchmarkCase, make_cases
+from proprio.diagnosis.selection.forward import attribute
+from proprio.gap_benchmark.case_data import generate_case_data, rfma_like_motion
+from proprio.gap_benchmark.cases import BenchmarkCase, make_cases
 from proprio.diagnosis.localisation import REVERSAL_DEADBAND, gap_map, regime_families
 from proprio.reversals import reversal_travel
 from proprio.diagnosis.encoder_floor import encoder_floor
-from proprio.diagnosis.report import diagnose
-from proprio.diagnosis.verdict import data_and_processing_text
+from proprio.diagnosis import diagnose
+from proprio.diagnosis.report.verdict import data_and_processing_text
 from proprio.recording import Recording
 from proprio.effects import EFFECTS
 from proprio.signals import MotionSignals
@@ -101,7 +101,7 @@ def test_coulomb_friction_is_found_and_recovered(robot, tmp_path):
     assert not (rs.structured_time.any() or rs.structured_state.any())
     assert np.all(rs.white_joints | rs.within_processing)
     if not rs.white:
-        assert "What remains is white" not in d.verdict and "is not white" in d.verdict
+        assert "What remains is white" not in d.explanation and "is not white" in d.explanation
     assert not any(np.any(f.rms[~rs.white_joints] > 0) for f in att.noise)
     for key in ("report_md", "report_html", "gap_map_png", "before_after_png"):
         assert d.files[key].exists() and d.files[key].stat().st_size > 0
@@ -113,9 +113,9 @@ def test_coulomb_friction_is_found_and_recovered(robot, tmp_path):
     assert data["samples"] == e.shape[0] and [p["name"] for p in data["panels"]] == att.joint_names
     np.testing.assert_allclose(data["panels"][3]["y"][0], e[:, 3], rtol=1e-4, atol=1e-6)
     np.testing.assert_allclose(data["panels"][3]["y"][1], e[:, 3] - pred[:, 3], rtol=1e-4, atol=1e-6)
-    assert "![before/after](before_after.png)" in d.files["report_md"].read_text()
-    md = d.files["report_md"].read_text()                     # data-quality findings come first
-    assert "| train 1 |" in md and md.index("## Data quality") < md.index("## Verdict")
+    md = d.files["report_md"].read_text()                     # the summary first, the figures, then the details
+    assert "(before_after.png)" in md and md.index("## Summary") < md.index("(before_after.png)")
+    assert "| train 1 |" in md and md.index("## Summary") < md.index("## Data quality")
     # the data's position-noise floor is reported (the model has no encoder noise: information, not a finding)
     summary = json.loads(d.files["json"].read_text())
     assert summary["processing"] == [] and summary["encoder_floor"]["modelled_sigma"] is None
@@ -231,7 +231,7 @@ def test_twin_case_records_the_withheld_effects_through_the_twin():
 
 
 def test_quick_lists_hold_one_out_of_library_case_reached_through_its_plugin_path():
-    from proprio.diagnosis.benchmark_cases import OPEN_WORLD_TYPES, is_open_world
+    from proprio.gap_benchmark.cases import OPEN_WORLD_TYPES, is_open_world
     from proprio.effects import resolve_effect
 
     for twin in (False, True):
@@ -250,7 +250,7 @@ def test_quick_lists_hold_one_out_of_library_case_reached_through_its_plugin_pat
 
 
 def test_open_world_and_time_metrics_are_scored_and_old_results_still_read():
-    from proprio.diagnosis.benchmark import CaseResult, case_result_from_dict, case_result_to_dict, summarise
+    from proprio.gap_benchmark.run import CaseResult, case_result_from_dict, case_result_to_dict, summarise
 
     path = "proprio.effects.open_world:TorqueCrossTalk"
     case = BenchmarkCase("open:x@1", (path,), 1.0, 0, open_joint=0, expected_signal="tau_2")

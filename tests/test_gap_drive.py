@@ -1,12 +1,12 @@
-"""The gap benchmark's drive-torque family (:mod:`proprio.diagnosis.benchmark_drive`): its cases, the arm and model
+"""The gap benchmark's drive-torque family (:mod:`proprio.gap_benchmark.drive`): its cases, the arm and model
 each case withholds from, and the drive arm's twin — whose τ is the drive torque with the diagnosis' own laws."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from proprio.diagnosis.benchmark_cases import expected_name
-from proprio.diagnosis.benchmark_drive import DRIVE_TYPES, SHARED_MOTOR, drive_case_config, drive_cases
+from proprio.gap_benchmark.cases import expected_name
+from proprio.gap_benchmark.drive import DRIVE_TYPES, SHARED_MOTOR, drive_case_config, drive_cases
 
 
 def test_family_cases():
@@ -83,7 +83,7 @@ def test_drive_arm_twin_senses_the_drive_laws(kind):
 def test_family_score_takes_the_shared_motors_friction_by_its_candidates_name():
     """A coupled-motor-friction case is right when the diagnosis names ``motor_friction`` (its candidate), in the
     family's own line as in the overall top-1; a null case that names something is a false positive."""
-    from proprio.diagnosis.benchmark import CaseResult, summarise
+    from proprio.gap_benchmark.run import CaseResult, summarise
 
     cases = {c.name: c for c in drive_cases(quick=True)}
     res = [CaseResult(cases["drive:coupled_motor_friction@1/100Hz"], ["motor_friction"], ["motor_friction"], 0.5, 0.5,

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from proprio.description import load_robot
-from proprio.diagnosis.benchmark_case_data import rfma_like_motion
+from proprio.gap_benchmark.case_data import rfma_like_motion
 from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING, GapData, SimModel, condition_all, kept
 from proprio.diagnosis.hints import find_hints
-from proprio.diagnosis.report import diagnose
-from proprio.diagnosis.selection import _time_blocks, attribute
+from proprio.diagnosis import diagnose
+from proprio.diagnosis.selection.forward import _time_blocks, attribute
 from proprio.dynamics import inverse_dynamics
 from proprio.effects import EFFECTS
 from proprio.recording import Recording
@@ -72,11 +72,11 @@ def test_cross_talk_is_hinted_as_tau_of_the_neighbour_and_reported_as_a_hint(rob
     assert hint.signals[0] == "tau_2" and hint.terms[0] == "τ₂"
     assert hint.coefficients[0] == pytest.approx(0.02, rel=0.1)
     assert hint.gain > 0.5 and hint.t_stat > 3
-    assert "joint 1's residual follows τ of joint 2" in hint.text and "held-out gain" in hint.text
+    assert "joint 1's remaining residual follows τ of joint 2" in hint.text and "held-out gain" in hint.text
     assert all(s.name in att.candidates for s in att.steps)             # never reported as a library effect
     md = d.files["report_md"].read_text()
-    assert "## Hints beyond the library (not library effects)" in md and "| tau_2" in md
-    assert "Hint (not a library effect): joint 1's residual" in d.verdict
+    assert "## Hints beyond the library" in md and "| τ₂" in md
+    assert "Hint: joint 1's remaining residual" in d.explanation
     js = json.loads(d.files["json"].read_text())
     assert js["hints"][0]["signals"][0] == "tau_2" and js["hints"][0]["joint"] == 0
     assert "Hints beyond the library" in d.files["report_html"].read_text()

@@ -28,7 +28,7 @@ N = 7
 # --------------------------------------------------------------------------------------------------------------------
 def _good(seconds: float = 3.0) -> dict:
     from proprio.description import load_robot
-    from proprio.diagnosis.benchmark_case_data import rfma_like_motion
+    from proprio.gap_benchmark.case_data import rfma_like_motion
     from proprio.dynamics import inverse_dynamics
 
     robot = load_robot(ROBOT)

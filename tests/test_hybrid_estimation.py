@@ -1,11 +1,15 @@
-"""The hybrid model in the estimation diagram: the network runs online (ResidualNetworkSystem inside the torque-model
-sub-Diagram) and matches the offline streaming path; its backbone and preprocessing are the training ones."""
+"""The hybrid model in the estimation diagram: the network runs online as its own stage (ResidualNetworkSystem after
+the backbone's TorqueModelSystem, Adders summing τ_RBD + τ_NN) and matches the offline streaming path; its backbone
+and preprocessing are the training ones."""
 import numpy as np
 import pytest
 import torch
 
 from proprio.description import load_robot
-from proprio.diagrams.estimation import estimate_wrench, estimate_wrench_offline, load_torque_model
+from pydrake.systems.primitives import Adder
+
+from proprio.diagrams.estimation import (TorqueModelSystem, WrenchEstimator, estimate_wrench, estimate_wrench_offline,
+                                         load_torque_model)
 from proprio.diagrams.hybrid_torque_model import HybridTorqueModel
 from proprio.dynamics import inverse_dynamics
 from proprio.learning.datasets import DataConfig, prepare_recording
@@ -13,6 +17,7 @@ from proprio.learning.features import rbd_provider
 from proprio.learning.models import HybridModel, ModelConfig, save_model
 from proprio.payload import Payload, attach_payload
 from proprio.recording import Recording, RecordingError
+from proprio.systems.residual_network import ResidualNetworkSystem
 
 RATE = 150.0
 DATA = DataConfig(decimate=2, window=20, cutoff_hz=10.0, tau_filter_hz=5.0)
@@ -36,10 +41,10 @@ def _recording(desc, seconds=8.0, rate=RATE, mass=1.0, seed=0) -> Recording:
     return Recording(t=t, q=q, tau=tau, meta={"robot": desc.name})
 
 
-def _model_file(tmp_path, desc, arch="lstm2_fcl"):
+def _model_file(tmp_path, desc, arch="lstm2_fcl", hybrid=True):
     torch.manual_seed(0)
-    cfg = ModelConfig(arch=arch, window=20, lstm_hidden=6, mlp_hidden=8, tf_d_model=8, tf_heads=2, tf_layers=1,
-                      tf_ff=16, rate_hz=RATE / DATA.decimate)
+    cfg = ModelConfig(arch=arch, hybrid=hybrid, window=20, lstm_hidden=6, mlp_hidden=8, tf_d_model=8, tf_heads=2,
+                      tf_layers=1, tf_ff=16, rate_hz=RATE / DATA.decimate)
     model = HybridModel(cfg)
     with torch.no_grad():                     # as if trained: an untrained hybrid predicts τ_RBD exactly
         for p in model.net.parameters():
@@ -71,6 +76,34 @@ def test_network_runs_online_in_the_diagram_and_equals_offline(tmp_path, desc):
     # sample for sample (the momentum estimate at k is r_{k−1} in both; its recursion sums rounding: 1e-8)
     for obs, atol in (("jacobian", 1e-9), ("momentum", 1e-8)):
         np.testing.assert_allclose(online.wrench[obs], offline.wrench[obs], rtol=0, atol=atol)
+        np.testing.assert_allclose(online.tau_ext[obs], offline.tau_ext[obs], rtol=0, atol=atol)
+
+
+def test_the_network_is_its_own_stage_of_the_diagram(tmp_path, desc):
+    """Design card: features → RBD backbone τ_RBD → residual network τ_NN → observers, one System per stage; the
+    sums τ_RBD + τ_NN and τ_int,RBD + τ_NN are C++ Adders."""
+    hybrid = load_torque_model(_model_file(tmp_path, desc))
+    est = WrenchEstimator(hybrid, 1 / hybrid.rate_hz)
+    stages = {s.get_name(): s for s in est.GetSystems()}
+    assert {"rigid_body", "torque_model", "residual_network", "tau_dyn", "tau_int", "jacobian_observer",
+            "momentum_observer", "wrench"} <= set(stages)
+    assert isinstance(stages["residual_network"], ResidualNetworkSystem)
+    assert isinstance(stages["tau_dyn"], Adder) and isinstance(stages["tau_int"], Adder)
+    residual = stages["residual_network"]
+    assert [residual.get_input_port(i).get_name() for i in range(residual.num_input_ports())] == \
+        ["tau_rbd", "q", "qd", "qdd"]
+    assert residual.GetOutputPort("tau_nn").size() == desc.n
+    with pytest.raises(ValueError, match="memory"):            # the backbone stage takes no network
+        TorqueModelSystem(hybrid)
+
+
+@pytest.mark.parametrize("arch", ["mlp7", "lstm2"])
+def test_a_standalone_network_runs_in_the_diagram_and_equals_offline(tmp_path, desc, arch):
+    """A standalone network (no τ_RBD in or added): τ_dyn = τ_NN, τ_int = τ_NN − τ_rigid in the Diagram too."""
+    model = load_torque_model(_model_file(tmp_path, desc, arch=arch, hybrid=False))
+    rec = _recording(desc, seconds=4.0)
+    online, offline = estimate_wrench(model, rec), estimate_wrench_offline(model, rec)
+    for obs, atol in (("jacobian", 1e-9), ("momentum", 1e-8)):
         np.testing.assert_allclose(online.tau_ext[obs], offline.tau_ext[obs], rtol=0, atol=atol)
 
 

@@ -293,6 +293,36 @@ def _sequence(n: int = 200, seed: int = 0) -> np.ndarray:
                           rotational_displacement(q))
 
 
+def _torch_streaming(model: HybridModel, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """torch's streaming forward (the training form, autograd) over one sequence: (τ [N, n], final state)."""
+    with torch.no_grad():
+        tau, state = model.run(torch.as_tensor(x[None], dtype=torch.float64))
+    return tau[0].numpy(), state[0].numpy()
+
+
+@pytest.mark.parametrize("arch,hybrid,use_r", [("mlp7", True, True), ("mlp7", False, True), ("lstm2", True, True),
+                                               ("lstm2", False, False), ("lstm2_fcl", True, True),
+                                               ("lstm2_fcl", True, False)])
+def test_batch_inference_kernel_equals_torch_forward(arch, hybrid, use_r):
+    """The batch inference (predict_streaming: the streaming step's compiled kernel looped over the log in one call,
+    MLP-7's law vectorised) equals torch's forward in float64, and :meth:`StreamingStepper.run` carries the state."""
+    x = _sequence(300, seed=3)
+    torch.manual_seed(4)
+    model = _as_trained(HybridModel(_small(arch, hybrid=hybrid, use_r=use_r)))
+    model.set_normalisation(x, x[:, :N_J] + np.random.default_rng(5).normal(0, 0.3, (len(x), N_J)))
+    model = model.double().eval()
+    reference, final = _torch_streaming(model, x)
+    assert np.abs(reference - (x[:, :N_J] if hybrid else 0.0)).max() > 0.1         # a network that does something
+    np.testing.assert_allclose(predict_streaming(model, x), reference, rtol=0, atol=1e-9)
+    stepper = StreamingStepper(model)
+    head, state = stepper.run(x[:120])                    # two calls with the state carried equal one call
+    tail, state = stepper.run(x[120:], state)
+    np.testing.assert_allclose(np.vstack([head, tail]), reference, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(state, final, rtol=0, atol=1e-9)
+    with pytest.raises(ValueError, match="features"):
+        stepper.run(x[:, :-1])
+
+
 @pytest.mark.parametrize("arch", ["mlp7", "lstm2", "lstm2_fcl"])
 def test_streaming_system_equals_offline_model(arch):
     x = _sequence()
@@ -300,7 +330,7 @@ def test_streaming_system_equals_offline_model(arch):
     model = _as_trained(HybridModel(_small(arch, hybrid=arch != "lstm2")))
     model.set_normalisation(x, x[:, :N_J] + np.random.default_rng(1).normal(0, 0.3, (len(x), N_J)))
     model = model.double()
-    offline = predict_streaming(model, x)
+    offline = _torch_streaming(model, x)[0]
     # a stateless MLP and the windowed LSTM on its first window agree with streaming
     np.testing.assert_allclose(predict_windowed(model, x)[:model.cfg.window], offline[:model.cfg.window], atol=1e-12)
     stepper, state, stepped = StreamingStepper(model), np.zeros(model.state_size), []
@@ -323,14 +353,16 @@ def test_streaming_system_equals_offline_model(arch):
     for i, name in enumerate(("q", "qd", "qdd", "tau_rbd")):
         builder.Connect(demux.get_output_port(i), system.GetInputPort(name))
     log = LogVectorOutput(system.GetOutputPort("tau_hybrid"), builder, period)
-    log_res = LogVectorOutput(system.GetOutputPort("tau_residual"), builder, period)
+    log_res = LogVectorOutput(system.GetOutputPort("tau_nn"), builder, period)
     sim = Simulator(builder.Build())
     sim.AdvanceTo(t[-1] + 0.5 * period)
     logged = log.FindLog(sim.get_context()).data().T
     # direct feedthrough: the logger at t_k sees the prediction for the inputs of t_k, no sample of latency
     assert logged.shape == (n, N_J)
     np.testing.assert_allclose(logged, offline, atol=1e-12)
-    np.testing.assert_allclose(log_res.FindLog(sim.get_context()).data().T, offline - tau_rbd, atol=1e-12)
+    # tau_nn: the network's own output (a hybrid's residual; a standalone model's torque)
+    np.testing.assert_allclose(log_res.FindLog(sim.get_context()).data().T,
+                               offline - (tau_rbd if model.cfg.hybrid else 0.0), atol=1e-12)
 
 
 def test_transformer_is_rejected_by_the_system():

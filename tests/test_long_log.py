@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from proprio.diagnosis.candidates import EffectCandidate
+from proprio.diagnosis.candidates.base import EffectCandidate
 from proprio.diagnosis.data import GapData
 from proprio.diagnosis.localisation import _lombscargle
 from proprio.signals import MotionSignals

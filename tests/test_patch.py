@@ -13,15 +13,15 @@ import yaml
 from proprio import friction_law
 from proprio.cli import main
 from proprio.description import load_robot
-from proprio.diagnosis.benchmark_case_data import generate_case_data
-from proprio.diagnosis.benchmark_cases import BenchmarkCase
-from proprio.diagnosis.candidates import EffectCandidate
+from proprio.gap_benchmark.case_data import generate_case_data
+from proprio.gap_benchmark.cases import BenchmarkCase
+from proprio.diagnosis.candidates.base import EffectCandidate
 from proprio.diagnosis.data import SimModel
 from proprio.diagnosis.patch import twin_patch, write_twin_patch
-from proprio.diagnosis.report import diagnose
+from proprio.diagnosis import diagnose
 from proprio.diagnosis.replay import replay_gap
-from proprio.diagnosis.rigid_body_candidates import PayloadCandidate
-from proprio.diagnosis.selection import attribute
+from proprio.diagnosis.candidates.rigid_body import PayloadCandidate
+from proprio.diagnosis.selection.forward import attribute
 from proprio.diagrams.twin import TwinConfigError, load_twin_config, merge_twin_patch, simulate_twin
 from proprio.dynamics import inverse_dynamics
 from proprio.effects import EFFECTS
@@ -158,7 +158,7 @@ def test_a_sensor_gain_fitted_beside_the_rigid_body_stays_a_few_percent():
     held-out prediction is the same."""
     from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING, GapData, condition_all, kept
     from proprio.diagnosis.fitting import fit_candidates, predict_candidates
-    from proprio.diagnosis.rigid_body_candidates import RigidBodyCandidate
+    from proprio.diagnosis.candidates.rigid_body import RigidBodyCandidate
 
     d = generate_case_data(BenchmarkCase("rigid_body", ("rigid_body",), 1.0, 1, duration_s=6.0))
     model = SimModel.from_names(d.robot, d.model_effects)

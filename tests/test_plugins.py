@@ -16,9 +16,9 @@ from importlib import resources
 from pydrake.trajectories import PiecewisePolynomial
 
 from proprio.description import load_robot
-from proprio.diagnosis.benchmark_case_data import rfma_like_motion
+from proprio.gap_benchmark.case_data import rfma_like_motion
 from proprio.diagnosis.data import SimModel
-from proprio.diagnosis.selection import attribute
+from proprio.diagnosis.selection.forward import attribute
 from proprio.diagrams.twin import TwinConfig, TwinConfigError, simulate_twin
 from proprio.effects import EffectConfigError, JointEffect, effect_key, make_effects, register_plugin, resolve_effect
 from proprio.effects.plugins import ALLOW_ENV

@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 
 from proprio.description import load_robot
-from proprio.diagnosis.ambiguity import Alternative, AmbiguitySet
-from proprio.diagnosis.benchmark_case_data import rfma_like_motion
-from proprio.diagnosis.candidate_set import candidate_set
+from proprio.diagnosis.selection.ambiguity import Alternative, AmbiguitySet
+from proprio.gap_benchmark.case_data import rfma_like_motion
+from proprio.diagnosis.candidates.registry import candidate_set
 from proprio.diagnosis.data import SimModel
 from proprio.diagnosis.discriminate import (CONFOUND_CORRELATION, confounded_pairs, design_experiment, pair_set,
                                             split_passes)

@@ -9,14 +9,14 @@ from functools import lru_cache
 import numpy as np
 import pytest
 
-from proprio.diagnosis.benchmark_case_data import generate_case_data
-from proprio.diagnosis.benchmark_cases import SESSION_S, BenchmarkCase, make_cases, time_varying_cases
-from proprio.diagnosis.candidate_set import candidate_set
+from proprio.gap_benchmark.case_data import generate_case_data
+from proprio.gap_benchmark.cases import SESSION_S, BenchmarkCase, make_cases, time_varying_cases
+from proprio.diagnosis.candidates.registry import candidate_set
 from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, DiagnosisError, GapData, SimModel, condition_all, kept,
                                     session_time)
 from proprio.diagnosis.fitting import fit_candidates, predict_candidates
-from proprio.diagnosis.rigid_body_candidates import RigidBodyCandidate
-from proprio.diagnosis.time_variation import TimeTrendNuisance, time_variation
+from proprio.diagnosis.candidates.rigid_body import RigidBodyCandidate
+from proprio.diagnosis.selection.time_variation import TimeTrendNuisance, time_variation
 from proprio.effects import EFFECTS, FrictionWarmup, OffsetDrift
 from proprio.signals import MotionSignals
 
@@ -197,7 +197,7 @@ def _growing(robot, seed: int, effects):
     """A recording whose motion grows with time at a steady speed (a designed experiment's growing triangles): per
     joint ``q = A(t)·sin θ(t)`` with the amplitude ramping 0.3° → 12° over :data:`SHORT_S` and ``θ̇ = v/A`` (peak
     speed ``v`` throughout, ever slower reversals); the rigid body + ``effects``, noise as the benchmark's."""
-    from proprio.diagnosis.benchmark_case_data import NOISE_STD
+    from proprio.gap_benchmark.recordings import NOISE_STD
     from proprio.dynamics import inverse_dynamics
     from proprio.recording import Recording
 
@@ -223,7 +223,7 @@ def test_motion_that_grows_with_time_is_not_taken_for_a_friction_change():
     (without them joint 2 read as a friction change of 0.22 N·m, p = 2e-5), while a real warm-up on the same motion
     is found."""
     from proprio.description import load_robot
-    from proprio.diagnosis.time_variation import REVERSAL_SCALES_DEG, reversal_shapes
+    from proprio.diagnosis.selection.time_variation import REVERSAL_SCALES_DEG, reversal_shapes
 
     robot = load_robot("iiwa14_nominal")
     model = SimModel(robot)

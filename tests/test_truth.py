@@ -1,4 +1,4 @@
-"""Scoring a diagnosis against the twin's truth (proprio.diagnosis.truth): which families were named, fitted vs
+"""Scoring a diagnosis against the twin's truth (proprio.diagnosis.report.truth): which families were named, fitted vs
 true parameters, the rigid-body torque comparison."""
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from proprio.description import load_robot
-from proprio.diagnosis.benchmark_case_data import rfma_like_motion
+from proprio.gap_benchmark.case_data import rfma_like_motion
 from proprio.diagnosis.data import SimModel
-from proprio.diagnosis.report import diagnose
-from proprio.diagnosis.truth import compare_to_truth
+from proprio.diagnosis import diagnose
+from proprio.diagnosis.report.truth import compare_to_truth
 from proprio.dynamics import inverse_dynamics
 from proprio.effects import EFFECTS
 from proprio.identification.regressor import PARAMS_PER_JOINT, parameter_names, regressor, standard_parameters

@@ -7,13 +7,13 @@ import pytest
 import scipy.signal
 
 from proprio.description import load_robot
-from proprio.diagnosis.benchmark_case_data import rfma_like_motion
+from proprio.gap_benchmark.case_data import rfma_like_motion
 from proprio.diagnosis.data import SimModel
 from proprio.diagnosis.patch import twin_patch
-from proprio.diagnosis.report import _tables
+from proprio.diagnosis.report.document import _ranking_table
 from proprio.diagnosis.residual import ResidualStructure
-from proprio.diagnosis.selection import attribute
-from proprio.diagnosis.verdict import data_and_processing_text, undecided_text
+from proprio.diagnosis.selection.forward import attribute
+from proprio.diagnosis.report.verdict import data_and_processing_text, undecided_text
 from proprio.dynamics import inverse_dynamics
 from proprio.effects import EFFECTS
 from proprio.recording import Recording
@@ -75,7 +75,7 @@ def test_a_structured_residual_is_neither_sensor_noise_nor_patched_as_torque_noi
     assert att.noise == []
     assert "torque_noise" not in twin_patch(att, model).get("effects", {})
     assert all(r["gain"] >= 0.0 for r in att.ranking)                # rule: no negative gains in rankings
-    rank = _tables(att)[0]
+    rank = _ranking_table(att)
     assert " -" not in rank and "| -" not in rank
 
 
@@ -150,9 +150,9 @@ def test_a_stand_in_taken_first_is_dropped_once_the_effects_it_imitated_are_name
     beside the rigid-body error — and steps 2–3 name the rigid body and viscous + Coulomb friction. Added last to those
     two, Stribeck lowers the held-out error by less than nothing: the backward check drops it, and the verdict names
     the two true effects only and says what was dropped."""
-    from proprio.diagnosis.benchmark_case_data import generate_case_data
-    from proprio.diagnosis.benchmark_cases import BenchmarkCase
-    from proprio.diagnosis.verdict import data_and_processing_text
+    from proprio.gap_benchmark.case_data import generate_case_data
+    from proprio.gap_benchmark.cases import BenchmarkCase
+    from proprio.diagnosis.report.verdict import data_and_processing_text
 
     case = BenchmarkCase("rigid_body+viscous_coulomb", ("rigid_body", "viscous_coulomb"), 1.0, 407510091)
     data = generate_case_data(case)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from proprio.cli import (UserError, add_chain_args, add_plugin_args, check_output, check_recording_robot, load_robot_arg,
@@ -79,7 +80,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--drive", action="store_true",
                    help="the drive-torque family instead: an arm without joint-torque sensors (τ = drive torque) "
                    "through the twin, withheld rotor inertia, pre-sliding friction, motor friction or drive offsets, "
-                   "logged at 100 Hz and 1 kHz with jittered stamps (proprio.diagnosis.benchmark_drive)")
+                   "logged at 100 Hz and 1 kHz with jittered stamps (proprio.gap_benchmark.drive)")
     b.add_argument("--quick", action="store_true", help="one magnitude per effect type, 2 null, 1 two-effect case "
                    "(with --twin: 4 effect types, 1 null, 1 two-effect case), 1 out-of-library and 1 time-varying "
                    "case")
@@ -180,14 +181,14 @@ def _hold_out_tails(args: argparse.Namespace, train: list, hold: list) -> tuple[
     return heads, hold + tails
 
 
-# candidates of the diagnosis that are not joint effects (proprio.diagnosis.candidate_set.candidate_set)
+# candidates of the diagnosis that are not joint effects (proprio.diagnosis.candidates.registry.candidate_set)
 _NON_EFFECT_CANDIDATES = ("rigid_body", "payload", "signal_lag", "sensor_offset", "sensor_gain", "rotor_inertia",
                           "motor_friction", "drive_offset")     # the last three: drive-torque arms only
 
 
 def _diagnose(args: argparse.Namespace) -> int:
     from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING
-    from proprio.diagnosis.report import diagnose
+    from proprio.diagnosis import diagnose
     from proprio.effects import EFFECTS, allow_plugins, resolve_effect
     from proprio.effects.plugins import is_plugin_path
     from proprio.identification.recordings import check_tau_kind
@@ -246,6 +247,10 @@ def _diagnose(args: argparse.Namespace) -> int:
     for line in d.attribution.conditioning:
         print(line)
     print(d.verdict)
+    for line in d.advice:
+        print(f"advice: {line}")
+    for line in d.failures:                        # the rest was written: the run keeps its answer (exit 0)
+        print(f"proprio: warning: {line}", file=sys.stderr)
     if d.replay is not None:
         print(d.replay.text())
     if args.experiment:
@@ -254,8 +259,9 @@ def _diagnose(args: argparse.Namespace) -> int:
         refit = refit_jointly(d.attribution, training_data(model, train, conditioning, args.trim))
         if refit is not None:
             print(refit.text())
-    print(f"twin patch: {d.files['twin_patch']}")
-    print(f"report: {d.files['report_html']}")
+    if "twin_patch" in d.files:
+        print(f"twin patch: {d.files['twin_patch']}")
+    print(f"report: {d.files.get('report_html', d.files['json'])}")
     if args.design_experiment or resolve_twin is not None:
         _experiments(args, model, d, train, hold, conditioning, resolve_twin)
     return 0
@@ -277,7 +283,7 @@ def _resolve_twin(name: str, model):
 def _experiments(args: argparse.Namespace, model, d, train, hold, conditioning, twin) -> None:
     """--design-experiment / --resolve: the experiments of the tied sets, and with a twin the re-diagnosis."""
     from proprio.diagnosis.discriminate import resolution
-    from proprio.diagnosis.report import diagnose
+    from proprio.diagnosis import diagnose
     from proprio.diagnosis.resolve import (design_experiments, refit_jointly, run_on_twin, training_data,
                                            with_experiments, write_resolution)
 
@@ -309,15 +315,15 @@ def _experiments(args: argparse.Namespace, model, d, train, hold, conditioning, 
 
 
 def _benchmark(args: argparse.Namespace) -> int:
-    from proprio.diagnosis.benchmark import run_benchmark, write_results
-    from proprio.diagnosis.benchmark_cases import make_cases, select_cases
+    from proprio.gap_benchmark.run import run_benchmark, write_results
+    from proprio.gap_benchmark.cases import make_cases, select_cases
 
     check_output(args.out, "--out", "dir")
     check_backend_args(args)
     if args.confusable:
         return _confusable(args)
     if args.drive:
-        from proprio.diagnosis.benchmark_drive import drive_cases
+        from proprio.gap_benchmark.drive import drive_cases
         cases = select_cases(drive_cases(quick=args.quick, seed=args.seed), args.cases)
     else:
         cases = select_cases(make_cases(quick=args.quick, seed=args.seed, twin=args.twin), args.cases)
@@ -334,8 +340,8 @@ def _confusable(args: argparse.Namespace) -> int:
     from concurrent.futures import ProcessPoolExecutor
     from dataclasses import asdict
 
-    from proprio.diagnosis.benchmark_cases import select_cases
-    from proprio.diagnosis.benchmark_confusable import confusable_cases, run_confusable_case, summarise_confusable
+    from proprio.gap_benchmark.cases import select_cases
+    from proprio.gap_benchmark.confusable import confusable_cases, run_confusable_case, summarise_confusable
     from proprio.io import atomic_write_text
 
     cases = select_cases(confusable_cases(seed=args.seed, magnitudes=(1.0,) if args.quick else (0.5, 1.0, 2.0),

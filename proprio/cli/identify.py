@@ -68,11 +68,11 @@ def _advice(model, data, method: str, offsets: bool) -> list[str]:
     """What identify can tell beyond its tables: an OLS/WLS model that is not physically consistent (suggest
     ``--method sdp``), and a training residual with a constant part beyond its noise (suggest ``--offsets``): per
     joint the mean against its standard error, ``t = |ē| / (σ √(f / N))`` with ``f`` the residual's autocorrelation
-    factor N/N_eff (:func:`proprio.diagnosis.block_test.n_eff_factor`), named where ``t`` exceeds the two-sided
+    factor N/N_eff (:func:`proprio.diagnosis.selection.block_test.n_eff_factor`), named where ``t`` exceeds the two-sided
     :data:`OFFSET_ALPHA` level Bonferroni-corrected over the joints."""
     from scipy.stats import norm
 
-    from proprio.diagnosis.block_test import n_eff_factor
+    from proprio.diagnosis.selection.block_test import n_eff_factor
     from proprio.identification.estimators import inconsistent_links
 
     lines = []

@@ -69,7 +69,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from proprio.conditioning import ConditioningConfig, condition
+from proprio.conditioning import ConditionedSignals, ConditioningConfig, condition
 from proprio.data_quality.checks import _names, quantisation_step, runs, signal_findings
 from proprio.data_quality.derivatives import acceleration_findings, velocity_findings
 from proprio.data_quality.findings import (_RANK, SEVERITIES, DataQuality, Finding, QualityThresholds,
@@ -83,15 +83,17 @@ __all__ = ["SEVERITIES", "Finding", "DataQuality", "QualityThresholds", "assess"
 
 def assess(rec: Recording, robot: RobotDescription | None = None,
            conditioning: ConditioningConfig = ConditioningConfig(),
-           thresholds: QualityThresholds = QualityThresholds()) -> DataQuality:
+           thresholds: QualityThresholds = QualityThresholds(),
+           conditioned: ConditionedSignals | None = None) -> DataQuality:
     """All data-quality findings on ``rec`` (module docstring), most severe first. ``robot`` names the joints and
     gives the effort limits for ``clipping``; ``conditioning`` is the configuration whose line is reported (and
-    whose q̈ is compared); ``thresholds`` the limits of each check."""
+    whose q̈ is compared); ``thresholds`` the limits of each check; ``conditioned``: ``rec`` already conditioned by
+    ``conditioning`` (a caller that has it, such as the diagnosis, need not condition it again)."""
     th = thresholds
     names = _names(rec, robot)
     found = signal_findings(rec, names, robot, conditioning, th)
     try:
-        cs = condition(rec, conditioning)
+        cs = conditioned if conditioned is not None else condition(rec, conditioning)
         line = cs.describe()
     except RecordingError as exc:
         cs, line = None, f"conditioning: not possible ({exc})"

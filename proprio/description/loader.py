@@ -13,6 +13,7 @@ from proprio.description.fields import (BASE_KEYS, DOC_KEYS, EE_KEYS, POSE_KEYS,
                                         _parse_drive, _parse_friction, _parse_joint, _parse_link, _vec, check_keys)
 from proprio.description.mdh import robot_from_mdh_dict
 from proprio.description.model import DescriptionError, EndEffector, Link, RobotDescription
+from proprio.description.urdf_reader import urdf_robot_data
 
 __all__ = ["robot_from_dict", "robot_from_urdf", "builtin_robots", "load_robot"]
 
@@ -102,10 +103,24 @@ def _robot_from_urdf_ref(data: dict, source: str) -> RobotDescription:
 
 def robot_from_urdf(path: str | Path, base_link: str | None = None, tip_link: str | None = None,
                     flange_xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> RobotDescription:
-    """Import a URDF file; see :func:`proprio.urdf.robot_from_urdf` (the URDF reader lives beside the writer)."""
-    from proprio.urdf import robot_from_urdf as read
+    """Import a URDF as the ROS ecosystem writes it: the serial chain is found from the actuated (revolute or
+    continuous) joints, whatever fixed frames surround it (``world`` and its weld, ``base``, ``base_link_inertia``,
+    ``flange``, ``tool0``, sensor frames between two joints).
 
-    return read(path, base_link, tip_link, flange_xyz)
+    * The chain runs from the root to the deepest actuated joint when every actuated joint lies on that path; when
+      they branch (e.g. a gripper's fingers, two arms) the chain is ambiguous and ``tip_link`` picks it.
+    * The base is the parent link of the first actuated joint (or ``base_link``); the fixed joints from the root
+      to it make the base pose in the world.
+    * Links welded by fixed joints to a moving body (including frames between two actuated joints) are lumped onto
+      that body: masses, CoM and inertia combined (parallel-axis theorem) in the body's frame.
+    * The flange is ``tip_link`` when it is welded to the last body; else the one end frame welded to it (when there
+      are several: ``tool0``, ``flange``, ``ee_link``, ``tcp``, ``tool`` in that order), else the last body's frame;
+      ``flange_xyz`` [m] adds a tool offset in that frame.
+
+    A ``<transmission>`` reduction ≠ 1 or a ``<dynamics armature>`` becomes the description's ``drive`` block
+    (:func:`proprio.drive_description.drive_from_urdf_element`). Meshes, ``<dynamics>`` damping/friction and moving
+    side branches off the chain are not imported."""
+    return robot_from_dict(urdf_robot_data(path, base_link, tip_link, flange_xyz), str(path))
 
 
 def builtin_robots() -> list[str]:

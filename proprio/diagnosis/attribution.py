@@ -1,6 +1,6 @@
-"""What the gap diagnosis returns (:func:`proprio.diagnosis.selection.attribute`): the accepted steps, the verdict's
-parts (undecided leader, stand-ins dropped, cross-validation, noise, residual structure, hints, time dependence,
-encoder floor, ambiguity sets) in one :class:`Attribution`."""
+"""What the gap diagnosis returns (:func:`proprio.diagnosis.selection.forward.attribute`): the accepted steps, the
+verdict's parts (undecided leader, stand-ins dropped, cross-validation, noise, residual structure, hints, time
+dependence, encoder floor, ambiguity sets) in one :class:`Attribution`."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -8,13 +8,12 @@ from typing import Any
 
 import numpy as np
 
-from proprio.diagnosis.candidates import Candidate
+from proprio.diagnosis.candidates.base import Candidate
 from proprio.diagnosis.encoder_floor import EncoderFloor
 from proprio.diagnosis.hints import Hint
 from proprio.diagnosis.residual import NoiseFinding, ResidualStructure
-from proprio.diagnosis.time_variation import TimeVariation
 
-__all__ = ["Step", "Undecided", "CrossValidation", "Superseded", "Attribution"]
+__all__ = ["Step", "Undecided", "CrossValidation", "Superseded", "TimeVariation", "Attribution"]
 
 
 @dataclass
@@ -67,7 +66,7 @@ class CrossValidation:
 class Superseded:
     """A physical effect the forward selection named at step ``step`` (1-based) that, in the context of the effects
     named with it (``context``), adds a held-out gain of only ``gain`` (< the minimum gain): a stand-in for them,
-    dropped by the backward check (:mod:`proprio.diagnosis.selection`, "Stand-ins")."""
+    dropped by the backward check (:mod:`proprio.diagnosis.selection.forward`, "Stand-ins")."""
     name: str
     step: int
     gain: float
@@ -75,14 +74,35 @@ class Superseded:
 
 
 @dataclass
+class TimeVariation:
+    """Result of the time-dependence test (:mod:`proprio.diagnosis.selection.time_variation`). ``joints [n] bool``:
+    joints whose residual depends on the time the data were taken; ``p_value [n]``: per joint (Bonferroni over the two
+    series, not over joints); ``kind``: what varies ("offset drift", "offset step between recordings", "friction
+    change", joined by " + "; empty when nothing is detected); ``text``: one sentence for the report. ``change [n]``
+    N·m: the range of the fitted time dependence over the data (the offset, or the Coulomb-like friction level);
+    ``share [n]``: the fraction of the state-cleared residual variance it explains; ``span_s``: the session time the
+    data cover [s]."""
+    detected: bool
+    joints: np.ndarray
+    p_value: np.ndarray
+    kind: str
+    text: str
+    change: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    share: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    span_s: float = 0.0
+    joint_kinds: list[str] = field(default_factory=list)
+
+
+@dataclass
 class Attribution:
-    """Result of :func:`proprio.diagnosis.selection.attribute`. ``fitted``: the selected candidates by name (their
-    final parameters are the last step's ``params``), for :func:`proprio.diagnosis.patch.twin_patch`. ``encoder``:
-    the data's position-noise floor against the model's encoder noise (:mod:`proprio.diagnosis.encoder_floor`; a
-    data-path comparison over all the recordings). ``undecided``: the physical candidate still leading, without
-    significance, where the selection stopped (:class:`Undecided`); ``below_floor``: ``(name, gain, rms)`` of
-    physical candidates that won a step with a held-out torque (``rms`` N·m) within the processing error — not
-    named, not filed as data path; ``superseded``: the stand-ins the backward check dropped (:class:`Superseded`)."""
+    """Result of :func:`proprio.diagnosis.selection.forward.attribute`. ``fitted``: the selected candidates by name
+    (their final parameters are the last step's ``params``), for :func:`proprio.diagnosis.patch.twin_patch`.
+    ``encoder``: the data's position-noise floor against the model's encoder noise
+    (:mod:`proprio.diagnosis.encoder_floor`; a data-path comparison over all the recordings). ``undecided``: the
+    physical candidate still leading, without significance, where the selection stopped (:class:`Undecided`);
+    ``below_floor``: ``(name, gain, rms)`` of physical candidates that won a step with a held-out torque (``rms`` N·m)
+    within the processing error — not named, not filed as data path; ``superseded``: the stand-ins the backward check
+    dropped (:class:`Superseded`)."""
     joint_names: list[str]
     steps: list[Step]
     ranking: list[dict[str, Any]]

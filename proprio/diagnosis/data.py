@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -21,12 +21,12 @@ from proprio.dynamics import inverse_dynamics
 from proprio.effects import JointEffect, ViscousCoulomb, resolve_effect, robot_friction
 from proprio.identification.regressor import drive_identified, drive_torque
 from proprio.conditioning import ConditionedSignals, ConditioningConfig, condition
-from proprio.recording import Recording
+from proprio.recording import Recording, validate_recording
 from proprio.signals import MotionSignals
 
-__all__ = ["DiagnosisError", "SimModel", "GapData", "signals_of", "condition_all", "kept", "session_time",
-           "session_motion", "NOISE_EFFECTS", "DIAGNOSIS_CONDITIONING", "identified_robot", "default_trim_s",
-           "MAX_TRIM_S"]
+__all__ = ["DiagnosisError", "SimModel", "Conditioned", "condition_recordings", "GapData", "signals_of",
+           "condition_all", "check_kept", "kept", "session_time", "session_motion", "NOISE_EFFECTS",
+           "DIAGNOSIS_CONDITIONING", "identified_robot", "default_trim_s", "MAX_TRIM_S"]
 
 
 NOISE_EFFECTS = ("torque_noise", "encoder_noise")
@@ -215,6 +215,101 @@ def condition_all(recs: Sequence[Recording], config: ConditioningConfig, role: s
     return out
 
 
+@dataclass(frozen=True)
+class Conditioned:
+    """The recordings of a diagnosis, conditioned once (:func:`condition_recordings`): the raw Recordings (``train``,
+    ``holdout``; the data-quality check, the twin replay and the truth comparison read them), their conditioned
+    signals (``train_cs``, ``holdout_cs``), the kept samples of each (``keep_*``, :func:`kept`), each recording's
+    session time [s] (``session_*``), the seconds kept (``train_s``, ``holdout_s``), the trim [s] per end (``None``:
+    each recording's default) and the conditioning ``config``. No held-out recordings: the training recordings are
+    cross-validated over time blocks."""
+    train: list[Recording]
+    holdout: list[Recording]
+    train_cs: list[ConditionedSignals]
+    holdout_cs: list[ConditionedSignals]
+    keep_train: list[np.ndarray]
+    keep_holdout: list[np.ndarray]
+    session_train: list[float]
+    session_holdout: list[float]
+    train_s: float
+    holdout_s: float
+    trim_s: float | None
+    config: ConditioningConfig
+
+    @property
+    def recordings(self) -> list[Recording]:
+        """Training then held-out Recordings."""
+        return self.train + self.holdout
+
+    @property
+    def signals(self) -> list[ConditionedSignals]:
+        """Their conditioned signals, in the same order."""
+        return self.train_cs + self.holdout_cs
+
+    @property
+    def keep(self) -> list[np.ndarray]:
+        return self.keep_train + self.keep_holdout
+
+    @property
+    def sessions(self) -> list[float]:
+        return self.session_train + self.session_holdout
+
+
+def check_kept(cs: ConditionedSignals, keep: np.ndarray, role: str, k: int) -> None:
+    """A recording (or cross-validation piece) the diagnosis can use keeps ≥ 10 samples after trimming."""
+    if keep.sum() < 10:
+        raise DiagnosisError(f"{role} recording {k}: {cs.n_samples} samples ({cs.t[-1]:.2f} s) leave "
+                             "nothing after trimming the filter start-up at each end")
+
+
+def condition_recordings(model: SimModel, train: Sequence[Recording], holdout: Sequence[Recording] = (),
+                         config: ConditioningConfig = DIAGNOSIS_CONDITIONING, trim_s: float | None = None,
+                         progress: Callable[[str], None] | None = None) -> Conditioned:
+    """Check the recordings against ``model``'s robot, condition each once (:mod:`proprio.conditioning`) and check
+    there are enough data for the block test: with held-out recordings ≥ :data:`MIN_BLOCKS` blocks of
+    :data:`MIN_BLOCK_S` s of them, without ≥ twice that of training data (two cross-validation folds). ``trim_s`` [s]
+    per end (``None``: each recording's default, :func:`default_trim_s`). Raises :class:`DiagnosisError` on bad input
+    (no recordings, joint-count mismatch, a recording the filters cannot take, too little data)."""
+    n = model.robot.n
+    if not train:
+        raise DiagnosisError("recordings: need at least one training recording")
+    for role, recs in (("training", train), ("holdout", holdout)):
+        for k, r in enumerate(recs):
+            if r.n_joints != n:
+                raise DiagnosisError(f"{role} recording {k}: has {r.n_joints} joints but the model robot "
+                                     f"'{model.robot.name}' has {n} (mismatched robots)")
+            try:
+                validate_recording(r, model.robot, source=f"{role} recording {k}")
+            except ValueError as exc:
+                raise DiagnosisError(f"{exc} (mismatched robots?)") from exc
+    (progress or (lambda msg: None))("conditioning")
+    sess_tr = [session_time(r, f"training recording {k}") for k, r in enumerate(train)]
+    sess_h = [session_time(r, f"holdout recording {k}") for k, r in enumerate(holdout)]
+    cond_tr = condition_all(train, config, "training")
+    keep_tr = [kept(cs, trim_s) for cs in cond_tr]
+    train_s = sum(float(k.sum()) / cs.rate_hz for cs, k in zip(cond_tr, keep_tr))
+    trimmed = "the default trim" if trim_s is None else f"{trim_s:g} s"
+    cond_h: list[ConditionedSignals] = []
+    keep_h: list[np.ndarray] = []
+    held_s = 0.0
+    if holdout:
+        cond_h = condition_all(holdout, config, "holdout")
+        keep_h = [kept(cs, trim_s) for cs in cond_h]
+        held_s = sum(float(k.sum()) / cs.rate_hz for cs, k in zip(cond_h, keep_h))
+        if held_s < MIN_BLOCKS * MIN_BLOCK_S:
+            raise DiagnosisError(f"holdout: {held_s:.2f} s of held-out data after trimming {trimmed} per end is too "
+                                 f"short for the block test ({MIN_BLOCKS} blocks of ≥ {MIN_BLOCK_S} s)")
+        for role, conds, keeps in (("training", cond_tr, keep_tr), ("holdout", cond_h, keep_h)):
+            for k, (cs, kp) in enumerate(zip(conds, keeps)):
+                check_kept(cs, kp, role, k)
+    elif train_s < 2 * MIN_BLOCKS * MIN_BLOCK_S:
+        raise DiagnosisError(f"training: {train_s:.2f} s of data after trimming {trimmed} per end; a diagnosis "
+                             f"without --holdout cross-validates over time blocks and needs ≥ "
+                             f"{2 * MIN_BLOCKS * MIN_BLOCK_S + 2 * (MAX_TRIM_S if trim_s is None else trim_s):.1f} s")
+    return Conditioned(list(train), list(holdout), cond_tr, cond_h, keep_tr, keep_h, sess_tr, sess_h, train_s, held_s,
+                       trim_s, config)
+
+
 @dataclass
 class GapData:
     """One set of conditioned recordings (training or held-out) prepared for the diagnosis: motion signals (their
@@ -246,9 +341,7 @@ class GapData:
         total = sum(int(k.sum()) for k in keep)
         stride = max(1, int(math.ceil(total / MAX_FIT_SAMPLES)))
         for k, (cs, kp) in enumerate(zip(conditioned, keep)):
-            if kp.sum() < 10:
-                raise DiagnosisError(f"{role} recording {k}: {cs.n_samples} samples ({cs.t[-1]:.2f} s) leave "
-                                     "nothing after trimming the filter start-up at each end")
+            check_kept(cs, kp, role, k)
             s = session_motion(cs, session_s[k])
             link, sim = model.predict_parts(s)
             sigs.append(s.with_tau(link))     # candidates scale/load with the modelled, not the measured, torque

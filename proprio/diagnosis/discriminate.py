@@ -1,7 +1,7 @@
 """The experiment that decides between confusable effects (issue #25), and the re-diagnosis with its recording.
 
-**Design.** For a tied set (:class:`~proprio.diagnosis.ambiguity.AmbiguitySet`) every member has been fitted in
-the named effect's place on the diagnosed data. A short motion separates them when the torques the members predict
+**Design.** For a tied set (:class:`~proprio.diagnosis.selection.ambiguity.AmbiguitySet`) every member has been fitted
+in the named effect's place on the diagnosed data. A short motion separates them when the torques the members predict
 on it differ by more than the noise *after* each is refitted to the other's prediction (a difference one member
 can fit away tells nothing). The motion is chosen and tuned from a family, each member starting and ending at the
 set's ``home`` configuration (a configuration the robot visited):
@@ -58,8 +58,8 @@ import numpy as np
 
 from proprio.collision import CollisionChecker
 from proprio.conditioning import ConditionedSignals
-from proprio.diagnosis.ambiguity import TIE_SHARE, AmbiguitySet, tied_sets
-from proprio.diagnosis.candidates import Candidate
+from proprio.diagnosis.selection.ambiguity import TIE_SHARE, AmbiguitySet, tied_sets
+from proprio.diagnosis.candidates.base import Candidate
 from proprio.diagnosis.data import GapData, SimModel
 from proprio.diagnosis.fitting import Fit, fit_candidates, predict_candidates
 from proprio.recording import Recording
@@ -295,11 +295,11 @@ def design_experiment(model: SimModel, aset: AmbiguitySet, checker: CollisionChe
 
 def confounded_pairs(sets: Sequence[AmbiguitySet]) -> list[tuple[AmbiguitySet, str]]:
     """Named effects whose parameters trade off: ``(set of s, t)`` for two effects ``s`` and ``t`` that the selection
-    both named, where ``t`` swapped into ``s``'s place explains at least :data:`~proprio.diagnosis.ambiguity.TIE_SHARE`
-    of its held-out gain with held-out torques correlated ≥ :data:`CONFOUND_CORRELATION`, but is not tied with it.
-    The block test then prefers ``s`` and keeps both, yet the data cannot say how the shared torque divides between
-    them: ``s`` takes ``t``'s level (the demo's mixture: hysteresis fitted with the Coulomb level, Coulomb ≈ 0).
-    Each unordered pair once."""
+    both named, where ``t`` swapped into ``s``'s place explains at least
+    :data:`~proprio.diagnosis.selection.ambiguity.TIE_SHARE` of its held-out gain with held-out torques correlated ≥
+    :data:`CONFOUND_CORRELATION`, but is not tied with it. The block test then prefers ``s`` and keeps both, yet the
+    data cannot say how the shared torque divides between them: ``s`` takes ``t``'s level (the demo's mixture:
+    hysteresis fitted with the Coulomb level, Coulomb ≈ 0). Each unordered pair once."""
     named = {a.effect for a in sets}
     seen: set[frozenset] = set()
     out = []

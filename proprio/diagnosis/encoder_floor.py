@@ -12,7 +12,7 @@ band-limited random noise that no candidate predicts on held-out blocks. It is f
 
 The data's floor is *above the model's* on a joint when ``σ̂² > σ_m² · 1.2 · χ²_{D, 1−α/n} / D`` (one-sided, α = 1 %,
 Bonferroni over the ``n`` joints, plus 20 % of slack: the rule of the torque-noise finding in
-:mod:`proprio.diagnosis.selection`). Then ``encoder_noise`` is a data-path finding: reported in the diagnosis'
+:mod:`proprio.diagnosis.selection.forward`). Then ``encoder_noise`` is a data-path finding: reported in the diagnosis'
 "data and processing" section, never as the physical cause of the gap. A model without an encoder-noise effect
 gives no level to compare with: the measured floor is reported as information only (every real encoder has some
 noise; claiming it as a finding against an unstated sensor would fire on every log).

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import optimize
 
-from proprio.diagnosis.candidates import Candidate
+from proprio.diagnosis.candidates.base import Candidate
 from proprio.diagnosis.data import GapData
 
 __all__ = ["Fit", "weighted_lstsq", "fit_candidates", "predict_candidates"]

@@ -1,6 +1,6 @@
 """Hints beyond the library: when a structured residual remains after the greedy attribution
-(:mod:`~proprio.diagnosis.selection`) — autocorrelated or state-dependent, or off zero on average on the held-out data
-(:func:`shifted_joints`) — a sparse regression per such joint over a broad dictionary of measured
+(:mod:`~proprio.diagnosis.selection.forward`) — autocorrelated or state-dependent, or off zero on average on the
+held-out data (:func:`shifted_joints`) — a sparse regression per such joint over a broad dictionary of measured
 and modelled signals says *what* the remaining residual follows — labelled as a hint with its held-out gain, never
 as a library effect.
 
@@ -32,6 +32,21 @@ columns. Training data only: the held-out data score it.
 against ``b̂``, the re-scaled candidates alone (with a constant: a constant or a re-scaling alone earns no hint); it is
 reported when ``G ≥ min_gain`` (5 %) and a one-sided t-test over the held-out time blocks of the selection (log-ratio
 of the block SSEs, as the selection's test) rejects "no gain" at ``α / K`` (Bonferroni over the ``K`` joints tested).
+
+**Well-posed coefficients.** A dictionary column that is almost one of the candidates' fitted torques on the joint
+(a velocity where viscous friction was fitted) keeps only a sliver after the projection; re-standardised, that
+sliver looks like any other column, and the joint fit then gives the term a huge coefficient that the candidate's
+re-scaling cancels (a velocity coefficient of −2.25 N·m·s/rad on a joint whose whole residual is 0.23 N·m RMS). So a
+column whose variance inflation factor against the candidates' columns exceeds :data:`MAX_VIF` (the usual bound of
+serious multicollinearity) is not offered, and a hint one of whose terms alone moves the joint's torque by more
+than the whole residual it explains (the terms cancel each other) is not reported.
+
+**Resemblance.** A term on the joint's own signals that is the law of a library candidate (its velocity: viscous
+friction; the smooth sign of its velocity: Coulomb friction; its acceleration: rotor inertia or a rigid-body error;
+its own modelled τ: a gain error; ``sin/cos(q)`` of any joint: a rigid-body (gravity) error; the time: a drifting
+offset) is
+named in :attr:`Hint.resembles`, so that the report says which library effect the hint resembles and why that effect
+was not taken.
 """
 from __future__ import annotations
 
@@ -46,13 +61,14 @@ from sklearn.model_selection import GroupKFold
 from proprio import friction_law
 from proprio.diagnosis.data import GapData
 
-__all__ = ["Hint", "Term", "dictionary", "find_hints", "shifted_joints", "MAX_TERMS", "HINT_MIN_GAIN"]
+__all__ = ["Hint", "Term", "dictionary", "find_hints", "shifted_joints", "MAX_TERMS", "HINT_MIN_GAIN", "MAX_VIF"]
 
 MAX_TERMS = 3
 HINT_MIN_GAIN = 0.05
 CV_FOLDS = 5
 CV_BLOCKS = 40                # contiguous training time blocks the folds are drawn from
 HARMONICS = (1, 2, 3)
+MAX_VIF = 10.0                # variance inflation beyond which a column is a re-scaled candidate (module docstring)
 _SUB = str.maketrans("0123456789", "₀₁₂₃₄₅₆₇₈₉")
 
 
@@ -67,7 +83,10 @@ class Hint:
     ``joint`` (0-based), ``terms`` (the dictionary terms, most important first, e.g. ``"τ₂"``, ``"sin(2q₃)"``),
     ``signals`` (their base signal ids, most important first: ``"tau_2"``, ``"q_3"``, ``"qd_1"``, ``"qdd_4"``,
     ``"time"``, joints 1-based), ``gain`` (held-out relative SSE reduction on that joint), ``text`` (plain words),
-    ``coefficients`` (of the terms, in their SI units: N·m per unit of the term), ``t_stat`` (block t statistic)."""
+    ``coefficients`` (of the terms, in their SI units: N·m per unit of the term), ``units`` (of the coefficients),
+    ``t_stat`` (block t statistic), ``resembles`` (``(term, candidates)`` for each term on the joint's own signals
+    that is a library candidate's law, module docstring), ``rms`` [N·m] (the joint's remaining residual it was fitted
+    to, training data)."""
     joint: int
     terms: list[str]
     signals: list[str]
@@ -75,42 +94,55 @@ class Hint:
     text: str
     coefficients: list[float] = field(default_factory=list)
     t_stat: float = 0.0
+    units: list[str] = field(default_factory=list)
+    resembles: list[tuple[str, tuple[str, ...]]] = field(default_factory=list)
+    rms: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready (``diagnosis.json`` ``hints``)."""
         return {"joint": self.joint, "terms": self.terms, "signals": self.signals, "gain": self.gain,
-                "coefficients": self.coefficients, "t": self.t_stat, "text": self.text}
+                "coefficients": self.coefficients, "units": self.units, "t": self.t_stat, "text": self.text,
+                "resembles": [{"term": t, "candidates": list(c)} for t, c in self.resembles], "rms": self.rms}
 
 
 @dataclass(frozen=True)
 class Term:
     """One dictionary column: ``name`` (plain, e.g. ``"q̇₁·|τ₁|"``), ``signals`` (base signal ids), ``phrase`` (what
-    "the residual ... " does with it, given its coefficient), ``unit`` of its coefficient."""
+    "the residual ... " does with it, given its coefficient), ``unit`` of its coefficient, ``joint`` (1-based) whose
+    signals it is built from (0: the time), ``library`` (the candidates whose law it is on that joint, module
+    docstring)."""
     name: str
     signals: tuple[str, ...]
     phrase: str
     unit: str
+    joint: int = 0
+    library: tuple[str, ...] = ()
 
 
 def _terms(n: int) -> list[Term]:
     out = []
     for k in range(1, n + 1):
         s = _sub(k)
-        out += [Term(f"τ{s}", (f"tau_{k}",), f"follows τ of joint {k}", ""),
-                Term(f"q{s}", (f"q_{k}",), f"grows with q{s}", "N·m/rad"),
-                Term(f"q̇{s}", (f"qd_{k}",), f"follows the velocity q̇{s}", "N·m·s/rad"),
-                Term(f"q̈{s}", (f"qdd_{k}",), f"follows the acceleration q̈{s}", "N·m·s²/rad"),
-                Term(f"tanh(q̇{s}/v₀)", (f"qd_{k}",), f"steps with the direction of motion of joint {k}", "N·m"),
-                Term(f"|q̇{s}|q̇{s}", (f"qd_{k}",), f"grows with the square of q̇{s}", "N·m·s²/rad²")]
+        out += [Term(f"τ{s}", (f"tau_{k}",), f"follows τ of joint {k}", "", k, ("sensor_gain", "sensor_offset_gain")),
+                Term(f"q{s}", (f"q_{k}",), f"grows with q{s}", "N·m/rad", k),
+                Term(f"q̇{s}", (f"qd_{k}",), f"follows the velocity q̇{s}", "N·m·s/rad", k,
+                     ("viscous_coulomb", "motor_friction")),
+                Term(f"q̈{s}", (f"qdd_{k}",), f"follows the acceleration q̈{s}", "N·m·s²/rad", k,
+                     ("rotor_inertia", "rigid_body")),
+                Term(f"tanh(q̇{s}/v₀)", (f"qd_{k}",), f"steps with the direction of motion of joint {k}", "N·m", k,
+                     ("viscous_coulomb", "motor_friction")),
+                Term(f"|q̇{s}|q̇{s}", (f"qd_{k}",), f"grows with the square of q̇{s}", "N·m·s²/rad²", k)]
         for m in HARMONICS:
             mm = "" if m == 1 else str(m)
-            out += [Term(f"sin({mm}q{s})", (f"q_{k}",), f"varies with sin({mm}q{s}) (periodic in q{s})", "N·m"),
-                    Term(f"cos({mm}q{s})", (f"q_{k}",), f"varies with cos({mm}q{s}) (periodic in q{s})", "N·m")]
+            lib = ("rigid_body",) if m == 1 else ()
+            out += [Term(f"sin({mm}q{s})", (f"q_{k}",), f"varies with sin({mm}q{s}) (periodic in q{s})", "N·m", k, lib),
+                    Term(f"cos({mm}q{s})", (f"q_{k}",), f"varies with cos({mm}q{s}) (periodic in q{s})", "N·m", k,
+                         lib)]
         out += [Term(f"q̇{s}·|τ{s}|", (f"qd_{k}", f"tau_{k}"), f"follows q̇{s}·|τ{s}| (load-dependent viscous "
-                     "friction)", "s/rad"),
+                     "friction)", "s/rad", k),
                 Term(f"tanh(q̇{s}/v₀)·|τ{s}|", (f"qd_{k}", f"tau_{k}"), f"follows sign(q̇{s})·|τ{s}| (load-dependent "
-                     "Coulomb friction)", "")]
-    out.append(Term("time", ("time",), "drifts with time", "N·m/s"))
+                     "Coulomb friction)", "", k)]
+    out.append(Term("time", ("time",), "drifts with time", "N·m/s", 0, ("offset_drift",)))
     return out
 
 
@@ -176,7 +208,7 @@ def _hint_text(j: int, terms: list[Term], coef: np.ndarray, gain: float) -> str:
         if tm.name == f"τ{_sub(j + 1)}":
             phrase += " (its own modelled torque: a gain error)"
         bits.append(f"{phrase} (coefficient {c:.3g}{' ' + tm.unit if tm.unit else ''})")
-    return (f"Hint (not a library effect): joint {j + 1}'s residual " + "; and ".join(bits)
+    return (f"Hint: joint {j + 1}'s remaining residual " + "; and ".join(bits)
             + f" — held-out gain {100 * gain:.0f} %.")
 
 
@@ -227,8 +259,8 @@ def find_hints(train: GapData, hold: GapData, r_tr: np.ndarray, r_h: np.ndarray,
         nu_h = np.column_stack([np.ones(len(r_h)), parts_h[:, j, live]])
         y = _project_out(r_tr[:, j], nu_tr)
         zj = _project_out(z_tr, nu_tr)
-        norm = zj.std(axis=0)
-        zj = zj / np.where(norm > 1e-6, norm, np.inf)                # re-standardised: OMP compares correlations
+        norm = zj.std(axis=0)                       # z_tr has unit variance: 1/norm² is the column's VIF
+        zj = zj / np.where(norm ** 2 > 1.0 / MAX_VIF, norm, np.inf)  # re-standardised: OMP compares correlations
         cv_gain = _omp_cv(zj, y, folds)
         best = float(cv_gain.max())
         if best <= 0:
@@ -249,11 +281,17 @@ def find_hints(train: GapData, hold: GapData, r_tr: np.ndarray, r_h: np.ndarray,
         if gain < min_gain or t_stat < t_crit:
             continue
         c_z = coef[nu_tr.shape[1]:]
+        rms = float(np.std(y))
+        if np.max(np.abs(c_z) * norm[sel]) > rms:   # a term's own part alone exceeds the residual: terms cancel
+            continue
         order = np.argsort(-np.abs(c_z))                                 # standardised: comparable across terms
         sel_terms = [names[sel[i]] for i in order]
         c_si = c_z[order] / sd[np.flatnonzero(use)[sel[order]]]         # back to the terms' own units
         signals = list(dict.fromkeys(s for tm in sel_terms for s in tm.signals))
+        resembles = [(tm.name, tm.library) for tm in sel_terms                 # gravity: any joint's angle
+                     if tm.library and (tm.joint in (0, j + 1) or tm.library == ("rigid_body",))]
         hints.append(Hint(int(j), [tm.name for tm in sel_terms], signals, gain, _hint_text(j, sel_terms, c_si, gain),
-                          [float(c) for c in c_si], float(t_stat)))
+                          [float(c) for c in c_si], float(t_stat), [tm.unit or "N·m" for tm in sel_terms],
+                          resembles, rms))
     hints.sort(key=lambda h: -h.gain)
     return hints

@@ -17,16 +17,18 @@ The *gap map* is the share of the total (all joints, all samples) squared error 
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
 from scipy import signal
 
+from proprio.diagnosis.data import Conditioned, SimModel, session_motion
 from proprio.reversals import reversal_travel
 
-__all__ = ["RegimeFamily", "GapMap", "Spectra", "regime_families", "gap_map",
-           "spectra", "order_spectrum", "peak_orders"]
+__all__ = ["RegimeFamily", "GapMap", "Spectra", "Localisation", "regime_families", "gap_map", "spectra", "localise",
+           "order_spectrum", "peak_orders"]
 
 REVERSAL_WINDOW_RAD = np.radians(1.0)       # lost-motion window after a reversal (§2.1)
 REVERSAL_DEADBAND = 1e-3                     # rad/s: |q̇| below this never counts as a direction change
@@ -106,8 +108,8 @@ class GapMap:
     def table(self, min_share: float = 0.0) -> str:
         """A Markdown table of the shares [%] (columns whose largest share is below ``min_share`` dropped)."""
         keep = [c for c in range(len(self.columns)) if self.share[:, c].max() >= min_share]
-        head = "| joint | RMSE N·m | % of signal | " + " | ".join(f"{f}: {b}" for f, b in
-                                                                 (self.columns[c] for c in keep)) + " |"
+        head = "| joint | RMSE [N·m] | % of signal | " + " | ".join(f"{f}: {b}".replace("|", "\\|") for f, b in
+                                                                   (self.columns[c] for c in keep)) + " |"
         rows = [head, "|" + "---|" * (3 + len(keep))]
         for j, name in enumerate(self.joint_names):
             pct = 100 * self.rmse[j] / max(self.signal_rms[j], 1e-12)
@@ -164,7 +166,9 @@ class Spectra:
     ``freq [F]`` Hz and ``psd [F,n]`` (N·m)²/Hz: Welch spectrum over all recordings (averaged);
     ``orders [K]`` cycles/rev and ``order_power [K,n]`` (N·m)²: amplitude² of the best sinusoid of the joint angle
     at each order (Lomb–Scargle of e against q over the samples where the joint moves); ``peak_order [n]``,
-    ``peak_order_share [n]``: the strongest order and the share of the moving-sample variance it explains."""
+    ``peak_order_share [n]``: the strongest order and the share of the moving-sample variance it explains;
+    ``dominant_hz [n]``: the strongest *peak* of the Welch spectrum (NaN: none — see :func:`spectral_peaks`) and
+    ``resolution_hz`` its bin width."""
     freq: np.ndarray
     psd: np.ndarray
     orders: np.ndarray
@@ -172,6 +176,50 @@ class Spectra:
     peak_order: np.ndarray
     peak_order_share: np.ndarray
     dominant_hz: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    resolution_hz: float = float("nan")
+
+
+SEGMENT_S = 2.0
+"""Welch segment length [s] (rounded up to a power of two of samples): a 0.5 Hz resolution, fine enough for the
+motion's own frequencies (the first bins of a 256-sample segment at 5 kHz are 19.5 Hz wide: every residual's
+"dominant frequency" was that first bin)."""
+
+
+def spectral_peaks(freq: np.ndarray, psd: np.ndarray, dof: float, alpha: float = 0.01, half_width: int = 8
+                   ) -> np.ndarray:
+    """The frequency [Hz] of the strongest peak per joint of a Welch spectrum ``psd [F,n]``, NaN where none: a bin
+    is a peak when it is a local maximum, not one of the two lowest bins (DC and the first bin hold the detrended
+    level and the window's leakage of the slow motion, never a peak) and above the median of ``half_width`` bins on
+    *each* side (the larger of the two: a falling spectrum's bin is no peak against its left neighbours) by more
+    than the χ² quantile of an estimate with ``dof`` degrees of freedom at ``1 − α/F`` (Bonferroni over the bins).
+    ``dof``: the number of Welch segments — half the nominal 2 per segment, for the 50 % overlap and the noise of
+    the neighbours' median (on white noise with a random walk: no false peak in 80 spectra; 2 per segment: 3)."""
+    from numpy.lib.stride_tricks import sliding_window_view
+    from scipy import stats
+
+    n_f, n = psd.shape
+    out = np.full(n, np.nan)
+    if n_f < 5:
+        return out
+    h = half_width
+    pad = np.concatenate([np.full((h, n), np.nan), psd, np.full((h, n), np.nan)])
+    win = sliding_window_view(pad, h, axis=0)                       # win[i] = pad[i:i+h]
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)               # all-NaN windows at the edges
+        left = np.nanmedian(win[:n_f], axis=-1)                      # psd[k-h:k]
+        right = np.nanmedian(win[h + 1:h + 1 + n_f], axis=-1)        # psd[k+1:k+h+1]
+    left[:2] = np.inf
+    base = np.fmax(left, right)
+    thr = stats.chi2.ppf(1 - alpha / n_f, dof) / dof
+    local = np.zeros_like(psd, dtype=bool)
+    local[1:-1] = (psd[1:-1] > psd[:-2]) & (psd[1:-1] >= psd[2:])
+    ok = local & (psd > thr * base)
+    ok[:2] = False
+    for j in range(n):
+        k = np.flatnonzero(ok[:, j])
+        if len(k):
+            out[j] = freq[k[np.argmax(psd[k, j])]]
+    return out
 
 
 def order_spectrum(e: np.ndarray, q: np.ndarray, qd: np.ndarray, orders: np.ndarray,
@@ -250,13 +298,14 @@ def spectra(residuals: Sequence[np.ndarray], qs: Sequence[np.ndarray], qds: Sequ
     The order spectrum uses the samples with ``|q̇| > min_speed`` rad/s; orders from 1 to ``max_order``
     cycles/rev in steps fine enough to resolve the swept angle (1/(4·span) cycles/rad)."""
     n = residuals[0].shape[1]
-    nper = int(min(256, min(len(e) for e in residuals)))
-    psds = []
+    nper = int(min(2 ** int(np.ceil(np.log2(max(SEGMENT_S * rate_hz, 8.0)))), min(len(e) for e in residuals)))
+    psds, segments = [], 0
     for e in residuals:
         f, p = signal.welch(e, fs=rate_hz, nperseg=nper, axis=0, detrend="constant")
         psds.append(p)
+        segments += max(1, 2 * len(e) // nper - 1)                  # 50 % overlap (scipy's default)
     psd = np.mean(psds, axis=0)
-    dominant = f[1:][np.argmax(psd[1:], axis=0)] if len(f) > 1 else np.zeros(n)
+    dominant = spectral_peaks(f, psd, dof=float(segments))
     e_all, q_all, qd_all = (np.concatenate(x) for x in (residuals, qs, qds))
     orders = np.arange(1.0, max_order + 0.25, 0.25)
     power = np.zeros((len(orders), n))
@@ -268,4 +317,30 @@ def spectra(residuals: Sequence[np.ndarray], qs: Sequence[np.ndarray], qds: Sequ
             k = int(np.argmax(pw))
             peak[j] = orders[k]
             share[j] = 0.5 * pw[k] / max(var, 1e-300)
-    return Spectra(f, psd, orders, power, peak, np.clip(share, 0.0, 1.0), dominant)
+    return Spectra(f, psd, orders, power, peak, np.clip(share, 0.0, 1.0), dominant, float(f[1] - f[0]))
+
+
+@dataclass(frozen=True)
+class Localisation:
+    """*Where* the gap lies, before any effect is fitted: the gap map by joint × motion regime and the residual's
+    frequency content, over all recordings (training and held-out)."""
+    gap_map: GapMap
+    spectra: Spectra
+
+
+def localise(model: SimModel, data: Conditioned) -> Localisation:
+    """The model residual ``e = τ_meas − τ_sim`` of every conditioned recording of ``data`` at its kept samples,
+    mapped by joint × regime (:func:`gap_map`) and by frequency (:func:`spectra`, at the recordings' median rate)."""
+    es, fams, taus, qs, qds = [], [], [], [], []
+    rob = model.robot
+    for cs, t0, keep in zip(data.signals, data.sessions, data.keep):
+        rec, s = cs.as_recording(), session_motion(cs, t0)
+        e = (rec.tau - model.predict(s))[keep]
+        fam = regime_families(s.q, s.qd, rob.lower, rob.upper, rob.velocity_limits, rec)
+        fams.append([type(f)(f.name, f.names, f.labels[keep]) for f in fam])
+        es.append(e)
+        taus.append(rec.tau[keep])
+        qs.append(s.q[keep])
+        qds.append(s.qd[keep])
+    rate = float(np.median([r.rate_hz for r in data.recordings]))
+    return Localisation(gap_map(es, fams, taus, rob.joint_names), spectra(es, qs, qds, rate))

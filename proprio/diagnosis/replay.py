@@ -32,9 +32,10 @@ import numpy as np
 from proprio.conditioning import ConditionedSignals, ConditioningConfig
 from proprio.time_base import measured_segments
 from proprio.description import RobotDescription
-from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, MAX_TRIM_S, NOISE_EFFECTS, DiagnosisError,
+from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, MAX_TRIM_S, NOISE_EFFECTS, Conditioned, DiagnosisError,
                                     condition_all, kept, session_time)
 from proprio.diagnosis.attribution import Attribution
+from proprio.diagnosis.patch import Patch
 from proprio.recording import Recording
 
 if TYPE_CHECKING:                 # Drake is imported where the twin runs (the diagnosis package loads without it)
@@ -43,7 +44,7 @@ if TYPE_CHECKING:                 # Drake is imported where the twin runs (the d
     from proprio.diagrams.twin import TwinConfig
 
 __all__ = ["ReplayGap", "replay_trajectory_of", "deterministic_twin", "replay_recording", "twin_gap", "replay_gap",
-           "offline_prediction", "LIMIT_MARGIN"]
+           "replay_patched", "offline_prediction", "LIMIT_MARGIN"]
 
 LIMIT_MARGIN = 1e-3              # rad kept inside each joint limit by the replayed trajectory
 
@@ -165,17 +166,20 @@ def offline_prediction(att: Attribution) -> tuple[np.ndarray, np.ndarray]:
 
 def replay_gap(patched: TwinConfig, holdout: Sequence[Recording], base: TwinConfig | None = None,
                att: Attribution | None = None, trim_s: float | None = None,
-               conditioning: ConditioningConfig = DIAGNOSIS_CONDITIONING, progress: bool = False) -> ReplayGap:
+               conditioning: ConditioningConfig = DIAGNOSIS_CONDITIONING, progress: bool = False,
+               conditioned: Sequence[ConditionedSignals] = ()) -> ReplayGap:
     """Replay ``holdout`` through ``patched`` (and ``base``, for the gap before) and measure the gap (module
     docstring); ``att`` adds the diagnosis' offline prediction. Raises :class:`DiagnosisError` on a joint-count
-    mismatch or no recordings. ``trim_s`` [s] per end (``None``: each recording's default, :func:`kept`)."""
+    mismatch or no recordings. ``trim_s`` [s] per end (``None``: each recording's default, :func:`kept`).
+    ``conditioned``: the recordings already conditioned by ``conditioning`` (one per recording, or none): a recording
+    without a gap in its log is then replayed from them rather than conditioned again."""
     if not holdout:
         raise DiagnosisError("replay: need at least one held-out recording")
     for k, r in enumerate(holdout):
         if r.n_joints != patched.robot.n:
             raise DiagnosisError(f"replay: held-out recording {k} has {r.n_joints} joints, the twin's robot "
                                  f"'{patched.robot.name}' has {patched.robot.n}")
-    pieces, offsets, owner = [], [], []
+    pieces, offsets, owner, whole = [], [], [], []
     span = MAX_TRIM_S if trim_s is None else trim_s
     for k, r in enumerate(holdout):
         kept_ranges = [(a, b) for a, b in measured_segments(r, conditioning.max_gap_s)
@@ -187,7 +191,9 @@ def replay_gap(patched: TwinConfig, holdout: Sequence[Recording], base: TwinConf
             pieces.append(r.slice(a, b))
             offsets.append(float(r.t[a] - r.t[0]))
             owner.append(k)
-    cond = condition_all(pieces, conditioning, "holdout")
+            whole.append(conditioned[k] if conditioned and (a, b) == (0, r.n_samples) else None)
+    fresh = iter(condition_all([p for p, cs in zip(pieces, whole) if cs is None], conditioning, "holdout"))
+    cond = [cs if cs is not None else next(fresh) for cs in whole]
     # each piece at its own session time, so a time-varying effect of the patch acts as when it was recorded
     sessions = [session_time(holdout[k], f"held-out recording {k}") + off for k, off in zip(owner, offsets)]
     after_pieces = [_shifted(replay_recording(patched.with_session_time(t0), cs, progress), off)
@@ -229,3 +235,14 @@ def _joined(pieces: Sequence[Recording]) -> Recording:
 def _rms_change(reduction: float) -> str:
     """``RMS −65.2 %`` for a reduction of 0.652, ``RMS +20.0 %`` for a growth."""
     return f"RMS {'−' if reduction >= 0 else '+'}{100 * abs(reduction):.1f} %"
+
+
+def replay_patched(twin: TwinConfig, patch: Patch, data: Conditioned, att: Attribution) -> ReplayGap:
+    """The held-out recordings of ``data`` replayed through the base ``twin`` and through it + ``patch``
+    (:func:`replay_gap`)."""
+    from proprio.diagrams.twin import TwinConfig, merge_twin_patch
+
+    patched = TwinConfig.from_dict(merge_twin_patch(twin.raw, patch.twin_patch), f"{twin.name} + twin_patch.yaml")
+    return replay_gap(patched, data.holdout, base=twin, att=att, trim_s=data.trim_s, conditioning=data.config,
+                      conditioned=data.holdout_cs)
+

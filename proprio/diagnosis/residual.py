@@ -1,6 +1,6 @@
-"""What stays unexplained on the held-out data after the selection (:mod:`proprio.diagnosis.selection`): its structure
-per joint — Ljung–Box over time, held-out R² against the motion state, the part within the conditioning's own error —
-and unmodelled white torque noise.
+"""What stays unexplained on the held-out data after the selection (:mod:`proprio.diagnosis.selection.forward`): its
+structure per joint — Ljung–Box over time, held-out R² against the motion state, the part within the conditioning's own
+error — and unmodelled white torque noise.
 
 **White only when both tests agree.** A joint's residual is white when the Ljung–Box test finds no autocorrelation
 (p ≥ :data:`WHITE_ALPHA`) *and* the motion state does not predict it on held-out data (R² ≤ :data:`WHITE_R2`). A

@@ -4,8 +4,8 @@ file, and — with twin data — run it on the twin and diagnose again with the 
 
 Which sets get an experiment (:func:`design_experiments`):
 
-* every tied set (:func:`~proprio.diagnosis.ambiguity.tied_sets`) — except one whose members were all named and
-  whose held-out torques are uncorrelated (|r| < :data:`UNRELATED_CORRELATION` for every tied alternative): both
+* every tied set (:func:`~proprio.diagnosis.selection.ambiguity.tied_sets`) — except one whose members were all named
+  and whose held-out torques are uncorrelated (|r| < :data:`UNRELATED_CORRELATION` for every tied alternative): both
   stay in the twin and explain different parts, there is nothing to decide;
 * with the training data given, every *confounded pair* of named effects
   (:func:`~proprio.diagnosis.discriminate.confounded_pairs`): both are kept, but their parameters trade off (the
@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 
-from proprio.diagnosis.ambiguity import tied_sets
+from proprio.diagnosis.selection.ambiguity import tied_sets
 from proprio.conditioning import ConditioningConfig
 from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING, GapData, SimModel, condition_all, kept, session_time
 from proprio.diagnosis.discriminate import (Experiment, Resolution, confounded_pairs, design_experiment, joint_refit,

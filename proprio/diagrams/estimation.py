@@ -3,24 +3,28 @@ observers, logged at the data rate — the same :class:`WrenchEstimator` a live 
 
     TrajectorySource [q; q̇; q̈; τ_J] (conditioned, zero phase) → Demultiplexer → WrenchEstimator:
         ├─ q, q̇, q̈ → rigid_body (τ_rigid, [p; τ_g + Cᵀq̇], J(q) from one plant context)
-        ├─ τ_rigid, q, q̇, q̈ → torque_model (τ_int, or the hybrid model's network) ─tau_dyn─→ jacobian_observer
-        │                                                                      └─tau_int─→ momentum_observer
+        ├─ τ_rigid, q, q̇, q̈ → torque_model (friction, offsets: τ_RBD) ─tau_dyn─→ jacobian_observer
+        │                                                              └─tau_int─→ momentum_observer
+        │    a hybrid model: τ_RBD, q, q̇, q̈ → residual_network (τ_NN) → Adders tau_dyn = τ_RBD + τ_NN,
+        │                                                                   tau_int = τ_int,RBD + τ_NN
         ├─ τ_J ──────────────────────────────────────────────→ both observers' tau_meas
         └─ J(q) ──────────────────────────────────────────────→ wrench (WrenchMap: one solve for both τ̂_ext)
                                                                ─estimate─→ ONE VectorLogSink
 
-Every stage is a System with named ports; C++ primitives (Multiplexer/Demultiplexer, MatrixGain, discrete
-LinearSystem, ZeroOrderHold) carry everything but the three Python Systems that hold real Python work (the
-rigid-body terms, the model's torque step — with the network step for a hybrid model —, the
-wrench solve), each reading one stacked input port and writing one output. The signals come from the one
+Every stage is a System with named ports (the design card's features → RBD backbone τ_RBD → residual network τ_NN →
+wrench observers); C++ primitives (Multiplexer/Demultiplexer, Adder, MatrixGain, discrete LinearSystem,
+ZeroOrderHold) carry everything but the Python Systems that hold real Python work (the rigid-body terms, the
+backbone's friction, the network's step for a hybrid model, the wrench solve), each reading one stacked input port
+and writing one output. The signals come from the one
 conditioning path (:mod:`proprio.conditioning`: uniform time base, zero-phase Butterworth per joint with its cutoff from the data's
 noise floor or from the config, central differences), offline, so they are computed before the replay; online, a
 causal conditioning stage (:class:`~proprio.systems.causal_conditioning.CausalConditioner`) takes the raw q, τ_J
 instead (``WrenchEstimator(..., conditioning=causal_conditioning(...))``; :mod:`proprio.online` steps that same
 Diagram sample by sample from a user's loop). ``tau_dyn`` comes from any :class:`~proprio.diagrams.torque_model.TorqueModel`: the
 rigid-body model (:class:`~proprio.diagrams.torque_model.TorqueModelSystem`), or the hybrid RBD + learned residual
-(:mod:`proprio.diagrams.hybrid_torque_model`), whose network then runs online in the diagram, one step per sample with its LSTM and r-encoder state carried from
-sample to sample. :func:`estimate_wrench` runs it and returns an :class:`EstimationResult`.
+(:mod:`proprio.diagrams.hybrid_torque_model`), whose network then runs online in the diagram as its own stage
+(:class:`~proprio.systems.residual_network.ResidualNetworkSystem`), one step per sample with its LSTM and r-encoder
+state carried from sample to sample. :func:`estimate_wrench` runs it and returns an :class:`EstimationResult`.
 """
 from __future__ import annotations
 
@@ -31,8 +35,9 @@ from typing import Any
 
 import numpy as np
 from pydrake.systems.analysis import Simulator
-from pydrake.systems.framework import Context, Diagram, DiagramBuilder
-from pydrake.systems.primitives import Demultiplexer, LogVectorOutput, TrajectorySource, VectorLogSink
+from pydrake.systems.framework import Context, Diagram, DiagramBuilder, OutputPort
+from pydrake.systems.primitives import (Adder, Demultiplexer, LogVectorOutput, MatrixGain, Multiplexer,
+                                       TrajectorySource, VectorLogSink)
 from pydrake.trajectories import PiecewisePolynomial
 
 from proprio.causal_conditioning import CausalConditioning
@@ -102,14 +107,17 @@ class WrenchEstimator(Diagram):
 
         [conditioner]  q, [qd], tau_meas (raw) ─▶ CausalConditioner (C++ LinearSystem) ─▶ q, qd, qdd, tau_meas
         rigid_body     q, qd, qdd ─▶ RigidBodyTermsSystem (one plant context) ─▶ tau_rigid, momentum_terms, jacobian
-        torque_model   tau_rigid, q, qd, qdd ─▶ TorqueModelSystem (the model's torque law: friction, + the network
-                       of a hybrid model) ─▶ tau_dyn, tau_int
+        torque_model   tau_rigid, q, qd, qdd ─▶ TorqueModelSystem (the rigid-body model's torque law — a hybrid
+                       model's backbone: friction, offsets) ─▶ tau_dyn (τ_RBD), tau_int
+        [residual_network  tau_rbd, q, qd, qdd ─▶ ResidualNetworkSystem (a hybrid model's network, its memory in a
+                       C++ ZeroOrderHold) ─▶ tau_nn; C++ Adders tau_dyn = τ_RBD + τ_NN, tau_int = τ_int,RBD + τ_NN]
         jacobian_observer  tau_dyn, tau_meas ─▶ (C++ MatrixGain [I −I]) ─▶ tau_ext = τ_dyn − τ_J
         momentum_observer  momentum_terms, tau_meas, tau_int ─▶ (C++ discrete LinearSystem) ─▶ tau_ext = r
         wrench             jacobian, tau_ext_jacobian, tau_ext_momentum ─▶ WrenchMap (one solve for both) ─▶ estimate
 
     Each Python System is a thin wrapper of a law written once below the Systems (:mod:`proprio.rigid_body_terms`,
-    the model's ``torque_step``, :mod:`proprio.wrench_solve`); the C++ ``LinearSystem`` stages step the matrices of
+    the rigid-body model's ``torque_step``, :class:`~proprio.learning.streaming.ResidualNetworkCore`,
+    :mod:`proprio.wrench_solve`); the C++ ``LinearSystem`` stages step the matrices of
     :func:`~proprio.causal_conditioning.causal_conditioning` and :func:`~proprio.momentum.momentum_filter`.
     :class:`proprio.online.OnlineEstimator` chains the same laws directly, sample by sample.
 
@@ -138,7 +146,13 @@ class WrenchEstimator(Diagram):
         self.model, self.time_step, self.gain, self.mapping = model, float(time_step), gain, mapping
         builder = DiagramBuilder()
         self.rigid_body = builder.AddNamedSystem("rigid_body", RigidBodyTermsSystem(desc, mapping.contact_point))
-        self.torque_model = builder.AddNamedSystem("torque_model", TorqueModelSystem(model, time_step))
+        network = getattr(model, "network", None)           # a hybrid model: its backbone, then its network
+        self.torque_model = builder.AddNamedSystem("torque_model", TorqueModelSystem(
+            model if network is None else model.backbone))
+        self.residual = None
+        if network is not None:
+            from proprio.systems.residual_network import ResidualNetworkSystem     # torch only for a hybrid model
+            self.residual = builder.AddNamedSystem("residual_network", ResidualNetworkSystem(network, time_step))
         self.jacobian = builder.AddNamedSystem("jacobian_observer", JacobianWrenchObserver(n))
         self.momentum = builder.AddNamedSystem("momentum_observer", MomentumObserver(desc, time_step, gain))
         self.wrench = builder.AddNamedSystem("wrench", WrenchMap(desc, mapping, OBSERVERS, jacobian_input=True))
@@ -161,15 +175,19 @@ class WrenchEstimator(Diagram):
                 exported.add(name)
 
         exported: set[str] = set()
+        stages = [self.rigid_body, self.torque_model] + ([self.residual] if self.residual is not None else [])
         for name in ("q", "qd", "qdd"):
-            connect(name, self.rigid_body.GetInputPort(name))
-            connect(name, self.torque_model.GetInputPort(name))
+            for stage in stages:
+                connect(name, stage.GetInputPort(name))
         connect("tau_meas", self.jacobian.GetInputPort("tau_meas"))
         connect("tau_meas", self.momentum.GetInputPort("tau_meas"))
         builder.Connect(self.rigid_body.GetOutputPort("tau_rigid"), self.torque_model.GetInputPort("tau_rigid"))
-        builder.Connect(self.torque_model.GetOutputPort("tau_dyn"), self.jacobian.GetInputPort("tau_dyn"))
+        tau_dyn, tau_int = self.torque_model.GetOutputPort("tau_dyn"), self.torque_model.GetOutputPort("tau_int")
+        if self.residual is not None:
+            tau_dyn, tau_int = self._add_residual(builder, n, tau_dyn, tau_int)
+        builder.Connect(tau_dyn, self.jacobian.GetInputPort("tau_dyn"))
         builder.Connect(self.rigid_body.GetOutputPort("momentum_terms"), self.momentum.GetInputPort("momentum_terms"))
-        builder.Connect(self.torque_model.GetOutputPort("tau_int"), self.momentum.GetInputPort("tau_int"))
+        builder.Connect(tau_int, self.momentum.GetInputPort("tau_int"))
         builder.Connect(self.rigid_body.GetOutputPort("jacobian"), self.wrench.GetInputPort("jacobian"))
         builder.Connect(self.jacobian.GetOutputPort("tau_ext"), self.wrench.GetInputPort("tau_ext_jacobian"))
         builder.Connect(self.momentum.GetOutputPort("tau_ext"), self.wrench.GetInputPort("tau_ext_momentum"))
@@ -177,6 +195,27 @@ class WrenchEstimator(Diagram):
             builder.ExportOutput(self.wrench.GetOutputPort(name), name)
         builder.BuildInto(self)
         self.set_name("wrench_estimator")
+
+    def _add_residual(self, builder: DiagramBuilder, n: int, tau_rbd: OutputPort, tau_int_rbd: OutputPort
+                      ) -> tuple[OutputPort, OutputPort]:
+        """Feed the backbone's τ_RBD to the residual network and return the ports of τ_dyn and τ_int: for a hybrid
+        network two Drake ``Adder`` Systems, τ_HYB = τ_RBD + τ_NN and τ_int = τ_int,RBD + τ_NN; for a standalone one τ_NN and
+        τ_NN − τ_rigid (``Multiplexer`` → ``MatrixGain [I −I]``)."""
+        residual = self.residual
+        builder.Connect(tau_rbd, residual.GetInputPort("tau_rbd"))
+        tau_nn = residual.GetOutputPort("tau_nn")
+        if self.model.network.cfg.hybrid:
+            sums = [builder.AddNamedSystem(name, Adder(2, n)) for name in ("tau_dyn", "tau_int")]
+            for adder, port in zip(sums, (tau_rbd, tau_int_rbd)):
+                builder.Connect(port, adder.get_input_port(0))
+                builder.Connect(tau_nn, adder.get_input_port(1))
+            return sums[0].get_output_port(), sums[1].get_output_port()
+        stack = builder.AddNamedSystem("tau_int_stack", Multiplexer([n, n]))
+        diff = builder.AddNamedSystem("tau_int", MatrixGain(np.hstack([np.eye(n), -np.eye(n)])))
+        builder.Connect(tau_nn, stack.get_input_port(0))
+        builder.Connect(self.rigid_body.GetOutputPort("tau_rigid"), stack.get_input_port(1))
+        builder.Connect(stack.get_output_port(), diff.get_input_port())
+        return tau_nn, diff.get_output_port()
 
     def set_initial_state(self, context: Context) -> None:
         """Start the stages' states from the sample the inputs show now (this System's context, e.g.

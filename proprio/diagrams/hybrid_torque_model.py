@@ -1,17 +1,20 @@
 """The hybrid torque model τ_HYB = τ_RBD + f_NN(τ_RBD, q, q̇, q̈, r) (§4.2, eq. 4.29/4.30) as a ``TorqueModel`` of
 the estimation diagram (:mod:`proprio.diagrams.estimation`), so both wrench observers run on it online.
 
-Online, its per-sample law (``torque_step``, :class:`HybridTorqueStep`) on the τ_rigid of the estimator's RBD
-stage: it adds the backbone's friction (τ_RBD) and runs the network on vec(τ_RBD, q, q̇, q̈, r) — inside the
-estimation Diagram as :class:`~proprio.diagrams.torque_model.TorqueModelSystem` (its memory held by a C++
-``ZeroOrderHold``) and directly in the streaming estimator (:mod:`proprio.online`).
+Online, two stages on the τ_rigid of the estimator's RBD stage, as the design card draws them: the backbone adds its
+friction and offsets (τ_RBD, :class:`~proprio.diagrams.torque_model.TorqueModelSystem`), the residual network runs on
+vec(τ_RBD, q, q̇, q̈, r) (τ_NN, :class:`~proprio.systems.residual_network.ResidualNetworkSystem`, its memory held by a
+C++ ``ZeroOrderHold``), and Drake ``Adder`` Systems sum them. The streaming estimator (:mod:`proprio.online`) chains the
+same laws directly (:class:`HybridTorqueStep`).
 
-``tau_dyn`` = τ_HYB feeds the Jacobian observer; ``tau_int`` = τ_HYB − τ_rigid (the backbone's friction and offsets
-plus the network's residual) feeds the momentum observer, which takes M(q) from the backbone's rigid body. The
-network keeps its LSTM state and its r-encoder state from sample to sample, one step per sample at the model rate.
+``tau_dyn`` = τ_HYB = τ_RBD + τ_NN feeds the Jacobian observer; ``tau_int`` = τ_HYB − τ_rigid = the backbone's
+friction and offsets + τ_NN feeds the momentum observer, which takes M(q) from the backbone's rigid body. The network
+keeps its LSTM state and its r-encoder state from sample to sample, one step per sample at the model rate.
 
-Offline (``tau_int``), the same model over one contiguous sequence at the model rate, vectorised
-(:func:`~proprio.learning.evaluation.predict_streaming`); the diagram matches it to rounding (tests).
+Offline (``tau_int``), the same model over one contiguous sequence at the model rate: the same compiled kernels over
+the whole log (:func:`~proprio.learning.features.rotational_displacement`, then
+:func:`~proprio.learning.evaluation.predict_streaming`, one compiled loop over the samples); the diagram matches it to
+rounding (tests).
 
 The backbone is the τ_RBD the network was trained with (the ``backbone`` spec stored in the model file): a robot's
 RNEA + viscous/Coulomb friction with the law of :mod:`proprio.friction_law`
@@ -104,9 +107,9 @@ class HybridTorqueModel:
         return predict_streaming(self.network, feature_matrix(backbone, q, qd, qdd, r)) - rigid
 
     def torque_step(self) -> "HybridTorqueStep":
-        """The per-sample law (:class:`HybridTorqueStep`) that the estimation Diagram's
-        :class:`~proprio.diagrams.torque_model.TorqueModelSystem` and the streaming estimator run: τ_HYB and
-        τ_int = τ_HYB − τ_rigid [N·m] from τ_rigid, q, q̇, q̈, the network's memory carried from sample to sample."""
+        """The per-sample law (:class:`HybridTorqueStep`) that the streaming estimator runs — the laws of the
+        estimation Diagram's backbone and residual-network stages and its sums, chained: τ_HYB and τ_int [N·m] from
+        τ_rigid, q, q̇, q̈, the network's memory carried from sample to sample."""
         return HybridTorqueStep(self)
 
     def signals(self, rec: Recording) -> tuple[Recording, dict[str, np.ndarray]]:
@@ -129,17 +132,23 @@ class HybridTorqueModel:
 
 
 class HybridTorqueStep:
-    """The per-sample torque law of a :class:`HybridTorqueModel`: :meth:`step_into` ``[τ_rigid; q; q̇; q̈], memory →
-    [τ_HYB; τ_int = τ_HYB − τ_rigid], next memory`` — the backbone's friction and offsets added to τ_rigid (τ_RBD,
-    the network's input), then the network's step (:class:`~proprio.learning.streaming.ResidualNetworkCore`, whose
-    memory — r-encoder and LSTM state — it passes in and out)."""
+    """The per-sample torque law of a :class:`HybridTorqueModel`, the estimation Diagram's stages chained:
+    :meth:`step_into` ``[τ_rigid; q; q̇; q̈], memory → [τ_HYB; τ_int], next memory`` — the backbone's law
+    (:class:`~proprio.diagrams.torque_model.RigidTorqueStep`: τ_RBD = τ_rigid + its friction and offsets τ_int,RBD),
+    the network's step on [τ_RBD; q; q̇; q̈] (:class:`~proprio.learning.streaming.ResidualNetworkCore`: τ_NN; its
+    memory — r-encoder and LSTM state — passed in and out), then the Diagram's sums: τ_HYB = τ_RBD + τ_NN and τ_int =
+    τ_int,RBD + τ_NN (a standalone network: τ_NN and τ_NN − τ_rigid)."""
 
     def __init__(self, model: HybridTorqueModel):
-        self.n = model.description.n
+        self.n = n = model.description.n
+        self.backbone = model.backbone.torque_step()
         self.core = ResidualNetworkCore(model.network)
+        self.hybrid = model.network.cfg.hybrid
         self.memory_size = self.core.memory_size
-        self._friction = model.backbone.tau_int_step()
-        self._inputs = np.empty(4 * self.n)
+        self._features = np.empty(4 * n)                  # [τ_RBD; q; q̇; q̈], the network's input
+        self._backbone_out = np.empty(2 * n)              # [τ_RBD; τ_int,RBD]
+        self._tau_nn = np.empty(n)
+        self._none = np.zeros(0)
 
     def initial_memory(self) -> np.ndarray:
         return self.core.initial_memory()
@@ -147,11 +156,17 @@ class HybridTorqueStep:
     def step_into(self, inputs: np.ndarray, memory: np.ndarray, out: np.ndarray, memory_out: np.ndarray) -> None:
         """``inputs = [τ_rigid; q; q̇; q̈]`` (4n: N·m, rad, rad/s, rad/s²) and ``memory`` → ``out = [τ_HYB; τ_int]``
         (2n, N·m) and the next memory into ``memory_out`` (which must not alias ``memory``)."""
-        n, x = self.n, self._inputs
-        x[:] = inputs
-        x[:n] += self._friction(inputs[2 * n:3 * n], inputs[3 * n:])            # τ_RBD, the network's input
-        self.core.step_into(memory, x, out[:n], memory_out)
-        np.subtract(out[:n], inputs[:n], out=out[n:])                           # τ_int = τ_HYB − τ_rigid
+        n, x, rbd, tau_nn = self.n, self._features, self._backbone_out, self._tau_nn
+        self.backbone.step_into(inputs, self._none, rbd, self._none)
+        x[:n] = rbd[:n]
+        x[n:] = inputs[n:]
+        self.core.step_into(memory, x, tau_nn, memory_out)
+        if self.hybrid:
+            np.add(rbd[:n], tau_nn, out=out[:n])
+            np.add(rbd[n:], tau_nn, out=out[n:])
+        else:
+            out[:n] = tau_nn
+            np.subtract(tau_nn, inputs[:n], out=out[n:])
 
 
 def load_hybrid_torque_model(path: str | Path) -> HybridTorqueModel:

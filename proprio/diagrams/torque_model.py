@@ -1,7 +1,8 @@
 """The joint-torque models of the estimator: the :class:`TorqueModel` protocol, the rigid-body model of a description
 (:class:`RigidBodyTorqueModel`: RBD + link friction + drive terms + offsets), its per-sample torque law
-(:class:`RigidTorqueStep`) and the System of any model's law (:class:`TorqueModelSystem`, on the τ_rigid of the
-estimator's RBD stage, :class:`~proprio.systems.momentum_observer.RigidBodyTermsSystem`).
+(:class:`RigidTorqueStep`) and the System of that law (:class:`TorqueModelSystem`, on the τ_rigid of the
+estimator's RBD stage, :class:`~proprio.systems.momentum_observer.RigidBodyTermsSystem`: with it, the RBD backbone
+τ_RBD of the design card).
 
 Both the estimation diagram (:mod:`proprio.diagrams.estimation`) and the hybrid model
 (:mod:`proprio.diagrams.hybrid_torque_model`, whose backbone is a :class:`RigidBodyTorqueModel`) import this module;
@@ -18,7 +19,7 @@ from typing import Callable, Protocol
 
 import numpy as np
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
-from pydrake.systems.primitives import Demultiplexer, Multiplexer, ZeroOrderHold
+from pydrake.systems.primitives import Demultiplexer, Multiplexer
 
 from proprio import friction_law
 from proprio.description import RobotDescription, load_robot
@@ -39,10 +40,13 @@ class TorqueModel(Protocol):
     a learned residual).
 
     ``torque_step()`` is its per-sample law (``n``, ``memory_size``, ``initial_memory()``, ``step_into(inputs,
-    memory, out, memory_out)``: :class:`RigidTorqueStep`), which :class:`TorqueModelSystem` and the streaming
-    estimator call. A model with its own preprocessing (the hybrid model, :mod:`proprio.diagrams.hybrid_torque_model`)
-    also provides ``signals(rec) -> (Recording, signals)`` (its own preprocessing at its own rate, instead of
-    :func:`~proprio.diagrams.estimation.conditioned_signals`; ``signals["edge_s"]`` is its filters' edge transient [s]) and a ``name``."""
+    memory, out, memory_out)``: :class:`RigidTorqueStep`), which the streaming estimator calls, and
+    :class:`TorqueModelSystem` for a memoryless law. A model with its own preprocessing (the hybrid model,
+    :mod:`proprio.diagrams.hybrid_torque_model`) also provides ``signals(rec) -> (Recording, signals)`` (its own
+    preprocessing at its own rate, instead of :func:`~proprio.diagrams.estimation.conditioned_signals`;
+    ``signals["edge_s"]`` is its filters' edge transient [s]) and a ``name``; a hybrid model also ``backbone`` (its
+    :class:`RigidBodyTorqueModel`) and ``network`` (its :class:`~proprio.learning.models.HybridModel`), which the
+    estimation Diagram runs as two stages."""
     description: RobotDescription
 
     def tau_int(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray: ...
@@ -146,54 +150,49 @@ class RigidTorqueStep:
 
 
 class TorqueStepSystem(LeafSystem):
-    """The Python System of :class:`TorqueModelSystem`: input ``inputs`` = ``[τ_rigid; q; q̇; q̈; memory]`` (one
-    stacked port: each input evaluation from Python costs about a microsecond), output ``step`` = ``[τ_dyn; τ_int;
-    next memory]`` — the model's torque step law (``step_into``), nothing else."""
+    """The Python System of :class:`TorqueModelSystem`: input ``inputs`` = ``[τ_rigid; q; q̇; q̈]`` (one stacked port:
+    each input evaluation from Python costs about a microsecond), output ``step`` = ``[τ_dyn; τ_int]`` — the model's
+    torque step law (``step_into``), nothing else."""
 
     def __init__(self, law):
         LeafSystem.__init__(self)
-        n, size = law.n, law.memory_size
-        self._law, self._k = law, 4 * n
-        self._inputs = self.DeclareVectorInputPort("inputs", 4 * n + size)
-        self.DeclareVectorOutputPort("step", 2 * n + size, self._calc)
-        self._out = np.empty(2 * n + size)
-        self._torques, self._memory = self._out[:2 * n], self._out[2 * n:]
+        n = law.n
+        self._law, self._memory = law, np.zeros(0)
+        self._inputs = self.DeclareVectorInputPort("inputs", 4 * n)
+        self.DeclareVectorOutputPort("step", 2 * n, self._calc)
+        self._out = np.empty(2 * n)
 
     def _calc(self, context, output) -> None:
-        x, k = self._inputs.Eval(context), self._k
-        self._law.step_into(x[:k], x[k:], self._torques, self._memory)
+        self._law.step_into(self._inputs.Eval(context), self._memory, self._out, self._memory)
         output.SetFromVector(self._out)
 
 
 class TorqueModelSystem(Diagram):
-    """A :class:`TorqueModel`'s torque on the estimator's rigid-body torque, as a sub-Diagram::
+    """A rigid-body model's torque on the estimator's rigid-body torque (the backbone stage), as a sub-Diagram::
 
         tau_rigid, q, qd, qdd ─▶ Multiplexer ─▶ TorqueStepSystem ─▶ Demultiplexer ─▶ tau_dyn, tau_int
-                        memory ─┘   (ZeroOrderHold ◀── next memory ─┘, only for a model with memory)
 
     Inputs ``tau_rigid`` (the inverse dynamics of the RBD stage, N·m), ``q``, ``qd``, ``qdd`` (rad, rad/s, rad/s²),
-    n each; outputs ``tau_dyn`` = τ_rigid + τ_int and ``tau_int`` (N·m). The step is the model's law
-    (``model.torque_step()``: :class:`RigidTorqueStep`, or a hybrid model's friction + network step), whose memory
-    (a network's r-encoder and LSTM state) a C++ ``ZeroOrderHold`` holds at ``time_step`` (its default, zeros, is the
-    memory before the first sample)."""
+    n each; outputs ``tau_dyn`` = τ_rigid + τ_int and ``tau_int`` (N·m). The step is the model's memoryless law
+    (``model.torque_step()``: :class:`RigidTorqueStep`). A hybrid model is not one stage: the estimation Diagram runs
+    its backbone here and its network as the next stage
+    (:class:`~proprio.systems.residual_network.ResidualNetworkSystem`)."""
 
-    def __init__(self, model: TorqueModel, time_step: float):
+    def __init__(self, model: TorqueModel):
         Diagram.__init__(self)
         n = model.description.n
         self.law = law = model.torque_step()
-        size = law.memory_size
+        if law.memory_size:
+            raise ValueError("TorqueModelSystem: the model's torque law has memory (a network?); give its rigid-body "
+                             "backbone, and run the network as its own System")
         builder = DiagramBuilder()
-        inputs = builder.AddNamedSystem("inputs", Multiplexer([n] * 4 + ([size] if size else [])))
+        inputs = builder.AddNamedSystem("inputs", Multiplexer([n] * 4))
         step = builder.AddNamedSystem("step", TorqueStepSystem(law))
-        split = builder.AddNamedSystem("split", Demultiplexer([n, n] + ([size] if size else [])))
+        split = builder.AddNamedSystem("split", Demultiplexer([n, n]))
         for i, name in enumerate(("tau_rigid", "q", "qd", "qdd")):
             builder.ExportInput(inputs.get_input_port(i), name)
         builder.Connect(inputs.get_output_port(), step.get_input_port())
         builder.Connect(step.get_output_port(), split.get_input_port())
-        if size:
-            hold = builder.AddNamedSystem("memory", ZeroOrderHold(float(time_step), size))
-            builder.Connect(split.get_output_port(2), hold.get_input_port())
-            builder.Connect(hold.get_output_port(), inputs.get_input_port(4))
         builder.ExportOutput(split.get_output_port(0), "tau_dyn")
         builder.ExportOutput(split.get_output_port(1), "tau_int")
         builder.BuildInto(self)

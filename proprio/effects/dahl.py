@@ -13,8 +13,8 @@ kernel) — the same recursion, so the two agree to rounding (tests).
 Two effects are this law: the torque sensor's hysteresis (:class:`proprio.effects.Hysteresis`, a strain gauge's loop
 over degrees of travel) and the drive's pre-sliding friction (:class:`PreSliding`, the gear and bearings' elastic
 micro-displacement before gross sliding, over tenths of a degree). In a torque they are the same function of ``r``,
-which is why the diagnosis offers one of them per kind of τ (:mod:`proprio.diagnosis.drive_candidates`): the gauge's loop for
-a link-side torque sensor, pre-sliding for drive torques (no gauge there).
+which is why the diagnosis offers one of them per kind of τ (:mod:`proprio.diagnosis.candidates.drive`): the gauge's
+loop for a link-side torque sensor, pre-sliding for drive torques (no gauge there).
 """
 from __future__ import annotations
 

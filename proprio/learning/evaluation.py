@@ -3,7 +3,8 @@
 * windowed (thesis style): the sequence is cut into windows of T samples and every window starts from a fresh
   (zero) state; this is exactly what the model saw in training.
 * streaming (the online path of the residual System): one pass over a whole recording with the state carried
-  from sample to sample. For MLP-7 both are identical; the Transformer has only the windowed form.
+  from sample to sample, by the residual System's own law (:class:`~proprio.learning.models.StreamingStepper`).
+  For MLP-7 both are identical; the Transformer has only the windowed form (torch).
 
 Train/test MSE are computed on the samples of the split's train/test subsequences (N·m², per joint + average).
 """
@@ -15,7 +16,7 @@ import numpy as np
 import torch
 
 from proprio.learning.datasets import Split, Windows
-from proprio.learning.models import HybridModel
+from proprio.learning.models import HybridModel, StreamingStepper
 
 __all__ = ["TableRow", "predict_windowed", "predict_streaming", "evaluate_model", "rbd_row", "streaming_row",
            "format_table"]
@@ -52,14 +53,13 @@ def predict_windowed(model: HybridModel, features: np.ndarray, batch: int = 256)
     return torch.cat([model(x[i:i + batch].to(device)).cpu() for i in range(0, len(x), batch)]).double().numpy()
 
 
-@torch.no_grad()
 def predict_streaming(model: HybridModel, features: np.ndarray) -> np.ndarray:
-    """τ ``[N, n]`` for one sequence ``features [N, 5n]`` with the state carried over all N samples."""
-    model.eval()
-    dtype = next(model.parameters()).dtype
-    device = next(model.parameters()).device
-    tau, _ = model.run(torch.as_tensor(features[None], dtype=dtype, device=device))
-    return tau[0].double().cpu().numpy()
+    """τ ``[N, n]`` N·m (float64) for one sequence ``features [N, 5n]`` with the state carried over all N samples: the
+    streaming law of the residual System and the online estimator (:class:`~proprio.learning.models.StreamingStepper`:
+    an LSTM's compiled step looped over the samples in one call, MLP-7 vectorised), on the model's weights in float64
+    whatever its dtype and device. Equals torch's :meth:`~proprio.learning.models.HybridModel.run` to rounding
+    (tests)."""
+    return StreamingStepper(model).run(features)[0]
 
 
 def _mse(pred: np.ndarray, tau: np.ndarray) -> np.ndarray:

@@ -21,8 +21,11 @@ backbone's 17.9 N·m²) — README, "A residual never worse than its backbone".
 
 Sequence models are trained sequence-to-sequence (a prediction at every step of a window, each seeing only that
 window's past: LSTM by recurrence, Transformer by a causal mask); the thesis' sequence-to-one prediction at the end
-of a window is the last step. :meth:`HybridModel.step` is the streaming form (one sample, state carried) used by the
-residual System; it exists for MLP-7 (stateless) and the LSTMs. The Transformer has no streaming form here.
+of a window is the last step. The streaming form (state carried from sample to sample) exists for MLP-7 (stateless)
+and the LSTMs: :meth:`HybridModel.run` in torch (autograd, training), and :class:`StreamingStepper`, the same weights
+as float64 numpy and numba kernels, which every inference outside training calls — one sample at a time (the
+residual System, the streaming estimator) or over a whole log. The Transformer has no streaming form; its windowed
+inference stays on torch.
 """
 from __future__ import annotations
 
@@ -40,12 +43,13 @@ from proprio.io import atomic_path
 from proprio.learning.features import DEFAULT_DEADBAND_DEG, R_MAX_DEG, feature_columns
 from proprio.learning.sections import section_from_dict
 
-__all__ = ["ARCHS", "ModelConfig", "HybridModel", "StreamingStepper", "lstm2_step", "save_model", "load_model",
-           "first_line"]
+__all__ = ["ARCHS", "ModelConfig", "HybridModel", "StreamingStepper", "lstm2_step", "lstm2_run", "save_model",
+           "load_model", "first_line"]
 
 ARCHS = ("mlp7", "lstm2", "lstm2_fcl", "transformer")
 _LABEL = {"mlp7": "MLP-7", "lstm2": "LSTM-2", "lstm2_fcl": "LSTM-2-FCL", "transformer": "Transformer"}
 _FORMAT = "proprio-hybrid-model/1"
+_MLP_BLOCK = 4096                       # samples per vectorised MLP-7 block of StreamingStepper.run (≈ 23 MB at n = 7)
 
 
 @dataclass
@@ -308,9 +312,9 @@ def _lstm_cell(w, z, c, c_out, h_out):  # pragma: no cover (compiled)
 
 
 @numba.njit(cache=True)
-def lstm2_step(cell1, cell2, w_out, x, state, state_out, tau_out, hybrid):  # pragma: no cover (compiled)
-    """One step of the LSTM-2(-FCL) on the features ``x`` (the model's columns): τ [n] N·m into ``tau_out`` (+ the
-    first feature block, τ_RBD, when ``hybrid``) and the next state ``[h₁, c₁, h₂, c₂]`` into ``state_out`` (which
+def lstm2_step(cell1, cell2, w_out, x, state, state_out, tau_out):  # pragma: no cover (compiled)
+    """One step of the LSTM-2(-FCL) on the features ``x`` (the model's columns): the network's output τ_NN [n] N·m
+    (a hybrid's τ_RBD not added) into ``tau_out`` and the next state ``[h₁, c₁, h₂, c₂]`` into ``state_out`` (which
     must not alias ``state``) — the streaming law of :class:`StreamingStepper`, compiled."""
     k1, k2, f = cell1.shape[0] // 4, cell2.shape[0] // 4, x.shape[0]
     z1 = np.empty(f + k1 + 1)
@@ -323,13 +327,25 @@ def lstm2_step(cell1, cell2, w_out, x, state, state_out, tau_out, hybrid):  # pr
         s = w_out[i, k2]
         for j in range(k2):
             s += w_out[i, j] * state_out[2 * k1 + j]
-        tau_out[i] = s + x[i] if hybrid else s
+        tau_out[i] = s
+
+
+@numba.njit(cache=True)
+def lstm2_run(cell1, cell2, w_out, x, state, tau_out):  # pragma: no cover (compiled)
+    """:func:`lstm2_step` over the samples ``x [N, f]`` in order, the state carried from ``state`` (updated in place to
+    the final state): τ_NN ``[N, n]`` N·m into ``tau_out`` — the batch form of the streaming law, one compiled loop."""
+    nxt = np.empty_like(state)
+    for k in range(x.shape[0]):
+        lstm2_step(cell1, cell2, w_out, x[k], state, nxt, tau_out[k])
+        state[:] = nxt
 
 
 class StreamingStepper:
-    """The same model as plain float64 numpy for one-sample-at-a-time inference (≈10× less overhead per sample than
-    a torch call). ``step(x [5n], state [state_size]) -> (τ [n], state)``; equals :meth:`HybridModel.run` to
-    rounding (checked in the tests).
+    """The model's inference law as plain float64 numpy and numba kernels — the one law every inference path calls:
+    ``step(x [5n], state [state_size]) -> (τ [n], state)`` one sample at a time (≈10× less overhead per sample than
+    a torch call; the residual Systems and the streaming estimator), ``run(x [N, 5n]) -> (τ [N, n], state)`` over a
+    whole sequence (:func:`~proprio.learning.evaluation.predict_streaming`, the hybrid torque model's batch path).
+    Both equal :meth:`HybridModel.run`, the torch form kept for training (autograd), to rounding (tests).
 
     The normalisations are folded into the weights once (eq. 4.33/4.34 are affine, so ``W((x − μ)/σ) + b`` =
     ``(W/σ) x + (b − W μ/σ)`` and the output de-normalisation scales the last layer), which leaves one matrix–vector
@@ -378,21 +394,51 @@ class StreamingStepper:
             else:
                 w_out, b_out = np.diag(y_std), y_mean
             self.w_out = np.ascontiguousarray(np.hstack([w_out, b_out[:, None]]))       # [W | b] on [h₂; 1]
-            lstm2_step(*self.cells, self.w_out, np.zeros(self.cells[0].shape[1] - self.sizes[0] - 1),
-                       np.zeros(self.state_size), np.empty(self.state_size), np.empty(self.n), self.hybrid)  # compile
+            f = self.cells[0].shape[1] - self.sizes[0] - 1                      # the LSTM's input size
+            lstm2_step(*self.cells, self.w_out, np.zeros(f), np.zeros(self.state_size), np.empty(self.state_size),
+                       np.empty(self.n))                                                         # compile / load
+            lstm2_run(*self.cells, self.w_out, np.zeros((1, f)), np.zeros(self.state_size), np.empty((1, self.n)))
 
-    def step(self, x: np.ndarray, state: np.ndarray, r: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """τ [n] N·m for the features ``x [5n]`` of one sample — or ``x [4n]`` = vec(τ_RBD, q, q̇, q̈) and ``r [n]``
-        apart, which saves a concatenation — and the next recurrent state (``state`` is not modified)."""
+    def _mlp(self, z: np.ndarray) -> np.ndarray:
+        """MLP-7's τ_NN ``[..., n]`` for the model's columns ``z [..., F]`` (one sample or many: the same law)."""
+        h = np.maximum(np.einsum("...f,jfh->...jh", z, self.w1) + self.b1, 0.0)
+        return np.einsum("...jh,jh->...j", h, self.w2) + self.b2
+
+    def residual_step(self, x: np.ndarray, state: np.ndarray, r: np.ndarray | None = None
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        """τ_NN [n] N·m — the network's own output: a hybrid's residual, τ_RBD not added; a standalone model's torque
+        — for the features ``x [5n]`` of one sample (or ``x [4n]`` = vec(τ_RBD, q, q̇, q̈) and ``r [n]`` apart, which
+        saves a concatenation) and the next recurrent state (``state`` is not modified)."""
         if r is not None and (self.columns is not None or self.arch == "mlp7"):
             x, r = np.concatenate((x, r)), None
         z = x if self.columns is None else x[self.columns]
         if self.arch == "mlp7":
-            h = np.maximum(np.einsum("f,jfh->jh", z, self.w1) + self.b1, 0.0)
-            tau = np.einsum("jh,jh->j", h, self.w2) + self.b2
-            return (tau + x[:self.n] if self.hybrid else tau), state
+            return self._mlp(z), state
         if r is not None:
             z = np.concatenate((z, r))
         nxt, tau = np.empty_like(state), np.empty(self.n)
-        lstm2_step(*self.cells, self.w_out, z, state, nxt, tau, self.hybrid)
+        lstm2_step(*self.cells, self.w_out, z, state, nxt, tau)
         return tau, nxt
+
+    def step(self, x: np.ndarray, state: np.ndarray, r: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """τ [n] N·m (τ_HYB = τ_RBD + τ_NN for a hybrid, :meth:`residual_step` + the first feature block) and the
+        next recurrent state, for one sample (arguments as :meth:`residual_step`)."""
+        tau, nxt = self.residual_step(x, state, r)
+        return (tau + x[:self.n] if self.hybrid else tau), nxt
+
+    def run(self, x: np.ndarray, state: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The batch form over ONE sequence ``x [N, 5n]`` with the state carried from ``state`` (zeros when None):
+        ``(τ [N, n] N·m, final state)``, equal to :meth:`step` sample by sample and to :meth:`HybridModel.run` to
+        rounding (tests). An LSTM runs :func:`lstm2_step` over the samples in one compiled call (:func:`lstm2_run`),
+        MLP-7 its law vectorised over the samples."""
+        x = np.asarray(x, dtype=float)
+        if x.ndim != 2 or x.shape[1] != 5 * self.n:
+            raise ValueError(f"StreamingStepper.run: features must be [N, {5 * self.n}], got {list(x.shape)}")
+        z = x if self.columns is None else x[:, self.columns]
+        final = np.zeros(self.state_size) if state is None else np.array(state, dtype=float)
+        if self.arch == "mlp7":        # vectorised in blocks: the hidden layer is [block, n, H]
+            tau = np.vstack([self._mlp(z[i:i + _MLP_BLOCK]) for i in range(0, max(z.shape[0], 1), _MLP_BLOCK)])
+        else:
+            tau = np.empty((x.shape[0], self.n))
+            lstm2_run(*self.cells, self.w_out, np.ascontiguousarray(z), final, tau)
+        return (tau + x[:, :self.n] if self.hybrid else tau), final

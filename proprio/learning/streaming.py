@@ -1,6 +1,9 @@
 """The residual network's per-sample step (§4.2): the rotational-displacement encoder and the network, one sample at
-a time with explicit memory — the law the Systems (:class:`~proprio.systems.residual_network.ResidualNetworkSystem`,
-the hybrid torque model's) and the streaming estimator (:mod:`proprio.online`) call.
+a time with explicit memory — the law the residual network's System
+(:class:`~proprio.systems.residual_network.ResidualNetworkSystem`, a stage of the hybrid estimation Diagram) and the
+streaming estimator (:mod:`proprio.online`) call. Its output is τ_NN, the network's own output: a hybrid's τ_RBD is
+added by the next stage (a Drake ``Adder`` in the Diagram). Over a whole log the same kernels run in one compiled call
+(:meth:`~proprio.learning.models.StreamingStepper.run`, after :func:`~proprio.learning.features.rotational_displacement`).
 
 The memory is ``[started, encoder state (3n), network state]``; zeros (``started`` = 0) start the encoder at the
 first q and the LSTM at zero state. An LSTM reading all five feature blocks (the thesis' LSTM-2 / LSTM-2-FCL) steps
@@ -20,10 +23,10 @@ __all__ = ["ResidualNetworkCore"]
 
 
 @numba.njit(cache=True)
-def _lstm_residual_step(inputs, memory, memory_out, tau_out, h, r_max, cell1, cell2, w_out,
-                        hybrid):  # pragma: no cover (compiled)
-    """One sample: the stacked inputs ``[τ_rbd; q; q̇; q̈]`` (4n) and the memory → τ [n] N·m into ``tau_out`` and the
-    next memory into ``memory_out`` (which must not alias ``memory``)."""
+def _lstm_residual_step(inputs, memory, memory_out, tau_out, h, r_max, cell1, cell2,
+                        w_out):  # pragma: no cover (compiled)
+    """One sample: the stacked inputs ``[τ_rbd; q; q̇; q̈]`` (4n) and the memory → τ_NN [n] N·m into ``tau_out`` and
+    the next memory into ``memory_out`` (which must not alias ``memory``)."""
     n = tau_out.shape[0]
     q = inputs[n:2 * n]
     enc = memory_out[1:1 + 3 * n]
@@ -38,14 +41,15 @@ def _lstm_residual_step(inputs, memory, memory_out, tau_out, h, r_max, cell1, ce
     x = np.empty(5 * n)
     x[:4 * n] = inputs
     reversal_step(enc[:n], enc[n:2 * n], enc[2 * n:], q, h, r_max, x[4 * n:])
-    lstm2_step(cell1, cell2, w_out, x, net, memory_out[1 + 3 * n:], tau_out, hybrid)
+    lstm2_step(cell1, cell2, w_out, x, net, memory_out[1 + 3 * n:], tau_out)
     memory_out[0] = 1.0
 
 
 class ResidualNetworkCore:
     """The per-sample step of a trained MLP-7 / LSTM model (module docstring): :meth:`step_into` ``(memory, [τ_rbd;
-    q; q̇; q̈]) → τ_hybrid, next memory``, a pure function of its arguments. (The stepper's scratch makes one core
-    unsafe to share between threads.)"""
+    q; q̇; q̈]) → τ_NN, next memory``, a pure function of its arguments. τ_NN is the network's own output (a hybrid's
+    residual — τ_HYB = τ_RBD + τ_NN is the next stage's sum —, a standalone model's torque). (The stepper's scratch
+    makes one core unsafe to share between threads.)"""
 
     def __init__(self, model: HybridModel):
         if not model.cfg.streamable:
@@ -66,12 +70,12 @@ class ResidualNetworkCore:
         return np.zeros(self.memory_size)
 
     def step_into(self, memory: np.ndarray, inputs: np.ndarray, tau_out: np.ndarray, memory_out: np.ndarray) -> None:
-        """One sample: τ_hybrid [n] N·m into ``tau_out`` and the next memory into ``memory_out`` (which must not
-        alias ``memory``) from the memory and the stacked inputs ``[τ_rbd; q; q̇; q̈]`` (4n: N·m, rad, rad/s, rad/s²)."""
+        """One sample: τ_NN [n] N·m into ``tau_out`` and the next memory into ``memory_out`` (which must not alias
+        ``memory``) from the memory and the stacked inputs ``[τ_rbd; q; q̇; q̈]`` (4n: N·m, rad, rad/s, rad/s²)."""
         if self._fused:
             s = self.stepper
             _lstm_residual_step(inputs, memory, memory_out, tau_out, self.encoder.h, self.encoder.r_max, s.cells[0],
-                                s.cells[1], s.w_out, s.hybrid)
+                                s.cells[1], s.w_out)
             return
         n = self.n
         q = inputs[n:2 * n]
@@ -81,5 +85,5 @@ class ResidualNetworkCore:
             enc, net_state = self.encoder.initial_state(q), np.zeros(self._n_net)
         r = np.empty(n)
         self.encoder.step_into(enc, q, memory_out[1:1 + 3 * n], r)
-        tau_out[:], memory_out[1 + 3 * n:] = self.stepper.step(inputs, net_state, r)
+        tau_out[:], memory_out[1 + 3 * n:] = self.stepper.residual_step(inputs, net_state, r)
         memory_out[0] = 1.0

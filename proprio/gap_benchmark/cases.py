@@ -1,5 +1,5 @@
-"""The withheld-effect benchmark's cases (:mod:`proprio.diagnosis.benchmark_case_data` makes their data, offline or
-through the Drake twin; :mod:`proprio.diagnosis.benchmark` runs and scores them).
+"""The withheld-effect benchmark's cases (:mod:`proprio.gap_benchmark.case_data` makes their data, offline or
+through the Drake twin; :mod:`proprio.gap_benchmark.run` runs and scores them).
 
 **Out-of-library cases** (:func:`open_world_cases`, ``open:<type>@<mag>``; in twin mode ``twin:open:...``): an
 effect no library class expresses (:data:`OPEN_WORLD_TYPES`: the plugins of :mod:`proprio.effects.open_world`,
@@ -81,18 +81,18 @@ def is_open_world(case: BenchmarkCase) -> bool:
 
 
 def is_drive_case(case: BenchmarkCase) -> bool:
-    """A case of the drive-torque family (:mod:`proprio.diagnosis.benchmark_drive`)."""
+    """A case of the drive-torque family (:mod:`proprio.gap_benchmark.drive`)."""
     return case.name.startswith("drive:")
 
 
 LINK_SENSOR_ANSWER = {"presliding": "hysteresis"}
 """The name the diagnosis should give a withheld effect of a link-side torque sensor's arm when it is not the
 effect's own: the drive's pre-sliding friction is, in τ_J, the Dahl law the diagnosis offers as the gauge's
-``hysteresis`` (:data:`proprio.diagnosis.drive_candidates.DRIVE_ONLY`; ``proprio/effects/dahl.py``)."""
+``hysteresis`` (:data:`proprio.diagnosis.candidates.drive.DRIVE_ONLY`; ``proprio/effects/dahl.py``)."""
 
 DRIVE_ANSWER = {"coupled_motor_friction": "motor_friction"}
 """The same for the drive family: a shared motor's friction is the ``motor_friction`` candidate on the description's
-coupling (:class:`proprio.diagnosis.drive_candidates.DriveCandidate`)."""
+coupling (:class:`proprio.diagnosis.candidates.drive.DriveCandidate`)."""
 
 
 def expected_name(case: BenchmarkCase) -> str:

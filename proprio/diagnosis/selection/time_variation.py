@@ -58,15 +58,16 @@ the trend is its job — and, once one is selected, later static candidates see 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import stats
 
 from proprio import friction_law
-from proprio.diagnosis.candidates import Candidate, EffectCandidate
+from proprio.diagnosis.candidates.base import Candidate, EffectCandidate
+from proprio.diagnosis.attribution import TimeVariation
 from proprio.diagnosis.data import GapData, SimModel
-from proprio.diagnosis.rigid_body_candidates import RigidBodyCandidate
+from proprio.diagnosis.candidates.rigid_body import RigidBodyCandidate
 from proprio.effects import Hysteresis
 
 __all__ = ["TimeVariation", "TimeTrendNuisance", "time_variation", "reversal_shapes", "BLOCK_S", "MIN_SHARE",
@@ -79,24 +80,6 @@ MIN_BLOCK_SAMPLES = 10
 REVERSAL_SCALES_DEG = (0.5, 2.0, 6.0)   # deg, travel scales of the static reversal shapes the test clears
 SERIES = ("offset", "friction")
 
-
-@dataclass
-class TimeVariation:
-    """Result of the time-dependence test (module docstring). ``joints [n] bool``: joints whose residual depends on
-    the time the data were taken; ``p_value [n]``: per joint (Bonferroni over the two series, not over joints);
-    ``kind``: what varies ("offset drift", "offset step between recordings", "friction change", joined by " + ";
-    empty when nothing is detected); ``text``: one sentence for the report. ``change [n]`` N·m: the range of the
-    fitted time dependence over the data (the offset, or the Coulomb-like friction level); ``share [n]``: the
-    fraction of the state-cleared residual variance it explains; ``span_s``: the session time the data cover [s]."""
-    detected: bool
-    joints: np.ndarray
-    p_value: np.ndarray
-    kind: str
-    text: str
-    change: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    share: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    span_s: float = 0.0
-    joint_kinds: list[str] = field(default_factory=list)
 
 
 @dataclass

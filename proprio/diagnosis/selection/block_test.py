@@ -1,4 +1,4 @@
-"""The block test of the gap diagnosis (:mod:`proprio.diagnosis.selection`, "Selection test"): each held-out
+"""The block test of the gap diagnosis (:mod:`proprio.diagnosis.selection.forward`, "Selection test"): each held-out
 block's log-ratio of the weighted squared residual before and after a candidate, the one-sided t statistic over the
 blocks, and the effective-sample-size factor of an autocorrelated residual for the fits' confidence intervals."""
 from __future__ import annotations

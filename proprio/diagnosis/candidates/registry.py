@@ -6,11 +6,11 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from proprio.diagnosis.candidates import (Candidate, EffectCandidate, ElasticityCandidate, EncoderNoiseCandidate,
-                                          SignalLagCandidate, ripple_candidate)
+from proprio.diagnosis.candidates.base import (Candidate, EffectCandidate, ElasticityCandidate, EncoderNoiseCandidate,
+                                               SignalLagCandidate, ripple_candidate)
 from proprio.diagnosis.data import DiagnosisError, GapData, SimModel
-from proprio.diagnosis.drive_candidates import DRIVE_CANDIDATES, DRIVE_ONLY, GAUGE_ONLY, DriveCandidate, tau_kind
-from proprio.diagnosis.rigid_body_candidates import PayloadCandidate, RigidBodyCandidate
+from proprio.diagnosis.candidates.drive import DRIVE_CANDIDATES, DRIVE_ONLY, GAUGE_ONLY, DriveCandidate, tau_kind
+from proprio.diagnosis.candidates.rigid_body import PayloadCandidate, RigidBodyCandidate
 from proprio.effects import EFFECTS, JointEffect
 
 __all__ = ["candidate_set"]
@@ -23,8 +23,9 @@ def candidate_set(model: SimModel, train: GapData, names: Sequence[str] | None =
     path in ``names`` counts as one). What τ is decides the rest (:func:`tau_kind`): for drive torques the drive's
     terms (:data:`DRIVE_CANDIDATES`; an uncoupled motor's friction only when the model has link friction, else it is
     the ``viscous_coulomb`` candidate) and pre-sliding friction, never the gauge's effects (:data:`GAUGE_ONLY`); for a
-    link-side torque sensor never those of :data:`DRIVE_ONLY`. The time-varying library effects are offered only when ``time_varying`` (the
-    residual depends on the session time, :mod:`proprio.diagnosis.time_variation`) or when named. Raises
+    link-side torque sensor never those of :data:`DRIVE_ONLY`. The time-varying library effects are offered only when
+    ``time_varying`` (the residual depends on the session time, :mod:`proprio.diagnosis.selection.time_variation`) or
+    when named. Raises
     :class:`DiagnosisError` for a plugin that cannot be resolved or that the model already has."""
     n = model.robot.n
     present = model.effect_names

@@ -8,7 +8,7 @@ import numpy as np
 from scipy import linalg
 
 from proprio.description import RobotDescription
-from proprio.diagnosis.candidates import Candidate, _kept_signals
+from proprio.diagnosis.candidates.base import Candidate, _kept_signals
 from proprio.diagnosis.data import GapData
 from proprio.dynamics import inverse_dynamics
 from proprio.identification.regressor import PARAMS_PER_JOINT, n_parameters, parameter_names, regressor

@@ -55,7 +55,7 @@ Elasticity leaves τ_J exact for a link-side position sensor; it is tested as th
 sensor would miss (``ElasticityCandidate``).
 
 **Time variation.** Before the selection the residual of all recordings is tested for dependence on the session
-time (drift, warm-up, steps between sessions: :mod:`proprio.diagnosis.time_variation`, reported in
+time (drift, warm-up, steps between sessions: :mod:`proprio.diagnosis.selection.time_variation`, reported in
 ``Attribution.time_variation``). When it is detected, the time-varying library effects join the candidates and every
 static candidate is fitted with a time-trend nuisance, so that none (rigid body, payload) can win by fitting a trend.
 
@@ -70,22 +70,22 @@ import numpy as np
 from scipy import stats
 
 from proprio.description import RobotDescription
-from proprio.diagnosis.candidate_set import candidate_set
-from proprio.diagnosis.candidates import Candidate
+from proprio.diagnosis.candidates.registry import candidate_set
+from proprio.diagnosis.candidates.base import Candidate
 from proprio.conditioning import ConditionedSignals, ConditioningConfig, processing_torque_sigma
-from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, MAX_TRIM_S, MIN_BLOCK_S, MIN_BLOCKS, DiagnosisError, GapData,
-                                    SimModel, condition_all, kept, session_motion, session_time)
-from proprio.diagnosis.ambiguity import ambiguity_sets
+from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, MIN_BLOCK_S, MIN_BLOCKS, Conditioned, GapData, SimModel,
+                                    condition_recordings, session_motion)
+from proprio.diagnosis.selection.ambiguity import ambiguity_sets
 from proprio.diagnosis.attribution import Attribution, CrossValidation, Step, Superseded, Undecided
-from proprio.diagnosis.block_test import block_gain, n_eff_factor, t_stat
+from proprio.diagnosis.selection.block_test import block_gain, n_eff_factor, t_stat
 from proprio.diagnosis.encoder_floor import encoder_floor
 from proprio.diagnosis.fitting import Fit, fit_candidates, predict_candidates
 from proprio.diagnosis.residual import noise_findings, residual_structure, split_by_recording
 from proprio.diagnosis.hints import find_hints, shifted_joints
-from proprio.diagnosis.time_variation import TimeTrendNuisance, TimeVariation, time_variation
-from proprio.recording import Recording, validate_recording
+from proprio.diagnosis.selection.time_variation import TimeTrendNuisance, TimeVariation, time_variation
+from proprio.recording import Recording
 
-__all__ = ["attribute"]
+__all__ = ["attribute", "attribute_conditioned"]
 
 MAX_BLOCK_S = 2.0
 MAX_SUPERSEDED = 3
@@ -142,48 +142,31 @@ def attribute(model: SimModel | RobotDescription, train_recs: Sequence[Recording
     :func:`proprio.diagnosis.data.default_trim_s`). Raises :class:`DiagnosisError` on bad input
     (no recordings, joint-count mismatch, too little data for the block test, nothing to test)."""
     model = SimModel.of(model)
-    n = model.robot.n
-    if not train_recs:
-        raise DiagnosisError("recordings: need at least one training recording")
-    for role, recs in (("training", train_recs), ("holdout", holdout_recs)):
-        for k, r in enumerate(recs):
-            if r.n_joints != n:
-                raise DiagnosisError(f"{role} recording {k}: has {r.n_joints} joints but the model robot "
-                                     f"'{model.robot.name}' has {n} (mismatched robots)")
-            try:
-                validate_recording(r, model.robot, source=f"{role} recording {k}")
-            except ValueError as exc:
-                raise DiagnosisError(f"{exc} (mismatched robots?)") from exc
+    data = condition_recordings(model, train_recs, holdout_recs, conditioning, trim_s, progress)
+    return attribute_conditioned(model, data, candidates, alpha, min_gain, max_steps, progress, plugins)
+
+
+def attribute_conditioned(model: SimModel, data: Conditioned, candidates: Sequence[str] | None = None,
+                          alpha: float = 0.01, min_gain: float = 0.02, max_steps: int = 6,
+                          progress: Callable[[str], None] | None = None,
+                          plugins: Sequence[str | type] = ()) -> Attribution:
+    """:func:`attribute` on recordings conditioned once (:func:`~proprio.diagnosis.data.condition_recordings`): the
+    diagnosis' route (:func:`proprio.diagnosis.route.diagnose`) conditions, localises, then attributes."""
     say = progress or (lambda msg: None)
-    say("conditioning")
-    sess_tr = [session_time(r, f"training recording {k}") for k, r in enumerate(train_recs)]
-    sess_h = [session_time(r, f"holdout recording {k}") for k, r in enumerate(holdout_recs)]
-    cond_tr = condition_all(train_recs, conditioning, "training")
-    keep_tr = [kept(cs, trim_s) for cs in cond_tr]
-    trimmed = "the default trim" if trim_s is None else f"{trim_s:g} s"
-    if holdout_recs:
-        cond_h = condition_all(holdout_recs, conditioning, "holdout")
-        keep_h = [kept(cs, trim_s) for cs in cond_h]
-        held_s = sum(float(k.sum()) / cs.rate_hz for cs, k in zip(cond_h, keep_h))
-        if held_s < MIN_BLOCKS * MIN_BLOCK_S:
-            raise DiagnosisError(f"holdout: {held_s:.2f} s of held-out data after trimming {trimmed} per end is too "
-                                 f"short for the block test ({MIN_BLOCKS} blocks of ≥ {MIN_BLOCK_S} s)")
+    cond_tr, keep_tr, sess_tr = data.train_cs, data.keep_train, data.session_train
+    if data.holdout:
+        cond_h, keep_h, sess_h, held_s = data.holdout_cs, data.keep_holdout, data.session_holdout, data.holdout_s
         block_s = float(np.clip(2.0 * _correlation_time(model, cond_h, keep_h, sess_h), MIN_BLOCK_S,
                                 min(MAX_BLOCK_S, held_s / MIN_BLOCKS)))
         train = GapData.build(model, cond_tr, keep_tr, "training", session_s=sess_tr)
         hold = GapData.build(model, cond_h, keep_h, "holdout", session_s=sess_h)
-        train_s = sum(float(k.sum()) / cs.rate_hz for cs, k in zip(cond_tr, keep_tr))
         say("time dependence")
         tv = time_variation(model, train, hold, alpha)
-        att = _select(model, train, hold, _time_blocks(hold, block_s), block_s, (train_s, held_s), candidates,
+        att = _select(model, train, hold, _time_blocks(hold, block_s), block_s, (data.train_s, held_s), candidates,
                       alpha, min_gain, max_steps, say, tv, plugins)
         att.encoder = encoder_floor(model, cond_tr + cond_h)
         return att
-    total_s = sum(float(k.sum()) / cs.rate_hz for cs, k in zip(cond_tr, keep_tr))
-    if total_s < 2 * MIN_BLOCKS * MIN_BLOCK_S:
-        raise DiagnosisError(f"training: {total_s:.2f} s of data after trimming {trimmed} per end; a diagnosis "
-                             f"without --holdout cross-validates over time blocks and needs ≥ "
-                             f"{2 * MIN_BLOCKS * MIN_BLOCK_S + 2 * (MAX_TRIM_S if trim_s is None else trim_s):.1f} s")
+    total_s = data.train_s
     block_s = float(np.clip(2.0 * _correlation_time(model, cond_tr, keep_tr, sess_tr), MIN_BLOCK_S,
                             min(MAX_BLOCK_S, total_s / (2 * MIN_BLOCKS))))
     halves: tuple[list, list] = ([], [])          # (conditioned piece, keep, source index) per half
@@ -374,7 +357,7 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
     amb = ambiguity_sets(selected, [not st.processing for st in steps], cands, ranking, train, hold, w, blk,
                          with_nuisance, structure.rmse, min_gain, say)
     return Attribution(model.robot.joint_names, steps, ranking, rmse0, sig, structure, noise,
-                       [c.name for c in cands], split_by_recording(e_h, hold), split_by_recording(pred_h, hold), hold.times, proc_sigma,
-                       sorted({cs.describe() for cs in hold.conditioned + train.conditioned}), data_seconds, block_s,
-                       fitted={c.name: c for c in selected}, hints=hints, time_variation=tv, undecided=undecided,
-                       below_floor=below_floor, ambiguity=amb, superseded=superseded)
+                       [c.name for c in cands], split_by_recording(e_h, hold), split_by_recording(pred_h, hold),
+                       hold.times, proc_sigma, sorted({cs.describe() for cs in hold.conditioned + train.conditioned}),
+                       data_seconds, block_s, fitted={c.name: c for c in selected}, hints=hints, time_variation=tv,
+                       undecided=undecided, below_floor=below_floor, ambiguity=amb, superseded=superseded)

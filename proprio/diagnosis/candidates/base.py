@@ -1,8 +1,8 @@
-"""Candidate explanations of the torque gap (see :mod:`proprio.diagnosis.selection`): the :class:`Candidate` interface,
-every library effect the model lacks (:class:`EffectCandidate`, :func:`ripple_candidate`), the data path's signal lag
-and encoder noise, and elasticity. The rigid-body and payload candidates:
-:mod:`proprio.diagnosis.rigid_body_candidates`; a drive torque's: :mod:`proprio.diagnosis.drive_candidates`; the set
-a diagnosis tests: :func:`proprio.diagnosis.candidate_set.candidate_set`."""
+"""Candidate explanations of the torque gap (see :mod:`proprio.diagnosis.selection.forward`): the :class:`Candidate`
+interface, every library effect the model lacks (:class:`EffectCandidate`, :func:`ripple_candidate`), the data path's
+signal lag and encoder noise, and elasticity. The rigid-body and payload candidates:
+:mod:`proprio.diagnosis.candidates.rigid_body`; a drive torque's: :mod:`proprio.diagnosis.candidates.drive`; the set
+a diagnosis tests: :func:`proprio.diagnosis.candidates.registry.candidate_set`."""
 from __future__ import annotations
 
 import inspect
@@ -206,8 +206,8 @@ class EffectCandidate(Candidate):
 
 def ripple_candidate(n: int, train: "GapData", max_order: float = 400.0, min_order: float = 60.0) -> EffectCandidate:
     """The library's ripple ``A sin(h·N·q + φ)`` with its order ``h·N`` per joint set to the peak of the training
-    residual's order spectrum between ``min_order`` and ``max_order`` cycles per revolution (the ripple is linear once its
-    order is known; the order is found, not assumed). Harmonic drives have ratios N ≥ 30 and h = 2, so orders below
+    residual's order spectrum between ``min_order`` and ``max_order`` cycles per revolution (the ripple is linear once
+    its order is known; the order is found, not assumed). Harmonic drives have ratios N ≥ 30 and h = 2, so orders below
     60 are not ripple: there a rigid-body error of the joint's own link (a few cycles per revolution) would win."""
     q = train.stack([s.q for s in train.signals])
     qd = train.stack([s.qd for s in train.signals])
@@ -251,8 +251,9 @@ class ElasticityCandidate(Candidate):
     """Joint elasticity seen by a motor-side position sensor: the measured q includes the spring deflection
     ``δ = c∘τ_J`` (compliance ``c_k = 1/K_k`` [rad/(N·m)]), so the model evaluates the rigid body at the wrong
     motion: ``e ≈ −Σ_k (∂τ/∂q_k τ_k + ∂τ/∂q̇_k τ̇_k + ∂τ/∂q̈_k τ̈_k) c_k`` (linear in ``c``; τ the modelled
-    link torque, its derivatives by finite differences of its low-pass with the motion's conditioning cutoffs). With a link-side position sensor elasticity leaves
-    τ_J = τ_rbd(q, q̇, q̈) exact and cannot show in this residual (``proprio.effects.Elasticity``)."""
+    link torque, its derivatives by finite differences of its low-pass with the motion's conditioning cutoffs). With a
+    link-side position sensor elasticity leaves τ_J = τ_rbd(q, q̇, q̈) exact and cannot show in this residual
+    (``proprio.effects.Elasticity``)."""
     name = "elasticity"
     place = "motor"
 

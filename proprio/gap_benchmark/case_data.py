@@ -1,5 +1,5 @@
-"""The withheld-effect benchmark's data: what each case of :mod:`proprio.diagnosis.benchmark_cases` records and the
-model it is diagnosed with (:mod:`proprio.diagnosis.benchmark` runs and scores them).
+"""The withheld-effect benchmark's data: what each case of :mod:`proprio.gap_benchmark.cases` records and the
+model it is diagnosed with (:mod:`proprio.gap_benchmark.run` runs and scores them).
 
 **How the data are made (stated, as the benchmark is offline):** motion is an RFMA-like sequence generated here in
 closed form (min-jerk *reach* segments between random configurations at up to ≈70 % of the speed limits, then
@@ -23,21 +23,22 @@ magnitude) and the background noise; a withheld payload is attached with ``TwinC
 the shipped twin's logger at 200 Hz: encoder q and τ only, jittered stamps and lost samples, as a real robot logs
 (q̇, q̈ come from the diagnosis' conditioning). The model
 is ``iiwa14_identified`` without friction + the modelled effects. Effect types: those of ``iiwa14_twin.yaml``
-(:data:`proprio.diagnosis.benchmark_cases.TWIN_EFFECT_TYPES`) and payload; null and two-effect cases as above.
-Scores are computed by the same :func:`proprio.diagnosis.benchmark.summarise`. The measured shrinkage still counts
+(:data:`proprio.gap_benchmark.cases.TWIN_EFFECT_TYPES`) and payload; null and two-effect cases as above.
+Scores are computed by the same :func:`proprio.gap_benchmark.run.summarise`. The measured shrinkage still counts
 only the sensor noise as what remains, so in twin mode it is an upper bound: the controller's tracking and the
 differentiation of q leave a little more.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
 from typing import Any, Sequence
 
 import numpy as np
 from scipy import signal
 
 from proprio.description import Link, RobotDescription, load_robot
-from proprio.diagnosis.benchmark_cases import TIME_TYPES, TWIN_EFFECT_TYPES, BenchmarkCase, _draw, is_drive_case
+from proprio.gap_benchmark.cases import TIME_TYPES, TWIN_EFFECT_TYPES, BenchmarkCase, _draw, is_drive_case
+from proprio.gap_benchmark.drive import generate_drive_case_data
+from proprio.gap_benchmark.recordings import ENCODER, NOISE_STD, CaseData, twin_recordings
 from proprio.dynamics import inverse_dynamics
 from proprio.effects import EFFECTS, resolve_effect
 from proprio.effects.plugins import is_plugin_path
@@ -45,14 +46,9 @@ from proprio.payload import Payload, attach_payload
 from proprio.recording import Recording
 from proprio.signals import MotionSignals
 
-__all__ = ["CaseData", "generate_case_data", "generate_twin_case_data", "twin_case_config", "twin_recordings",
-           "rfma_like_motion", "RATE_HZ"]
+__all__ = ["generate_case_data", "generate_twin_case_data", "twin_case_config", "rfma_like_motion", "RATE_HZ"]
 
 RATE_HZ = 200.0
-NOISE_STD = 0.05                 # background torque-sensor noise [N·m] (present in data AND model unless withheld)
-ENCODER = {"std": np.radians(0.0005), "resolution": np.radians(0.0001)}   # background encoder noise + quantisation
-#                                  [rad], the shipped twin's: every case logs measured q, never exact q, q̇, q̈; the
-#                                  model states it too (a withheld encoder_noise replaces its std by a larger one)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -123,15 +119,6 @@ def _session(case: BenchmarkCase, k: int) -> float:
     return float(case.session_s[k]) if case.session_s else 0.0
 
 
-@dataclass
-class CaseData:
-    robot: RobotDescription
-    model_effects: tuple[str, ...]
-    model_params: dict[str, dict[str, Any]]
-    train: list[Recording]
-    holdout: list[Recording]
-
-
 def _perturbed(robot: RobotDescription, p: dict[str, Any]) -> RobotDescription:
     links = []
     for j, lk in enumerate(robot.links):
@@ -163,7 +150,6 @@ def generate_case_data(case: BenchmarkCase, robot: RobotDescription | None = Non
     …: own noise seeds), all returned as training recordings. ``overrides``: ``{effect: {parameter: value}}`` set
     over the drawn parameters of a withheld effect (offline only; e.g. a hysteresis that saturates within 0.5°)."""
     if is_drive_case(case):
-        from proprio.diagnosis.benchmark_drive import generate_drive_case_data
         return generate_drive_case_data(case, omit_withheld)
     if case.twin:
         return generate_twin_case_data(case, omit_withheld)
@@ -268,29 +254,3 @@ def generate_twin_case_data(case: BenchmarkCase, omit_withheld: bool = False) ->
     model_effects, model_params = _model(modelled, "torque_noise" in case.withheld, robot.n)
     recs = twin_recordings(case, configs)
     return CaseData(robot, model_effects, model_params, recs[:2], recs[2:])
-
-
-def twin_recordings(case: BenchmarkCase, configs: list[Any], meta: dict[str, Any] | None = None) -> list[Recording]:
-    """The case's 3 recordings through the twin (``configs``: one ``TwinConfig`` per recording): short RFMA
-    trajectories (2 scaffolds, 600–800 waypoints per exploration, own seed per recording; a seed for which RFMA finds
-    no collision-free reach is replaced by a derived one), logged by each config's logger (q, τ; f_ext dropped);
-    ``meta`` is added to each Recording's."""
-    from proprio.diagrams.twin import simulate_twin
-    from proprio.systems.rfma import RfmaError, generate_rfma, load_rfma_config
-
-    recs = []
-    for k in range(3):
-        seed = (case.seed + 7919 * k) % (1 << 31)
-        for attempt in range(5):                # RFMA may find no collision-free reach: next seed
-            try:
-                _, timed = generate_rfma(load_rfma_config(scaffolds=2, seed=seed, waypoints=(600, 800)),
-                                         configs[k].robot)
-                break
-            except RfmaError:
-                if attempt == 4:
-                    raise
-                seed = (seed + 104729) % (1 << 31)
-        rec = simulate_twin(replace(configs[k], seed=seed), timed.trajectory, progress=False)
-        meta_k = {**rec.meta, "source": "gap-benchmark (twin)", **(meta or {})}
-        recs.append(Recording(t=rec.t, q=rec.q, tau=rec.tau, truth=rec.truth, meta=meta_k))
-    return recs

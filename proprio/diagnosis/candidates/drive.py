@@ -8,7 +8,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from proprio.description import RobotDescription
-from proprio.diagnosis.candidates import Candidate
+from proprio.diagnosis.candidates.base import Candidate
 from proprio.diagnosis.data import DiagnosisError, GapData
 from proprio.identification.regressor import drive_columns, drive_identified
 

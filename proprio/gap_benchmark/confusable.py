@@ -21,17 +21,17 @@ The model is ``iiwa14_identified`` without friction + the background noise.
 **Scores** (:func:`summarise_confusable`):
 
 * **before**: the first diagnosis names the truth as top-1, or reports the tie (the truth is in the tied set of the
-  top-1 effect, :mod:`proprio.diagnosis.ambiguity`);
+  top-1 effect, :mod:`proprio.diagnosis.selection.ambiguity`);
 * **after**: the experiment of every tied set is designed (:mod:`proprio.diagnosis.discriminate`), recorded on the
   case's robot, its two passes added to the training and held-out data, and the diagnosis run again: top-1 is the
   truth. A case whose first diagnosis has no tie is scored after as before (no experiment was needed); a tied set no
   motion of the family separates is said so (``experiments[..]["decides"]`` false) and not recorded.
 
-The truth's expected name (:func:`proprio.diagnosis.benchmark_cases.expected_name`): on a link-side torque sensor
-(the iiwa's) the drive's pre-sliding friction is, in τ_J, the Dahl law the diagnosis offers as the gauge's ``hysteresis``
-(:data:`proprio.diagnosis.drive_candidates.DRIVE_ONLY`), so that is the right name for it; a load-dependent friction
-(a direction-flipping level that grows with the transmitted torque) is the Dahl law with a ``load_gain``: the
-library's ``hysteresis`` with a short travel (the library has no other load-dependent friction law).
+The truth's expected name (:func:`proprio.gap_benchmark.cases.expected_name`): on a link-side torque sensor
+(the iiwa's) the drive's pre-sliding friction is, in τ_J, the Dahl law the diagnosis offers as the gauge's
+``hysteresis`` (:data:`proprio.diagnosis.candidates.drive.DRIVE_ONLY`), so that is the right name for it; a
+load-dependent friction (a direction-flipping level that grows with the transmitted torque) is the Dahl law with a
+``load_gain``: the library's ``hysteresis`` with a short travel (the library has no other load-dependent friction law).
 """
 from __future__ import annotations
 
@@ -41,8 +41,9 @@ from typing import Any
 
 import numpy as np
 
-from proprio.diagnosis.benchmark_case_data import ENCODER, NOISE_STD, CaseData, _perturbed
-from proprio.diagnosis.benchmark_cases import BenchmarkCase, _draw, expected_name
+from proprio.gap_benchmark.case_data import _perturbed
+from proprio.gap_benchmark.recordings import ENCODER, NOISE_STD, CaseData
+from proprio.gap_benchmark.cases import BenchmarkCase, _draw, expected_name
 from proprio.effects import EFFECTS
 
 __all__ = ["CONFUSABLE_PAIRS", "CONFUSABLE_CANDIDATES", "VARIANTS", "RATE_HZ", "ConfusableResult",
@@ -88,7 +89,7 @@ _BASE = {"sensor_offset": "sensor_offset_gain", "sensor_gain": "sensor_offset_ga
 class ConfusableResult:
     """One case: the first diagnosis' top-1 and tied set, the experiments (members, family, score, whether it
     decides), the top-1 after the experiment, and the seconds it took. ``truth``: the name the diagnosis should give
-    the withheld effect (:func:`~proprio.diagnosis.benchmark_cases.expected_name`)."""
+    the withheld effect (:func:`~proprio.gap_benchmark.cases.expected_name`)."""
     case: str
     truth: str
     top_before: str
@@ -131,9 +132,10 @@ def _noise(case: BenchmarkCase) -> float:
 
 
 def confusable_params(case: BenchmarkCase, n: int) -> dict[str, Any]:
-    """The withheld effect's parameters for ``n`` joints: the benchmark's draw (:func:`benchmark_cases._draw`) at the
-    case's magnitude, changed by its variant (:data:`VARIANTS`); pre-sliding: a level of 0.15–0.4 N·m turning over
-    within 0.5–1.5° (at most :data:`proprio.effects.dahl.MAX_PRESLIDING_TRAVEL`)."""
+    """The withheld effect's parameters for ``n`` joints: the benchmark's draw
+    (:func:`proprio.gap_benchmark.cases._draw`) at the case's magnitude, changed by its variant (:data:`VARIANTS`);
+    pre-sliding: a level of 0.15–0.4 N·m turning over within 0.5–1.5° (at most
+    :data:`proprio.effects.dahl.MAX_PRESLIDING_TRAVEL`)."""
     rng = np.random.default_rng(case.seed)
     kind, m, var = case.withheld[0], case.magnitude, _variant(case)
     u = lambda a, b: rng.uniform(a, b, n)  # noqa: E731
@@ -264,7 +266,7 @@ def run_confusable_case(case: BenchmarkCase) -> ConfusableResult:
     diagnose again (module docstring)."""
     from proprio.diagnosis.data import SimModel
     from proprio.diagnosis.resolve import design_experiments, with_experiments
-    from proprio.diagnosis.selection import attribute
+    from proprio.diagnosis.selection.forward import attribute
 
     t0 = time.perf_counter()
     data = confusable_data(case)

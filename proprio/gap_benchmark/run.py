@@ -1,21 +1,22 @@
 """The withheld-effect benchmark of the gap diagnosis (DESIGN.md "Gap diagnosis", step 5).
 
 Each *case* generates data of a robot with some effect(s) present, and a simulation model without the withheld
-one(s); :func:`proprio.diagnosis.selection.attribute` is run without being told what was withheld.
+one(s); :func:`proprio.diagnosis.selection.forward.attribute` is run without being told what was withheld.
 Cases: every effect of the twin's library (``proprio/effects/``) plus rigid-body parameter error, payload
 and signal lag, at several magnitudes and seeds; null cases (effects present in the data are also in the model);
 two-effect cases. Scores: confusion matrix, top-1 / top-2 accuracy, null false-positive rate, and the error of the
 predicted shrinkage (the diagnosis' own held-out SSE reduction after its first step) against the measured one
 (the held-out SSE reduction when the model is given the true withheld effect, i.e. only the sensor noise remains).
 
-The cases: :mod:`proprio.diagnosis.benchmark_cases`; how their data are made:
-:mod:`proprio.diagnosis.benchmark_case_data`. Here: running a case
+The cases: :mod:`proprio.gap_benchmark.cases`; how their data are made:
+:mod:`proprio.gap_benchmark.case_data`. Here: running a case
 (:func:`run_case`), running many on the engine of :mod:`proprio.tasks` (local processes or Ray, resumable), and
 scoring them (:func:`summarise`, :func:`write_results`). Out-of-library cases (a plugin effect no library candidate
 expresses) are scored apart: flagged as structured-unexplained with no library effect above 5 % held-out gain, and
 whether a hint (``Attribution.hints``) names the expected signal; time-varying cases by whether the diagnosis
 detects the time dependence (``Attribution.time_variation``). Per case it also reports the held-out RMS after the
-last step (``final_rms``) and the floor (``floor_rms``: the same model on held-out data made without the withheld effects).
+last step (``final_rms``) and the floor (``floor_rms``: the same model on held-out data made without the withheld
+effects).
 """
 from __future__ import annotations
 
@@ -27,9 +28,9 @@ from typing import Any
 
 import numpy as np
 
-from proprio.diagnosis.benchmark_case_data import generate_case_data
-from proprio.diagnosis.benchmark_cases import (PROCESSING_TYPES, BenchmarkCase, expected_name, is_drive_case,
-                                               is_open_world, is_time_varying)
+from proprio.gap_benchmark.case_data import generate_case_data
+from proprio.gap_benchmark.cases import (PROCESSING_TYPES, BenchmarkCase, expected_name, is_drive_case,
+                                         is_open_world, is_time_varying)
 from proprio.effects import EFFECTS
 from proprio.io import atomic_write_text
 
@@ -64,7 +65,7 @@ def run_case(case: BenchmarkCase) -> CaseResult:
     """Generate, diagnose (not told what was withheld) and score one case."""
     from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, SimModel, condition_all, kept, session_motion,
                                         session_time)
-    from proprio.diagnosis.selection import attribute
+    from proprio.diagnosis.selection.forward import attribute
 
     t0 = time.perf_counter()
     try:

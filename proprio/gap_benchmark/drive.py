@@ -9,7 +9,8 @@ drive torque (current noise). The twin's drive senses ``τ = τ_rbd + I_a q̈ + 
 (:class:`proprio.systems.joint_drive.JointDrive`). The drives are uncoupled except in the ``coupled_motor_friction``
 cases, whose last motor turns with the last two joints (``q_m7 = N (q6 + q7)``, as the TX40's motor 6 with joints 5
 and 6; its reflected inertia ``Cᵀ diag(I_a) C`` couples the two joints in the plant). An uncoupled motor's friction
-is told from the link friction only because the model has that (:func:`proprio.diagnosis.candidate_set.candidate_set`).
+is told from the link friction only because the model has that
+(:func:`proprio.diagnosis.candidates.registry.candidate_set`).
 
 **Withheld** (:data:`DRIVE_TYPES`, magnitude ``m``): ``motor_friction`` and ``drive_offset`` — the model's drive
 block has ``(1 − m)`` × the arm's value; ``coupled_motor_friction`` — the same for the shared motor's friction only
@@ -19,7 +20,7 @@ stable at 1 ms in the floor's data too); ``presliding`` — the arm's drives add
 (:class:`proprio.effects.PreSliding`, level ``m`` × 0.3–0.8 N·m, turning over within 0.2–1° of travel), applied by
 the twin's drive per step. Null cases: the model has everything. Each at 100 Hz (host stamps with σ = 1 ms jitter,
 0.2 % lost samples) and at 1 kHz (σ = 0.1 ms, 0.2 %) — :data:`DRIVE_LOGGERS`. The Recordings say
-``meta.tau_kind: drive``. Scored by :func:`proprio.diagnosis.benchmark.summarise` like every single-effect case (top-1
+``meta.tau_kind: drive``. Scored by :func:`proprio.gap_benchmark.run.summarise` like every single-effect case (top-1
 is the withheld effect; a null case names nothing), and as its own family line.
 """
 from __future__ import annotations
@@ -30,8 +31,8 @@ from typing import Any
 
 import numpy as np
 
-from proprio.diagnosis.benchmark_case_data import ENCODER, CaseData, twin_recordings
-from proprio.diagnosis.benchmark_cases import BenchmarkCase, _draw
+from proprio.gap_benchmark.recordings import ENCODER, CaseData, twin_recordings
+from proprio.gap_benchmark.cases import BenchmarkCase, _draw
 from proprio.drive_description import drive_from_dict
 from proprio.effects import EFFECTS, PreSliding
 
@@ -51,7 +52,8 @@ DRIVE_LOGGERS: dict[float, tuple[tuple[str, Any], ...]] = {
 
 def drive_cases(quick: bool = False, seed: int = 0) -> list[BenchmarkCase]:
     """The family: every :data:`DRIVE_TYPES` at magnitudes 0.5 and 1 (quick: 1) and 2 null cases (quick: 1), at 100 Hz
-    and 1 kHz; named ``drive:<kind>@<m>/<rate>Hz`` and ``drive:null#<k>/<rate>Hz``. Each case's seed is drawn from its name, so a kind added later moves no other case."""
+    and 1 kHz; named ``drive:<kind>@<m>/<rate>Hz`` and ``drive:null#<k>/<rate>Hz``. Each case's seed is drawn from its
+    name, so a kind added later moves no other case."""
     cases = []
     for rate, logger in DRIVE_LOGGERS.items():
         for kind in DRIVE_TYPES:

@@ -7,8 +7,8 @@ explain the same residual. For every physical effect ``s`` the selection named, 
 effects (its *context*, fitted alongside every time):
 
 * ``g(x)``: the relative held-out gain of ``C + x`` over ``C`` (the weighted block SSE of
-  :func:`proprio.diagnosis.block_test.block_gain`), for ``x = s`` and for every *alternative* — any other physical
-  candidate whose step-1 gain alone is within a factor :data:`ALT_MIN_SHARE` of ``s``'s either way (at most
+  :func:`proprio.diagnosis.selection.block_test.block_gain`), for ``x = s`` and for every *alternative* — any other
+  physical candidate whose step-1 gain alone is within a factor :data:`ALT_MIN_SHARE` of ``s``'s either way (at most
   :data:`MAX_ALTERNATIVES`, the strongest first; none when ``s`` itself gains less than ``min_gain`` in its
   place); an alternative the selection also named leaves the context ``C`` for the comparison (both were named:
   can one do the other's work?);
@@ -48,8 +48,8 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from scipy import stats
 
-from proprio.diagnosis.block_test import block_gain, t_stat
-from proprio.diagnosis.candidates import Candidate
+from proprio.diagnosis.selection.block_test import block_gain, t_stat
+from proprio.diagnosis.candidates.base import Candidate
 from proprio.diagnosis.data import GapData
 from proprio.diagnosis.fitting import Fit, fit_candidates, predict_candidates
 
