@@ -224,8 +224,8 @@ def jacobian_wrench(desc: RobotDescription | ChainGeometry, q: np.ndarray, tau_m
         mapping: pseudo-inverse options (:class:`WrenchMapping`).
 
     Returns:
-        ``(wrench [N,6] [fx, fy, fz, mx, my, mz] on the robot at the contact point, world frame,
-        manipulability [N], unreliable [N] bool)``.
+        ``(wrench, manipulability, unreliable)``: the wrench ``[N,6]`` (fx, fy, fz [N], mx, my, mz [N·m]) on the
+        robot at the contact point, world frame; the manipulability ``[N]``; ``unreliable`` ``[N]`` bool.
     """
     geo = desc if isinstance(desc, ChainGeometry) else chain_geometry(desc)
     q = np.atleast_2d(np.asarray(q, dtype=float))

@@ -19,8 +19,8 @@ and writing one output. The signals come from the one
 conditioning path (:mod:`proprio.conditioning`: uniform time base, zero-phase Butterworth per joint with its cutoff from the data's
 noise floor or from the config, central differences), offline, so they are computed before the replay; online, a
 causal conditioning stage (:class:`~proprio.systems.causal_conditioning.CausalConditioner`) takes the raw q, τ_J
-instead (``WrenchEstimator(..., conditioning=causal_conditioning(...))``; :mod:`proprio.online` steps that same
-Diagram sample by sample from a user's loop). ``tau_dyn`` comes from any :class:`~proprio.diagrams.torque_model.TorqueModel`: the
+instead (``WrenchEstimator(..., conditioning=causal_conditioning(...))``; :mod:`proprio.online` chains the same laws
+sample by sample from a user's loop, without a Diagram Context). ``tau_dyn`` comes from any :class:`~proprio.diagrams.torque_model.TorqueModel`: the
 rigid-body model (:class:`~proprio.diagrams.torque_model.TorqueModelSystem`), or the hybrid RBD + learned residual
 (:mod:`proprio.diagrams.hybrid_torque_model`), whose network then runs online in the diagram as its own stage
 (:class:`~proprio.systems.residual_network.ResidualNetworkSystem`), one step per sample with its LSTM and r-encoder

@@ -1,7 +1,7 @@
 """The twin: the data-collection diagram that plays the role of the real robot (DESIGN.md, "Physics of the twin").
 
-``JointTrajectorySource → DiscreteInverseDynamicsController → drive (motor side + link friction: a C++ FrictionDrive or the
-Python JointDrive, proprio.systems.joint_drive) → MultibodyPlant
+``JointTrajectorySource → DiscreteInverseDynamicsController → drive (motor side + link friction: a C++ FrictionDrive, the
+Python JointDrive, or for a coupled wrist the CoupledDrive: proprio.systems.joint_drive) → MultibodyPlant
 (discrete 1 ms, payload) → measurement chain``: the plant's true motion enters a compiled shift register and, once
 per block of 1 000 steps, the log sampler, the transmitted torque, the torque sensor, the encoder and the robot's
 logger (lost samples, jittered stamps, the channels the robot reports) apply their laws to the block, in the Diagram
@@ -103,7 +103,7 @@ class TwinDiagram:
     """What :func:`build_twin_diagram` returns."""
     diagram: Diagram
     plant: Any
-    drive: DriveLaw                # FrictionDrive or JointDrive
+    drive: DriveLaw                # FrictionDrive, JointDrive or CoupledDrive
     controller: DiscreteInverseDynamicsController
     chain: MeasurementChain | None  # sensors and logger on [q; q̇; q̈; net actuation (; θ; θ̇ if elastic)]; None:
     config: TwinConfig              # the dynamics alone (measurement_chain=False)

@@ -8,6 +8,7 @@ time finding — a new kind of finding is one more row); the explanations (:func
 of them in one text (``Diagnosis.explanation``)."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -139,7 +140,9 @@ def summary_rows(att: Attribution, tau_kind: str = "link_sensor") -> list[Summar
         prev = st.rmse_after
     u = att.undecided
     if u is not None:
-        rows.append(SummaryRow(plain.get(u.name, u.name), "—", f"{_total(prev):.3g} → ?", f"{100 * u.gain:.0f} %",
+        provisional = _total(prev) * math.sqrt(max(1.0 - u.gain, 0.0))     # the gain is on the squared error
+        rows.append(SummaryRow(plain.get(u.name, u.name), "—", f"{_total(prev):.3g} → ≈ {provisional:.3g} if taken",
+                               f"{100 * u.gain:.0f} %",
                                f"undecided (t = {u.t_stat:.2g} < {u.t_crit:.2g}): ≈ {u.more_s:.0f} s more held-out "
                                "data would decide"))
     for f in att.noise:
