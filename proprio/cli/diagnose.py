@@ -188,7 +188,6 @@ _NON_EFFECT_CANDIDATES = ("rigid_body", "payload", "signal_lag", "sensor_offset"
 
 def _diagnose(args: argparse.Namespace) -> int:
     from proprio.diagnosis.data import DIAGNOSIS_CONDITIONING
-    from proprio.diagnosis import diagnose
     from proprio.effects import EFFECTS, allow_plugins, resolve_effect
     from proprio.effects.plugins import is_plugin_path
     from proprio.identification.recordings import check_tau_kind
@@ -237,6 +236,8 @@ def _diagnose(args: argparse.Namespace) -> int:
             train, hold = with_experiments(train, hold, [load(p) for p in args.experiment])
         except ValueError as exc:
             raise UserError(f"--experiment: {exc}") from exc
+    from proprio.diagnosis import diagnose          # the whole diagnosis only once the data passed every check
+
     bar = progress_bar(desc="diagnose", bar_format="{desc}: {elapsed} {postfix}")
     try:
         d = diagnose(model, train, hold, args.out, candidates=args.candidates, trim_s=args.trim,

@@ -25,9 +25,22 @@ localise → attribute → verdict → patch → replay → report. The rooms:
 - :mod:`~proprio.diagnosis.discriminate` — the designed experiment that separates tied effects;
 - :mod:`~proprio.diagnosis.resolve` — running it and diagnosing again (``--design-experiment`` / ``--resolve``).
 """
-from proprio.diagnosis.data import DiagnosisError, SimModel
-from proprio.diagnosis.route import Diagnosis, diagnose
-from proprio.diagnosis.attribution import Attribution
-from proprio.diagnosis.selection.forward import attribute
+from __future__ import annotations
+
+import importlib
+from typing import Any
 
 __all__ = ["DiagnosisError", "SimModel", "Diagnosis", "diagnose", "Attribution", "attribute"]
+
+_HOME = {"DiagnosisError": "data", "SimModel": "data", "Diagnosis": "route", "diagnose": "route",
+         "Attribution": "attribution", "attribute": "selection.forward"}
+
+
+def __getattr__(name: str) -> Any:
+    """The public names, imported on first use: a module that needs only one room (the CLI's up-front checks read
+    :mod:`~proprio.diagnosis.data`'s limits) does not pay for the whole diagnosis."""
+    if name in _HOME:
+        value = getattr(importlib.import_module(f"proprio.diagnosis.{_HOME[name]}"), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'proprio.diagnosis' has no attribute {name!r}")
