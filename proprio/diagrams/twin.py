@@ -127,11 +127,11 @@ def build_twin_diagram(config: TwinConfig, trajectory: Trajectory) -> TwinDiagra
     reflected = reflected_inertia(motor, coupling) if motor is not None else np.zeros((n, n))
     rotor = np.diag(reflected).copy()          # Drake's per-actuator rotor inertia; a coupled rest is the drive's
     if elastic is None:
-        check_explicit_friction(friction_slope(link, motor, coupling),
+        check_explicit_friction(friction_slope(link, motor, coupling, desc.effort_limits),
                                 _effective_inertia(desc, config.payload, trajectory, reflected), dt)
     else:
         # the spring's implicit damping D acts in parallel with the explicit link friction
-        check_explicit_friction(friction_slope(link) - elastic.damping,
+        check_explicit_friction(friction_slope(link, max_load=desc.effort_limits) - elastic.damping,
                                 _effective_inertia(desc, config.payload, trajectory, np.zeros((n, n))), dt)
         check_elastic_stability(elastic, motor, dt)
 
@@ -294,7 +294,8 @@ def _to_recording(config: TwinConfig, drive: DriveLaw, t: np.ndarray, data: np.n
     truth: dict[str, np.ndarray] = {}
     truth["tau_rbd"] = drive.rigid_body_torque(u, qdd)
     # link-side effects act with q̈ = 0, on the session clock
-    s_drive = MotionSignals(t=t + config.session_time_s, q=q, qd=qd, qdd=np.zeros_like(qdd))
+    s_drive = MotionSignals(t=t + config.session_time_s, q=q, qd=qd, qdd=np.zeros_like(qdd),
+                            tau=drive.transmitted_load(u, t, q, qd, qdd))
     for eff in config.effects:
         if eff.place == "link":
             truth[f"tau_{eff.name}"] = eff.torque(s_drive)
