@@ -52,6 +52,8 @@ OPEN_WORLD_TYPES: dict[str, tuple[str, tuple[int, ...], Any]] = {
     "position_friction": (f"{_OW}:PositionFriction", (0, 1, 2, 3, 4, 5, 6), lambda j: f"q_{j + 1}"),
     "cable_spring": (f"{_OW}:CableSpring", (0,), lambda j: f"q_{j + 2}"),      # joint 1: no gravity term
     "neighbour_drag": (f"{_OW}:NeighbourDrag", (0, 1, 2, 3, 4, 5), lambda j: f"qd_{j + 2}"),
+    # a spring on joint j and a cable's sin q on joint j + 2 (two joints; last: no other case moves)
+    "spring_cable": (f"{_OW}:ConfigurationTorque", (0, 2, 4), lambda j: f"q_{j + 1}"),
 }
 
 
@@ -127,6 +129,10 @@ def _draw_open(kind: str, n: int, mag: float, joint: int, rng: np.random.Generat
         return {"stiffness": one(mag * rng.uniform(0.5, 1.0)), "reference": rng.uniform(-0.3, 0.3, n)}
     if name == "NeighbourDrag":                     # 0.3–0.6 N·m when the next joint turns
         return {"drag": one(sign * mag * rng.uniform(0.3, 0.6))}
+    if name == "ConfigurationTorque":               # 1–2 N·m/rad spring on joint j, 0.5–1 N·m sin q on joint j+2
+        two = np.arange(n) == joint + 2
+        return {"spring": one(mag * rng.uniform(1.0, 2.0)), "reference": rng.uniform(-0.3, 0.3, n),
+                "cable": np.where(two, sign * mag * rng.uniform(0.5, 1.0), 0.0)}
     raise ValueError(f"unknown out-of-library benchmark effect {kind!r}")
 
 

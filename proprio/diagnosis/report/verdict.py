@@ -49,6 +49,10 @@ def verdict_text(att: Attribution, gm: GapMap, tau_kind: str = "link_sensor") ->
              f"(per joint {', '.join(f'{x:.2g}' for x in rmse0)} N·m, i.e. "
              f"{', '.join(f'{100 * x / max(s, 1e-12):.0f}' for x, s in zip(rmse0, sig))} % of the signal RMS); "
              f"most of the squared error sits in {where or 'no single joint'}."]
+    if att.rmse_raw is not None:
+        parts.append(att.data_path_text())
+    if att.missing_term is not None:        # every effect below was fitted on such a log: say it first
+        parts.append(att.missing_term.text(att.joint_names))
     hs = gm.hotspots(2)
     if hs:
         parts.append("It concentrates in " + " and ".join(f"{j} at {b} ({f}, {c:.1f}× its average)"
@@ -78,6 +82,7 @@ def verdict_text(att: Attribution, gm: GapMap, tau_kind: str = "link_sensor") ->
     elif att.undecided is None:
         parts.append("No physical candidate shrinks the held-out gap significantly beyond what the signal "
                      "processing explains: the model explains the data as well as any of the candidates can.")
+    parts += [p.text(plain) for p in att.position_only]
     if att.undecided is not None:
         parts.append(undecided_text(att, tau_kind))
     tv = att.time_variation

@@ -43,6 +43,13 @@ first, the rest refitted, at most :data:`MAX_SUPERSEDED` times) — backward eli
 (Running the forward selection again without the stand-in would not do: the effects it stood in for may only become
 significant together, as the rigid body and Coulomb friction of the gap benchmark's pair.)
 
+**Position is not history.** Hysteresis, lost motion and pre-sliding friction depend on the motion's history (the
+travel since the last reversal). A reversal candidate that wins a step is named only when it adds a significant
+held-out gain (``min_gain`` and the step's t bound) beyond a configuration-only nuisance
+(:class:`~proprio.diagnosis.candidates.configuration.ConfigurationCandidate`: functions of q of the joint and its
+neighbours — a spring ``k (q − q₀)``, a cable's ``sin q``); otherwise it is set aside
+(:attr:`Attribution.position_only`) and the hints say which q the residual follows.
+
 **Noise.** Torque noise cannot shrink a held-out error. After the deterministic steps, an unmodelled
 ``torque_noise`` is reported when the remaining residual is white (Ljung–Box and state R² agree:
 :mod:`proprio.diagnosis.residual`) and its variance
@@ -72,11 +79,13 @@ from scipy import stats
 from proprio.description import RobotDescription
 from proprio.diagnosis.candidates.registry import candidate_set
 from proprio.diagnosis.candidates.base import Candidate
+from proprio.diagnosis.candidates.configuration import REVERSAL_CANDIDATES, ConfigurationCandidate
 from proprio.conditioning import ConditionedSignals, ConditioningConfig, processing_torque_sigma
 from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, MAX_TRIM_S, MIN_BLOCK_S, MIN_BLOCKS, DiagnosisError, GapData,
                                     SimModel, condition_all, kept, session_motion, session_time)
 from proprio.diagnosis.selection.ambiguity import ambiguity_sets
-from proprio.diagnosis.attribution import Attribution, CrossValidation, Step, Superseded, Undecided
+from proprio.diagnosis.attribution import Attribution, CrossValidation, PositionOnly, Step, Superseded, Undecided
+from proprio.diagnosis.model_terms import missing_model_term
 from proprio.diagnosis.selection.block_test import block_gain, n_eff_factor, t_stat
 from proprio.diagnosis.encoder_floor import encoder_floor
 from proprio.diagnosis.fitting import Fit, fit_candidates, predict_candidates
@@ -272,6 +281,21 @@ def _drop_stand_ins(selected: list[Candidate], steps: list[Step], fit: Fit, trai
     return selected, steps, fit, dropped
 
 
+def _beyond_configuration(c: Candidate, selected: list[Candidate], fit_init: dict[str, np.ndarray], train: GapData,
+                          hold: GapData, w: np.ndarray, blk: np.ndarray,
+                          with_nuisance: Callable[[list[Candidate]], list[Candidate]]) -> tuple[float, float]:
+    """Held-out gain and block t statistic of the reversal candidate ``c`` added to ``selected`` plus the
+    configuration-only nuisance (module docstring, "Position is not history")."""
+    cfg = ConfigurationCandidate(train.signals[0].n)
+    sweeps = 2 if any(not x.linear for x in selected + [c]) else 1
+    f0 = fit_candidates(with_nuisance(selected + [cfg]), train, w, fit_init, sweeps=sweeps)
+    p0 = predict_candidates(selected + [cfg], f0, hold)
+    f1 = fit_candidates(with_nuisance(selected + [cfg, c]), train, w, {**fit_init, **f0.thetas}, sweeps=sweeps)
+    p1 = predict_candidates(selected + [cfg, c], f1, hold)
+    db, g = block_gain(hold.residual - p0, p1 - p0, w, blk, int(blk.max()) + 1)
+    return float(g), float(t_stat(db))
+
+
 def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, block_s: float,
             data_seconds: tuple[float, float], candidates: Sequence[str] | None, alpha: float, min_gain: float,
             max_steps: int, say: Callable[[str], None], tv: TimeVariation,
@@ -300,6 +324,7 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
     steps: list[Step] = []
     ranking: list[dict[str, Any]] = []
     below_floor: list[tuple[str, float, float]] = []
+    position_only: list[PositionOnly] = []
     undecided: Undecided | None = None
     remaining = list(cands)
     first = True
@@ -340,6 +365,14 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
             below_floor.append((c.name, chosen[3], float(rms_delta.max())))
             remaining = [x for x in remaining if x is not c]
             continue
+        if c.name in REVERSAL_CANDIDATES:        # position is not history (module docstring)
+            say(f"step {len(steps) + 1}: {c.name} beyond the configuration")
+            g_cfg, t_cfg = _beyond_configuration(c, selected, {**fit.thetas, **f_c.thetas}, train, hold, w, blk,
+                                                 with_nuisance)
+            if g_cfg < min_gain or t_cfg < t_crit:
+                position_only.append(PositionOnly(c.name, float(chosen[3]), g_cfg, t_cfg))
+                remaining = [x for x in remaining if x is not c]
+                continue
         processing = c.processing
         reason = "describes the data path (filtering, derivative noise)" if processing else ""
         selected.append(c)
@@ -360,6 +393,13 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
         if superseded:                  # the last step holds the final fit
             steps[-1].rmse_after = np.sqrt(((e_h - pred_h) ** 2).mean(axis=0))
             steps[-1].params = _params(selected, fit, train, w)
+    # the data path never makes the "before" gap: data-path steps the selection took before any physical one are the
+    # correction of the data, listed apart (Attribution.data_path); the gap before is reported after them
+    lead = next((i for i, st in enumerate(steps) if not st.processing), len(steps))
+    data_path, steps = steps[:lead], steps[lead:]
+    rmse_raw = None
+    if data_path:
+        rmse_raw, rmse0 = rmse0, data_path[-1].rmse_after
     r_h = e_h - pred_h
     r_tr = e_tr - predict_candidates(selected, fit, train)
     rate = float(np.median([cs.rate_hz for cs in hold.conditioned]))
@@ -377,4 +417,6 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
                        [c.name for c in cands], split_by_recording(e_h, hold), split_by_recording(pred_h, hold), hold.times, proc_sigma,
                        sorted({cs.describe() for cs in hold.conditioned + train.conditioned}), data_seconds, block_s,
                        fitted={c.name: c for c in selected}, hints=hints, time_variation=tv, undecided=undecided,
-                       below_floor=below_floor, ambiguity=amb, superseded=superseded)
+                       below_floor=below_floor, ambiguity=amb, superseded=superseded, position_only=position_only,
+                       data_path=data_path, rmse_raw=rmse_raw,
+                       missing_term=missing_model_term(model, train, hold))
