@@ -411,7 +411,7 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
     parts = [np.stack([predict_candidates([c], fit, d) for c in selected], axis=2) if selected and len(structured)
              else None for d in (train, hold)]
     hints = find_hints(train, hold, r_tr, r_h, structured, blk, parts[0], parts[1], alpha=alpha)
-    amb = ambiguity_sets(selected, [not st.processing for st in steps], cands, ranking, train, hold, w, blk,
+    amb = ambiguity_sets(selected, [not st.processing for st in data_path + steps], cands, ranking, train, hold, w, blk,
                          with_nuisance, structure.rmse, min_gain, say)
     return Attribution(model.robot.joint_names, steps, ranking, rmse0, sig, structure, noise,
                        [c.name for c in cands], split_by_recording(e_h, hold), split_by_recording(pred_h, hold), hold.times, proc_sigma,
