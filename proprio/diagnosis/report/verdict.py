@@ -21,7 +21,8 @@ PLAIN = {"viscous_coulomb": "viscous + Coulomb friction", "stribeck": "Stribeck 
          "offset_drift": "a drifting torque-sensor offset", "friction_warmup": "friction fading as the joints warm up",
          "rotor_inertia": "rotor (armature) inertia", "presliding": "pre-sliding friction (before gross sliding)",
          "motor_friction": "motor-side friction (viscous + Coulomb on the motor velocities)",
-         "drive_offset": "constant drive-torque offsets"}
+         "drive_offset": "constant drive-torque offsets",
+         "load_friction": "load-dependent friction (a Coulomb level growing with the transmitted torque)"}
 
 _DRIVE_WORDS = {"sensor_offset_gain": "drive-torque offset / gain error (torque-constant error)",
                 "sensor_gain": "drive-torque gain error (torque-constant error)",
