@@ -78,19 +78,21 @@ class Superseded:
 @dataclass
 class PositionOnly:
     """A reversal candidate (hysteresis, lost motion, pre-sliding friction) that won a step with held-out gain
-    ``gain`` but adds only ``beyond`` (t = ``t_stat``) beyond a configuration-only torque: the residual depends on
-    where the arm is, not on the motion's history — set aside, not named
-    (:mod:`proprio.diagnosis.candidates.configuration`)."""
+    ``gain`` while a configuration-only torque explains ``configuration`` (≥ ``gain``) and the candidate adds only
+    ``beyond`` (t = ``t_stat``) to it: the residual depends on where the arm is, not on the motion's history — set
+    aside, not named (:mod:`proprio.diagnosis.candidates.configuration`)."""
     name: str
     gain: float
     beyond: float
     t_stat: float
+    configuration: float
 
     def text(self, plain: dict[str, str]) -> str:
         """One sentence for the report."""
         return (f"Position, not history: {plain.get(self.name, self.name)} would lower the held-out error by "
-                f"{100 * self.gain:.0f} %, but beyond a torque that depends on the configuration alone (q of the "
-                f"joint and its neighbours) it adds {100 * self.beyond:.1f} % (t = {self.t_stat:.2g}) — the residual "
+                f"{100 * self.gain:.0f} %, but a torque that depends on the configuration alone (q of the joint and "
+                f"its neighbours) lowers it by {100 * self.configuration:.0f} % and beyond that torque it adds "
+                f"{100 * self.beyond:.1f} % (t = {self.t_stat:.2g}) — the residual "
                 "depends on where the arm is, not on the reversals: not named (see the hints on q).")
 
 

@@ -282,7 +282,8 @@ def diagnose(model: SimModel | RobotDescription, train_recs: Sequence[Recording]
                "data_path": [{"name": s.name, "gain": s.gain, "t": s.t_stat, "rmse_after": s.rmse_after.tolist()}
                              for s in att.data_path],
                "rmse_raw": att.rmse_raw.tolist() if att.rmse_raw is not None else None,
-               "position_only": [{"name": x.name, "gain": x.gain, "beyond": x.beyond, "t": x.t_stat}
+               "position_only": [{"name": x.name, "gain": x.gain, "beyond": x.beyond, "t": x.t_stat,
+                                  "configuration": x.configuration}
                                  for x in att.position_only],
                "undecided": None if att.undecided is None else {
                    "name": att.undecided.name, "gain": att.undecided.gain, "t": att.undecided.t_stat,

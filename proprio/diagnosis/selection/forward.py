@@ -44,11 +44,13 @@ first, the rest refitted, at most :data:`MAX_SUPERSEDED` times) — backward eli
 significant together, as the rigid body and Coulomb friction of the gap benchmark's pair.)
 
 **Position is not history.** Hysteresis, lost motion and pre-sliding friction depend on the motion's history (the
-travel since the last reversal). A reversal candidate that wins a step is named only when it adds a significant
-held-out gain (``min_gain`` and the step's t bound) beyond a configuration-only nuisance
+travel since the last reversal). A reversal candidate that wins a step is set aside (:attr:`Attribution.position_only`;
+the hints then say which q the residual follows) when a configuration-only torque
 (:class:`~proprio.diagnosis.candidates.configuration.ConfigurationCandidate`: functions of q of the joint and its
-neighbours — a spring ``k (q − q₀)``, a cable's ``sin q``); otherwise it is set aside
-(:attr:`Attribution.position_only`) and the hints say which q the residual follows.
+neighbours — a spring ``k (q − q₀)``, a cable's ``sin q``) explains at least as much of the held-out residual as it
+does *and* it adds no significant held-out gain (``min_gain`` and the step's t bound) beyond that torque. Both
+conditions: a configuration basis fitted on one motion can extrapolate poorly to another, so "adds nothing beyond
+it" alone would also set aside a real reversal effect whose held-out gain the basis' extrapolation error swamps.
 
 **Noise.** Torque noise cannot shrink a held-out error. After the deterministic steps, an unmodelled
 ``torque_noise`` is reported when the remaining residual is white (Ljung–Box and state R² agree:
@@ -283,17 +285,21 @@ def _drop_stand_ins(selected: list[Candidate], steps: list[Step], fit: Fit, trai
 
 def _beyond_configuration(c: Candidate, selected: list[Candidate], fit_init: dict[str, np.ndarray], train: GapData,
                           hold: GapData, w: np.ndarray, blk: np.ndarray,
-                          with_nuisance: Callable[[list[Candidate]], list[Candidate]]) -> tuple[float, float]:
-    """Held-out gain and block t statistic of the reversal candidate ``c`` added to ``selected`` plus the
-    configuration-only nuisance (module docstring, "Position is not history")."""
+                          with_nuisance: Callable[[list[Candidate]], list[Candidate]], pred_h: np.ndarray
+                          ) -> tuple[float, float, float]:
+    """``(held-out gain of the configuration-only nuisance added to selected, gain and block t statistic of the
+    reversal candidate c added beyond it)`` (module docstring, "Position is not history"); ``pred_h``: the selected
+    candidates' held-out prediction."""
     cfg = ConfigurationCandidate(train.signals[0].n)
+    n_blk = int(blk.max()) + 1
     sweeps = 2 if any(not x.linear for x in selected + [c]) else 1
     f0 = fit_candidates(with_nuisance(selected + [cfg]), train, w, fit_init, sweeps=sweeps)
     p0 = predict_candidates(selected + [cfg], f0, hold)
+    g_cfg = block_gain(hold.residual - pred_h, p0 - pred_h, w, blk, n_blk)[1]
     f1 = fit_candidates(with_nuisance(selected + [cfg, c]), train, w, {**fit_init, **f0.thetas}, sweeps=sweeps)
     p1 = predict_candidates(selected + [cfg, c], f1, hold)
-    db, g = block_gain(hold.residual - p0, p1 - p0, w, blk, int(blk.max()) + 1)
-    return float(g), float(t_stat(db))
+    db, g = block_gain(hold.residual - p0, p1 - p0, w, blk, n_blk)
+    return float(g_cfg), float(g), float(t_stat(db))
 
 
 def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, block_s: float,
@@ -367,10 +373,10 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
             continue
         if c.name in REVERSAL_CANDIDATES:        # position is not history (module docstring)
             say(f"step {len(steps) + 1}: {c.name} beyond the configuration")
-            g_cfg, t_cfg = _beyond_configuration(c, selected, {**fit.thetas, **f_c.thetas}, train, hold, w, blk,
-                                                 with_nuisance)
-            if g_cfg < min_gain or t_cfg < t_crit:
-                position_only.append(PositionOnly(c.name, float(chosen[3]), g_cfg, t_cfg))
+            g_cfg, g_beyond, t_beyond = _beyond_configuration(c, selected, {**fit.thetas, **f_c.thetas}, train, hold,
+                                                              w, blk, with_nuisance, pred_h)
+            if g_cfg >= chosen[3] and (g_beyond < min_gain or t_beyond < t_crit):
+                position_only.append(PositionOnly(c.name, float(chosen[3]), g_beyond, t_beyond, g_cfg))
                 remaining = [x for x in remaining if x is not c]
                 continue
         processing = c.processing
