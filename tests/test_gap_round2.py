@@ -39,8 +39,9 @@ def test_log_without_gravity_names_gravity_not_offsets():
     assert attribute(model, data.train, data.holdout).missing_term is None
 
 
-@pytest.mark.xfail(strict=True, reason="issue 39 item 3 not met at magnitude 1: a sensor gain error stands in for the "
-                   "cable's sin q on a loaded joint at 10.7 % held-out gain (no hysteresis is named; the hints name q)")
+@pytest.mark.xfail(strict=True, reason="issue 39 item 3 not met at magnitude 1: a sensor gain error (11 %) and "
+                   "hysteresis (10 %, after it) stand in for the spring on joint 1 and the cable's sin q on joint 3; "
+                   "at magnitude 2 only a 5 % sensor gain is named and the hint names q_3")
 def test_spring_and_cable_are_position_not_history():
     """A gravity-compensation spring k (q − q₀) on one joint and a cable's sin q on another: no library effect above
     5 % held-out gain (no hysteresis), and a hint on q."""

@@ -90,8 +90,8 @@ class PositionOnly:
     def text(self, plain: dict[str, str]) -> str:
         """One sentence for the report."""
         return (f"Position, not history: {plain.get(self.name, self.name)} would lower the held-out error by "
-                f"{100 * self.gain:.0f} %, but a torque that depends on the configuration alone (q of the joint and "
-                f"its neighbours) lowers it by {100 * self.configuration:.0f} % and beyond that torque it adds "
+                f"{100 * self.gain:.0f} %, but a torque that depends on the configuration alone (the joint's own "
+                f"angle) lowers it by {100 * self.configuration:.0f} % and beyond that torque it adds "
                 f"{100 * self.beyond:.1f} % (t = {self.t_stat:.2g}) — the residual "
                 "depends on where the arm is, not on the reversals: not named (see the hints on q).")
 

@@ -4,10 +4,11 @@
 Hysteresis, lost motion and pre-sliding friction are functions of the motion's history — the travel since the last
 reversal. Along a trajectory the travel is also correlated with where the arm is, so a torque that depends on the
 configuration only can pose as a reversal effect. :class:`ConfigurationCandidate` is a linear nuisance with, per
-joint ``j``, the columns ``1, q_j, sin(m q_j), cos(m q_j)`` (m = 1, 2) and ``q_k, sin q_k, cos q_k`` of the
-neighbouring joints ``k = j ± 1`` (a cable or a spring crossing the joint); fitted on the training data, it predicts
-the held-out data like any candidate. A reversal candidate is named only when it adds a significant held-out gain
-*beyond* this nuisance (:func:`proprio.diagnosis.selection.forward.attribute`, "Position is not history"); it is never
+joint ``j``, the columns ``1, q_j, sin q_j, cos q_j`` of the joint's own angle (a spring ``k (q_j − q_0)``, a cable's
+``sin q_j``); fitted on the training data, it predicts the held-out data like any candidate. Few columns on purpose: a
+richer basis (harmonics, the neighbours' angles) extrapolates from one motion to another with errors that swamp the
+comparison. A reversal candidate is set aside when this nuisance explains as much and it adds nothing significant
+*beyond* it (:func:`proprio.diagnosis.selection.forward.attribute`, "Position is not history"); it is never
 named itself — what it explains is left for the hints, which name the q it follows.
 """
 from __future__ import annotations
@@ -22,19 +23,17 @@ __all__ = ["ConfigurationCandidate", "REVERSAL_CANDIDATES"]
 REVERSAL_CANDIDATES = ("hysteresis", "lost_motion", "presliding")
 """The candidates whose torque is a function of the motion's history (the travel since the last reversal)."""
 
-_OWN = ("1", "q", "sin q", "cos q", "sin 2q", "cos 2q")
-_NEIGHBOUR = ("q", "sin q", "cos q")
+_COLUMNS = ("1", "q", "sin q", "cos q")
 
 
 class ConfigurationCandidate(Candidate):
-    """The configuration-only nuisance of the module docstring (per joint ``len(_OWN) + 2·len(_NEIGHBOUR)``
-    columns; a missing neighbour's columns are zero)."""
+    """The configuration-only nuisance of the module docstring (``len(_COLUMNS)`` columns per joint)."""
     name = "configuration"
     place = "link"
 
     def __init__(self, n: int):
         self.n = n
-        self._per = len(_OWN) + 2 * len(_NEIGHBOUR)
+        self._per = len(_COLUMNS)
 
     def param_names(self) -> list[str]:
         return [f"c{c}[{j + 1}]" for j in range(self.n) for c in range(self._per)]
@@ -44,12 +43,7 @@ class ConfigurationCandidate(Candidate):
         for s in _kept_signals(data):
             q = s.q
             m, n = q.shape
-            own = np.stack([np.ones_like(q), q, np.sin(q), np.cos(q), np.sin(2 * q), np.cos(2 * q)], axis=2)
-            nb = np.stack([q, np.sin(q), np.cos(q)], axis=2)
-            zero = np.zeros((m, 1, nb.shape[2]))
-            below = np.concatenate([zero, nb[:, :-1]], axis=1)         # joint j-1's columns at joint j
-            above = np.concatenate([nb[:, 1:], zero], axis=1)          # joint j+1's
-            cols = np.concatenate([own, below, above], axis=2)          # [m, n, per]
+            cols = np.stack([np.ones_like(q), q, np.sin(q), np.cos(q)], axis=2)      # [m, n, per]
             d = np.zeros((m, n, n * self._per))
             for j in range(n):
                 d[:, j, j * self._per:(j + 1) * self._per] = cols[:, j]

@@ -46,8 +46,8 @@ significant together, as the rigid body and Coulomb friction of the gap benchmar
 **Position is not history.** Hysteresis, lost motion and pre-sliding friction depend on the motion's history (the
 travel since the last reversal). A reversal candidate that wins a step is set aside (:attr:`Attribution.position_only`;
 the hints then say which q the residual follows) when a configuration-only torque
-(:class:`~proprio.diagnosis.candidates.configuration.ConfigurationCandidate`: functions of q of the joint and its
-neighbours — a spring ``k (q − q₀)``, a cable's ``sin q``) explains at least as much of the held-out residual as it
+(:class:`~proprio.diagnosis.candidates.configuration.ConfigurationCandidate`: ``1, q, sin q, cos q`` of the joint's
+own angle — a spring ``k (q − q₀)``, a cable's ``sin q``) explains at least as much of the held-out residual as it
 does *and* it adds no significant held-out gain (``min_gain`` and the step's t bound) beyond that torque. Both
 conditions: a configuration basis fitted on one motion can extrapolate poorly to another, so "adds nothing beyond
 it" alone would also set aside a real reversal effect whose held-out gain the basis' extrapolation error swamps.
