@@ -22,6 +22,16 @@ now uses the law the data came from instead of ``sign`` or ``tanh(q̇/0.02)``. I
 where a velocity differentiated from a quantised encoder and low-passed is too unreliable to give the direction of
 motion, so the exact sign there is noise rather than information.
 
+**Load-dependent Coulomb friction** (:func:`load_coulomb`): ``F_c = F_c0 + k |τ_load|`` — the Coulomb level of a
+harmonic drive grows with the torque it transmits (tooth and wave-generator bearing loads: Hamon & Gautier; Wolf &
+Iskandar), ``τ_f = (F_c0 + k |τ_load|) sgn_s(q̇)`` with the same smooth sign. **The load is the link-side joint
+torque** τ_J the joint's gear transmits (what a joint-torque sensor measures; the rigid-body torque plus the link
+friction), per joint: for a coupled wrist too it is the joint's own output torque, not the shared motor's torque
+(the friction is the joint's gear's, on the joint velocity). Each stage takes the load it has: the twin's drive the
+torque it transmits in the step (the commanded joint torque, :func:`load_from_net` recovers it from the logged net
+actuation), the diagnosis and the identification the modelled link torque, the benchmark's offline model the
+rigid-body torque.
+
 This module is in the core layer and imports numpy only: effects, identification and learning (layer 2, independent
 of each other) all call it.
 """
@@ -29,7 +39,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["SMOOTH_VELOCITY", "smooth_sign", "viscous_coulomb", "slope_at_rest", "smoothing"]
+__all__ = ["SMOOTH_VELOCITY", "smooth_sign", "viscous_coulomb", "load_coulomb", "load_from_net", "slope_at_rest",
+           "smoothing"]
 
 SMOOTH_VELOCITY = 0.05
 """Library default smoothing velocity ``v_s`` [rad/s] of the Coulomb sign (see the module docstring)."""
@@ -67,3 +78,21 @@ def slope_at_rest(viscous: float | np.ndarray, coulomb: float | np.ndarray,
     """``∂τ_f/∂q̇`` at ``q̇ = 0`` [N·m·s/rad]: ``F_v + F_c / v_s``, the steepest slope of the law (what explicit
     integration of the friction must resolve)."""
     return np.asarray(viscous + np.asarray(coulomb) / smoothing(smooth_velocity), dtype=float)
+
+
+def load_coulomb(qd: np.ndarray, coulomb: float | np.ndarray, load_gain: float | np.ndarray, tau_load: np.ndarray,
+                 smooth_velocity: float | np.ndarray | None = None) -> np.ndarray:
+    """Load-dependent Coulomb friction ``(F_c0 + k |τ_load|) tanh(q̇ / v_s)`` [N·m] (module docstring) for velocities
+    ``qd`` [rad/s] and link-side joint torques ``tau_load`` [N·m] of the same shape (``[n]`` or ``[N, n]``); ``F_c0``
+    [N·m] and the load gain ``k`` [-] scalars or per joint ``[n]``. Dissipative (``τ_f q̇ ≥ 0``)."""
+    return (coulomb + load_gain * np.abs(tau_load)) * smooth_sign(np.asarray(qd, dtype=float), smooth_velocity)
+
+
+def load_from_net(net: np.ndarray, sign: np.ndarray, load_gain: np.ndarray) -> np.ndarray:
+    """The transmitted torque ``u`` [N·m] whose load-dependent friction leaves ``net``: the root of
+    ``u − k |u| s = net`` for the smooth sign ``s`` (|s| ≤ 1) and the summed load gain ``k < 1`` [-] (``net`` [N·m]
+    holds everything else: ``u − τ_f,other − F_c0 s`` as the caller has it). The left side rises monotonically in
+    ``u`` and is 0 at 0, so ``u`` has the sign of ``net``: ``u = net / (1 − k s sign(net))`` — the twin's τ_J from its
+    logged net actuation, exact."""
+    net = np.asarray(net, dtype=float)
+    return net / (1.0 - load_gain * sign * np.sign(net))

@@ -43,10 +43,10 @@ def _identify(args: argparse.Namespace) -> int:
             print(format_findings(assess(rec, robot, conditioning=conditioning), "warning",
                                   title=f"data quality of {path} ({role}):"))
     model, text = identify_recordings(train, [], robot, args.method, trim_s, offsets,
-                                      args.coulomb_velocity_scale, conditioning)
+                                      args.coulomb_velocity_scale, conditioning, load_friction=args.load_friction)
     print(f"{args.method.upper()} on {model.n_train_samples} samples: {model.phi_b.size} parameters "
           f"({model.base.n_base} base{' incl. drive terms' if drive_identified(robot) else ''}"
-          f"{' + offsets' if offsets else ''})")
+          f"{' + offsets' if offsets else ''}{' + load-dependent friction gains' if args.load_friction else ''})")
     if args.show_parameters:
         print(model.parameter_table())
     print(text.split("\n\n", 1)[1])                # the tables: their conditioning lines were printed above
@@ -160,6 +160,9 @@ def register(subparsers) -> None:
     p.add_argument("--coulomb-velocity-scale", type=nonnegative, default=None,
                    help="[rad/s] Coulomb friction as tanh(qd/scale); 0 = sign(qd) (default: the library's smoothing, "
                         "proprio.friction_law.SMOOTH_VELOCITY = 0.05)")
+    p.add_argument("--load-friction", action="store_true",
+                   help="also fit load-dependent Coulomb friction per joint: F_c = F_c0 + k |tau| (k [-] per joint, "
+                        "the measured link torque as the load)")
     p.add_argument("--show-parameters", action="store_true", help="print the base-parameter table (Table 4.6)")
     p.set_defaults(func=_identify)
 

@@ -11,9 +11,10 @@ import numpy as np
 from proprio.diagnosis.candidates.base import Candidate
 from proprio.diagnosis.encoder_floor import EncoderFloor
 from proprio.diagnosis.hints import Hint
+from proprio.diagnosis.model_terms import MissingTerm
 from proprio.diagnosis.residual import NoiseFinding, ResidualStructure
 
-__all__ = ["Step", "Undecided", "CrossValidation", "Superseded", "TimeVariation", "Attribution"]
+__all__ = ["Step", "Undecided", "CrossValidation", "Superseded", "TimeVariation", "PositionOnly", "Attribution"]
 
 
 @dataclass
@@ -94,15 +95,41 @@ class TimeVariation:
 
 
 @dataclass
+class PositionOnly:
+    """A reversal candidate (hysteresis, lost motion, pre-sliding friction) that won a step with held-out gain
+    ``gain`` while a configuration-only torque explains ``configuration`` (≥ ``gain``) and the candidate adds only
+    ``beyond`` (t = ``t_stat``) to it: the residual depends on where the arm is, not on the motion's history — set
+    aside, not named (:mod:`proprio.diagnosis.candidates.configuration`)."""
+    name: str
+    gain: float
+    beyond: float
+    t_stat: float
+    configuration: float
+
+    def text(self, plain: dict[str, str]) -> str:
+        """One sentence for the report."""
+        return (f"Position, not history: {plain.get(self.name, self.name)} would lower the held-out error by "
+                f"{100 * self.gain:.0f} %, but a torque that depends on the configuration alone (the joint's own "
+                f"angle) lowers it by {100 * self.configuration:.0f} % and beyond that torque it adds "
+                f"{100 * self.beyond:.1f} % (t = {self.t_stat:.2g}) — the residual "
+                "depends on where the arm is, not on the reversals: not named (see the hints on q).")
+
+
+@dataclass
 class Attribution:
-    """Result of :func:`proprio.diagnosis.selection.forward.attribute`. ``fitted``: the selected candidates by name
-    (their final parameters are the last step's ``params``), for :func:`proprio.diagnosis.patch.twin_patch`.
-    ``encoder``: the data's position-noise floor against the model's encoder noise
-    (:mod:`proprio.diagnosis.encoder_floor`; a data-path comparison over all the recordings). ``undecided``: the
-    physical candidate still leading, without significance, where the selection stopped (:class:`Undecided`);
-    ``below_floor``: ``(name, gain, rms)`` of physical candidates that won a step with a held-out torque (``rms`` N·m)
-    within the processing error — not named, not filed as data path; ``superseded``: the stand-ins the backward check
-    dropped (:class:`Superseded`)."""
+    """Result of :func:`proprio.diagnosis.selection.forward.attribute`. ``fitted``: the selected candidates by name (their
+    final parameters are the last step's ``params``), for :func:`proprio.diagnosis.patch.twin_patch`. ``encoder``:
+    the data's position-noise floor against the model's encoder noise (:mod:`proprio.diagnosis.encoder_floor`; a
+    data-path comparison over all the recordings). ``undecided``: the physical candidate still leading, without
+    significance, where the selection stopped (:class:`Undecided`); ``below_floor``: ``(name, gain, rms)`` of
+    physical candidates that won a step with a held-out torque (``rms`` N·m) within the processing error — not
+    named, not filed as data path; ``superseded``: the stand-ins the backward check dropped (:class:`Superseded`);
+    ``position_only``: reversal candidates set aside because a configuration-only torque explains what they did
+    (:class:`PositionOnly`); ``missing_term``: the log seems to lack a term of the model (:class:`MissingTerm`:
+    gravity, or the whole rigid-body torque — a drive that compensates it); ``data_path``: data-path steps the
+    selection took before any physical one — the correction of the data, never step 1: ``rmse_before`` is then the
+    held-out gap after them and ``rmse_raw`` [n] N·m the gap before them (``None`` when no data-path step came
+    first)."""
     joint_names: list[str]
     steps: list[Step]
     ranking: list[dict[str, Any]]
@@ -127,6 +154,10 @@ class Attribution:
     below_floor: list[tuple[str, float, float]] = field(default_factory=list)
     ambiguity: list[Any] = field(default_factory=list)   # AmbiguitySet per named effect (diagnosis.ambiguity)
     superseded: list[Superseded] = field(default_factory=list)
+    position_only: list[PositionOnly] = field(default_factory=list)
+    data_path: list[Step] = field(default_factory=list)
+    rmse_raw: np.ndarray | None = None
+    missing_term: MissingTerm | None = None
 
     @property
     def physical_steps(self) -> list[Step]:
@@ -134,7 +165,20 @@ class Attribution:
 
     @property
     def processing_steps(self) -> list[Step]:
-        return [s for s in self.steps if s.processing]
+        """The data-path corrections (:attr:`data_path`) and the later processing steps."""
+        return self.data_path + [s for s in self.steps if s.processing]
+
+    def data_path_text(self) -> str:
+        """One sentence for the verdict when a data-path correction came first (else ``""``): the gap before is
+        reported after it."""
+        if self.rmse_raw is None:
+            return ""
+        raw = float(np.sqrt((self.rmse_raw ** 2).mean()))
+        now = float(np.sqrt((self.rmse_before ** 2).mean()))
+        names = ", ".join(s.name for s in self.data_path)
+        return (f"The gap is measured after the data-path correction ({names}, listed under the data path): "
+                f"before it the held-out gap was {raw:.3g} N·m RMS, so the conditioning of the data — not the robot "
+                f"— made {100 * (1 - (now / max(raw, 1e-300)) ** 2):.0f} % of that squared error.")
 
     @property
     def processing_findings(self) -> list[str]:

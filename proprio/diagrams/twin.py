@@ -143,11 +143,11 @@ def build_twin_diagram(config: TwinConfig, trajectory: Trajectory, measurement_c
     reflected = reflected_inertia(motor, coupling) if motor is not None else np.zeros((n, n))
     rotor = np.diag(reflected).copy()          # Drake's per-actuator rotor inertia; a coupled rest is the drive's
     if elastic is None:
-        check_explicit_friction(friction_slope(link, motor, coupling),
+        check_explicit_friction(friction_slope(link, motor, coupling, desc.effort_limits),
                                 _effective_inertia(desc, config.payload, trajectory, reflected), dt)
     else:
         # the spring's implicit damping D acts in parallel with the explicit link friction
-        check_explicit_friction(friction_slope(link) - elastic.damping,
+        check_explicit_friction(friction_slope(link, max_load=desc.effort_limits) - elastic.damping,
                                 _effective_inertia(desc, config.payload, trajectory, np.zeros((n, n))), dt)
         check_elastic_stability(elastic, motor, dt)
 

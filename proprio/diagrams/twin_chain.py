@@ -148,7 +148,8 @@ def AddMeasurementChain(builder: DiagramBuilder, signals: OutputPort, config, dr
         t, q, qd, qdd, u, *_, final = motion(inputs[0])
         if t.size == 0:
             return np.zeros((0, tw)), final, carry
-        s_drive = MotionSignals(t + session, q, qd, np.zeros_like(qdd))      # link-side effects act with q̈ = 0
+        # link-side effects act with q̈ = 0; a load-dependent friction on the torque its gear transmitted
+        s_drive = MotionSignals(t + session, q, qd, np.zeros_like(qdd), drive.transmitted_load(u, t, q, qd, qdd))
         piece = link_path.begin(s_drive, carry)
         parts = [piece.torque(eff, s_drive) for eff in link]
         tau_link = np.zeros_like(qd)

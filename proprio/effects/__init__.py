@@ -15,6 +15,9 @@ effect (YAML key)             place   model / calibration source
                                       viscous 0.10–0.37 N·m·s/rad, ``proprio/robots/iiwa14_identified.yaml``)
 ``stribeck``                  link    extra static friction ``F_s exp(−(q̇/v_st)²) tanh(q̇/v_s)``; low-speed
                                       friction of harmonic drives (not in the thesis; off in the calibrated twin)
+``load_friction``             link    load-dependent Coulomb friction ``(F_c0 + k|τ_J|) tanh(q̇/v_s)``: a harmonic
+                                      drive's Coulomb level grows with the link torque it transmits (Hamon &
+                                      Gautier; Wolf & Iskandar: k of a few %; off in the calibrated twin)
 ``presliding``                link    pre-sliding friction of the drive: the Dahl law of ``hysteresis`` over
                                       tenths of a degree of travel since the last reversal, rate-independent
                                       (``proprio.effects.dahl``; off in the calibrated twin, whose τ_J is a
@@ -67,7 +70,7 @@ from __future__ import annotations
 from proprio.effects.base import EffectConfigError, JointEffect
 from proprio.effects.dahl import PreSliding
 from proprio.effects.drive import Elasticity, Motor
-from proprio.effects.friction import SmoothFriction, Stribeck, ViscousCoulomb, robot_friction
+from proprio.effects.friction import LoadFriction, SmoothFriction, Stribeck, ViscousCoulomb, robot_friction
 from proprio.effects.hysteresis import Hysteresis, LostMotion
 from proprio.effects.plugins import allow_plugins, effect_key, register_plugin, resolve_effect
 from proprio.effects.registry import EFFECTS
@@ -76,7 +79,7 @@ from proprio.effects.sensor import EncoderNoise, Ripple, SensorOffsetGain, Torqu
 from proprio.effects.time_varying import FrictionWarmup, OffsetDrift
 
 __all__ = ["JointEffect", "EffectConfigError", "SmoothFriction", "ViscousCoulomb", "Stribeck",
-           "robot_friction", "Hysteresis", "PreSliding",
+           "LoadFriction", "robot_friction", "Hysteresis", "PreSliding",
            "LostMotion", "Ripple", "SensorOffsetGain", "TorqueNoise", "EncoderNoise", "Motor", "Elasticity",
            "OffsetDrift", "FrictionWarmup", "EFFECTS", "make_effects", "resolve_effect", "effect_key", "register_plugin",
            "allow_plugins"]

@@ -1,4 +1,4 @@
-"""Link-side friction, visible in τ_J and dissipative: viscous + Coulomb and Stribeck."""
+"""Link-side friction, visible in τ_J and dissipative: viscous + Coulomb, Stribeck and load-dependent Coulomb."""
 from __future__ import annotations
 
 from typing import Any
@@ -10,7 +10,12 @@ from proprio.description import RobotDescription
 from proprio.effects.base import INF, TINY, JointEffect, diagonal_regressor
 from proprio.signals import MotionSignals
 
-__all__ = ["SmoothFriction", "ViscousCoulomb", "Stribeck", "robot_friction"]
+__all__ = ["SmoothFriction", "ViscousCoulomb", "Stribeck", "LoadFriction", "robot_friction", "MAX_FRICTION_LOAD_GAIN"]
+
+MAX_FRICTION_LOAD_GAIN = 0.2
+"""Upper bound of the load-dependent friction's ``load_gain`` [-]: 20 % of the transmitted torque (harmonic drives
+reported up to a few % — Wolf & Iskandar; the bound keeps the twin's inversion :func:`proprio.friction_law.load_from_net`
+far from its pole at 1)."""
 
 
 class SmoothFriction(JointEffect):
@@ -83,3 +88,37 @@ class Stribeck(SmoothFriction):
         return self.friction(s.qd)
 
 
+
+
+class LoadFriction(SmoothFriction):
+    """Load-dependent Coulomb friction ``(F_c0 + k |τ_J|) tanh(q̇ / v_s)`` [N·m]
+    (:func:`proprio.friction_law.load_coulomb`): the Coulomb level of a harmonic drive grows with the link-side torque
+    ``τ_J`` its gear transmits (``MotionSignals.tau``; the load is the joint's own link torque, also for a coupled
+    wrist — :mod:`proprio.friction_law`). Linear in its parameters; dissipative.
+
+    Parameters ``coulomb`` F_c0 [N·m] (the level at no load), ``load_gain`` k [-]; setting ``smooth_velocity`` v_s
+    [rad/s]. Needs ``MotionSignals.tau``.
+    """
+    name = "load_friction"
+    place = "link"
+    linear = True
+    parameters = {"coulomb": (0.0, 0.0, INF), "load_gain": (0.0, 0.0, MAX_FRICTION_LOAD_GAIN)}
+
+    def _load(self, s: MotionSignals) -> np.ndarray:
+        if s.tau is None:
+            raise ValueError(f"{self.name}: MotionSignals.tau (the link-side joint torque, the load) is required")
+        return s.tau
+
+    def friction(self, qd: np.ndarray, tau_load: np.ndarray) -> np.ndarray:
+        """τ_f [N·m] for joint velocities ``qd`` [rad/s] and link torques ``tau_load`` [N·m] (``[n]`` or ``[N,n]``)."""
+        v = self._values
+        return friction_law.load_coulomb(qd, v["coulomb"], v["load_gain"], tau_load, v["smooth_velocity"])
+
+    def torque(self, s: MotionSignals, rng: np.random.Generator | None = None) -> np.ndarray:
+        self._check_n(s)
+        return self.friction(s.qd, self._load(s))
+
+    def regressor(self, s: MotionSignals) -> np.ndarray:
+        self._check_n(s)
+        sgn = self.sign(s.qd)
+        return diagonal_regressor([sgn, sgn * np.abs(self._load(s))])

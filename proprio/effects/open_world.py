@@ -15,12 +15,16 @@ class                 place   contribution to the measured τ [N·m]            
                               routed across joint j+1 twists with it and loads joint j
 ``NeighbourDrag``     link    ``c_j tanh(q̇_j+1/v_s)``: cables crossing joint j+1 drag   ``qd_<j+1>``
                               on link j when joint j+1 turns
+``ConfigurationTorque`` link   ``k_j (q_j − q_0,j) + c_j sin q_j``: a gravity-             ``q_<j>``
+                              compensation spring and a cable's torque in the joint's
+                              own angle — position, not history
 ==================== ======= ======================================================== ===========================
 
-All four are linear in their fitted parameters (their ``regressor`` is exact). Link-side ones depend on q and q̇
+All five are linear in their fitted parameters (their ``regressor`` is exact). Link-side ones depend on q and q̇
 only (the plugin contract for the twin's drive). Three of them couple neighbouring joints, which no library effect
-does (each acts on its own joint); a spring in the joint's *own* angle would not be out of the library: the Dahl
-hysteresis with a long saturation travel is locally exactly such a spring.
+does (each acts on its own joint). A spring in the joint's *own* angle (``ConfigurationTorque``) is locally what the
+Dahl hysteresis with a long saturation travel looks like along one stroke; the diagnosis names a reversal effect only
+when it explains more than a configuration-only torque does (:mod:`proprio.diagnosis.candidates.configuration`).
 """
 from __future__ import annotations
 
@@ -31,7 +35,7 @@ from proprio.effects.base import INF, TINY, JointEffect, diagonal_regressor
 from proprio.effects.friction import SmoothFriction
 from proprio.signals import MotionSignals
 
-__all__ = ["TorqueCrossTalk", "PositionFriction", "CableSpring", "NeighbourDrag"]
+__all__ = ["TorqueCrossTalk", "PositionFriction", "CableSpring", "NeighbourDrag", "ConfigurationTorque"]
 
 
 def _next_joint(x: np.ndarray) -> np.ndarray:
@@ -132,3 +136,22 @@ class NeighbourDrag(SmoothFriction):
     def regressor(self, s: MotionSignals) -> np.ndarray:
         self._check_n(s)
         return diagonal_regressor([self._column(s)])
+
+
+class ConfigurationTorque(JointEffect):
+    """``k_j (q_j − q_0,j) + c_j sin q_j`` [N·m]: a gravity-compensation spring (stiffness ``spring`` k [N·m/rad] about
+    ``reference`` q_0 [rad], a setting) and a cable-like torque (``cable`` c [N·m]) in the joint's own angle — a torque
+    of the configuration alone, no history."""
+    name = "configuration_torque"
+    place = "link"
+    linear = True
+    parameters = {"spring": (0.0, -INF, INF), "cable": (0.0, -INF, INF)}
+    settings = {"reference": (0.0, -INF, INF)}
+
+    def torque(self, s: MotionSignals, rng: np.random.Generator | None = None) -> np.ndarray:
+        self._check_n(s)
+        return self.spring * (s.q - self.reference) + self.cable * np.sin(s.q)
+
+    def regressor(self, s: MotionSignals) -> np.ndarray:
+        self._check_n(s)
+        return diagonal_regressor([s.q - self.reference, np.sin(s.q)])

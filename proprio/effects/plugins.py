@@ -53,7 +53,7 @@ PLUGIN_PLACES = ("link", "sensor")
 ENTRY_POINT_GROUP = "proprio.effects"
 ALLOW_ENV = "PROPRIO_ALLOW_PLUGINS"
 BUILTIN_PLUGINS = tuple(f"proprio.effects.open_world:{c}" for c in (
-    "TorqueCrossTalk", "PositionFriction", "CableSpring", "NeighbourDrag"))
+    "TorqueCrossTalk", "PositionFriction", "CableSpring", "NeighbourDrag", "ConfigurationTorque"))
 
 _CLASSES: dict[str, type[JointEffect]] = {}      # plugin path → class, once resolved or registered
 

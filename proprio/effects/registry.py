@@ -7,7 +7,7 @@ from __future__ import annotations
 from proprio.effects.base import JointEffect
 from proprio.effects.dahl import PreSliding
 from proprio.effects.drive import Elasticity
-from proprio.effects.friction import Stribeck, ViscousCoulomb
+from proprio.effects.friction import LoadFriction, Stribeck, ViscousCoulomb
 from proprio.effects.hysteresis import Hysteresis, LostMotion
 from proprio.effects.sensor import EncoderNoise, Ripple, SensorOffsetGain, TorqueNoise
 from proprio.effects.time_varying import FrictionWarmup, OffsetDrift
@@ -16,4 +16,4 @@ __all__ = ["EFFECTS"]
 
 EFFECTS: dict[str, type[JointEffect]] = {cls.name: cls for cls in (
     ViscousCoulomb, Stribeck, Hysteresis, LostMotion, Ripple, SensorOffsetGain, TorqueNoise, EncoderNoise, Elasticity,
-    OffsetDrift, FrictionWarmup, PreSliding)}
+    OffsetDrift, FrictionWarmup, PreSliding, LoadFriction)}

@@ -177,8 +177,9 @@ def generate_case_data(case: BenchmarkCase, robot: RobotDescription | None = Non
     for k in range(3, 3 + len(motions)) if motions else range(3):
         t, q, qd, qdd, seg = motions[k - 3] if motions else rfma_like_motion(robot, case.seed + 7919 * k,
                                                                               case.duration_s)
-        s = MotionSignals(t + _session(case, k), q, qd, qdd)          # effects see the session clock
         tau = inverse_dynamics(data_robot, q, qd, qdd)
+        # effects see the session clock; a load-dependent friction the rigid-body torque as its load
+        s = MotionSignals(t + _session(case, k), q, qd, qdd, tau)
         for name, eff in effects.items():          # link-side effects and plugins (q, q̇ only, as in the twin's drive)
             if eff.place == "link":
                 tau = tau + eff.torque(s)

@@ -34,11 +34,16 @@ TIME_TYPES = ("offset_drift", "friction_warmup", "offset_step")   # time-varying
 SESSION_S = (0.0, 25.0, 50.0)    # s, session time of the 2 training and the held-out recording (offline)
 TWIN_SESSION_S = (0.0, 35.0, 70.0)   # s, the same through the twin (≈30 s recordings)
 EXTRA_TYPES = ("rigid_body", "payload", "signal_lag")
+LATER_TYPES = ("load_friction",)
+"""Kinds added after the case lists were fixed: their cases draw their seeds from their own stream
+(:func:`_later_cases`), so adding them moves no other case, and they are never drawn as a null case's modelled
+effect."""
 STATIC_EFFECTS = tuple(k for k, cls in EFFECTS.items() if not cls.time_varying)   # time-varying: time_varying_cases
-EFFECT_TYPES = STATIC_EFFECTS + EXTRA_TYPES
-# twin mode: every effect of the shipped iiwa14_twin.yaml, plus the payload (TwinConfig.with_payload)
+EFFECT_TYPES = tuple(k for k in STATIC_EFFECTS if k not in LATER_TYPES) + EXTRA_TYPES + LATER_TYPES
+# twin mode: every effect of the shipped iiwa14_twin.yaml, plus the payload (TwinConfig.with_payload) and the
+# load-dependent friction (off in the shipped twin)
 TWIN_EFFECT_TYPES = ("viscous_coulomb", "hysteresis", "lost_motion", "ripple", "sensor_offset_gain", "torque_noise",
-                     "encoder_noise", "payload")
+                     "encoder_noise", "payload", "load_friction")
 # out-of-library effects, reached only through their plugin paths: short name → (plugin path, joints (0-based) the
 # effect may act on, the hint signal of joint j as a function of j: "tau_<k>", "q_<k>", "qd_<k>" with 1-based k)
 _OW = "proprio.effects.open_world"
@@ -47,6 +52,8 @@ OPEN_WORLD_TYPES: dict[str, tuple[str, tuple[int, ...], Any]] = {
     "position_friction": (f"{_OW}:PositionFriction", (0, 1, 2, 3, 4, 5, 6), lambda j: f"q_{j + 1}"),
     "cable_spring": (f"{_OW}:CableSpring", (0,), lambda j: f"q_{j + 2}"),      # joint 1: no gravity term
     "neighbour_drag": (f"{_OW}:NeighbourDrag", (0, 1, 2, 3, 4, 5), lambda j: f"qd_{j + 2}"),
+    # a spring on joint j and a cable's sin q on joint j + 2 (two joints; last: no other case moves)
+    "spring_cable": (f"{_OW}:ConfigurationTorque", (0, 2, 4), lambda j: f"q_{j + 1}"),
 }
 
 
@@ -122,6 +129,10 @@ def _draw_open(kind: str, n: int, mag: float, joint: int, rng: np.random.Generat
         return {"stiffness": one(mag * rng.uniform(0.5, 1.0)), "reference": rng.uniform(-0.3, 0.3, n)}
     if name == "NeighbourDrag":                     # 0.3–0.6 N·m when the next joint turns
         return {"drag": one(sign * mag * rng.uniform(0.3, 0.6))}
+    if name == "ConfigurationTorque":               # 1–2 N·m/rad spring on joint j, 0.5–1 N·m sin q on joint j+2
+        two = np.arange(n) == joint + 2
+        return {"spring": one(mag * rng.uniform(1.0, 2.0)), "reference": rng.uniform(-0.3, 0.3, n),
+                "cable": np.where(two, sign * mag * rng.uniform(0.5, 1.0), 0.0)}
     raise ValueError(f"unknown out-of-library benchmark effect {kind!r}")
 
 
@@ -133,6 +144,8 @@ def _draw(kind: str, n: int, mag: float, rng: np.random.Generator, joint: int = 
     u = lambda a, b: rng.uniform(a, b, n)  # noqa: E731
     if kind == "viscous_coulomb":
         return {"viscous": mag * u(0.10, 0.37), "coulomb": mag * u(0.03, 0.32)}
+    if kind == "load_friction":                  # F_c0 0.03–0.15 N·m + 1–3 % of |τ_J| (Wolf & Iskandar: a few %)
+        return {"coulomb": mag * u(0.03, 0.15), "load_gain": np.minimum(mag * u(0.01, 0.03), 0.2)}
     if kind == "stribeck":
         return {"static": mag * u(0.15, 0.45), "stribeck_velocity": u(0.02, 0.08)}
     if kind == "hysteresis":
@@ -181,10 +194,13 @@ def make_cases(quick: bool = False, seed: int = 0, twin: bool = False) -> list[B
     mags = (1.0,) if quick else (0.5, 1.0, 2.0)
     cases = []
     for kind in EFFECT_TYPES:
+        if kind in LATER_TYPES:
+            continue
         for m in mags:
             s = int(rng.integers(1 << 30))
             cases.append(BenchmarkCase(f"{kind}@{m:g}", (kind,), m, s))
-    library = [k for k in STATIC_EFFECTS if k not in ("torque_noise", "encoder_noise", "elasticity")]
+    cases += _later_cases(seed, "", (0.5, 1.0) if quick else mags, False)
+    library = [k for k in STATIC_EFFECTS if k not in ("torque_noise", "encoder_noise", "elasticity") + LATER_TYPES]
     for k in range(2 if quick else 6):
         present = tuple(sorted(rng.choice(library, size=k % 3, replace=False))) if k else ()
         cases.append(BenchmarkCase(f"null#{k}" + (f"({'+'.join(present)})" if present else ""), (), 1.0,
@@ -194,6 +210,14 @@ def make_cases(quick: bool = False, seed: int = 0, twin: bool = False) -> list[B
     for a, b in pairs[:1 if quick else len(pairs)]:
         cases.append(BenchmarkCase(f"{a}+{b}", (a, b), 1.0, int(rng.integers(1 << 30))))
     return cases + extra
+
+
+def _later_cases(seed: int, prefix: str, mags: tuple[float, ...], twin: bool) -> list[BenchmarkCase]:
+    """The cases of :data:`LATER_TYPES` at magnitudes ``mags`` (at least two: a kind is withheld at two magnitudes
+    even in the quick lists), seeds from their own stream."""
+    rng = np.random.default_rng([seed, 39])
+    return [BenchmarkCase(f"{prefix}{kind}@{m:g}", (kind,), m, int(rng.integers(1 << 30)), twin=twin)
+            for kind in LATER_TYPES for m in mags]
 
 
 def open_world_cases(quick: bool = False, seed: int = 0, twin: bool = False) -> list[BenchmarkCase]:
@@ -234,9 +258,12 @@ def _twin_cases(quick: bool, seed: int) -> list[BenchmarkCase]:
     kinds = ("viscous_coulomb", "hysteresis", "sensor_offset_gain", "payload") if quick else TWIN_EFFECT_TYPES
     cases = []
     for kind in kinds:
+        if kind in LATER_TYPES:
+            continue
         for m in (1.0,) if quick else mags:
             cases.append(BenchmarkCase(f"twin:{kind}@{m:g}", (kind,), m, int(rng.integers(1 << 30)), twin=True))
-    library = [k for k in TWIN_EFFECT_TYPES if k not in ("payload", "torque_noise", "encoder_noise")]
+    cases += _later_cases(seed, "twin:", (0.5, 1.0) if quick else mags, True)
+    library = [k for k in TWIN_EFFECT_TYPES if k not in ("payload", "torque_noise", "encoder_noise") + LATER_TYPES]
     for k in range(1 if quick else 4):
         present = tuple(sorted(rng.choice(library, size=k % 3, replace=False))) if k else ()
         cases.append(BenchmarkCase(f"twin:null#{k}" + (f"({'+'.join(present)})" if present else ""), (), 1.0,

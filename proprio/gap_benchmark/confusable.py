@@ -28,10 +28,12 @@ The model is ``iiwa14_identified`` without friction + the background noise.
   motion of the family separates is said so (``experiments[..]["decides"]`` false) and not recorded.
 
 The truth's expected name (:func:`proprio.gap_benchmark.cases.expected_name`): on a link-side torque sensor
-(the iiwa's) the drive's pre-sliding friction is, in τ_J, the Dahl law the diagnosis offers as the gauge's
-``hysteresis`` (:data:`proprio.diagnosis.candidates.drive.DRIVE_ONLY`), so that is the right name for it; a
-load-dependent friction (a direction-flipping level that grows with the transmitted torque) is the Dahl law with a
-``load_gain``: the library's ``hysteresis`` with a short travel (the library has no other load-dependent friction law).
+(the iiwa's) the drive's pre-sliding friction is, in τ_J, the Dahl law the diagnosis offers as the gauge's ``hysteresis``
+(:data:`proprio.diagnosis.candidates.drive.DRIVE_ONLY`), so that is the right name for it; a load-dependent friction
+(a direction-flipping level that grows with the transmitted torque) is the Dahl law with a ``load_gain``: the
+library's ``hysteresis`` with a short travel. (The library's own ``load_friction`` — ``(F_c0 + k|τ_J|) sgn_s(q̇)``,
+:mod:`proprio.friction_law` — is not among this family's candidates: the pair tests the loop's load gain against a
+sensor gain error; the load-dependent friction cases are in the offline, twin and drive families.)
 """
 from __future__ import annotations
 

@@ -18,7 +18,9 @@ block has ``(1 − m)`` × the arm's value; ``coupled_motor_friction`` — the s
 brake inertia a motor datasheet leaves out; the plant never loses the model's part, which keeps the explicit friction
 stable at 1 ms in the floor's data too); ``presliding`` — the arm's drives add pre-sliding friction
 (:class:`proprio.effects.PreSliding`, level ``m`` × 0.3–0.8 N·m, turning over within 0.2–1° of travel), applied by
-the twin's drive per step. Null cases: the model has everything. Each at 100 Hz (host stamps with σ = 1 ms jitter,
+the twin's drive per step; ``load_friction`` — the arm's gears add load-dependent Coulomb friction
+(:class:`proprio.effects.LoadFriction`, ``m`` × (0.03–0.15 N·m + 1–3 % of the joint's transmitted torque)), applied
+by the twin's drive per step on the joint's own torque (also on the coupled joints). Null cases: the model has everything. Each at 100 Hz (host stamps with σ = 1 ms jitter,
 0.2 % lost samples) and at 1 kHz (σ = 0.1 ms, 0.2 %) — :data:`DRIVE_LOGGERS`. The Recordings say
 ``meta.tau_kind: drive``. Scored by :func:`proprio.gap_benchmark.run.summarise` like every single-effect case (top-1
 is the withheld effect; a null case names nothing), and as its own family line.
@@ -34,11 +36,12 @@ import numpy as np
 from proprio.gap_benchmark.recordings import ENCODER, CaseData, twin_recordings
 from proprio.gap_benchmark.cases import BenchmarkCase, _draw
 from proprio.drive_description import drive_from_dict
-from proprio.effects import EFFECTS, PreSliding
+from proprio.effects import EFFECTS, LoadFriction, PreSliding
 
 __all__ = ["DRIVE_TYPES", "SHARED_MOTOR", "DRIVE_LOGGERS", "drive_cases", "drive_case_config", "generate_drive_case_data"]
 
-DRIVE_TYPES = ("rotor_inertia", "presliding", "motor_friction", "coupled_motor_friction", "drive_offset")
+DRIVE_TYPES = ("rotor_inertia", "presliding", "motor_friction", "coupled_motor_friction", "drive_offset",
+               "load_friction")
 SHARED_MOTOR = 6
 """The motor of the ``coupled_motor_friction`` cases that turns with joints ``SHARED_MOTOR − 1`` and ``SHARED_MOTOR``
 (0-based): the iiwa's last motor with its last two joints."""
@@ -57,7 +60,7 @@ def drive_cases(quick: bool = False, seed: int = 0) -> list[BenchmarkCase]:
     cases = []
     for rate, logger in DRIVE_LOGGERS.items():
         for kind in DRIVE_TYPES:
-            for m in (1.0,) if quick else (0.5, 1.0):
+            for m in (0.5, 1.0) if not quick or kind == "load_friction" else (1.0,):
                 name = f"drive:{kind}@{m:g}/{rate:g}Hz"
                 cases.append(BenchmarkCase(name, (kind,), m, _case_seed(name, seed), twin=True, logger=logger))
         for k in range(1 if quick else 2):
@@ -88,6 +91,7 @@ def drive_case_config(case: BenchmarkCase, omit_withheld: bool = False) -> tuple
     arm = {"rotor_inertia": motor.motor_inertia * u(0.7, 1.3), "viscous": motor.motor_viscous * u(0.7, 1.3),
            "coulomb": motor.motor_coulomb * u(0.7, 1.3), "offset": u(0.2, 0.9) * rng.choice([-1.0, 1.0], n)}
     presliding = _draw("presliding", n, case.magnitude, rng)
+    load = _draw("load_friction", n, case.magnitude, np.random.default_rng([case.seed, 39]))   # own stream
     noise = u(0.1, 0.3)
     short = {"rotor_inertia": ("rotor_inertia",), "motor_friction": ("viscous", "coulomb"),
              "coupled_motor_friction": ("viscous", "coulomb"), "drive_offset": ("offset",)}
@@ -117,6 +121,8 @@ def drive_case_config(case: BenchmarkCase, omit_withheld: bool = False) -> tuple
     effects = [link, EFFECTS["torque_noise"](n, std=noise), EFFECTS["encoder_noise"](n, **ENCODER)]
     if "presliding" in case.withheld and not omit_withheld:
         effects.append(PreSliding(n, **presliding))
+    if "load_friction" in case.withheld and not omit_withheld:
+        effects.append(LoadFriction(n, **load))
     config = dataclasses.replace(base, robot=robot, motor=motor_from_description(robot),
                                  motor_coupling=coupling_from_description(robot), effects=effects,
                                  name="iiwa14_drive_arm")

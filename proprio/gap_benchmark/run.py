@@ -83,11 +83,13 @@ def run_case(case: BenchmarkCase) -> CaseResult:
     sse0 = float((e_h ** 2).sum())
     base = lambda nm: "sensor_offset_gain" if nm in ("sensor_offset", "sensor_gain") else nm  # noqa: E731
     pred = 0.0
-    if att.steps:
+    seq = att.data_path + att.steps            # every step, the data-path corrections first (as selected)
+    raw = att.rmse_before if att.rmse_raw is None else att.rmse_raw
+    if seq:
         # the diagnosis' own prediction: held-out shrinkage after the last step attributed to its top-1 effect
-        first = base(att.steps[0].name)
-        k = max(i for i, st in enumerate(att.steps) if base(st.name) == first)
-        pred = 1.0 - float((att.steps[k].rmse_after ** 2).sum()) / float((att.rmse_before ** 2).sum())
+        first = base(seq[0].name)
+        k = max(i for i, st in enumerate(seq) if base(st.name) == first)
+        pred = 1.0 - float((seq[k].rmse_after ** 2).sum()) / float((raw ** 2).sum())
     # measured: what the model leaves on the same held-out data made without the withheld effects (noise, the
     # modelled effects and the processing error of the same measured channels stay)
     meas, floor_rms = 0.0, float("nan")
@@ -108,7 +110,7 @@ def run_case(case: BenchmarkCase) -> CaseResult:
             top.append(base(name))
     tv = att.time_variation
     return CaseResult(case, top[:3], att.selected, pred, meas, time.perf_counter() - t0,
-                      params={s.name: float(s.gain) for s in att.steps},
+                      params={s.name: float(s.gain) for s in seq},
                       processing=att.processing_findings,
                       final_rms=float(np.sqrt(np.mean(final ** 2))), floor_rms=floor_rms,
                       structured=not att.residual.white,

@@ -7,6 +7,11 @@ The normal equations are accumulated from the regressor buffer one joint row-blo
 contiguous), so ``K_b`` is never stacked; the solve is a column-equilibrated Cholesky with one step of iterative
 refinement on the explicit residual.
 
+**Extra unknowns** per joint after the base parameters, in this order: a constant torque offset ``τ_0`` [N·m]
+(``offsets``) and the load gain ``k`` [-] of load-dependent Coulomb friction (``load_friction``: the column
+``sgn_s(q̇_j) |τ_j|`` of :func:`proprio.friction_law.load_coulomb` with the *measured* torque as the load, the link
+torque the joint transmits; its no-load level ``F_c0`` is the regressor's Coulomb parameter).
+
 Data checks run before any fit: NaN/inf, too few samples, joints that never move, and a rank-deficient ``K_b``
 raise :class:`IdentificationError` naming the base parameters that cannot be identified and why.
 """
@@ -42,7 +47,21 @@ class NormalEquations:
     rhs: np.ndarray           # [r (+n)]
     buffer: np.ndarray        # regressor buffer [n, p, N]
     tau: np.ndarray           # [N, n]
-    offsets: bool             # the last n unknowns are per-joint torque offsets [N·m]
+    extras: tuple[str, ...]   # the per-joint extra unknowns after the base parameters ("offset", "load_gain")
+    columns: np.ndarray       # [len(extras), N, n] their columns (joint i's column acts in joint i's rows)
+
+    @property
+    def offsets(self) -> bool:
+        return "offset" in self.extras
+
+
+def extra_columns(extras: tuple[str, ...], qd: np.ndarray, tau: np.ndarray,
+                  coulomb_velocity_scale: float | None) -> np.ndarray:
+    """The columns ``[len(extras), N, n]`` of the extra unknowns (module docstring): ones for ``offset``,
+    ``sgn_s(q̇) |τ|`` for ``load_gain``."""
+    cols = {"offset": lambda: np.ones_like(tau),
+            "load_gain": lambda: friction_law.load_coulomb(qd, 0.0, 1.0, tau, coulomb_velocity_scale)}
+    return np.stack([cols[k]() for k in extras]) if extras else np.zeros((0,) + tau.shape)
 
 
 def _base_columns(base: BaseParameters, i: int) -> tuple[np.ndarray, np.ndarray]:
@@ -51,13 +70,20 @@ def _base_columns(base: BaseParameters, i: int) -> tuple[np.ndarray, np.ndarray]
     return sel, base.independent[sel] - PARAMS_PER_JOINT * i
 
 
+def _extras(offsets: bool, load_friction: bool) -> tuple[str, ...]:
+    return (("offset",) if offsets else ()) + (("load_gain",) if load_friction else ())
+
+
 def normal_equations(desc: RobotDescription, base: BaseParameters, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
                      tau: np.ndarray, coulomb_velocity_scale: float | None, weights: np.ndarray | None = None,
-                     offsets: bool = False) -> NormalEquations:
-    """Accumulate the (weighted, per-joint ``weights [n]``) normal equations of ``τ = K_b φ_b (+ τ_0)``."""
+                     offsets: bool = False, load_friction: bool = False) -> NormalEquations:
+    """Accumulate the (weighted, per-joint ``weights [n]``) normal equations of ``τ = K_b φ_b (+ τ_0 + k sgn_s(q̇)|τ|)``
+    (the extra unknowns of the module docstring)."""
     buf = regressor_buffer(desc, q, qd, qdd, coulomb_velocity_scale)
     r, n = base.n_base, desc.n
-    m = r + n if offsets else r
+    extras = _extras(offsets, load_friction)
+    xc = extra_columns(extras, qd, tau, coulomb_velocity_scale)
+    m = r + n * len(extras)
     gram, rhs = np.zeros((m, m)), np.zeros(m)
     w = np.ones(n) if weights is None else np.asarray(weights, dtype=float)
     for i in range(n):
@@ -65,11 +91,13 @@ def normal_equations(desc: RobotDescription, base: BaseParameters, q: np.ndarray
         k_i = buf[i, PARAMS_PER_JOINT * i:][cols]          # [r_i, N] rows of K_bᵀ for joint i
         gram[np.ix_(sel, sel)] += w[i] * (k_i @ k_i.T)
         rhs[sel] += w[i] * (k_i @ tau[:, i])
-        if offsets:                                         # a column of ones in joint i's rows
-            gram[sel, r + i] = gram[r + i, sel] = w[i] * k_i.sum(axis=1)
-            gram[r + i, r + i] = w[i] * tau.shape[0]
-            rhs[r + i] = w[i] * tau[:, i].sum()
-    return NormalEquations(gram, rhs, buf, tau, offsets)
+        at = r + n * np.arange(len(extras)) + i             # joint i's extra unknowns
+        x_i = xc[:, :, i]                                    # [len(extras), N]: columns in joint i's rows
+        gram[np.ix_(sel, at)] = w[i] * (k_i @ x_i.T)
+        gram[np.ix_(at, sel)] = gram[np.ix_(sel, at)].T
+        gram[np.ix_(at, at)] = w[i] * (x_i @ x_i.T)
+        rhs[at] = w[i] * (x_i @ tau[:, i])
+    return NormalEquations(gram, rhs, buf, tau, extras, xc)
 
 
 def _predict_base(ne: NormalEquations, base: BaseParameters, phi_b: np.ndarray) -> np.ndarray:
@@ -78,8 +106,9 @@ def _predict_base(ne: NormalEquations, base: BaseParameters, phi_b: np.ndarray) 
     for i in range(n):
         sel, cols = _base_columns(base, i)
         out[:, i] = phi_b[sel] @ ne.buffer[i, PARAMS_PER_JOINT * i:][cols]
-    if ne.offsets:
-        out += phi_b[base.n_base:]
+    r = base.n_base
+    for b in range(len(ne.extras)):
+        out += phi_b[r + n * b:r + n * (b + 1)] * ne.columns[b]
     return out
 
 
@@ -88,8 +117,8 @@ def _kt_times(ne: NormalEquations, base: BaseParameters, resid: np.ndarray, weig
     for i in range(ne.buffer.shape[0]):
         sel, cols = _base_columns(base, i)
         out[sel] += weights[i] * (ne.buffer[i, PARAMS_PER_JOINT * i:][cols] @ resid[:, i])
-        if ne.offsets:
-            out[base.n_base + i] = weights[i] * resid[:, i].sum()
+        for b in range(len(ne.extras)):
+            out[base.n_base + ne.buffer.shape[0] * b + i] = weights[i] * (ne.columns[b, :, i] @ resid[:, i])
     return out
 
 
@@ -117,7 +146,7 @@ def check_data(desc: RobotDescription, base: BaseParameters, q: np.ndarray, qd: 
             f"joint(s) {', '.join(str(j + 1) for j in still)} never move (position range < {MOTION_THRESHOLD} rad); "
             f"unidentifiable: {', '.join(hit)}")
     if gram is not None:
-        names = list(base.names) + [f"offset{j + 1}" for j in range(gram.shape[0] - base.n_base)]
+        names = list(base.names) + [f"extra{j + 1}" for j in range(gram.shape[0] - base.n_base)]
         d = np.sqrt(np.diag(gram))
         if np.any(d <= 1e-10 * d.max()):
             zero = [names[k] for k in np.flatnonzero(d <= 1e-10 * d.max())]
@@ -164,55 +193,57 @@ def _full_set(base: BaseParameters, phi_b: np.ndarray, prior: np.ndarray) -> np.
     return prior + k.T @ np.linalg.solve(k @ k.T, phi_b[:base.n_base] - k @ prior)
 
 
-def _prepare(desc, q, qd, qdd, tau, base, coulomb_velocity_scale, offsets):
+def _prepare(desc, q, qd, qdd, tau, base, coulomb_velocity_scale, offsets, load_friction=False):
     q, qd, qdd, tau = (np.asarray(a, dtype=float) for a in (q, qd, qdd, tau))
     base = base or base_parameters(desc)
     if base.robot != desc.name or base.n_standard != n_parameters(desc):
         raise ValueError(f"base parameters were computed for {base.robot!r}, not for {desc.name!r}")
     check_data(desc, base, q, qd, qdd, tau)
-    ne = normal_equations(desc, base, q, qd, qdd, tau, coulomb_velocity_scale, offsets=offsets)
+    ne = normal_equations(desc, base, q, qd, qdd, tau, coulomb_velocity_scale, offsets=offsets,
+                          load_friction=load_friction)
     check_data(desc, base, q, qd, qdd, tau, ne.gram)
     return (q, qd, qdd, tau), base, ne
 
 
-def _model(desc, base, phi_b, pct, phi, method, scale, data, consistent):
+def _model(desc, base, phi_b, pct, phi, method, scale, data, consistent, extras):
     scale = float(friction_law.smoothing(scale))          # the model records the smoothing it was fitted with
     return IdentifiedModel(desc, base, phi_b, pct, phi, method, scale, data_digest(*data), data[0].shape[0],
-                           consistent)
+                           consistent, extras=tuple(extras))
 
 
 def ols(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, tau: np.ndarray,
         base: BaseParameters | None = None, coulomb_velocity_scale: float | None = None,
-        offsets: bool = False) -> IdentifiedModel:
+        offsets: bool = False, load_friction: bool = False) -> IdentifiedModel:
     """Ordinary least squares ``φ_b = (K_bᵀK_b)⁻¹K_bᵀτ`` (eq. 4.22) with σ% (eq. 4.24–4.27).
 
     ``desc`` gives the kinematics and the a-priori parameters that fill the unidentifiable directions of the full
     set. ``offsets`` adds a constant torque offset per joint [N·m] (a torque-sensor bias, not in the thesis'
-    model) as ``n`` extra unknowns after the base parameters."""
-    data, base, ne = _prepare(desc, q, qd, qdd, tau, base, coulomb_velocity_scale, offsets)
+    model) as ``n`` extra unknowns after the base parameters; ``load_friction`` the load gain of load-dependent
+    Coulomb friction per joint (module docstring)."""
+    data, base, ne = _prepare(desc, q, qd, qdd, tau, base, coulomb_velocity_scale, offsets, load_friction)
     ones = np.ones(desc.n)
     phi_b = _least_squares(ne, base, ones)
     pct, _ = _sigma_pct(ne, base, phi_b, ones)
     phi = _full_set(base, phi_b, standard_parameters(desc))
-    return _model(desc, base, phi_b, pct, phi, "ols", coulomb_velocity_scale, data, False)
+    return _model(desc, base, phi_b, pct, phi, "ols", coulomb_velocity_scale, data, False, ne.extras)
 
 
 def wls(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, tau: np.ndarray,
         base: BaseParameters | None = None, coulomb_velocity_scale: float | None = None,
-        offsets: bool = False) -> IdentifiedModel:
+        offsets: bool = False, load_friction: bool = False) -> IdentifiedModel:
     """Weighted least squares (Gautier): each joint's equations weighted by ``1/σ_i²``, ``σ_i`` the joint's OLS
     residual standard deviation; σ% from the weighted covariance. Arguments as :func:`ols`."""
-    data, base, ne = _prepare(desc, q, qd, qdd, tau, base, coulomb_velocity_scale, offsets)
+    data, base, ne = _prepare(desc, q, qd, qdd, tau, base, coulomb_velocity_scale, offsets, load_friction)
     ones = np.ones(desc.n)
     resid = ne.tau - _predict_base(ne, base, _least_squares(ne, base, ones))
     dof = max(resid.shape[0] - ne.rhs.size / desc.n, 1.0)
     var = np.sum(resid ** 2, axis=0) / dof
     weights = 1.0 / np.maximum(var, 1e-12 * max(var.max(), 1e-300))
-    ne_w = normal_equations(desc, base, *data, coulomb_velocity_scale, weights, offsets)
+    ne_w = normal_equations(desc, base, *data, coulomb_velocity_scale, weights, offsets, load_friction)
     phi_b = _least_squares(ne_w, base, weights)
     pct, _ = _sigma_pct(ne_w, base, phi_b, weights)
     phi = _full_set(base, phi_b, standard_parameters(desc))
-    return _model(desc, base, phi_b, pct, phi, "wls", coulomb_velocity_scale, data, False)
+    return _model(desc, base, phi_b, pct, phi, "wls", coulomb_velocity_scale, data, False, ne.extras)
 
 
 def _pseudo_inertia(phi_link):
@@ -227,7 +258,7 @@ def _pseudo_inertia(phi_link):
 
 def sdp(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, tau: np.ndarray,
         base: BaseParameters | None = None, coulomb_velocity_scale: float | None = None, offsets: bool = False,
-        regularization: float = 1e-4, min_mass: float = 1e-3) -> IdentifiedModel:
+        regularization: float = 1e-4, min_mass: float = 1e-3, load_friction: bool = False) -> IdentifiedModel:
     """Physically consistent least squares as an SDP (pseudo-inertia LMI of Wensing et al. 2018; cf. Stürz 2017).
 
     ``min ‖R(Kφ − φ̂_b)‖ + λ‖φ − φ_prior‖`` over the full standard set ``φ`` (and the offsets) subject to every
@@ -239,7 +270,7 @@ def sdp(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, 
     """
     from pydrake.solvers import ClarabelSolver, MathematicalProgram
 
-    data, base, ne = _prepare(desc, q, qd, qdd, tau, base, coulomb_velocity_scale, offsets)
+    data, base, ne = _prepare(desc, q, qd, qdd, tau, base, coulomb_velocity_scale, offsets, load_friction)
     ones = np.ones(desc.n)
     phi_ls = _least_squares(ne, base, ones)
     prior = standard_parameters(desc)
@@ -260,6 +291,9 @@ def sdp(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, 
         prog.AddBoundingBoxConstraint(0.0, np.inf, x[PARAMS_PER_JOINT * j + 10:PARAMS_PER_JOINT * j + 12])
     if p > PARAMS_PER_JOINT * desc.n:                                 # drive: I_a, F_v,m, F_c,m ≥ 0
         prog.AddBoundingBoxConstraint(0.0, np.inf, x[PARAMS_PER_JOINT * desc.n:p])
+    if "load_gain" in ne.extras:                                      # load gains k ≥ 0 (dissipative)
+        at = p + desc.n * ne.extras.index("load_gain")
+        prog.AddBoundingBoxConstraint(0.0, np.inf, x[at:at + desc.n])
     result = ClarabelSolver().Solve(prog)
     if not result.is_success():
         raise IdentificationError(f"SDP failed ({result.get_solution_result()}); the data may be inconsistent with "
@@ -267,12 +301,13 @@ def sdp(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, 
     sol = result.GetSolution(x)
     phi_val = sol[:p]
     polished = _full_set(base, phi_ls, phi_val)                       # exact LS optimum if it stays feasible
-    if _consistent(polished, desc.n, min_mass):
+    k_ls = phi_ls[r + desc.n * ne.extras.index("load_gain"):][:desc.n] if "load_gain" in ne.extras else np.zeros(0)
+    if _consistent(polished, desc.n, min_mass) and np.all(k_ls >= 0.0):
         phi_val, sol[p:] = polished, phi_ls[r:]
     phi_val = _clip_second_moments(phi_val, desc.n)
     phi_b = np.concatenate([base.to_base(phi_val), sol[p:]])
     pct, _ = _sigma_pct(ne, base, phi_b, ones)
-    return _model(desc, base, phi_b, pct, phi_val, "sdp", coulomb_velocity_scale, data, True)
+    return _model(desc, base, phi_b, pct, phi_val, "sdp", coulomb_velocity_scale, data, True, ne.extras)
 
 
 def _clip_second_moments(phi: np.ndarray, n: int, floor: float = 1e-9) -> np.ndarray:
@@ -314,13 +349,14 @@ def _consistent(phi: np.ndarray, n: int, min_mass: float) -> bool:
 
 def identify(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, tau: np.ndarray,
              method: str = "ols", base: BaseParameters | None = None, coulomb_velocity_scale: float | None = None,
-             offsets: bool = False) -> IdentifiedModel:
-    """Dispatch to :func:`ols`, :func:`wls` or :func:`sdp`."""
+             offsets: bool = False, load_friction: bool = False) -> IdentifiedModel:
+    """Dispatch to :func:`ols`, :func:`wls` or :func:`sdp` (``load_friction``: fit the load gain of load-dependent
+    Coulomb friction, module docstring)."""
     fns = {"ols": ols, "wls": wls, "sdp": sdp}
     if method not in fns:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
     return fns[method](desc, q, qd, qdd, tau, base=base, coulomb_velocity_scale=coulomb_velocity_scale,
-                       offsets=offsets)
+                       offsets=offsets, load_friction=load_friction)
 
 
 def torque_error_table(tau_meas: np.ndarray, tau_pred: np.ndarray, title: str = "") -> tuple[str, dict]:

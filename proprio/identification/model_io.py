@@ -1,10 +1,12 @@
 """The identified rigid-body model: base parameters + a full standard parameter set, saved as one ``.npz``.
 
-File layout (``np.savez``, ``allow_pickle=False``): arrays ``phi_b [r (+n offsets)]``, ``sigma_pct [r]``, ``phi [12n (+3n drive)]``,
+File layout (``np.savez``, ``allow_pickle=False``): arrays ``phi_b [r (+n per extra)]``, ``sigma_pct [r]``, ``phi [12n (+3n drive)]``,
 ``independent [r]``, ``dependent [p−r]``, ``beta [r, p−r]`` and ``meta`` — a JSON string with ``format``,
 ``robot`` (the description's name), ``robot_description`` (its ``proprio-robot/v1`` mapping, so the file rebuilds a
 ``MultibodyPlant`` on its own), ``method``, ``base_names``, ``standard_names``, ``coulomb_velocity_scale``,
-``training_digest`` (sha256 of the training arrays), ``n_train_samples`` and ``physically_consistent``.
+``training_digest`` (sha256 of the training arrays), ``n_train_samples``, ``physically_consistent`` and ``extras``
+(the per-joint unknowns after the base parameters, in order: ``offset`` [N·m], ``load_gain`` [-] of load-dependent
+Coulomb friction; a file without it and ``r + n`` entries holds offsets).
 """
 from __future__ import annotations
 
@@ -19,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from proprio import friction_law
 from proprio.description import RobotDescription, robot_from_dict
 from proprio.io import atomic_path
 from proprio.identification.base_parameters import BaseParameters
@@ -62,23 +65,34 @@ class IdentifiedModel:
     training_digest: str = ""
     n_train_samples: int = 0
     physically_consistent: bool = False
+    extras: tuple[str, ...] = ()       # per-joint unknowns after the base parameters: "offset", "load_gain"
     _geometry: RegressorGeometry | None = field(default=None, repr=False, compare=False)
 
     @property
     def n(self) -> int:
         return self.description.n
 
+    def _extra(self, name: str) -> np.ndarray:
+        """The per-joint block ``name`` of :attr:`extras` in ``phi_b`` (zeros when the fit had none)."""
+        if name not in self.extras:
+            return np.zeros(self.n)
+        at = self.base.n_base + self.n * self.extras.index(name)
+        return self.phi_b[at:at + self.n]
+
     @property
     def offsets(self) -> np.ndarray:
         """Identified per-joint torque offsets [N·m] (zeros when the fit had none)."""
-        extra = self.phi_b[self.base.n_base:]
-        return extra if extra.size else np.zeros(self.n)
+        return self._extra("offset")
+
+    @property
+    def load_gain(self) -> np.ndarray:
+        """Identified load gains [-] of load-dependent Coulomb friction (zeros when the fit had none)."""
+        return self._extra("load_gain")
 
     @property
     def names(self) -> list[str]:
-        """Names of the entries of ``phi_b``: the base parameters, then ``offset<j>`` if offsets were fitted."""
-        extra = self.phi_b.size - self.base.n_base
-        return list(self.base.names) + [f"offset{j + 1}" for j in range(extra)]
+        """Names of the entries of ``phi_b``: the base parameters, then ``offset<j>`` / ``load_gain<j>`` per extra."""
+        return list(self.base.names) + [f"{e}{j + 1}" for e in self.extras for j in range(self.n)]
 
     def torque(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """``τ_RBD [N, n]`` (rigid body + identified friction) [N·m] for ``q, qd, qdd [N, n]`` (or ``[n]``)."""
@@ -90,6 +104,9 @@ class IdentifiedModel:
         full[self.base.independent] = self.phi_b[:self.base.n_base]  # K_b φ_b = Y φ with φ_b in the base slots
         per = PARAMS_PER_JOINT
         tau = np.stack([buf[i, per * i:].T @ full[per * i:] for i in range(self.n)], axis=1) + self.offsets
+        if "load_gain" in self.extras:      # τ = a + k|τ| sgn_s(q̇): solved exactly (proprio.friction_law)
+            sign = friction_law.smooth_sign(np.atleast_2d(qd), self.coulomb_velocity_scale)
+            tau = friction_law.load_from_net(tau, sign, self.load_gain)
         return tau[0] if single else tau
 
     def description_identified(self) -> RobotDescription:
@@ -120,7 +137,7 @@ def save_model(model: IdentifiedModel, path: str | Path) -> Path:
         "method": model.method, "base_names": list(model.base.names),
         "standard_names": list(model.base.standard_names), "coulomb_velocity_scale": model.coulomb_velocity_scale,
         "training_digest": model.training_digest, "n_train_samples": model.n_train_samples,
-        "physically_consistent": model.physically_consistent,
+        "physically_consistent": model.physically_consistent, "extras": list(model.extras),
     }
     with atomic_path(path, suffix=".npz") as tmp:
         with open(tmp, "wb") as fh:
@@ -157,10 +174,15 @@ def load_model(path: str | Path) -> IdentifiedModel:
     desc = robot_from_dict(meta["robot_description"], source=f"{path}:meta.robot_description")
     base = BaseParameters(meta["robot"], arrays["independent"].astype(int), arrays["dependent"].astype(int),
                           arrays["beta"], tuple(meta["standard_names"]), tuple(meta["base_names"]))
-    if arrays["phi_b"].shape not in ((base.n_base,), (base.n_base + desc.n,)) or \
+    n_extra = (arrays["phi_b"].size - base.n_base) // max(desc.n, 1)
+    extras = tuple(meta.get("extras", ["offset"] * n_extra))
+    if not set(extras) <= {"offset", "load_gain"}:
+        raise ModelFileError(f"{path}: meta.extras {list(extras)} are not among 'offset', 'load_gain'")
+    if arrays["phi_b"].shape != (base.n_base + desc.n * len(extras),) or \
             arrays["phi"].shape != (base.n_standard,):
         raise ModelFileError(f"{path}: phi_b/phi shapes {arrays['phi_b'].shape}/{arrays['phi'].shape} do not match "
                              f"{base.n_base} base / {base.n_standard} standard parameters")
     return IdentifiedModel(desc, base, arrays["phi_b"], arrays["sigma_pct"], arrays["phi"], meta["method"],
                            float(meta["coulomb_velocity_scale"]), meta.get("training_digest", ""),
-                           int(meta.get("n_train_samples", 0)), bool(meta.get("physically_consistent", False)))
+                           int(meta.get("n_train_samples", 0)), bool(meta.get("physically_consistent", False)),
+                           extras)

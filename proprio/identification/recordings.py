@@ -66,16 +66,18 @@ def stack_recordings(recs: Sequence[Recording], trim_s: float, config: Condition
 def identify_recordings(train_recs: Sequence[Recording], validate_recs: Sequence[Recording], robot,
                         method: str = "ols", trim_s: float = TRIM_S, offsets: bool = True,
                         coulomb_velocity_scale: float | None = None,
-                        conditioning: ConditioningConfig = ConditioningConfig()):
+                        conditioning: ConditioningConfig = ConditioningConfig(), load_friction: bool = False):
     """Identify ``robot`` (a RobotDescription: kinematics + a-priori inertials) on Recordings and validate on
     others. Returns ``(model, table_text)`` with the Table 4.4-style per-joint MSE/σ on training and validation,
     headed by each recording's conditioning line. ``trim_s`` [s]: dropped at both ends of every recording.
     ``coulomb_velocity_scale`` [rad/s]: the Coulomb smoothing
     (``None``: the library's, :mod:`proprio.friction_law`). A drive-torque arm (``robot.drive.tau_kind == 'drive'``) always
-    fits the constant drive offsets with its drive columns."""
+    fits the constant drive offsets with its drive columns. ``load_friction``: also the load gain of load-dependent
+    Coulomb friction per joint (:mod:`proprio.identification.estimators`)."""
     offsets = offsets or drive_identified(robot)
     train, cond_tr = stack_recordings(train_recs, trim_s, conditioning)
-    model = identify(robot, *train, method, coulomb_velocity_scale=coulomb_velocity_scale, offsets=offsets)
+    model = identify(robot, *train, method, coulomb_velocity_scale=coulomb_velocity_scale, offsets=offsets,
+                     load_friction=load_friction)
     lines = sorted({f"{cs.describe()}" for cs in cond_tr})
     parts = ["\n".join(lines), torque_error_table(train[3], model.torque(*train[:3]), "training (Table 4.4 layout)")[0]]
     if validate_recs:

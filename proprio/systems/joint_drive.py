@@ -35,6 +35,12 @@ session clock, the context time plus ``session_time_s`` [s] (a time-varying fric
 reads it). Pre-sliding friction (:class:`~proprio.effects.PreSliding`) depends on the travel since the last
 reversal: the drive keeps its reversal state as discrete state and applies the per-step form of its law.
 
+**Load-dependent friction** (:class:`~proprio.effects.LoadFriction`, ``(F_c0 + k|τ_load|) sgn_s(q̇)``) needs the
+torque the gear transmits in the step: the drive takes it as the command past the motor's friction,
+``τ_load = τ_m − τ_f,m(q̇)`` (τ_J without the rotor's inertial torque ``B q̈``, the step's result; an input of the
+step, so no algebraic loop). The twin recovers it from the logged net actuation with
+:func:`proprio.friction_law.load_from_net` (:meth:`DriveLaw.transmitted_load`). Rigid drives only.
+
 Either way the plant's net actuation ``u`` satisfies ``τ_J = u + τ_f,link [− B q̈ for the rigid drive]``, and the link
 dynamics give ``τ_J = τ_rbd(q, q̇, q̈) + τ_f,link − Jᵀ f_ext``; the twin recovers the true τ_J from the logged net
 actuation and the motion (:meth:`JointDrive.sensed_torque`).
@@ -79,7 +85,7 @@ from scipy.linalg import lapack
 
 from proprio import friction_law
 from proprio.description import RobotDescription
-from proprio.effects import Elasticity, JointEffect, Motor, PreSliding, Stribeck, ViscousCoulomb
+from proprio.effects import Elasticity, JointEffect, LoadFriction, Motor, PreSliding, Stribeck, ViscousCoulomb
 from proprio.effects.dahl import DahlState
 from proprio.signals import MotionSignals
 
@@ -113,14 +119,20 @@ def reflected_inertia(motor: Motor, coupling: np.ndarray | None = None) -> np.nd
 
 
 def friction_slope(link_effects: list[JointEffect], motor: Motor | None = None,
-                   coupling: np.ndarray | None = None) -> np.ndarray:
+                   coupling: np.ndarray | None = None, max_load: np.ndarray | None = None) -> np.ndarray:
     """Largest ``∂τ_f/∂q̇`` [N·m·s/rad] per joint of the velocity-dependent friction (at q̇ = 0; for other link-side
     effects, e.g. plugins, the central difference ``|∂τ_j/∂q̇_j|`` at q = 0, q̇ = 0 with a 1e-4 rad/s step). A
-    coupled motor's friction (normalised ``coupling`` C) adds the diagonal of ``Cᵀ diag(s_m) C``."""
+    coupled motor's friction (normalised ``coupling`` C) adds the diagonal of ``Cᵀ diag(s_m) C``. A load-dependent
+    friction's level is taken at the load ``max_load`` [N·m] per joint (the joints' effort limits; required then)."""
     slope = 0.0
     for eff in link_effects:
         if isinstance(eff, ViscousCoulomb):
             slope = slope + friction_law.slope_at_rest(eff.viscous, eff.coulomb, eff.smooth_velocity)
+        elif isinstance(eff, LoadFriction):
+            if max_load is None:
+                raise ValueError("friction_slope: load_friction needs max_load (the joints' effort limits)")
+            slope = slope + friction_law.slope_at_rest(0.0, eff.coulomb + eff.load_gain * np.asarray(max_load),
+                                                       eff.smooth_velocity)
         elif isinstance(eff, Stribeck):
             slope = slope + friction_law.slope_at_rest(0.0, eff.static, eff.smooth_velocity)
         else:
@@ -178,6 +190,8 @@ class DriveLaw:
             raise ValueError("JointDrive: drive-torque sensing (drive_offset) needs a rigid drive")
         if coupling is not None and (motor is None or elasticity is not None):
             raise ValueError("JointDrive: a coupled drive needs a motor and a rigid drive (no elasticity)")
+        if elasticity is not None and any(isinstance(e, LoadFriction) for e in link_effects):
+            raise ValueError("JointDrive: load_friction needs a rigid drive (its load is the transmitted torque)")
         self.drive_offset = None if drive_offset is None else np.asarray(drive_offset, dtype=float)
         self.n = n
         self.link_effects = list(link_effects)
@@ -199,15 +213,33 @@ class DriveLaw:
             return self.motor.friction(qd)
         return self.motor.friction(np.asarray(qd) @ self.coupling.T) @ self.coupling
 
-    def link_torque(self, t: np.ndarray, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+    def link_torque(self, t: np.ndarray, q: np.ndarray, qd: np.ndarray, load: np.ndarray | None = None
+                    ) -> np.ndarray:
         """τ_link [N·m] ``[N,n]`` at run times ``t`` [s] ``[N]`` (the effects see the session clock ``t +
         session_time_s``) and states ``q``, ``qd`` ``[N,n]``: the sum of the link-side effects (friction and plugins),
-        evaluated as the drive applies them (q̈ = 0)."""
-        s = MotionSignals(np.asarray(t, dtype=float) + self.session_time_s, q, qd, np.zeros_like(qd))
+        evaluated as the drive applies them (q̈ = 0); ``load`` [N·m] ``[N,n]``: the transmitted torque a
+        load-dependent friction needs (:meth:`transmitted_load`)."""
+        s = MotionSignals(np.asarray(t, dtype=float) + self.session_time_s, q, qd, np.zeros_like(qd), load)
         out = np.zeros_like(qd)
         for eff in self.link_effects:
             out = out + eff.torque(s)
         return out
+
+    def transmitted_load(self, net_actuation: np.ndarray, t: np.ndarray, q: np.ndarray, qd: np.ndarray,
+                         qdd: np.ndarray) -> np.ndarray | None:
+        """The load ``τ_m − τ_f,m(q̇)`` [N·m] ``[N,n]`` the load-dependent frictions saw in each step (module
+        docstring), recovered from the logged net actuation ``f = τ_m − τ_f,m − τ_link`` (plus ``O q̈`` of a coupled
+        rotor inertia) with :func:`proprio.friction_law.load_from_net`; ``None`` without such a friction."""
+        loaded = [e for e in self.link_effects if isinstance(e, LoadFriction)]
+        if not loaded:
+            return None
+        s = MotionSignals(np.asarray(t, dtype=float) + self.session_time_s, q, qd, np.zeros_like(qd))
+        other = sum((e.torque(s) for e in self.link_effects if not isinstance(e, LoadFriction)), np.zeros_like(qd))
+        sign = friction_law.smooth_sign(qd, loaded[0].smooth_velocity)
+        if any(np.any(e.smooth_velocity != loaded[0].smooth_velocity) for e in loaded):
+            raise ValueError("JointDrive: several load_friction effects need one smooth_velocity")
+        c0, k = sum(e.coulomb for e in loaded), sum(e.load_gain for e in loaded)
+        return friction_law.load_from_net(net_actuation + qdd @ self._off + other + c0 * sign, sign, k)
 
     def sensed_torque(self, net_actuation: np.ndarray, t: np.ndarray, q: np.ndarray, qd: np.ndarray,
                       qdd: np.ndarray, tau_link: np.ndarray | None = None) -> np.ndarray:
@@ -215,7 +247,8 @@ class DriveLaw:
         ``B q̈`` for the rigid drive whose motor inertia the plant carries as rotor inertia); with ``drive_offset``
         (a drive-torque arm) the motor's torque ``u + τ_link + τ_f,m(q̇) + τ_0`` instead. ``tau_link``: τ_link
         already evaluated (a piece of a motion with the reversal state carried), else :meth:`link_torque`."""
-        tau_link = self.link_torque(t, q, qd) if tau_link is None else tau_link
+        if tau_link is None:
+            tau_link = self.link_torque(t, q, qd, self.transmitted_load(net_actuation, t, q, qd, qdd))
         if self.drive_offset is not None:
             return net_actuation + tau_link + self.drive_offset + self.motor_friction(qd) + qdd @ self._off
         return self.rigid_body_torque(net_actuation, qdd) + tau_link
@@ -382,6 +415,7 @@ class JointDrive(DriveLaw, LeafSystem):
         # pre-sliding friction keeps its reversal state (per-step law of proprio.effects.dahl) as discrete state
         self._presliding = [e for e in self.link_effects if isinstance(e, PreSliding)]
         self._general = [e for e in self.link_effects if not isinstance(e, (ViscousCoulomb, Stribeck, PreSliding))]
+        self._loaded = any(isinstance(e, LoadFriction) for e in self._general)
         self._u_motor = self.DeclareVectorInputPort("motor_torque", n)
         self._u_link = self.DeclareVectorInputPort("link_state", 2 * n)
         uses = {self._u_link.ticket()} | ({self.time_ticket()} if self._general else set())
@@ -429,8 +463,12 @@ class JointDrive(DriveLaw, LeafSystem):
         if self._presliding:
             tau = tau + self._presliding_step(context)[1]
         if self._general:
+            load = None
+            if self._loaded:          # the torque the gear transmits: the command past the motor's friction
+                load = (self._u_motor.Eval(context) - (self.motor_friction(qd) if self.motor is not None
+                                                       else 0.0))[None]
             s = MotionSignals(np.array([context.get_time() + self.session_time_s]), q[None], qd[None],
-                              np.zeros((1, self.n)))
+                              np.zeros((1, self.n)), load)
             for eff in self._general:
                 tau = tau + eff.torque(s)[0]
         return tau

@@ -337,6 +337,13 @@ def write_report(out: Path, model: SimModel, data: Conditioned, where: Localisat
                "processing_sigma": att.processing_sigma.tolist(),
                "superseded": [{"name": x.name, "step": x.step, "gain": x.gain, "context": x.context}
                               for x in att.superseded],
+               "missing_term": att.missing_term.to_dict() if att.missing_term is not None else None,
+               "data_path": [{"name": s.name, "gain": s.gain, "t": s.t_stat, "rmse_after": s.rmse_after.tolist()}
+                             for s in att.data_path],
+               "rmse_raw": att.rmse_raw.tolist() if att.rmse_raw is not None else None,
+               "position_only": [{"name": x.name, "gain": x.gain, "beyond": x.beyond, "t": x.t_stat,
+                                  "configuration": x.configuration}
+                                 for x in att.position_only],
                "undecided": None if att.undecided is None else {
                    "name": att.undecided.name, "gain": att.undecided.gain, "t": att.undecided.t_stat,
                    "t_crit": att.undecided.t_crit, "more_holdout_s": att.undecided.more_s},

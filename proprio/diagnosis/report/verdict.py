@@ -37,7 +37,8 @@ PLAIN = {"viscous_coulomb": "viscous + Coulomb friction", "stribeck": "Stribeck 
          "offset_drift": "a drifting torque-sensor offset", "friction_warmup": "friction fading as the joints warm up",
          "rotor_inertia": "rotor (armature) inertia", "presliding": "pre-sliding friction (before gross sliding)",
          "motor_friction": "motor-side friction (viscous + Coulomb on the motor velocities)",
-         "drive_offset": "constant drive-torque offsets"}
+         "drive_offset": "constant drive-torque offsets",
+         "load_friction": "load-dependent friction (a Coulomb level growing with the transmitted torque)"}
 
 _DRIVE_WORDS = {"sensor_offset_gain": "drive-torque offset / gain error (torque-constant error)",
                 "sensor_gain": "drive-torque gain error (torque-constant error)",
@@ -173,6 +174,10 @@ def where_text(att: Attribution, gm: GapMap | None) -> str:
              f"(per joint {', '.join(f'{x:.2g}' for x in rmse0)} N·m, i.e. "
              f"{', '.join(f'{100 * x / max(s, 1e-12):.0f}' for x, s in zip(rmse0, sig))} % of the signal RMS); "
              f"most of the squared error sits in {where or 'no single joint'}."]
+    if att.rmse_raw is not None:
+        parts.append(att.data_path_text())
+    if att.missing_term is not None:        # every effect below was fitted on such a log: say it first
+        parts.append(att.missing_term.text(att.joint_names))
     hs = gm.hotspots(2) if gm is not None else []
     if hs:
         parts.append("Over all the data (training and held-out) it concentrates in "
@@ -208,6 +213,7 @@ def effects_text(att: Attribution, tau_kind: str = "link_sensor") -> str:
     elif att.undecided is None:
         parts.append("No physical candidate shrinks the held-out gap significantly beyond what the signal "
                      "processing explains: the model explains the data as well as any of the candidates can.")
+    parts += [p.text(plain) for p in att.position_only]
     if att.undecided is not None:
         parts.append(undecided_text(att, tau_kind))
     return " ".join(parts)

@@ -43,6 +43,15 @@ first, the rest refitted, at most :data:`MAX_SUPERSEDED` times) — backward eli
 (Running the forward selection again without the stand-in would not do: the effects it stood in for may only become
 significant together, as the rigid body and Coulomb friction of the gap benchmark's pair.)
 
+**Position is not history.** Hysteresis, lost motion and pre-sliding friction depend on the motion's history (the
+travel since the last reversal). A reversal candidate that wins a step is set aside (:attr:`Attribution.position_only`;
+the hints then say which q the residual follows) when a configuration-only torque
+(:class:`~proprio.diagnosis.candidates.configuration.ConfigurationCandidate`: ``1, q, sin q, cos q`` of the joint's
+own angle — a spring ``k (q − q₀)``, a cable's ``sin q``) explains at least as much of the held-out residual as it
+does *and* it adds no significant held-out gain (``min_gain`` and the step's t bound) beyond that torque. Both
+conditions: a configuration basis fitted on one motion can extrapolate poorly to another, so "adds nothing beyond
+it" alone would also set aside a real reversal effect whose held-out gain the basis' extrapolation error swamps.
+
 **Noise.** Torque noise cannot shrink a held-out error. After the deterministic steps, an unmodelled
 ``torque_noise`` is reported when the remaining residual is white (Ljung–Box and state R² agree:
 :mod:`proprio.diagnosis.residual`) and its variance
@@ -72,11 +81,13 @@ from scipy import stats
 from proprio.description import RobotDescription
 from proprio.diagnosis.candidates.registry import candidate_set
 from proprio.diagnosis.candidates.base import Candidate
+from proprio.diagnosis.candidates.configuration import REVERSAL_CANDIDATES, ConfigurationCandidate
 from proprio.conditioning import ConditionedSignals, ConditioningConfig, processing_torque_sigma
 from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, MIN_BLOCK_S, MIN_BLOCKS, Conditioned, GapData, SimModel,
                                     condition_recordings, session_motion)
 from proprio.diagnosis.selection.ambiguity import ambiguity_sets
-from proprio.diagnosis.attribution import Attribution, CrossValidation, Step, Superseded, Undecided
+from proprio.diagnosis.attribution import Attribution, CrossValidation, PositionOnly, Step, Superseded, Undecided
+from proprio.diagnosis.model_terms import missing_model_term
 from proprio.diagnosis.selection.block_test import block_gain, n_eff_factor, t_stat
 from proprio.diagnosis.encoder_floor import encoder_floor
 from proprio.diagnosis.fitting import Fit, fit_candidates, predict_candidates
@@ -255,6 +266,25 @@ def _drop_stand_ins(selected: list[Candidate], steps: list[Step], fit: Fit, trai
     return selected, steps, fit, dropped
 
 
+def _beyond_configuration(c: Candidate, selected: list[Candidate], fit_init: dict[str, np.ndarray], train: GapData,
+                          hold: GapData, w: np.ndarray, blk: np.ndarray,
+                          with_nuisance: Callable[[list[Candidate]], list[Candidate]], pred_h: np.ndarray
+                          ) -> tuple[float, float, float]:
+    """``(held-out gain of the configuration-only nuisance added to selected, gain and block t statistic of the
+    reversal candidate c added beyond it)`` (module docstring, "Position is not history"); ``pred_h``: the selected
+    candidates' held-out prediction."""
+    cfg = ConfigurationCandidate(train.signals[0].n)
+    n_blk = int(blk.max()) + 1
+    sweeps = 2 if any(not x.linear for x in selected + [c]) else 1
+    f0 = fit_candidates(with_nuisance(selected + [cfg]), train, w, fit_init, sweeps=sweeps)
+    p0 = predict_candidates(selected + [cfg], f0, hold)
+    g_cfg = block_gain(hold.residual - pred_h, p0 - pred_h, w, blk, n_blk)[1]
+    f1 = fit_candidates(with_nuisance(selected + [cfg, c]), train, w, {**fit_init, **f0.thetas}, sweeps=sweeps)
+    p1 = predict_candidates(selected + [cfg, c], f1, hold)
+    db, g = block_gain(hold.residual - p0, p1 - p0, w, blk, n_blk)
+    return float(g_cfg), float(g), float(t_stat(db))
+
+
 def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, block_s: float,
             data_seconds: tuple[float, float], candidates: Sequence[str] | None, alpha: float, min_gain: float,
             max_steps: int, say: Callable[[str], None], tv: TimeVariation,
@@ -283,6 +313,7 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
     steps: list[Step] = []
     ranking: list[dict[str, Any]] = []
     below_floor: list[tuple[str, float, float]] = []
+    position_only: list[PositionOnly] = []
     undecided: Undecided | None = None
     remaining = list(cands)
     first = True
@@ -323,6 +354,14 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
             below_floor.append((c.name, chosen[3], float(rms_delta.max())))
             remaining = [x for x in remaining if x is not c]
             continue
+        if c.name in REVERSAL_CANDIDATES:        # position is not history (module docstring)
+            say(f"step {len(steps) + 1}: {c.name} beyond the configuration")
+            g_cfg, g_beyond, t_beyond = _beyond_configuration(c, selected, {**fit.thetas, **f_c.thetas}, train, hold,
+                                                              w, blk, with_nuisance, pred_h)
+            if g_cfg >= chosen[3] and (g_beyond < min_gain or t_beyond < t_crit):
+                position_only.append(PositionOnly(c.name, float(chosen[3]), g_beyond, t_beyond, g_cfg))
+                remaining = [x for x in remaining if x is not c]
+                continue
         processing = c.processing
         reason = "describes the data path (filtering, derivative noise)" if processing else ""
         selected.append(c)
@@ -343,6 +382,13 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
         if superseded:                  # the last step holds the final fit
             steps[-1].rmse_after = np.sqrt(((e_h - pred_h) ** 2).mean(axis=0))
             steps[-1].params = _params(selected, fit, train, w)
+    # the data path never makes the "before" gap: data-path steps the selection took before any physical one are the
+    # correction of the data, listed apart (Attribution.data_path); the gap before is reported after them
+    lead = next((i for i, st in enumerate(steps) if not st.processing), len(steps))
+    data_path, steps = steps[:lead], steps[lead:]
+    rmse_raw = None
+    if data_path:
+        rmse_raw, rmse0 = rmse0, data_path[-1].rmse_after
     r_h = e_h - pred_h
     r_tr = e_tr - predict_candidates(selected, fit, train)
     rate = float(np.median([cs.rate_hz for cs in hold.conditioned]))
@@ -354,10 +400,12 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
     parts = [np.stack([predict_candidates([c], fit, d) for c in selected], axis=2) if selected and len(structured)
              else None for d in (train, hold)]
     hints = find_hints(train, hold, r_tr, r_h, structured, blk, parts[0], parts[1], alpha=alpha)
-    amb = ambiguity_sets(selected, [not st.processing for st in steps], cands, ranking, train, hold, w, blk,
+    amb = ambiguity_sets(selected, [not st.processing for st in data_path + steps], cands, ranking, train, hold, w, blk,
                          with_nuisance, structure.rmse, min_gain, say)
     return Attribution(model.robot.joint_names, steps, ranking, rmse0, sig, structure, noise,
                        [c.name for c in cands], split_by_recording(e_h, hold), split_by_recording(pred_h, hold),
                        hold.times, proc_sigma, sorted({cs.describe() for cs in hold.conditioned + train.conditioned}),
                        data_seconds, block_s, fitted={c.name: c for c in selected}, hints=hints, time_variation=tv,
-                       undecided=undecided, below_floor=below_floor, ambiguity=amb, superseded=superseded)
+                       undecided=undecided, below_floor=below_floor, ambiguity=amb, superseded=superseded,
+                       position_only=position_only, data_path=data_path, rmse_raw=rmse_raw,
+                       missing_term=missing_model_term(model, train, hold))

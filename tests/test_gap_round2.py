@@ -1,0 +1,79 @@
+"""The diagnosis on real arms, round 2 (issue 39), on the Drake twin: a log without its gravity torque, a
+configuration-dependent torque that is not hysteresis, and the data path that never makes the "before" gap."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from proprio.diagnosis.data import SimModel
+from proprio.diagnosis.selection.forward import attribute
+from proprio.dynamics import inverse_dynamics
+from proprio.effects import EFFECTS
+from proprio.gap_benchmark.case_data import generate_twin_case_data
+from proprio.gap_benchmark.cases import BenchmarkCase, make_cases
+from proprio.gap_benchmark.run import _flagged_unexplained, _hint_names_signal, run_case
+
+
+def _model(data, drop=()):
+    n = data.robot.n
+    return SimModel(data.robot, tuple(EFFECTS[k](n, **data.model_params[k]) for k in data.model_effects
+                                      if k not in drop))
+
+
+def test_log_without_gravity_names_gravity_not_offsets():
+    """τ logged without its gravity part (a drive that compensates it): the finding names gravity; no offsets are
+    named; the same data with gravity give no such finding."""
+    data = generate_twin_case_data(BenchmarkCase("twin:no-gravity", (), 1.0, 1234, twin=True))
+
+    def strip(r):
+        q = r.truth["q_true"]
+        return r.replace(tau=r.tau - inverse_dynamics(data.robot, q, np.zeros_like(q), np.zeros_like(q)))
+
+    model = _model(data)
+    att = attribute(model, [strip(r) for r in data.train], [strip(r) for r in data.holdout])
+    assert att.missing_term is not None and att.missing_term.term == "gravity"
+    assert 1 in att.missing_term.joints                                   # joint 2 carries the arm's weight
+    assert all(abs(a + 1.0) < 0.1 for a in att.missing_term.coefficients)
+    assert "sensor_offset" not in att.top(3)
+    assert "exclude gravity" in att.missing_term.text(att.joint_names)
+    assert attribute(model, data.train, data.holdout).missing_term is None
+
+
+@pytest.mark.xfail(strict=True, reason="issue 39 item 3 not met at magnitude 1: a sensor gain error (11 %) and "
+                   "hysteresis (10 %, after it) stand in for the spring on joint 1 and the cable's sin q on joint 3; "
+                   "at magnitude 2 only a 5 % sensor gain is named and the hint names q_3")
+def test_spring_and_cable_are_position_not_history():
+    """A gravity-compensation spring k (q − q₀) on one joint and a cable's sin q on another: no library effect above
+    5 % held-out gain (no hysteresis), and a hint on q."""
+    case = next(c for c in make_cases(twin=True) if c.name == "twin:open:spring_cable@1")
+    r = run_case(case)
+    assert r.error is None
+    assert all(g < 0.05 for g in r.physical_gains.values()), r.physical_gains
+    assert _flagged_unexplained(r)
+    assert _hint_names_signal(r), r.hints
+
+
+RESEARCH_ENCODER_STD = 2e-5
+"""[rad] White position noise of the 1 kHz log (≈ 0.001°): the order of a research arm's link-side absolute encoder
+(an assumed level — no 1 kHz log in ../shared shows its floor: the LWR 4+ logs there are 200 Hz and the
+conditioning's estimate of their white floor is 0)."""
+
+
+def test_1khz_log_friction_withheld_data_path_never_first(monkeypatch):
+    """A 1 kHz log with joint-torque sensors and research-arm encoder noise, the friction withheld from a model that
+    states no encoder noise: friction (or a tie with it) first, no data-path step first, and no data-path candidate
+    explains 20 % of the before gap."""
+    from proprio.gap_benchmark import case_data
+
+    monkeypatch.setitem(case_data.ENCODER, "std", RESEARCH_ENCODER_STD)
+    monkeypatch.setitem(case_data.ENCODER, "resolution", 0.0)
+    case = BenchmarkCase("twin:viscous_coulomb@1/1kHz", ("viscous_coulomb",), 1.0, 4242, twin=True,
+                         logger=(("rate_hz", 1000.0), ("stamp_jitter_ms", 0.1)))
+    data = generate_twin_case_data(case)
+    att = attribute(_model(data, drop=("encoder_noise",)), data.train, data.holdout)
+    assert att.steps and not att.steps[0].processing and not att.data_path
+    assert "viscous_coulomb" in [att.steps[0].name] + att.steps[0].tied
+    data_path = [r["gain"] for r in att.ranking if r["processing"]]
+    assert data_path and max(data_path) < 0.2
+    before = att.rmse_before if att.rmse_raw is None else att.rmse_raw
+    assert np.sqrt((att.rmse_before ** 2).mean()) >= 0.8 * np.sqrt((before ** 2).mean())

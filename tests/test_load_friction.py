@@ -1,0 +1,106 @@
+"""Load-dependent friction (issue 39): the law once (proprio.friction_law), the effect, the twin's drive, the
+identification columns and the benchmark's cases."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from proprio import friction_law
+from proprio.description import load_robot
+from proprio.dynamics import inverse_dynamics
+from proprio.effects import EFFECTS, LoadFriction
+from proprio.gap_benchmark.cases import make_cases
+from proprio.gap_benchmark.drive import drive_cases
+from proprio.identification.estimators import identify
+from proprio.identification.model_io import load_model, save_model
+from proprio.signals import MotionSignals
+
+
+def _motion(n: int, samples: int = 3000, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0.0, 30.0, samples)
+    w, a, ph = rng.uniform(0.2, 0.8, (3, n)), rng.uniform(0.3, 0.8, (3, n)), rng.uniform(0, 6, (3, n))
+    arg = [w[k] * (k + 1) * t[:, None] + ph[k] for k in range(3)]
+    q = sum(a[k] * np.sin(arg[k]) for k in range(3))
+    qd = sum(a[k] * w[k] * (k + 1) * np.cos(arg[k]) for k in range(3))
+    qdd = sum(-a[k] * (w[k] * (k + 1)) ** 2 * np.sin(arg[k]) for k in range(3))
+    return t, q, qd, qdd
+
+
+def test_law_is_dissipative_grows_with_load_and_inverts_exactly():
+    rng = np.random.default_rng(1)
+    qd, tau = rng.normal(0, 0.3, (500, 7)), rng.normal(0, 40, (500, 7))
+    k, c0 = rng.uniform(0.01, 0.05, 7), rng.uniform(0.05, 0.2, 7)
+    f = friction_law.load_coulomb(qd, c0, k, tau)
+    assert np.all(f * qd >= 0)
+    assert np.allclose(f, (c0 + k * np.abs(tau)) * np.tanh(qd / friction_law.SMOOTH_VELOCITY))
+    # the twin's inversion: u − k|u|s = net has the root load_from_net(net, s, k)
+    s = friction_law.smooth_sign(qd)
+    u = friction_law.load_from_net(tau, s, k)
+    assert np.allclose(u - k * np.abs(u) * s, tau, atol=1e-12)
+
+
+def test_effect_regressor_matches_torque_and_needs_the_load():
+    n = 7
+    t, q, qd, qdd = _motion(n, 400)
+    tau = np.random.default_rng(2).normal(0, 30, q.shape)
+    eff = LoadFriction(n, coulomb=0.1, load_gain=0.02)
+    s = MotionSignals(t, q, qd, qdd, tau)
+    assert np.allclose(np.einsum("tnp,p->tn", eff.regressor(s), eff.vector()), eff.torque(s), atol=1e-12)
+    assert EFFECTS["load_friction"] is LoadFriction
+    with pytest.raises(ValueError, match="tau"):
+        eff.torque(MotionSignals(t, q, qd, qdd))
+
+
+def test_twin_applies_it_on_the_transmitted_torque():
+    """The twin's drive applies the law per step on the transmitted torque; the log recovers that torque exactly
+    (τ_J = τ_rbd + every link-side effect), and the friction grows with the load (joint 2 carries gravity)."""
+    from proprio.diagrams.twin import simulate_twin
+    from proprio.diagrams.twin_config import load_twin_config
+    from proprio.systems.trajectories import truncate_trajectory
+    from proprio.experiments.payload import validation_trajectory
+
+    cfg = load_twin_config("iiwa14_twin")
+    n = cfg.robot.n
+    cfg = dataclasses.replace(cfg, effects=list(cfg.effects) + [LoadFriction(n, coulomb=0.05, load_gain=0.03)])
+    rec = simulate_twin(cfg, truncate_trajectory(validation_trajectory(3.0, seed=3), 2.0), progress=False)
+    tr = rec.truth
+    link = sum(tr[f"tau_{e.name}"] for e in cfg.effects if e.place == "link")
+    assert np.abs(tr["tau_J_true"] - tr["tau_rbd"] - link).max() < 1e-9
+    level = np.abs(tr["tau_load_friction"]) / np.maximum(np.abs(np.tanh(tr["qd"] / 0.05)), 1e-3)
+    moving = np.abs(tr["qd"]) > 0.2
+    # the level is F_c0 + k|τ_load| with τ_load ≈ τ_J (the rotor's inertial torque aside)
+    expect = 0.05 + 0.03 * np.abs(tr["tau_J_true"])
+    assert np.median(np.abs(level[moving] - expect[moving]) / expect[moving]) < 0.05
+    assert level[moving[:, 1], 1].mean() > 3 * 0.05
+
+
+@pytest.mark.parametrize("method", ["ols", "sdp"])
+def test_identification_fits_the_load_gains(method, tmp_path):
+    desc = load_robot("iiwa14_identified")
+    t, q, qd, qdd = _motion(desc.n)
+    k_true = np.random.default_rng(3).uniform(0.01, 0.03, desc.n)
+    rest = (inverse_dynamics(desc, q, qd, qdd) + np.asarray(desc.friction_viscous) * qd
+            + friction_law.viscous_coulomb(qd, 0.0, np.asarray(desc.friction_coulomb)))
+    tau = friction_law.load_from_net(rest, friction_law.smooth_sign(qd), k_true)
+    model = identify(desc, q, qd, qdd, tau, method, load_friction=True)
+    assert np.allclose(model.load_gain, k_true, atol=1e-6)
+    assert np.abs(model.torque(q, qd, qdd) - tau).max() < 1e-6
+    again = load_model(save_model(model, tmp_path / "m.npz"))
+    assert again.extras == ("load_gain",) and np.abs(again.torque(q, qd, qdd) - tau).max() < 1e-6
+    plain = identify(desc, q, qd, qdd, tau, "ols")
+    assert np.abs(plain.torque(q, qd, qdd) - tau).max() > 0.1          # without the columns it cannot fit
+
+
+def test_benchmark_families_withhold_it_at_two_magnitudes_and_move_no_other_case():
+    for quick in (True, False):
+        names = [c.name for c in make_cases(quick)]
+        assert {"load_friction@0.5", "load_friction@1"} <= set(names)
+        twin = [c.name for c in make_cases(quick, twin=True)]
+        assert {"twin:load_friction@0.5", "twin:load_friction@1"} <= set(twin)
+        drive = [c.name for c in drive_cases(quick)]
+        assert {"drive:load_friction@0.5/100Hz", "drive:load_friction@1/1000Hz"} <= set(drive)
+    # a kind added later is never drawn as a null case's modelled effect (the null cases stay what they were)
+    assert not any("load_friction" in c.modelled for c in make_cases(False) + make_cases(False, twin=True))
