@@ -12,6 +12,7 @@ from proprio.effects import EFFECTS
 from proprio.gap_benchmark.case_data import generate_twin_case_data
 from proprio.gap_benchmark.cases import BenchmarkCase, make_cases
 from proprio.gap_benchmark.run import _flagged_unexplained, _hint_names_signal, run_case
+from proprio.diagnosis.report.verdict import summary_rows
 
 
 def _model(data, drop=()):
@@ -36,6 +37,7 @@ def test_log_without_gravity_names_gravity_not_offsets():
     assert all(abs(a + 1.0) < 0.1 for a in att.missing_term.coefficients)
     assert "sensor_offset" not in att.top(3)
     assert "exclude gravity" in att.missing_term.text(att.joint_names)
+    assert "exclude gravity" in summary_rows(att)[0].effect               # the report's summary table opens with it
     assert attribute(model, data.train, data.holdout).missing_term is None
 
 

@@ -130,6 +130,19 @@ def summary_rows(att: Attribution, tau_kind: str = "link_sensor") -> list[Summar
     """The summary table's rows (module docstring), in the order the selection took the effects."""
     plain = plain_names(tau_kind)
     rows, prev = [], att.rmse_before
+    mt = att.missing_term
+    if mt is not None:                  # first: every effect below was fitted on such a log
+        what = "gravity" if mt.term == "gravity" else "the rigid-body torque"
+        rows.append(SummaryRow(f"the logged τ seems to exclude {what} (the drive may compensate it)",
+                               ", ".join(att.joint_names[j] for j in mt.joints), "—", "—",
+                               f"a finding: residual ≈ {', '.join(f'{a:+.2f}' for a in mt.coefficients)} × the "
+                               f"modelled term, {100 * mt.explained:.0f} % of the held-out residual"))
+    if att.rmse_raw is not None:        # the data's correction: the gap below is measured after it
+        rows.append(SummaryRow("data path: " + ", ".join(plain.get(s.name, s.name) for s in att.data_path)
+                               + " (the conditioning, not the robot)", "—",
+                               f"{_total(att.rmse_raw):.3g} → {_total(att.rmse_before):.3g}", "—",
+                               "the gap is reported after this correction"))
+    first = len(rows)
     for st in att.steps:
         name = plain.get(st.name, st.name)
         if st.processing:
@@ -157,7 +170,7 @@ def summary_rows(att: Attribution, tau_kind: str = "link_sensor") -> list[Summar
         rows.append(SummaryRow(f"the gap changes over the session ({tv.kind})",
                                ", ".join(att.joint_names[j] for j in js), "—", "—",
                                f"time test p = {float(np.min(tv.p_value[js])):.2g}"))
-    if not rows:
+    if len(rows) == first:
         rows.append(SummaryRow("nothing named", "—", f"{_total(att.rmse_before):.3g} → {_total(att.rmse_before):.3g}",
                                "0 %", "no candidate shrinks the held-out gap significantly"))
     return rows
