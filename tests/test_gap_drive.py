@@ -11,7 +11,8 @@ from proprio.gap_benchmark.drive import DRIVE_TYPES, SHARED_MOTOR, drive_case_co
 
 def test_family_cases():
     quick = drive_cases(quick=True)
-    assert len(quick) == 2 * (len(DRIVE_TYPES) + 1)
+    # every kind at magnitude 1, load_friction at 0.5 and 1 too (it joined the quick list at both), a null case
+    assert len(quick) == 2 * (len(DRIVE_TYPES) + 2)
     assert {dict(c.logger)["rate_hz"] for c in quick} == {100.0, 1000.0}
     assert all(c.twin and c.name.startswith("drive:") for c in quick)
     assert sum(not c.withheld for c in quick) == 2
@@ -32,7 +33,7 @@ def test_each_case_withholds_its_effect_only(kind):
               if not np.allclose(getattr(arm, k), getattr(model.drive, k))}
     want = {"rotor_inertia": {"rotor_inertia"}, "motor_friction": {"motor_viscous", "motor_coulomb"},
             "coupled_motor_friction": {"motor_viscous", "motor_coulomb"}, "drive_offset": {"offset"},
-            "presliding": set()}[kind]
+            "presliding": set(), "load_friction": set()}[kind]
     assert differ == want
     assert config.robot.drive.coupled == model.drive.coupled == (kind == "coupled_motor_friction")
     assert (config.motor_coupling is not None) == (kind == "coupled_motor_friction")   # the twin's drive couples too
@@ -43,6 +44,8 @@ def test_each_case_withholds_its_effect_only(kind):
         assert expected_name(case) == "motor_friction"
     assert any(e.name == "presliding" for e in config.effects) == (kind == "presliding")
     assert not any(e.name == "presliding" for e in floor.effects)
+    assert any(e.name == "load_friction" for e in config.effects) == (kind == "load_friction")
+    assert not any(e.name == "load_friction" for e in floor.effects)
 
 
 @pytest.mark.parametrize("kind", ["presliding", "coupled_motor_friction"])
