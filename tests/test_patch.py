@@ -256,3 +256,17 @@ def _lwr_twin(lwr_dir, tmp_path):
     path = tmp_path / "kuka_lwr4_twin.yaml"
     path.write_text(yaml.safe_dump(cfg))
     return path
+
+
+def test_a_load_gain_the_data_cannot_tell_from_zero_stays_out_of_the_patch():
+    """Load-dependent friction gains whose 95 % CI holds 0 go into the patch at 0 (their nominal value: a twin checks
+    a load gain's friction at the joints' effort limits, so an undetermined 0.2 refuses the patch); a determined gain
+    and every other parameter stay as fitted."""
+    from proprio.diagnosis.patch import undetermined_load_gains
+
+    names = ["coulomb[1]", "coulomb[2]", "load_gain[1]", "load_gain[2]"]
+    theta = np.array([0.5, 0.1, 0.2, 0.05])
+    ci = np.array([0.6, 0.05, 2.2, 0.01])
+    kept, zeroed = undetermined_load_gains(theta, ci, names)
+    assert zeroed == ["load_gain[1]"]
+    np.testing.assert_array_equal(kept, [0.5, 0.1, 0.0, 0.05])

@@ -29,8 +29,8 @@ from proprio.diagnosis.data import SimModel
 from proprio.diagnosis.attribution import Attribution
 from proprio.io import atomic_write_text
 
-__all__ = ["PatchEntry", "Patch", "MergedPatch", "patch_entries", "merge_entries", "twin_patch", "write_twin_patch",
-           "make_patch", "MAX_COMMENT_PARAMS"]
+__all__ = ["PatchEntry", "Patch", "MergedPatch", "patch_entries", "merge_entries", "undetermined_load_gains",
+           "twin_patch", "write_twin_patch", "make_patch", "MAX_COMMENT_PARAMS"]
 
 MAX_COMMENT_PARAMS = 14          # parameters listed per entry in the comments (a rigid-body step has dozens)
 
@@ -86,6 +86,14 @@ def _dump(data: dict[str, Any], rounding: bool = True) -> str:
                      width=120)
 
 
+def undetermined_load_gains(theta: np.ndarray, ci: np.ndarray, names: list[str]) -> tuple[np.ndarray, list[str]]:
+    """``theta`` with every load-dependent friction gain (a parameter named ``load_gain[...]``) whose 95 % CI ``ci``
+    holds 0 set to 0 (its nominal value), and the names so set."""
+    zero = np.array([nm.split("[")[0] == "load_gain" for nm in names], dtype=bool) & (np.abs(theta) <= ci)
+    zero &= theta != 0.0
+    return np.where(zero, 0.0, theta), [nm for nm, z in zip(names, zero) if z]
+
+
 def patch_entries(att: Attribution) -> list[PatchEntry]:
     """Every accepted step and noise finding of ``att`` as a :class:`PatchEntry` (processing steps with
     ``fragment=None``)."""
@@ -105,8 +113,13 @@ def patch_entries(att: Attribution) -> list[PatchEntry]:
             continue
         theta, ci, names = final[step.name]
         cand.patch_note = ""
-        frag = cand.patch(theta)
+        kept, zeroed = undetermined_load_gains(np.asarray(theta, dtype=float), np.asarray(ci, dtype=float), names)
+        frag = cand.patch(kept)
         lines = [head + "; fitted ± 95 % CI:", *_param_lines(np.asarray(theta), np.asarray(ci), names)]
+        if zeroed:
+            lines.append(f"  {', '.join(zeroed)}: not told apart from 0 by the data (the 95 % CI holds 0), 0 in the "
+                         "patch — the nominal value, as the rigid-body correction keeps unidentified directions at "
+                         "theirs (a twin checks a load gain's friction at the joints' effort limits)")
         if cand.patch_note:
             lines.append(f"  {cand.patch_note}")
         if frag is None and not cand.patch_note:
