@@ -29,8 +29,8 @@ torque** τ_J the joint's gear transmits (what a joint-torque sensor measures; t
 friction), per joint: for a coupled wrist too it is the joint's own output torque, not the shared motor's torque
 (the friction is the joint's gear's, on the joint velocity). Each stage takes the load it has: the twin's drive the
 torque it transmits in the step (the commanded joint torque, :func:`load_from_net` recovers it from the logged net
-actuation), the diagnosis and the identification the modelled link torque, the benchmark's offline model the
-rigid-body torque.
+actuation), the diagnosis the modelled link torque, the identification the measured τ (``identify --load-friction``),
+the benchmark's offline model the rigid-body torque.
 
 This module is in the core layer and imports numpy only: effects, identification and learning (layer 2, independent
 of each other) all call it.
