@@ -223,7 +223,8 @@ def AddMeasurementChain(builder: DiagramBuilder, signals: OutputPort, config, dr
                                           "position": encoder.get_output_port().size()},
                          channels.width, logger.start().vector(), log)
     stages = [sampler, transmission, sensor, encoder, robot_logger]
-    clock = builder.AddNamedSystem("block_clock", BlockClock(stages, chunk, chunks, register.size, dt, phase + 0.1))
+    clock = builder.AddNamedSystem("block_clock", BlockClock(stages, chunk, chunks, register.size, dt, phase + 0.1,
+                                                            max_rows=run_steps(n_steps, B)))
     builder.Connect(register.get_output_port(), clock.GetInputPort("chunk"))
     builder.Connect(clock.GetOutputPort("held"), sampler.GetInputPort("held"))
     builder.Connect(register.get_output_port(), sampler.GetInputPort("newest"))

@@ -56,15 +56,19 @@ def unpack_rows(v: np.ndarray, width: int) -> tuple[np.ndarray, bool]:
     return np.asarray(v[2:2 + count * width]).reshape(count, width), bool(v[1])
 
 
-def _shift(size: int, chunk: int) -> Selector:
-    """``[held[chunk:], newest]``: the held ``size`` values shifted by one ``chunk``, the newest chunk last."""
+def _shift(size: int, chunk: int | Sequence[int]) -> Selector:
+    """``[held[chunk:], newest]``: the held ``size`` values shifted by one chunk, the newest chunk last (given as one
+    input port ``newest`` of ``chunk`` values, or as the input ports ``newest_<i>`` of the sizes in ``chunk``, in
+    order)."""
     pick = SelectorParams.OutputSelection
+    parts = [int(chunk)] if np.isscalar(chunk) else [int(c) for c in chunk]
+    names = ["newest"] if np.isscalar(chunk) else [f"newest_{i}" for i in range(len(parts))]
     return Selector(SelectorParams(
-        inputs=[SelectorParams.InputPortParams(name="held", size=size),
-                SelectorParams.InputPortParams(name="newest", size=chunk)],
+        inputs=[SelectorParams.InputPortParams(name="held", size=size)]
+        + [SelectorParams.InputPortParams(name=name, size=c) for name, c in zip(names, parts)],
         outputs=[SelectorParams.OutputPortParams(name="shifted", selections=(
-            [pick(input_port_index=0, input_offset=i) for i in range(chunk, size)]
-            + [pick(input_port_index=1, input_offset=i) for i in range(chunk)]))]))
+            [pick(input_port_index=0, input_offset=i) for i in range(sum(parts), size)]
+            + [pick(input_port_index=1 + p, input_offset=i) for p, c in enumerate(parts) for i in range(c)]))]))
 
 
 class BlockRegister(Diagram):
@@ -72,28 +76,26 @@ class BlockRegister(Diagram):
     docstring). Input port ``sample`` [width]; output port ``block`` [Π levels · width], the samples of the last
     complete chunk, oldest first (sample i of chunk b is step ``b·Π levels + i`` of the run, whose time 0 is step 0)."""
 
-    def __init__(self, width: int, time_step: float, levels: Sequence[int] = (10, 10, 10)):
+    def __init__(self, width: int | Sequence[int], time_step: float, levels: Sequence[int] = (10, 10, 10)):
         super().__init__()
-        self.levels, self.width = tuple(int(k) for k in levels), int(width)
+        self.levels = tuple(int(k) for k in levels)
+        self.parts = int(width) if np.isscalar(width) else tuple(int(w) for w in width)
+        self.width = int(np.sum(self.parts))
         self.size = math.prod(self.levels)
         self.phase = block_phase(self.levels)
         builder = DiagramBuilder()
-        newest, chunk, steps = None, width, 1         # the newest chunk: its port, size [samples·width], period
+        newest, chunk, steps = None, self.width, 1         # the newest chunk: its port, size [samples·width], period
         for k, count in enumerate(self.levels):
             size = chunk * count
             offset = 0.0 if k == 0 else (steps - 1 + 0.4 + 0.1 * k) * time_step
             hold = builder.AddNamedSystem(f"level{k}", ZeroOrderHold(steps * time_step, size, offset))
-            if k == 0:                  # small chunks, every step: one Selector
-                shift = builder.AddNamedSystem(f"level{k}_shift", _shift(size, chunk))
-                builder.Connect(hold.get_output_port(), shift.get_input_port(0))
-                builder.ExportInput(shift.get_input_port(1), "sample")
-            else:                       # large chunks, rarely: block copies, one port per chunk
-                split = builder.AddNamedSystem(f"level{k}_split", Demultiplexer(size, chunk))
-                shift = builder.AddNamedSystem(f"level{k}_join", Multiplexer([chunk] * count))
-                builder.Connect(hold.get_output_port(), split.get_input_port())
-                for i in range(1, count):
-                    builder.Connect(split.get_output_port(i), shift.get_input_port(i - 1))
-                builder.Connect(newest, shift.get_input_port(count - 1))
+            shift = builder.AddNamedSystem(f"level{k}_shift", _shift(size, self.parts if k == 0 else chunk))
+            builder.Connect(hold.get_output_port(), shift.get_input_port(0))
+            if k == 0:
+                for i in range(1, shift.num_input_ports()):
+                    builder.ExportInput(shift.get_input_port(i), "sample" if np.isscalar(width) else f"sample_{i - 1}")
+            else:
+                builder.Connect(newest, shift.get_input_port(1))
             builder.Connect(shift.get_output_port(), hold.get_input_port())
             newest, chunk, steps = hold.get_output_port(), size, steps * count
         content = newest
@@ -144,10 +146,11 @@ class BlockClock(LeafSystem):
     the register, and their carries from this System's output ports ``carry_<k>`` (each the discrete state of stage
     k's law, to be connected to the stage's ``carry``) — and stores what every stage's ``out`` gives (input ports
     ``stage_<k>``). The last stage's rows are the chain's output: a publish event right after each block's update
-    appends them to :attr:`log` (a list of ``[rows, width]`` arrays, in order)."""
+    writes them after the earlier ones into a buffer of ``max_rows`` rows (allocated, not touched, up front; no
+    copy at the end), :meth:`rows` the rows written so far."""
 
     def __init__(self, stages: Sequence[BlockStage], chunk_size: int, chunks: int, chunk_steps: int,
-                 time_step: float, phase: float):
+                 time_step: float, phase: float, max_rows: int):
         super().__init__()
         self._stages = list(stages)
         self._chunk_size, self._chunks = int(chunk_size), int(chunks)
@@ -167,7 +170,12 @@ class BlockClock(LeafSystem):
         block_steps = chunk_steps * chunks
         self.DeclarePeriodicPublishEvent(block_steps * time_step, (block_steps - 1 + phase + 0.05) * time_step,
                                          self._publish)
-        self.log: list[np.ndarray] = []
+        self._log = np.empty((int(max_rows), last.width))
+        self._logged = 0
+
+    def rows(self) -> np.ndarray:
+        """The rows ``[M, width]`` of the last stage published so far, in order (a view of the buffer)."""
+        return self._log[:self._logged]
 
     def carry(self, context: Context, k: int) -> np.ndarray:
         """Stage ``k``'s carry in ``context`` (this System's)."""
@@ -189,5 +197,8 @@ class BlockClock(LeafSystem):
 
     def _publish(self, context: Context) -> None:
         rows, _ = unpack_rows(context.get_discrete_state(self._rows).get_value(), self._stages[-1].width)
-        if rows.shape[0]:
-            self.log.append(rows.copy())
+        end = self._logged + rows.shape[0]
+        if end > self._log.shape[0]:
+            raise RuntimeError(f"block_clock: {end} rows published, more than the {self._log.shape[0]} allocated")
+        self._log[self._logged:end] = rows
+        self._logged = end
