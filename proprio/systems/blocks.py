@@ -33,6 +33,7 @@ width, then what the capacity leaves (not read); ``final`` = 1 on the run's last
 from __future__ import annotations
 
 import math
+import mmap
 from typing import Callable, Sequence
 
 import numpy as np
@@ -170,7 +171,11 @@ class BlockClock(LeafSystem):
         block_steps = chunk_steps * chunks
         self.DeclarePeriodicPublishEvent(block_steps * time_step, (block_steps - 1 + phase + 0.05) * time_step,
                                          self._publish)
-        self._log = np.empty((int(max_rows), last.width))
+        # anonymous mmap, faulted in by 4 KiB pages as rows arrive: numpy's own allocation of a large array asks
+        # for transparent huge pages, whose faults cost ~6x more here (measured: 2.7 vs 0.4 ms per block of rows)
+        shape = (int(max_rows), last.width)
+        self._log = np.frombuffer(mmap.mmap(-1, max(8 * shape[0] * shape[1], 8)), dtype=float)[
+            :shape[0] * shape[1]].reshape(shape)
         self._logged = 0
 
     def rows(self) -> np.ndarray:
