@@ -105,7 +105,7 @@ class TwinDiagram:
     plant: Any
     drive: DriveLaw                # FrictionDrive, JointDrive or CoupledDrive
     controller: DiscreteInverseDynamicsController
-    chain: MeasurementChain | None  # sensors and logger on [q; q̇; q̈; net actuation (; θ; θ̇ if elastic)]; None:
+    chain: MeasurementChain | None  # sensors and logger on [q; q̇; net actuation (; θ; θ̇ if elastic)]; None:
     config: TwinConfig              # the dynamics alone (measurement_chain=False)
     control_plant: Any             # keeps the controller's model alive
     n_steps: int                   # logged steps of the run: the trajectory's span at time_step, both ends included
@@ -179,7 +179,7 @@ def build_twin_diagram(config: TwinConfig, trajectory: Trajectory, measurement_c
         builder.Connect(drive.GetOutputPort("motor_state"), plant.get_desired_state_input_port(instance))
         builder.Connect(net_actuation, drive.GetInputPort("net_actuation"))
 
-    logged = [state, plant.get_generalized_acceleration_output_port(instance), net_actuation]
+    logged = [state, net_actuation]          # q̈ from successive velocities, at block rate (twin_chain.py)
     if elastic is not None:
         logged.append(drive.GetOutputPort("motor_state"))
     n_steps = _run_length(trajectory, dt)
@@ -188,7 +188,7 @@ def build_twin_diagram(config: TwinConfig, trajectory: Trajectory, measurement_c
         mux = builder.AddNamedSystem("true_motion", Multiplexer([port.size() for port in logged]))
         for k, port in enumerate(logged):
             builder.Connect(port, mux.get_input_port(k))
-        chain = AddMeasurementChain(builder, mux.get_output_port(), config, drive, n_steps)
+        chain = AddMeasurementChain(builder, mux.get_output_port(), state, config, drive, n_steps)
     diagram = builder.Build()
     diagram.set_name(f"twin:{config.name}")
     return TwinDiagram(diagram, plant, drive, ctrl, chain, config, control_plant, n_steps)
