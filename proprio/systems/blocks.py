@@ -146,9 +146,11 @@ class BlockClock(LeafSystem):
     earlier chunks), or, on a block's last chunk, evaluates the stages — which read ``held`` and the last chunk from
     the register, and their carries from this System's output ports ``carry_<k>`` (each the discrete state of stage
     k's law, to be connected to the stage's ``carry``) — and stores what every stage's ``out`` gives (input ports
-    ``stage_<k>``). The last stage's rows are the chain's output: a publish event right after each block's update
-    writes them after the earlier ones into a buffer of ``max_rows`` rows (allocated, not touched, up front; no
-    copy at the end), :meth:`rows` the rows written so far."""
+    ``stage_<k>``). The last stage's rows are the chain's output: the update hands them (a copy) to the publish event
+    right after it, which writes them after the earlier ones into a buffer of ``max_rows`` rows (allocated, not
+    touched, up front; no copy at the end), :meth:`rows` the rows written so far. They are not discrete state: the
+    Simulator copies all of a System's discrete state twice at each of its updates (once per chunk), and a block of
+    rows is ~10⁵ values."""
 
     def __init__(self, stages: Sequence[BlockStage], chunk_size: int, chunks: int, chunk_steps: int,
                  time_step: float, phase: float, max_rows: int):
@@ -165,7 +167,6 @@ class BlockClock(LeafSystem):
         for k, index in enumerate(self._state):
             self.DeclareStateOutputPort(f"carry_{k}", index)
         last = self._stages[-1]
-        self._rows = self.DeclareDiscreteState(np.zeros(2 + last.capacity * last.width))
         period = chunk_steps * time_step
         self.DeclarePeriodicDiscreteUpdateEvent(period, (chunk_steps - 1 + phase) * time_step, self._update)
         block_steps = chunk_steps * chunks
@@ -177,6 +178,7 @@ class BlockClock(LeafSystem):
         self._log = np.frombuffer(mmap.mmap(-1, max(8 * shape[0] * shape[1], 8)), dtype=float)[
             :shape[0] * shape[1]].reshape(shape)
         self._logged = 0
+        self._pending = np.zeros((0, last.width))
 
     def rows(self) -> np.ndarray:
         """The rows ``[M, width]`` of the last stage published so far, in order (a view of the buffer)."""
@@ -197,11 +199,11 @@ class BlockClock(LeafSystem):
         for port, index, stage in zip(self._in, self._state, self._stages):
             v = port.EvalBasicVector(context).get_value()
             discrete_state.get_mutable_vector(index).SetFromVector(v[:stage.carry0.size])
-        discrete_state.get_mutable_vector(self._rows).SetFromVector(v[self._stages[-1].carry0.size:])
+        self._pending = unpack_rows(v[self._stages[-1].carry0.size:], self._stages[-1].width)[0].copy()
         discrete_state.get_mutable_vector(self._count).SetAtIndex(0, 0.0)
 
     def _publish(self, context: Context) -> None:
-        rows, _ = unpack_rows(context.get_discrete_state(self._rows).get_value(), self._stages[-1].width)
+        rows, self._pending = self._pending, self._pending[:0]
         end = self._logged + rows.shape[0]
         if end > self._log.shape[0]:
             raise RuntimeError(f"block_clock: {end} rows published, more than the {self._log.shape[0]} allocated")
