@@ -118,7 +118,8 @@ def run_steps(n_steps: int, block_steps: int) -> int:
 
 
 def AddMeasurementChain(builder: DiagramBuilder, signals: OutputPort, state: OutputPort, config, drive: DriveLaw,
-                        n_steps: int, levels: tuple[int, ...] = REGISTER_LEVELS, chunks: int = BLOCK_CHUNKS) -> MeasurementChain:
+                        n_steps: int, levels: tuple[int, ...] = REGISTER_LEVELS,
+                        chunks: int = BLOCK_CHUNKS) -> MeasurementChain:
     """Add the measurement chain (module docstring) of the twin ``config`` (a
     :class:`~proprio.diagrams.twin_config.TwinConfig`) for a run of ``n_steps`` steps from time 0, fed by
     ``signals`` = ``[q; q̇; net actuation (; θ; θ̇)]`` (the plant's, at its own instants), the plant's ``state``

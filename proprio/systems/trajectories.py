@@ -53,9 +53,9 @@ from scipy.interpolate import CubicSpline
 from proprio.description import RobotDescription
 from proprio.io import atomic_path
 
-__all__ = ["Phase", "TimedPath", "time_parameterize", "sample_positions", "sample_trajectory", "check_limits", "JointTrajectorySource",
-           "AddTrajectorySource", "AddReplaySource", "replay_trajectory", "save_trajectory", "load_trajectory",
-           "TrajectoryFileError", "truncate_trajectory"]
+__all__ = ["Phase", "TimedPath", "time_parameterize", "sample_positions", "sample_trajectory", "check_limits",
+           "JointTrajectorySource", "AddTrajectorySource", "AddReplaySource", "replay_trajectory", "save_trajectory",
+           "load_trajectory", "TrajectoryFileError", "truncate_trajectory"]
 
 TRAJECTORY_FORMAT = "proprio-trajectory/v1"
 
