@@ -84,7 +84,7 @@ from proprio.identification.regressor import drive_identified
 from proprio.effects import Elasticity
 from proprio.robot_log import LoggerCarry
 from proprio.systems.controller import AddDiscreteInverseDynamicsController, DiscreteInverseDynamicsController
-from proprio.systems.trajectories import AddTrajectorySource, sample_trajectory
+from proprio.systems.trajectories import AddTrajectorySource, sample_positions
 from proprio.diagrams.twin_chain import AddMeasurementChain, MeasurementChain, payload_wrench, run_steps
 from proprio.diagrams.twin_config import (  # noqa: F401  (re-exported: callers import them from here)
     PATCH_KEYS, TwinConfig, TwinConfigError, load_twin_config, merge_twin_patch,
@@ -105,7 +105,7 @@ class TwinDiagram:
     plant: Any
     drive: DriveLaw                # FrictionDrive, JointDrive or CoupledDrive
     controller: DiscreteInverseDynamicsController
-    chain: MeasurementChain | None  # sensors and logger on [q; q̇; q̈; net actuation (; θ; θ̇ if elastic)]; None:
+    chain: MeasurementChain | None  # sensors and logger on [q; q̇; net actuation (; θ; θ̇ if elastic)]; None:
     config: TwinConfig              # the dynamics alone (measurement_chain=False)
     control_plant: Any             # keeps the controller's model alive
     n_steps: int                   # logged steps of the run: the trajectory's span at time_step, both ends included
@@ -179,7 +179,7 @@ def build_twin_diagram(config: TwinConfig, trajectory: Trajectory, measurement_c
         builder.Connect(drive.GetOutputPort("motor_state"), plant.get_desired_state_input_port(instance))
         builder.Connect(net_actuation, drive.GetInputPort("net_actuation"))
 
-    logged = [state, plant.get_generalized_acceleration_output_port(instance), net_actuation]
+    logged = [state, net_actuation]          # q̈ from successive velocities, at block rate (twin_chain.py)
     if elastic is not None:
         logged.append(drive.GetOutputPort("motor_state"))
     n_steps = _run_length(trajectory, dt)
@@ -188,7 +188,7 @@ def build_twin_diagram(config: TwinConfig, trajectory: Trajectory, measurement_c
         mux = builder.AddNamedSystem("true_motion", Multiplexer([port.size() for port in logged]))
         for k, port in enumerate(logged):
             builder.Connect(port, mux.get_input_port(k))
-        chain = AddMeasurementChain(builder, mux.get_output_port(), config, drive, n_steps)
+        chain = AddMeasurementChain(builder, mux.get_output_port(), state, config, drive, n_steps)
     diagram = builder.Build()
     diagram.set_name(f"twin:{config.name}")
     return TwinDiagram(diagram, plant, drive, ctrl, chain, config, control_plant, n_steps)
@@ -201,7 +201,7 @@ def _check_trajectory(trajectory: Trajectory, desc: RobotDescription) -> None:
     if trajectory.rows() != desc.n or trajectory.cols() != 1:
         raise TwinConfigError(f"trajectory has shape {trajectory.rows()}x{trajectory.cols()}, robot '{desc.name}' "
                               f"needs {desc.n}x1")
-    _, q, _, _ = sample_trajectory(trajectory, 1000.0)
+    _, q = sample_positions(trajectory, 1000.0)
     over = np.maximum(q - desc.upper, desc.lower - q)
     if np.any(over > 1e-9):
         i, j = np.unravel_index(np.argmax(over), over.shape)
@@ -270,7 +270,7 @@ def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload |
 def _to_recording(config: TwinConfig, chain: MeasurementChain, logger: LoggerCarry, span_s: float, wall_s: float,
                   cpu_s: float) -> Recording:
     """The Recording of the rows the chain's robot logger wrote (``logger``: its state at the run's end)."""
-    rows = np.concatenate(chain.clock.log) if chain.clock.log else np.zeros((0, chain.channels.width))
+    rows = chain.clock.rows()
     ch = chain.channels.split(rows)
     truth = {k.removeprefix("truth:"): v for k, v in ch.items() if k.startswith("truth:")}
     meta = {**config.meta(), "rate_hz": config.logger.rate_hz, "source": "twin",

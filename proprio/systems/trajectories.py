@@ -53,9 +53,9 @@ from scipy.interpolate import CubicSpline
 from proprio.description import RobotDescription
 from proprio.io import atomic_path
 
-__all__ = ["Phase", "TimedPath", "time_parameterize", "sample_trajectory", "check_limits", "JointTrajectorySource",
-           "AddTrajectorySource", "AddReplaySource", "replay_trajectory", "save_trajectory", "load_trajectory",
-           "TrajectoryFileError", "truncate_trajectory"]
+__all__ = ["Phase", "TimedPath", "time_parameterize", "sample_positions", "sample_trajectory", "check_limits",
+           "JointTrajectorySource", "AddTrajectorySource", "AddReplaySource", "replay_trajectory", "save_trajectory",
+           "load_trajectory", "TrajectoryFileError", "truncate_trajectory"]
 
 TRAJECTORY_FORMAT = "proprio-trajectory/v1"
 
@@ -211,18 +211,25 @@ def truncate_trajectory(traj: PiecewisePolynomial, seconds: float) -> PiecewiseP
     return traj.slice(0, int(np.searchsorted(traj.get_segment_times(), end, side="left")))
 
 
+def sample_positions(traj: Trajectory, rate_hz: float, t0: float | None = None,
+                     t1: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``t [N]`` s and ``q [N,n]`` rad of ``traj`` sampled at ``rate_hz`` over [t0, t1] (default: its whole span), as
+    :func:`sample_trajectory` samples them, without the derivatives."""
+    if not rate_hz > 0.0:
+        raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
+    t0 = traj.start_time() if t0 is None else float(t0)
+    t1 = traj.end_time() if t1 is None else float(t1)
+    t = t0 + np.arange(int(math.floor((t1 - t0) * rate_hz + 1e-9)) + 1) / rate_hz
+    return t, traj.vector_values(t).T
+
+
 def sample_trajectory(traj: Trajectory, rate_hz: float, t0: float | None = None,
                       t1: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Sample ``traj`` at ``rate_hz`` over [t0, t1] (default: its whole span), vectorised in Drake's C++.
 
     Returns ``t [N]`` s, ``q [N,n]`` rad, ``qd [N,n]`` rad/s, ``qdd [N,n]`` rad/s².
     """
-    if not rate_hz > 0.0:
-        raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
-    t0 = traj.start_time() if t0 is None else float(t0)
-    t1 = traj.end_time() if t1 is None else float(t1)
-    t = t0 + np.arange(int(math.floor((t1 - t0) * rate_hz + 1e-9)) + 1) / rate_hz
-    q = traj.vector_values(t).T
+    t, q = sample_positions(traj, rate_hz, t0, t1)
     qd = traj.MakeDerivative(1).vector_values(t).T
     qdd = traj.MakeDerivative(2).vector_values(t).T
     return t, q, qd, qdd
