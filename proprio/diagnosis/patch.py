@@ -248,15 +248,16 @@ def twin_patch(att: Attribution, model: SimModel, entries: list[PatchEntry] | No
 
 
 def write_twin_patch(att: Attribution, model: SimModel, path: str | Path,
-                     entries: list[PatchEntry] | None = None) -> dict[str, Path]:
+                     entries: list[PatchEntry] | None = None, merged: MergedPatch | None = None) -> dict[str, Path]:
     """Write ``path`` (``twin_patch.yaml``: comments + the YAML of a ``yaml.SafeDumper``, atomic) and, when the
     patch corrects the rigid body, ``<stem>_robot.yaml`` beside it (the patch's ``robot:`` names it relative to its
-    folder). Returns ``{"twin_patch": path[, "patch_robot": robot path]}``; ``entries`` as in :func:`twin_patch`."""
+    folder). Returns ``{"twin_patch": path[, "patch_robot": robot path]}``; ``entries`` as in :func:`twin_patch`;
+    ``merged``: their :func:`merge_entries`, when already computed (left unchanged)."""
     model = SimModel.of(model)
     path = Path(path)
     entries = entries if entries is not None else patch_entries(att)
-    merged = merge_entries(entries, model)
-    patch = merged.patch
+    merged = merged if merged is not None else merge_entries(entries, model)
+    patch = dict(merged.patch)                  # the robot becomes a file name here, not in ``merged``
     files = {"twin_patch": path}
     if isinstance(patch.get("robot"), dict):
         robot_path = path.with_name(f"{path.stem}_robot.yaml")
@@ -293,7 +294,7 @@ class Patch:
 def make_patch(att: Attribution, model: SimModel, path: str | Path) -> Patch:
     """The patch of ``att`` for ``model``, written to ``path`` (``twin_patch.yaml``, :func:`write_twin_patch`)."""
     entries = patch_entries(att)
-    files = write_twin_patch(att, model, path, entries)
     merged = merge_entries(entries, model)
+    files = write_twin_patch(att, model, path, entries, merged)
     return Patch(entries, merged.patch, files, merged.unmerged)
 

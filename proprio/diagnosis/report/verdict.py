@@ -376,7 +376,7 @@ def offset_advice(att: Attribution, tau_kind: str = "link_sensor", alpha: float 
 
 
 def verdict_text(att: Attribution, gm: GapMap | None, tau_kind: str = "link_sensor",
-                 model_effects: Sequence[str] = ()) -> str:
+                 model_effects: Sequence[str] = (), advice: OffsetAdvice | None = None) -> str:
     """The whole plain-language explanation (the report's details, ``Diagnosis.explanation``): where the gap is,
     which effects explain it, how far it shrinks, what stays, the hints and the offset advice (candidates named for
     what ``tau_kind`` says τ is, :func:`plain_names`)."""
@@ -385,7 +385,7 @@ def verdict_text(att: Attribution, gm: GapMap | None, tau_kind: str = "link_sens
     if hints:
         parts.append(f"A sparse regression of what remains on the measured and modelled signals gives {len(att.hints)} "
                      "hint(s) — what the unexplained part follows, scored on the held-out data: " + " ".join(hints))
-    parts.append(offset_advice(att, tau_kind).text)
+    parts.append((advice if advice is not None else offset_advice(att, tau_kind)).text)
     return "\n\n".join(p for p in parts if p)
 
 
@@ -401,9 +401,9 @@ class Verdict:
 def make_verdict(att: Attribution, gm: GapMap | None, tau_kind: str = "link_sensor",
                  model_effects: Sequence[str] = ()) -> Verdict:
     """The :class:`Verdict` of ``att`` (``gm``: the gap map, ``None`` when the localisation failed)."""
-    advice = offset_advice(att, tau_kind).text
-    return Verdict(verdict_sentence(att, tau_kind), verdict_text(att, gm, tau_kind, model_effects),
-                   [advice] if advice else [])
+    advice = offset_advice(att, tau_kind)
+    return Verdict(verdict_sentence(att, tau_kind), verdict_text(att, gm, tau_kind, model_effects, advice),
+                   [advice.text] if advice.text else [])
 
 
 def undecided_text(att: Attribution, tau_kind: str = "link_sensor") -> str:
