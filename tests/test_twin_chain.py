@@ -54,26 +54,38 @@ def motion():
         traj.MakeDerivative(2).vector_values(t).T
 
 
-def test_block_register_holds_each_block_at_its_phase():
-    """Levels (2, 3, 4): blocks of 24 steps; the output at phase .75 of a block's last step is that block, oldest
-    first, whatever the rounding of the levels' event times (the twin's register has levels (10, 10))."""
-    dt, levels = 1e-3, (2, 3, 4)
+@pytest.mark.parametrize("dt, levels, phase", [(1e-3, (2, 3, 4), 1.1), (1e-3, (10, 10), 1.0), (1e-4, (10, 3), 0.5)])
+def test_block_register_holds_each_block_at_its_phase(dt, levels, phase):
+    """The output ``block`` from the register's phase past a block's last step until the next chunk's is that block,
+    oldest first, whatever the rounding of the levels' event times; ``recent`` holds level 0's samples. A level-1
+    period that is an exact multiple of the step in doubles (10 × 1 ms) shares the step's instants (no extra stop
+    of the Simulator); otherwise (10 × 0.1 ms) level 1 fires half a step after its chunk's last step."""
     builder = DiagramBuilder()
     from pydrake.systems.primitives import TrajectorySource
-    ramp = builder.AddSystem(TrajectorySource(PiecewisePolynomial.FirstOrderHold([0.0, 1.0], [[0.0, 1000.0],
-                                                                                              [0.0, -1000.0]])))
+    ramp = builder.AddSystem(TrajectorySource(PiecewisePolynomial.FirstOrderHold([0.0, 1.0], [[0.0, 1.0 / dt],
+                                                                                              [0.0, -1.0 / dt]])))
     reg = builder.AddSystem(BlockRegister(2, dt, levels))
     builder.Connect(ramp.get_output_port(), reg.get_input_port())
     diagram = builder.Build()
     sim = Simulator(diagram)
     B = reg.size
-    assert B == 24 and reg.phase == pytest.approx(0.6)
+    assert B == math.prod(levels) and reg.phase == pytest.approx(phase)
+    chunk = math.prod(levels[:-1])          # the last level's period [steps]: the block stays until then
     for b in range(5):
-        sim.AdvanceTo((b * B + B - 1 + 0.75) * dt)
-        block = reg.get_output_port().Eval(reg.GetMyContextFromRoot(sim.get_context())).reshape(B, 2)
-        steps = b * B + np.arange(B)
-        np.testing.assert_allclose(block[:, 0], steps, atol=1e-9)
-        np.testing.assert_allclose(block[:, 1], -steps, atol=1e-9)
+        for at in (phase + 0.05, phase - 0.05 + chunk):
+            sim.AdvanceTo((b * B + B - 1 + at) * dt)
+            ctx = reg.GetMyContextFromRoot(sim.get_context())
+            block = reg.GetOutputPort("block").Eval(ctx).reshape(B, 2)
+            steps = b * B + np.arange(B)
+            np.testing.assert_allclose(block[:, 0], steps, atol=1e-9)
+            np.testing.assert_allclose(block[:, 1], -steps, atol=1e-9)
+            last = int(math.floor(b * B + B - 1 + at))      # the newest step level 0 holds
+            np.testing.assert_allclose(reg.GetOutputPort("recent").Eval(ctx).reshape(levels[0], 2)[:, 0],
+                                       np.arange(last - levels[0] + 1, last + 1), atol=1e-9)
+    if levels == (10, 10):
+        sim = Simulator(diagram)
+        sim.AdvanceTo(2000.5 * dt)
+        assert sim.get_num_steps_taken() == 2001          # a stop per step and the end: level 1 at the steps' instants
 
 
 def test_reversal_travel_in_pieces_equals_the_whole_motion(motion):

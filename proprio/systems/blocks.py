@@ -35,21 +35,16 @@ from __future__ import annotations
 
 import math
 import mmap
+from fractions import Fraction
 from typing import Callable, Sequence
 
 import numpy as np
 from pydrake.systems.framework import Context, Diagram, DiagramBuilder, DiscreteValues, LeafSystem
 from pydrake.systems.primitives import Selector, SelectorParams, ZeroOrderHold
 
-__all__ = ["BlockRegister", "BlockStage", "BlockClock", "unpack_rows", "stage_block", "block_phase"]
+__all__ = ["BlockRegister", "BlockStage", "BlockClock", "unpack_rows", "stage_block"]
 
 Law = Callable[[list[np.ndarray], np.ndarray], tuple[np.ndarray, bool, np.ndarray]]
-
-
-def block_phase(levels: Sequence[int]) -> float:
-    """The phase (fraction of a step past the block's last step) at which a :class:`BlockRegister` with ``levels``
-    has its block ready."""
-    return 0.4 + 0.1 * (len(levels) - 1) if len(levels) > 1 else 0.0
 
 
 def unpack_rows(v: np.ndarray, width: int) -> tuple[np.ndarray, bool]:
@@ -58,43 +53,57 @@ def unpack_rows(v: np.ndarray, width: int) -> tuple[np.ndarray, bool]:
     return np.asarray(v[2:2 + count * width]).reshape(count, width), bool(v[1])
 
 
-def _shift(size: int, chunk: int) -> Selector:
-    """``[held[chunk:], newest]``: the held ``size`` values shifted by one ``chunk``, the newest chunk last."""
+def _shift(size: int, newest: Sequence[int]) -> Selector:
+    """``[held[chunk:], newest_0, newest_1, ...]``: the held ``size`` values shifted by one chunk (``chunk`` = the
+    sum of the ``newest`` input ports' sizes), the newest chunk last."""
     pick = SelectorParams.OutputSelection
+    chunk = sum(newest)
     return Selector(SelectorParams(
-        inputs=[SelectorParams.InputPortParams(name="held", size=size),
-                SelectorParams.InputPortParams(name="newest", size=chunk)],
+        inputs=[SelectorParams.InputPortParams(name="held", size=size)]
+        + [SelectorParams.InputPortParams(name=f"newest_{k}", size=w) for k, w in enumerate(newest)],
         outputs=[SelectorParams.OutputPortParams(name="shifted", selections=(
             [pick(input_port_index=0, input_offset=i) for i in range(chunk, size)]
-            + [pick(input_port_index=1, input_offset=i) for i in range(chunk)]))]))
+            + [pick(input_port_index=1 + k, input_offset=i) for k, w in enumerate(newest) for i in range(w)]))]))
 
 
 class BlockRegister(Diagram):
     """Gathers a ``width``-vector sampled every ``time_step`` [s] into chunks of ``Π levels`` samples (module
-    docstring). Input port ``sample`` [width]; output port ``block`` [Π levels · width], the samples of the last
+    docstring). Input port ``sample`` [width], or, for ``width`` a sequence of sizes, one input port ``sample_k`` per
+    size whose values are joined in order into each sample (the level-0 ``Selector`` joins them: no ``Multiplexer``
+    in front, one System fewer at every step); output port ``block`` [Π levels · Σ width], the samples of the last
     complete chunk, oldest first (sample i of chunk b is step ``b·Π levels + i`` of the run, whose time 0 is step 0)."""
 
-    def __init__(self, width: int, time_step: float, levels: Sequence[int] = (10, 10, 10)):
+    def __init__(self, width: int | Sequence[int], time_step: float, levels: Sequence[int] = (10, 10, 10)):
         super().__init__()
-        self.levels, self.width = tuple(int(k) for k in levels), int(width)
+        widths = [int(width)] if isinstance(width, (int, np.integer)) else [int(w) for w in width]
+        self.levels, self.width = tuple(int(k) for k in levels), sum(widths)
         self.size = math.prod(self.levels)
-        self.phase = block_phase(self.levels)
         builder = DiagramBuilder()
         newest, chunk, steps = None, self.width, 1    # the newest chunk: its port, size [samples·width], period
+        phase = 0.0
         for k, count in enumerate(self.levels):
             size = chunk * count
-            offset = 0.0 if k == 0 else (steps - 1 + 0.4 + 0.1 * k) * time_step
+            offset = 0.0
+            if k == 1 and Fraction(steps * time_step) == steps * Fraction(time_step):
+                phase = 1.0     # at the instant of the step after the chunk, with level 0: reads level 0's old state
+            elif k >= 1:
+                phase = 0.5 if k == 1 else phase + 0.1
+                offset = (steps - 1 + phase) * time_step
             hold = builder.AddNamedSystem(f"level{k}", ZeroOrderHold(steps * time_step, size, offset))
-            shift = builder.AddNamedSystem(f"level{k}_shift", _shift(size, chunk))   # one compiled System
+            shift = builder.AddNamedSystem(f"level{k}_shift", _shift(size, widths if k == 0 else [chunk]))
             builder.Connect(hold.get_output_port(), shift.get_input_port(0))
             if k == 0:
-                builder.ExportInput(shift.get_input_port(1), "sample")
+                for j in range(len(widths)):
+                    builder.ExportInput(shift.get_input_port(1 + j),
+                                        "sample" if isinstance(width, (int, np.integer)) else f"sample_{j}")
             else:
                 builder.Connect(newest, shift.get_input_port(1))
             builder.Connect(shift.get_output_port(), hold.get_input_port())
+            if k == 0:
+                builder.ExportOutput(hold.get_output_port(), "recent")
             newest, chunk, steps = hold.get_output_port(), size, steps * count
-        content = newest
-        builder.ExportOutput(content, "block")
+        self.phase = phase
+        builder.ExportOutput(newest, "block")
         builder.BuildInto(self)
 
 
@@ -112,7 +121,9 @@ class BlockStage(LeafSystem):
         self.width, self.capacity = int(width), int(capacity)
         self._ports = [self.DeclareVectorInputPort(name, size) for name, size in inputs.items()]
         self._carry = self.DeclareVectorInputPort("carry", self.carry0.size)
-        self.DeclareVectorOutputPort("out", self.carry0.size + 2 + self.capacity * self.width, self._out)
+        # its inputs only: the Simulator's time and state changes at every step do not reach this port's cache
+        self.DeclareVectorOutputPort("out", self.carry0.size + 2 + self.capacity * self.width, self._out,
+                                     prerequisites_of_calc={self.all_input_ports_ticket()})
 
     def _out(self, context: Context, output) -> None:
         # read-only views, valid during this call (Eval would copy element by element: ~10 ns per value)
