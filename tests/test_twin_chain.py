@@ -18,7 +18,7 @@ from proprio.random_streams import generator_from_state, generator_state, stream
 from proprio.reversals import reversal_travel
 from proprio.robot_log import LoggerConfig, RobotLogger, logged_steps
 from proprio.signals import MotionSignals
-from proprio.systems.blocks import BlockRegister
+from proprio.systems.blocks import AddBlockRegister
 
 Q_A = np.array([0.1, 0.5, -0.2, -1.2, 0.3, 0.7, 0.2])
 
@@ -64,8 +64,8 @@ def test_block_register_holds_each_block_at_its_phase(dt, levels, phase):
     from pydrake.systems.primitives import TrajectorySource
     ramp = builder.AddSystem(TrajectorySource(PiecewisePolynomial.FirstOrderHold([0.0, 1.0], [[0.0, 1.0 / dt],
                                                                                               [0.0, -1.0 / dt]])))
-    reg = builder.AddSystem(BlockRegister(2, dt, levels))
-    builder.Connect(ramp.get_output_port(), reg.get_input_port())
+    reg = AddBlockRegister(builder, [2], dt, levels)
+    builder.Connect(ramp.get_output_port(), reg.samples[0])
     diagram = builder.Build()
     sim = Simulator(diagram)
     B = reg.size
@@ -74,13 +74,14 @@ def test_block_register_holds_each_block_at_its_phase(dt, levels, phase):
     for b in range(5):
         for at in (phase + 0.05, phase - 0.05 + chunk):
             sim.AdvanceTo((b * B + B - 1 + at) * dt)
-            ctx = reg.GetMyContextFromRoot(sim.get_context())
-            block = reg.GetOutputPort("block").Eval(ctx).reshape(B, 2)
+            def value(port):
+                return port.Eval(port.get_system().GetMyContextFromRoot(sim.get_context()))
+            block = value(reg.block).reshape(B, 2)
             steps = b * B + np.arange(B)
             np.testing.assert_allclose(block[:, 0], steps, atol=1e-9)
             np.testing.assert_allclose(block[:, 1], -steps, atol=1e-9)
             last = int(math.floor(b * B + B - 1 + at))      # the newest step level 0 holds
-            np.testing.assert_allclose(reg.GetOutputPort("recent").Eval(ctx).reshape(levels[0], 2)[:, 0],
+            np.testing.assert_allclose(value(reg.recent).reshape(levels[0], 2)[:, 0],
                                        np.arange(last - levels[0] + 1, last + 1), atol=1e-9)
     if levels == (10, 10):
         sim = Simulator(diagram)
@@ -245,19 +246,19 @@ def test_twin_noise_losses_and_jitter_have_the_configured_statistics(calibrated)
 def test_twin_diagram_holds_the_chain_and_python_runs_at_block_rate(calibrated):
     twin = build_twin_diagram(calibrated, wobble(1.0))
     names = {s.get_name() for s in twin.diagram.GetSystems()}
-    assert {"block_register", "log_sampler", "transmission", "torque_sensor", "encoder", "robot_logger",
-            "block_clock"} <= names
+    assert {"block_register_level0", "block_register_level1", "log_sampler", "transmission", "torque_sensor",
+            "encoder", "robot_logger", "block_clock"} <= names
     dot = twin.diagram.GetGraphvizString(max_depth=1)
     assert all(k in dot for k in ("torque_sensor", "encoder", "robot_logger", "block_register"))
     python = [s for s in twin.diagram.GetSystems() if type(s).__module__.startswith("proprio.")
               and isinstance(s, LeafSystem)]
     def events(system) -> tuple[int, int]:
-        """Discrete updates and publishes of ``system`` alone over 2.5 s (inputs fixed at 0)."""
+        """Discrete updates and publishes of ``system`` alone over 2.55 s (inputs fixed at 0)."""
         ctx = system.CreateDefaultContext()
         for k in range(system.num_input_ports()):
             system.get_input_port(k).FixValue(ctx, np.zeros(system.get_input_port(k).size()))
         sim = Simulator(system, ctx)
-        sim.AdvanceTo(2.5)
+        sim.AdvanceTo(2.55)
         return sim.get_num_discrete_updates(), sim.get_num_publishes()
 
     # the chain's Python Systems: events only on the clock, an update per chunk of 100 steps (a copy; the laws once

@@ -38,7 +38,7 @@ from proprio.kinematics import flange_pose, point_jacobian
 from proprio.payload import Payload
 from proprio.robot_log import LoggerCarry, RobotLogger, logged_steps
 from proprio.signals import MotionSignals
-from proprio.systems.blocks import BlockClock, BlockRegister, BlockStage, stage_block
+from proprio.systems.blocks import AddBlockRegister, BlockClock, BlockRegister, BlockStage, stage_block
 from proprio.systems.joint_drive import DriveLaw
 
 __all__ = ["TwinChannels", "MeasurementChain", "AddMeasurementChain", "run_steps", "payload_wrench",
@@ -130,9 +130,9 @@ def AddMeasurementChain(builder: DiagramBuilder, signals: Sequence[OutputPort], 
     registered = sum(port.size() for port in signals)     # [q; q̇; net actuation (; θ; θ̇)]
     width = registered + n                           # the rows' motion with q̈: [q; q̇; q̈; net actuation (; θ; θ̇)]
     elastic = width > 4 * n
-    register = builder.AddNamedSystem("block_register", BlockRegister([p.size() for p in signals], dt, levels))
-    for k, port in enumerate(signals):
-        builder.Connect(port, register.get_input_port(k))
+    register = AddBlockRegister(builder, [p.size() for p in signals], dt, levels)
+    for port, sample_in in zip(signals, register.samples):
+        builder.Connect(port, sample_in)
     B = register.size * chunks
     if len(register.levels) < 2:
         raise ValueError(f"AddMeasurementChain: levels must have at least two levels, got {levels}")
@@ -227,9 +227,9 @@ def AddMeasurementChain(builder: DiagramBuilder, signals: Sequence[OutputPort], 
     def stage(name: str, inputs: dict[str, int], width_k: int, carry0: np.ndarray, law) -> BlockStage:
         return builder.AddNamedSystem(name, BlockStage(inputs, carry0, law, B, width_k))
 
-    chunk = register.GetOutputPort("block").size()
+    chunk = register.block.size()
     sampler = stage("log_sampler", {"held": (chunks - 1) * chunk, "newest": chunk,
-                                     "recent": register.GetOutputPort("recent").size()}, 1 + width,
+                                     "recent": register.recent.size()}, 1 + width,
                     np.zeros(1), sample)
     sampled = sampler.get_output_port().size()
     transmission = stage("transmission", {"samples": sampled}, tw, link_path.start(), transmit)
@@ -244,10 +244,10 @@ def AddMeasurementChain(builder: DiagramBuilder, signals: Sequence[OutputPort], 
     stages = [sampler, transmission, sensor, encoder, robot_logger]
     clock = builder.AddNamedSystem("block_clock", BlockClock(stages, chunk, chunks, register.size, dt, phase,
                                                             max_rows=run_steps(n_steps, B)))
-    builder.Connect(register.GetOutputPort("block"), clock.GetInputPort("chunk"))
+    builder.Connect(register.block, clock.GetInputPort("chunk"))
     builder.Connect(clock.GetOutputPort("held"), sampler.GetInputPort("held"))
-    builder.Connect(register.GetOutputPort("block"), sampler.GetInputPort("newest"))
-    builder.Connect(register.GetOutputPort("recent"), sampler.GetInputPort("recent"))
+    builder.Connect(register.block, sampler.GetInputPort("newest"))
+    builder.Connect(register.recent, sampler.GetInputPort("recent"))
     for system in (transmission, sensor, encoder, robot_logger):
         builder.Connect(sampler.GetOutputPort("out"), system.GetInputPort("samples"))
     builder.Connect(transmission.GetOutputPort("out"), sensor.GetInputPort("transmission"))

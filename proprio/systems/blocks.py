@@ -36,13 +36,16 @@ from __future__ import annotations
 import math
 import mmap
 from fractions import Fraction
+from dataclasses import dataclass
 from typing import Callable, Sequence
 
 import numpy as np
-from pydrake.systems.framework import Context, Diagram, DiagramBuilder, DiscreteValues, LeafSystem
+from pydrake.systems.framework import (
+    Context, DiagramBuilder, DiscreteValues, InputPort, LeafSystem, OutputPort,
+)
 from pydrake.systems.primitives import Selector, SelectorParams, ZeroOrderHold
 
-__all__ = ["BlockRegister", "BlockStage", "BlockClock", "unpack_rows", "stage_block"]
+__all__ = ["BlockRegister", "AddBlockRegister", "BlockStage", "BlockClock", "unpack_rows", "stage_block"]
 
 Law = Callable[[list[np.ndarray], np.ndarray], tuple[np.ndarray, bool, np.ndarray]]
 
@@ -66,45 +69,52 @@ def _shift(size: int, newest: Sequence[int]) -> Selector:
             + [pick(input_port_index=1 + k, input_offset=i) for k, w in enumerate(newest) for i in range(w)]))]))
 
 
-class BlockRegister(Diagram):
-    """Gathers a ``width``-vector sampled every ``time_step`` [s] into chunks of ``Π levels`` samples (module
-    docstring). Input port ``sample`` [width], or, for ``width`` a sequence of sizes, one input port ``sample_k`` per
-    size whose values are joined in order into each sample (the level-0 ``Selector`` joins them: no ``Multiplexer``
-    in front, one System fewer at every step); output port ``block`` [Π levels · Σ width], the samples of the last
-    complete chunk, oldest first (sample i of chunk b is step ``b·Π levels + i`` of the run, whose time 0 is step 0)."""
+@dataclass
+class BlockRegister:
+    """What :func:`AddBlockRegister` added: ``levels``, the sample's ``width`` (Σ of the input sizes), ``size`` =
+    Π levels samples per chunk, the ``phase`` [steps] past a chunk's last step from which ``block`` holds it, the
+    level-0 ``Selector``'s input ports ``samples`` (one per size, joined in order into each sample), and the output
+    ports ``block`` [size · width] (the last complete chunk's samples, oldest first: sample i of chunk b is step
+    ``b·size + i`` of the run, whose time 0 is step 0) and ``recent`` [levels[0] · width] (level 0: the newest
+    samples, up to the step just past)."""
+    levels: tuple[int, ...]
+    width: int
+    size: int
+    phase: float
+    samples: list[InputPort]
+    block: OutputPort
+    recent: OutputPort
 
-    def __init__(self, width: int | Sequence[int], time_step: float, levels: Sequence[int] = (10, 10, 10)):
-        super().__init__()
-        widths = [int(width)] if isinstance(width, (int, np.integer)) else [int(w) for w in width]
-        self.levels, self.width = tuple(int(k) for k in levels), sum(widths)
-        self.size = math.prod(self.levels)
-        builder = DiagramBuilder()
-        newest, chunk, steps = None, self.width, 1    # the newest chunk: its port, size [samples·width], period
-        phase = 0.0
-        for k, count in enumerate(self.levels):
-            size = chunk * count
-            offset = 0.0
-            if k == 1 and Fraction(steps * time_step) == steps * Fraction(time_step):
-                phase = 1.0     # at the instant of the step after the chunk, with level 0: reads level 0's old state
-            elif k >= 1:
-                phase = 0.5 if k == 1 else phase + 0.1
-                offset = (steps - 1 + phase) * time_step
-            hold = builder.AddNamedSystem(f"level{k}", ZeroOrderHold(steps * time_step, size, offset))
-            shift = builder.AddNamedSystem(f"level{k}_shift", _shift(size, widths if k == 0 else [chunk]))
-            builder.Connect(hold.get_output_port(), shift.get_input_port(0))
-            if k == 0:
-                for j in range(len(widths)):
-                    builder.ExportInput(shift.get_input_port(1 + j),
-                                        "sample" if isinstance(width, (int, np.integer)) else f"sample_{j}")
-            else:
-                builder.Connect(newest, shift.get_input_port(1))
-            builder.Connect(shift.get_output_port(), hold.get_input_port())
-            if k == 0:
-                builder.ExportOutput(hold.get_output_port(), "recent")
-            newest, chunk, steps = hold.get_output_port(), size, steps * count
-        self.phase = phase
-        builder.ExportOutput(newest, "block")
-        builder.BuildInto(self)
+
+def AddBlockRegister(builder: DiagramBuilder, widths: Sequence[int], time_step: float,
+                     levels: Sequence[int] = (10, 10, 10), name: str = "block_register") -> BlockRegister:
+    """Add the compiled shift register (module docstring) gathering samples of the inputs of sizes ``widths``, taken
+    every ``time_step`` [s], into chunks of ``Π levels`` samples: Systems ``<name>_level<k>`` (``ZeroOrderHold``)
+    and ``<name>_level<k>_shift`` (``Selector``) in ``builder`` itself (a Diagram of its own would cost its
+    Context ≈ 0.4 µs at every step)."""
+    widths = [int(w) for w in widths]
+    levels = tuple(int(k) for k in levels)
+    newest, chunk, steps = None, sum(widths), 1    # the newest chunk: its port, size [samples·width], period
+    phase, samples, recent = 0.0, [], None
+    for k, count in enumerate(levels):
+        size = chunk * count
+        offset = 0.0
+        if k == 1 and Fraction(steps * time_step) == steps * Fraction(time_step):
+            phase = 1.0     # at the instant of the step after the chunk, with level 0: reads level 0's old state
+        elif k >= 1:
+            phase = 0.5 if k == 1 else phase + 0.1
+            offset = (steps - 1 + phase) * time_step
+        hold = builder.AddNamedSystem(f"{name}_level{k}", ZeroOrderHold(steps * time_step, size, offset))
+        shift = builder.AddNamedSystem(f"{name}_level{k}_shift", _shift(size, widths if k == 0 else [chunk]))
+        builder.Connect(hold.get_output_port(), shift.get_input_port(0))
+        if k == 0:
+            samples = [shift.get_input_port(1 + j) for j in range(len(widths))]
+            recent = hold.get_output_port()
+        else:
+            builder.Connect(newest, shift.get_input_port(1))
+        builder.Connect(shift.get_output_port(), hold.get_input_port())
+        newest, chunk, steps = hold.get_output_port(), size, steps * count
+    return BlockRegister(levels, sum(widths), math.prod(levels), phase, samples, newest, recent)
 
 
 class BlockStage(LeafSystem):
