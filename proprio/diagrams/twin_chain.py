@@ -145,9 +145,9 @@ def AddMeasurementChain(builder: DiagramBuilder, signals: Sequence[OutputPort], 
     def sample(inputs: list[np.ndarray], carry: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         lo = int(carry[0]) * B
         idx = logged_steps(lo, lo + B, n_steps, dt, config.logger.rate_hz)
-        block = np.concatenate([inputs[0], inputs[1]]).reshape(B, registered)  # earlier chunks, the last one
+        block = inputs[0].reshape(B, registered)
         # q̈ of the discrete plant: (v_{k+1} − v_k)/Δt, Drake's own expression (its acceleration port), exactly
-        after = inputs[2][-registered:]                                          # step lo + B: level 0's newest
+        after = inputs[1][-registered:]                                          # step lo + B: level 0's newest
         v = np.concatenate([block[:, n:2 * n], after[None, n:2 * n]])          # v_{lo..lo+B}
         qdd = (v[1:] - v[:-1]) / dt
         rows = np.column_stack([idx * dt, block[idx - lo, :2 * n], qdd[idx - lo], block[idx - lo, 2 * n:]])
@@ -228,8 +228,7 @@ def AddMeasurementChain(builder: DiagramBuilder, signals: Sequence[OutputPort], 
         return builder.AddNamedSystem(name, BlockStage(inputs, carry0, law, B, width_k))
 
     chunk = register.block.size()
-    sampler = stage("log_sampler", {"held": (chunks - 1) * chunk, "newest": chunk,
-                                     "recent": register.recent.size()}, 1 + width,
+    sampler = stage("log_sampler", {"held": chunks * chunk, "after": register.recent.size()}, 1 + width,
                     np.zeros(1), sample)
     sampled = sampler.get_output_port().size()
     transmission = stage("transmission", {"samples": sampled}, tw, link_path.start(), transmit)
@@ -243,11 +242,12 @@ def AddMeasurementChain(builder: DiagramBuilder, signals: Sequence[OutputPort], 
                          channels.width, logger.start().vector(), log)
     stages = [sampler, transmission, sensor, encoder, robot_logger]
     clock = builder.AddNamedSystem("block_clock", BlockClock(stages, chunk, chunks, register.size, dt, phase,
-                                                            max_rows=run_steps(n_steps, B)))
+                                                            max_rows=run_steps(n_steps, B),
+                                                            after_size=register.recent.size()))
     builder.Connect(register.block, clock.GetInputPort("chunk"))
+    builder.Connect(register.recent, clock.GetInputPort("after"))
     builder.Connect(clock.GetOutputPort("held"), sampler.GetInputPort("held"))
-    builder.Connect(register.block, sampler.GetInputPort("newest"))
-    builder.Connect(register.recent, sampler.GetInputPort("recent"))
+    builder.Connect(clock.GetOutputPort("after"), sampler.GetInputPort("after"))
     for system in (transmission, sensor, encoder, robot_logger):
         builder.Connect(sampler.GetOutputPort("out"), system.GetInputPort("samples"))
     builder.Connect(transmission.GetOutputPort("out"), sensor.GetInputPort("transmission"))
