@@ -1,16 +1,17 @@
 """The twin's measurement chain inside its Diagram: the log sampler, the transmitted torque, the torque sensor, the
 encoder and the robot's logger, as block-rate Systems behind a compiled shift register.
 
-The plant's logged signals ``[q; q̇; net actuation (; θ; θ̇)]`` enter a
-:class:`~proprio.systems.blocks.BlockRegister` (Drake primitives only at the 1 kHz step: chunks of 100 steps); the
-``block_clock`` (:class:`~proprio.systems.blocks.BlockClock`, the chain's one Python System with events) gathers the
-chunks into blocks of ``B`` = 1 000 steps and, at a fractional phase of each block's last step, has five stateless
-:class:`~proprio.systems.blocks.BlockStage` s apply the laws of the layers below in order:
+The plant's logged signals ``[q; q̇]``, ``net actuation`` (, ``[θ; θ̇]``) enter a
+:class:`~proprio.systems.blocks.BlockRegister` (Drake primitives only at the 1 kHz step: chunks of 100 steps; its
+``Selector`` joins the ports); the ``block_clock`` (:class:`~proprio.systems.blocks.BlockClock`, the chain's one
+Python System with events) gathers the chunks into blocks of ``B`` = 1 000 steps and, at a fractional phase of the
+step after each block, has five stateless :class:`~proprio.systems.blocks.BlockStage` s apply the laws of the
+layers below in order:
 
 1. ``log_sampler`` — the steps the robot logs (:func:`proprio.robot_log.logged_steps`), their instants and the
    motion with q̈ = (q̇ₖ₊₁ − q̇ₖ)/Δt (the next velocity of the block's last step from the sample of the step after
-   it, which the register's level 0 holds when the block is read): the discrete plant's acceleration port computes
-   exactly this, so q̈ is not registered;
+   it, which the register's level 0 holds when the clock takes the block): the discrete plant's acceleration port
+   computes exactly this, so q̈ is not registered;
 2. ``transmission`` — the truth of the motion: τ_RBD and the link-side effects' torques (reversal state carried,
    :class:`~proprio.effects.sensor_chain.PathEffects`), the transmitted τ_J (``DriveLaw.sensed_torque``) and the
    payload's flange wrench (:func:`payload_wrench`);
