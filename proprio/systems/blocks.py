@@ -46,8 +46,8 @@ from __future__ import annotations
 
 import math
 import mmap
-from fractions import Fraction
 from dataclasses import dataclass
+from fractions import Fraction
 from typing import Callable, Sequence
 
 import numpy as np
@@ -226,7 +226,8 @@ class BlockClock(LeafSystem):
         held = discrete_state.get_mutable_vector(self._held).get_mutable_value()
         held[count * self._chunk_size:(count + 1) * self._chunk_size] = self._chunk.EvalBasicVector(context).get_value()
         if count == self._chunks - 1:
-            discrete_state.get_mutable_vector(self._after).SetFromVector(self._after_in.EvalBasicVector(context).get_value())
+            after = self._after_in.EvalBasicVector(context).get_value()
+            discrete_state.get_mutable_vector(self._after).SetFromVector(after)
         discrete_state.get_mutable_vector(self._count).SetAtIndex(0, (count + 1) % self._chunks)
 
     def _run_stages(self, context: Context, discrete_state: DiscreteValues) -> None:
