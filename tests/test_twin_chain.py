@@ -18,7 +18,7 @@ from proprio.random_streams import generator_from_state, generator_state, stream
 from proprio.reversals import reversal_travel
 from proprio.robot_log import LoggerConfig, RobotLogger, logged_steps
 from proprio.signals import MotionSignals
-from proprio.systems.blocks import BlockRegister
+from proprio.systems.blocks import AddBlockRegister
 
 Q_A = np.array([0.1, 0.5, -0.2, -1.2, 0.3, 0.7, 0.2])
 
@@ -54,26 +54,39 @@ def motion():
         traj.MakeDerivative(2).vector_values(t).T
 
 
-def test_block_register_holds_each_block_at_its_phase():
-    """Levels (2, 3, 4): blocks of 24 steps; the output at phase .75 of a block's last step is that block, oldest
-    first, whatever the rounding of the levels' event times (the twin's register has levels (10, 10))."""
-    dt, levels = 1e-3, (2, 3, 4)
+@pytest.mark.parametrize("dt, levels, phase", [(1e-3, (2, 3, 4), 1.1), (1e-3, (10, 10), 1.0), (1e-4, (10, 3), 0.5)])
+def test_block_register_holds_each_block_at_its_phase(dt, levels, phase):
+    """The output ``block`` from the register's phase past a block's last step until the next chunk's is that block,
+    oldest first, whatever the rounding of the levels' event times; ``recent`` holds level 0's samples. A level-1
+    period that is an exact multiple of the step in doubles (10 × 1 ms) shares the step's instants (no extra stop
+    of the Simulator); otherwise (10 × 0.1 ms) level 1 fires half a step after its chunk's last step."""
     builder = DiagramBuilder()
     from pydrake.systems.primitives import TrajectorySource
-    ramp = builder.AddSystem(TrajectorySource(PiecewisePolynomial.FirstOrderHold([0.0, 1.0], [[0.0, 1000.0],
-                                                                                              [0.0, -1000.0]])))
-    reg = builder.AddSystem(BlockRegister(2, dt, levels))
-    builder.Connect(ramp.get_output_port(), reg.get_input_port())
+    ramp = builder.AddSystem(TrajectorySource(PiecewisePolynomial.FirstOrderHold([0.0, 1.0], [[0.0, 1.0 / dt],
+                                                                                              [0.0, -1.0 / dt]])))
+    reg = AddBlockRegister(builder, [2], dt, levels)
+    builder.Connect(ramp.get_output_port(), reg.samples[0])
     diagram = builder.Build()
     sim = Simulator(diagram)
     B = reg.size
-    assert B == 24 and reg.phase == pytest.approx(0.6)
+    assert B == math.prod(levels) and reg.phase == pytest.approx(phase)
+    chunk = math.prod(levels[:-1])          # the last level's period [steps]: the block stays until then
     for b in range(5):
-        sim.AdvanceTo((b * B + B - 1 + 0.75) * dt)
-        block = reg.get_output_port().Eval(reg.GetMyContextFromRoot(sim.get_context())).reshape(B, 2)
-        steps = b * B + np.arange(B)
-        np.testing.assert_allclose(block[:, 0], steps, atol=1e-9)
-        np.testing.assert_allclose(block[:, 1], -steps, atol=1e-9)
+        for at in (phase + 0.05, phase - 0.05 + chunk):
+            sim.AdvanceTo((b * B + B - 1 + at) * dt)
+            def value(port):
+                return port.Eval(port.get_system().GetMyContextFromRoot(sim.get_context()))
+            block = value(reg.block).reshape(B, 2)
+            steps = b * B + np.arange(B)
+            np.testing.assert_allclose(block[:, 0], steps, atol=1e-9)
+            np.testing.assert_allclose(block[:, 1], -steps, atol=1e-9)
+            last = int(math.floor(b * B + B - 1 + at))      # the newest step level 0 holds
+            np.testing.assert_allclose(value(reg.recent).reshape(levels[0], 2)[:, 0],
+                                       np.arange(last - levels[0] + 1, last + 1), atol=1e-9)
+    if levels == (10, 10):
+        sim = Simulator(diagram)
+        sim.AdvanceTo(2000.5 * dt)
+        assert sim.get_num_steps_taken() == 2001          # a stop per step and the end: level 1 at the steps' instants
 
 
 def test_reversal_travel_in_pieces_equals_the_whole_motion(motion):
@@ -233,25 +246,24 @@ def test_twin_noise_losses_and_jitter_have_the_configured_statistics(calibrated)
 def test_twin_diagram_holds_the_chain_and_python_runs_at_block_rate(calibrated):
     twin = build_twin_diagram(calibrated, wobble(1.0))
     names = {s.get_name() for s in twin.diagram.GetSystems()}
-    assert {"block_register", "log_sampler", "transmission", "torque_sensor", "encoder", "robot_logger",
-            "block_clock"} <= names
+    assert {"block_register_level0", "block_register_level1", "log_sampler", "transmission", "torque_sensor",
+            "encoder", "robot_logger", "block_clock"} <= names
     dot = twin.diagram.GetGraphvizString(max_depth=1)
     assert all(k in dot for k in ("torque_sensor", "encoder", "robot_logger", "block_register"))
     python = [s for s in twin.diagram.GetSystems() if type(s).__module__.startswith("proprio.")
               and isinstance(s, LeafSystem)]
     def events(system) -> tuple[int, int]:
-        """Discrete updates and publishes of ``system`` alone over 2.5 s (inputs fixed at 0)."""
+        """Discrete updates and publishes of ``system`` alone over 2.55 s (inputs fixed at 0)."""
         ctx = system.CreateDefaultContext()
         for k in range(system.num_input_ports()):
             system.get_input_port(k).FixValue(ctx, np.zeros(system.get_input_port(k).size()))
         sim = Simulator(system, ctx)
-        sim.AdvanceTo(2.5)
+        sim.AdvanceTo(2.55)
         return sim.get_num_discrete_updates(), sim.get_num_publishes()
 
-    # the chain's Python Systems: events only on the clock, an update per chunk of 100 steps (a copy; the laws once
-    # per block of 1 000) and a publish per block
+    # the chain's Python Systems: events only on the clock, an update per chunk of 100 steps (a copy), one per block
+    # of 1 000 (the laws, once) and a publish per block
     chain = {"log_sampler", "transmission", "torque_sensor", "encoder", "robot_logger", "block_clock"}
     assert {s.get_name(): events(s) for s in python if s.get_name() in chain} == {
-        **{k: (0, 0) for k in chain - {"block_clock"}}, "block_clock": (25, 2)}
-    assert twin.chain.clock.GetUniquePeriodicDiscreteUpdateAttribute().period_sec() == pytest.approx(0.1)
+        **{k: (0, 0) for k in chain - {"block_clock"}}, "block_clock": (25 + 2, 2)}
     assert math.prod(twin.chain.register.levels) == 100 and twin.chain.block_steps == 1000

@@ -68,7 +68,6 @@ from typing import Any
 import numpy as np
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder
-from pydrake.systems.primitives import Multiplexer
 from pydrake.trajectories import PiecewisePolynomial, Trajectory
 from proprio.progress import progress_bar
 
@@ -185,10 +184,7 @@ def build_twin_diagram(config: TwinConfig, trajectory: Trajectory, measurement_c
     n_steps = _run_length(trajectory, dt)
     chain = None
     if measurement_chain:
-        mux = builder.AddNamedSystem("true_motion", Multiplexer([port.size() for port in logged]))
-        for k, port in enumerate(logged):
-            builder.Connect(port, mux.get_input_port(k))
-        chain = AddMeasurementChain(builder, mux.get_output_port(), state, config, drive, n_steps)
+        chain = AddMeasurementChain(builder, logged, config, drive, n_steps)
     diagram = builder.Build()
     diagram.set_name(f"twin:{config.name}")
     return TwinDiagram(diagram, plant, drive, ctrl, chain, config, control_plant, n_steps)
@@ -218,7 +214,7 @@ def start_simulator(twin: TwinDiagram, trajectory: Trajectory) -> Simulator:
     ctx = sim.get_mutable_context()
     pctx = twin.plant.GetMyMutableContextFromRoot(ctx)
     q0 = trajectory.value(0.0).ravel()
-    qd0 = trajectory.MakeDerivative(1).value(0.0).ravel()
+    qd0 = trajectory.EvalDerivative(0.0, 1).ravel()
     twin.plant.SetPositions(pctx, q0)
     twin.plant.SetVelocities(pctx, qd0)
     twin.drive.set_motor_state(twin.drive.GetMyMutableContextFromRoot(ctx), q0, qd0,
@@ -247,7 +243,7 @@ def simulate_twin(config: TwinConfig, trajectory: Trajectory, payload: Payload |
     twin = build_twin_diagram(config, trajectory)
     chain = twin.chain
     n_steps = twin.n_steps
-    t_end = (run_steps(n_steps, chain.block_steps) - 1 + 0.9) * dt     # past the last block's stages (phases < 0.9)
+    t_end = (run_steps(n_steps, chain.block_steps) + 0.9) * dt     # past the last block's stages (phases < 1.9 steps)
 
     sim = start_simulator(twin, trajectory)
     wall0, cpu0 = time.perf_counter(), time.process_time()

@@ -1,15 +1,17 @@
 """The twin's measurement chain inside its Diagram: the log sampler, the transmitted torque, the torque sensor, the
 encoder and the robot's logger, as block-rate Systems behind a compiled shift register.
 
-The plant's logged signals ``[q; q̇; net actuation (; θ; θ̇)]`` enter a
-:class:`~proprio.systems.blocks.BlockRegister` (Drake primitives only at the 1 kHz step: chunks of 100 steps); the
-``block_clock`` (:class:`~proprio.systems.blocks.BlockClock`, the chain's one Python System with events) gathers the
-chunks into blocks of ``B`` = 1 000 steps and, at a fractional phase of each block's last step, has five stateless
-:class:`~proprio.systems.blocks.BlockStage` s apply the laws of the layers below in order:
+The plant's logged signals ``[q; q̇]``, ``net actuation`` (, ``[θ; θ̇]``) enter a
+:class:`~proprio.systems.blocks.BlockRegister` (Drake primitives only at the 1 kHz step: chunks of 100 steps; its
+``Selector`` joins the ports); the ``block_clock`` (:class:`~proprio.systems.blocks.BlockClock`, the chain's one
+Python System with events) gathers the chunks into blocks of ``B`` = 1 000 steps and, at a fractional phase of the
+step after each block, has five stateless :class:`~proprio.systems.blocks.BlockStage` s apply the laws of the
+layers below in order:
 
 1. ``log_sampler`` — the steps the robot logs (:func:`proprio.robot_log.logged_steps`), their instants and the
-   motion with q̈ = (q̇ₖ₊₁ − q̇ₖ)/Δt (the next velocity of the block's last step from the plant's state, which holds
-   it at the block's phase): the discrete plant's acceleration port computes exactly this, so q̈ is not registered;
+   motion with q̈ = (q̇ₖ₊₁ − q̇ₖ)/Δt (the next velocity of the block's last step from the sample of the step after
+   it, which the register's level 0 holds when the clock takes the block): the discrete plant's acceleration port
+   computes exactly this, so q̈ is not registered;
 2. ``transmission`` — the truth of the motion: τ_RBD and the link-side effects' torques (reversal state carried,
    :class:`~proprio.effects.sensor_chain.PathEffects`), the transmitted τ_J (``DriveLaw.sensed_torque``) and the
    payload's flange wrench (:func:`payload_wrench`);
@@ -25,6 +27,7 @@ step (:func:`run_steps`): the last block is flushed through the same Systems.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 from pydrake.systems.framework import DiagramBuilder, OutputPort
@@ -36,7 +39,7 @@ from proprio.kinematics import flange_pose, point_jacobian
 from proprio.payload import Payload
 from proprio.robot_log import LoggerCarry, RobotLogger, logged_steps
 from proprio.signals import MotionSignals
-from proprio.systems.blocks import BlockClock, BlockRegister, BlockStage, stage_block
+from proprio.systems.blocks import AddBlockRegister, BlockClock, BlockRegister, BlockStage, stage_block
 from proprio.systems.joint_drive import DriveLaw
 
 __all__ = ["TwinChannels", "MeasurementChain", "AddMeasurementChain", "run_steps", "payload_wrench",
@@ -117,29 +120,36 @@ def run_steps(n_steps: int, block_steps: int) -> int:
     return -(-n_steps // block_steps) * block_steps
 
 
-def AddMeasurementChain(builder: DiagramBuilder, signals: OutputPort, state: OutputPort, config, drive: DriveLaw,
+def AddMeasurementChain(builder: DiagramBuilder, signals: Sequence[OutputPort], config, drive: DriveLaw,
                         n_steps: int, levels: tuple[int, ...] = REGISTER_LEVELS,
                         chunks: int = BLOCK_CHUNKS) -> MeasurementChain:
     """Add the measurement chain (module docstring) of the twin ``config`` (a
     :class:`~proprio.diagrams.twin_config.TwinConfig`) for a run of ``n_steps`` steps from time 0, fed by
-    ``signals`` = ``[q; q̇; net actuation (; θ; θ̇)]`` (the plant's, at its own instants), the plant's ``state``
-    ``[q; q̇]`` (read once per block, for q̈) and the ``drive``'s law."""
+    ``signals`` = the ports ``[q; q̇]``, ``net actuation`` (, ``[θ; θ̇]``), the plant's at its own instants, which
+    the register joins into its samples, and the ``drive``'s law."""
     desc, n, dt = config.robot, config.robot.n, config.time_step
-    registered = signals.size()                      # [q; q̇; net actuation (; θ; θ̇)]
+    registered = sum(port.size() for port in signals)     # [q; q̇; net actuation (; θ; θ̇)]
     width = registered + n                           # the rows' motion with q̈: [q; q̇; q̈; net actuation (; θ; θ̇)]
     elastic = width > 4 * n
-    register = builder.AddNamedSystem("block_register", BlockRegister(registered, dt, levels))
-    builder.Connect(signals, register.get_input_port())
-    B, phase = register.size * chunks, register.phase
+    register = AddBlockRegister(builder, [p.size() for p in signals], dt, levels)
+    for port, sample_in in zip(signals, register.samples):
+        builder.Connect(port, sample_in)
+    B = register.size * chunks
+    if len(register.levels) < 2:
+        raise ValueError(f"AddMeasurementChain: levels must have at least two levels, got {levels}")
+    # the clock reads a block once the register holds it, after the instant of the step that follows it (so that
+    # level 0 holds that step's sample, whose q̇ gives q̈ of the block's last step) and before the next chunk's
+    phase = max(1.0, register.phase) + 0.1
     session = config.session_time_s
 
     # 1. the steps the robot logs, and their instants
     def sample(inputs: list[np.ndarray], carry: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         lo = int(carry[0]) * B
         idx = logged_steps(lo, lo + B, n_steps, dt, config.logger.rate_hz)
-        block = np.concatenate([inputs[0], inputs[1]]).reshape(B, registered)  # earlier chunks, the last one
+        block = inputs[0].reshape(B, registered)
         # q̈ of the discrete plant: (v_{k+1} − v_k)/Δt, Drake's own expression (its acceleration port), exactly
-        v = np.concatenate([block[:, n:2 * n], inputs[2][None, n:]])          # v_{lo..lo+B}: the plant's state now
+        after = inputs[1][-registered:]                                          # step lo + B: level 0's newest
+        v = np.concatenate([block[:, n:2 * n], after[None, n:2 * n]])          # v_{lo..lo+B}
         qdd = (v[1:] - v[:-1]) / dt
         rows = np.column_stack([idx * dt, block[idx - lo, :2 * n], qdd[idx - lo], block[idx - lo, 2 * n:]])
         return rows, lo + B >= n_steps, carry + 1.0
@@ -218,8 +228,8 @@ def AddMeasurementChain(builder: DiagramBuilder, signals: OutputPort, state: Out
     def stage(name: str, inputs: dict[str, int], width_k: int, carry0: np.ndarray, law) -> BlockStage:
         return builder.AddNamedSystem(name, BlockStage(inputs, carry0, law, B, width_k))
 
-    chunk = register.get_output_port().size()
-    sampler = stage("log_sampler", {"held": (chunks - 1) * chunk, "newest": chunk, "state": 2 * n}, 1 + width,
+    chunk = register.block.size()
+    sampler = stage("log_sampler", {"held": chunks * chunk, "after": register.recent.size()}, 1 + width,
                     np.zeros(1), sample)
     sampled = sampler.get_output_port().size()
     transmission = stage("transmission", {"samples": sampled}, tw, link_path.start(), transmit)
@@ -232,12 +242,13 @@ def AddMeasurementChain(builder: DiagramBuilder, signals: OutputPort, state: Out
                                           "position": encoder.get_output_port().size()},
                          channels.width, logger.start().vector(), log)
     stages = [sampler, transmission, sensor, encoder, robot_logger]
-    clock = builder.AddNamedSystem("block_clock", BlockClock(stages, chunk, chunks, register.size, dt, phase + 0.1,
-                                                            max_rows=run_steps(n_steps, B)))
-    builder.Connect(register.get_output_port(), clock.GetInputPort("chunk"))
+    clock = builder.AddNamedSystem("block_clock", BlockClock(stages, chunk, chunks, register.size, dt, phase,
+                                                            max_rows=run_steps(n_steps, B),
+                                                            after_size=register.recent.size()))
+    builder.Connect(register.block, clock.GetInputPort("chunk"))
+    builder.Connect(register.recent, clock.GetInputPort("after"))
     builder.Connect(clock.GetOutputPort("held"), sampler.GetInputPort("held"))
-    builder.Connect(register.get_output_port(), sampler.GetInputPort("newest"))
-    builder.Connect(state, sampler.GetInputPort("state"))
+    builder.Connect(clock.GetOutputPort("after"), sampler.GetInputPort("after"))
     for system in (transmission, sensor, encoder, robot_logger):
         builder.Connect(sampler.GetOutputPort("out"), system.GetInputPort("samples"))
     builder.Connect(transmission.GetOutputPort("out"), sensor.GetInputPort("transmission"))
