@@ -66,9 +66,9 @@ def test_the_columns_are_the_twin_laws(desc):
     """Each column at its amplitude is the twin's effect function (Hysteresis with a load gain, LostMotion with a
     load gain, Ripple), to 1e-10."""
     t, q, qd, qdd = _motion(desc, 20.0)
-    load = 30.0 * np.sin(q)             # any load signal: the laws take its magnitude
+    load = 30.0 * np.sin(q)             # any a-priori torque: the laws take its magnitude as the load
     settings = SensorTermSettings.defaults(desc.n, GEAR)
-    cols, _ = sensor_columns(settings, q, qd, load, np.zeros_like(q))
+    cols, _ = sensor_columns(settings, q, qd, load)
     s = MotionSignals(t, q, qd, qdd, load)
     law = {"hysteresis": Hysteresis(desc.n, saturation=SAT, load_gain=SAT_LOAD).torque(s),
            "lost_motion": LostMotion(desc.n, amplitude=LOST, load_gain=0.001).torque(s),
@@ -80,20 +80,20 @@ def test_the_columns_are_the_twin_laws(desc):
     for name in law:
         assert np.abs(law[name]).max() > 0.01, name          # the motion excites the law
         np.testing.assert_allclose(ours[name], law[name], rtol=0, atol=1e-10, err_msg=name)
-    np.testing.assert_array_equal(cols[k["gain"]], 0.0)
+    np.testing.assert_array_equal(cols[k["gain"]], load)
 
 
 def test_pieces_with_the_carry_are_the_whole_motion(desc):
     """The columns over a motion cut into pieces, each continuing the previous one's carry (through its vector, as
     a Drake state holds it), equal the columns over the whole motion to 1e-12; so does one sample at a time."""
     t, q, qd, qdd = _motion(desc, 10.0)
-    load, prior = 20.0 * np.cos(q), 5.0 * q
+    prior = 20.0 * np.cos(q)
     settings = SensorTermSettings.defaults(desc.n, GEAR)
-    whole, _ = sensor_columns(settings, q, qd, load, prior)
+    whole, _ = sensor_columns(settings, q, qd, prior)
     for cuts in ([0, 1, 137, 600, 1433, q.shape[0]], list(range(0, 301)) + [q.shape[0]]):
         parts, carry = [], None
         for a, b in zip(cuts[:-1], cuts[1:]):
-            cols, end = sensor_columns(settings, q[a:b], qd[a:b], load[a:b], prior[a:b], carry)
+            cols, end = sensor_columns(settings, q[a:b], qd[a:b], prior[a:b], carry)
             parts.append(cols)
             carry = SensorCarry.from_vector(end.vector())
         np.testing.assert_allclose(np.concatenate(parts, axis=1), whole, rtol=0, atol=1e-12)
@@ -191,5 +191,5 @@ def test_sensor_terms_round_trip_their_settings():
     assert SensorTermSettings.from_dict(st.to_dict()) == st and st.gear_ratio == (100.0, 120.0, 160.0)
     terms = SensorTerms(st, tuple((0.0,) * 3 for _ in st.terms))
     q = np.zeros((4, 3))
-    tau, _ = terms.torque(q, q, q, q)
+    tau, _ = terms.torque(q, q, q)
     np.testing.assert_array_equal(tau, 0.0)

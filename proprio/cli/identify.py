@@ -177,7 +177,7 @@ def register(subparsers) -> None:
                         "the measured link torque as the load)")
     p.add_argument("--sensor-terms", action="store_true",
                    help="also fit the torque sensor's reversal laws per joint: hysteresis and lost motion (each a "
-                        "level [N m] and a load gain [-], the measured |tau| as the load; the twin's laws at their "
+                        "level [N m] and a load gain [-], the a-priori model's |tau| as the load; the twin's laws at their "
                         "default travel scales) and, where the robot description gives gear ratios, the ripple "
                         "(sin/cos of harmonic x gear ratio x q); the model carries their reversal state online")
     p.add_argument("--show-parameters", action="store_true", help="print the base-parameter table (Table 4.6)")

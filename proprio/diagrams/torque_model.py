@@ -68,9 +68,9 @@ class RigidBodyTorqueModel:
     friction on the coupled motor velocity (:func:`~proprio.identification.regressor.drive_torque`), and takes the
     drive block's offsets when none are given: the observers then see the link-side torque in τ − τ_int.
 
-    ``sensor``: identified torque-sensor terms (:mod:`proprio.identification.sensor_terms`) added to τ_int, their
-    load the rigid body and friction, the gain's column the a-priori description ``prior``'s rigid body and friction
-    (the identification's ``Y φ_prior``); they have state (module docstring)."""
+    ``sensor``: identified torque-sensor terms (:mod:`proprio.identification.sensor_terms`) added to τ_int, on the
+    a-priori description ``prior``'s rigid body and friction (the identification's ``Y φ_prior``: the gain's column
+    and the load); they have state (module docstring)."""
     description: RobotDescription
     coulomb_velocity: float | None = None
     offset: tuple[float, ...] | None = None
@@ -100,12 +100,12 @@ class RigidBodyTorqueModel:
                                                 self.coulomb_velocity)
         if self.sensor is not None:
             q, qdd = np.asarray(q, dtype=float), np.asarray(qdd, dtype=float)
-            load = inverse_dynamics(d, q, qd, qdd) + tau - self._offset()
-            tau += self.sensor.torque(q, qd, load, self.prior_torque(q, qd, qdd))[0]
+            tau += self.sensor.torque(q, qd, self.prior_torque(q, qd, qdd))[0]
         return tau
 
     def prior_torque(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
-        """The a-priori description's rigid body and friction ``[N,n]`` [N·m] (the sensor gain's column)."""
+        """The a-priori description's rigid body and friction ``[N,n]`` [N·m] (the sensor terms' gain column and
+        load)."""
         p = self.prior
         tau = inverse_dynamics(p, q, qd, qdd)
         if p.has_friction:
@@ -163,7 +163,7 @@ class RigidTorqueStep:
     def __init__(self, model: RigidBodyTorqueModel):
         self.n = n = model.description.n
         self._tau_int = model.tau_int_step()
-        self._model, self._sensor, self._offset = model, model.sensor, model._offset()
+        self._model, self._sensor = model, model.sensor
         self.memory_size = 0 if model.sensor is None else 1 + 9 * n
 
     def initial_memory(self) -> np.ndarray:
@@ -177,8 +177,7 @@ class RigidTorqueStep:
         if self._sensor is not None:
             q, qd, qdd = (inputs[k * n:(k + 1) * n][None] for k in (1, 2, 3))
             carry = SensorCarry.from_vector(memory[1:]) if memory[0] else None
-            load = inputs[:n] + tau_int - self._offset
-            tau_s, end = self._sensor.torque(q, qd, load[None], self._model.prior_torque(q, qd, qdd), carry)
+            tau_s, end = self._sensor.torque(q, qd, self._model.prior_torque(q, qd, qdd), carry)
             tau_int = tau_int + tau_s[0]
             memory_out[0] = 1.0
             memory_out[1:] = end.vector()

@@ -13,8 +13,8 @@ refinement on the explicit residual.
 torque the joint transmits; its no-load level ``F_c0`` is the regressor's Coulomb parameter); then, with
 ``sensor`` settings (:mod:`proprio.identification.sensor_terms`), the torque sensor's gain error [-] (its column
 the a-priori torque ``Y φ_prior``, a weak prior on it settling the common scale), hysteresis and lost motion
-(each a level [N·m] and a load gain [-]) and, with gear ratios, its ripple (sin/cos amplitudes [N·m]): the twin's
-laws on the measured motion with the measured ``|τ|`` as the load, each recording (``pieces``: the sample counts of
+(each a level [N·m] and a load gain [-], the a-priori torque's magnitude as the load) and, with gear ratios, its ripple (sin/cos amplitudes [N·m]): the twin's
+laws on the measured motion, each recording (``pieces``: the sample counts of
 the stacked recordings) from the virgin state at its first sample.
 
 Data checks run before any fit: NaN/inf, too few samples, joints that never move, and a rank-deficient ``K_b``
@@ -75,7 +75,7 @@ def extra_columns(extras: tuple[str, ...], q: np.ndarray, qd: np.ndarray, tau: n
         ends = np.cumsum([0] + list(pieces or [tau.shape[0]]))
         if ends[-1] != tau.shape[0]:
             raise ValueError(f"pieces {list(pieces or [])} sum to {ends[-1]} samples, the data have {tau.shape[0]}")
-        out += list(np.concatenate([sensor_columns(sensor, q[a:b], qd[a:b], tau[a:b], prior[a:b])[0]
+        out += list(np.concatenate([sensor_columns(sensor, q[a:b], qd[a:b], prior[a:b])[0]
                                     for a, b in zip(ends[:-1], ends[1:])], axis=1))
     return np.stack(out) if out else np.zeros((0,) + tau.shape)
 

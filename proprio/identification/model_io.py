@@ -107,7 +107,7 @@ class IdentifiedModel:
     def torque(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """``τ_RBD [N, n]`` (rigid body + identified friction + offsets + sensor terms) [N·m] for ``q, qd, qdd [N, n]``
         (or ``[n]``). The sensor terms have state: the samples are one contiguous sequence from the virgin state at
-        the first, their load the rigid body and friction (:mod:`proprio.identification.sensor_terms`)."""
+        the first (:mod:`proprio.identification.sensor_terms`)."""
         single = np.ndim(q) == 1
         if self._geometry is None:
             self._geometry = regressor_geometry(self.description)
@@ -120,10 +120,10 @@ class IdentifiedModel:
             sign = friction_law.smooth_sign(np.atleast_2d(qd), self.coulomb_velocity_scale)
             tau = friction_law.load_from_net(tau, sign, self.load_gain)
         terms = self.sensor_terms
-        if terms is not None:               # the gain's column: the a-priori torque Y φ_prior (sensor_terms)
+        if terms is not None:               # their gain column and load: the a-priori torque Y φ_prior (sensor_terms)
             phi0 = standard_parameters(self.description)
             prior = np.stack([buf[i, per * i:].T @ phi0[per * i:] for i in range(self.n)], axis=1)
-            tau = tau + terms.torque(np.atleast_2d(q), np.atleast_2d(qd), tau - self.offsets, prior)[0]
+            tau = tau + terms.torque(np.atleast_2d(q), np.atleast_2d(qd), prior)[0]
         return tau[0] if single else tau
 
     def description_identified(self) -> RobotDescription:

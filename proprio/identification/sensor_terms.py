@@ -2,17 +2,20 @@
 amplitudes once the motion is given, as extra columns of the identification (grey box: the diagnosis names the
 effects, the backbone carries their laws).
 
-Per joint, on the measured (conditioned) motion ``q, q̇`` [rad, rad/s] and a load ``|τ|`` [N·m]:
+Per joint, on the measured (conditioned) motion ``q, q̇`` [rad, rad/s] and the a-priori model's link torque
+``τ_prior = Y(q, q̇, q̈) φ_prior`` [N·m] (the robot description's rigid body and friction, the torque the sensor
+transmits as far as it is known before the fit; its magnitude is the load of the load gains):
 
 * ``gain``: the sensor's gain error ``g`` [-] (measured = (1 + g)·τ, :class:`proprio.effects.SensorOffsetGain`), its
-  column the a-priori model's torque ``Y(q, q̇, q̈) φ_prior`` (linear to first order in g). A gain common to all
+  column ``τ_prior`` (linear to first order in g). A gain common to all
   joints is the rigid body's overall scale (the same torques): the identification settles that direction with a
   weak prior (:data:`GAIN_PRIOR_STD`, the diagnosis' prior on the same effect), so the gains it reports are relative
   to the rigid body it identifies, and its predictions do not depend on the choice;
 * ``hysteresis``, ``hysteresis_load``: the Dahl law of :class:`proprio.effects.Hysteresis` with the level ``1`` and
-  ``|τ|`` (:func:`proprio.effects.dahl.dahl_batch`: linear in the level, so ``a·col₁ + k·col₂`` is the law with the
-  level ``a + k|τ|``, a saturation and its load gain);
-* ``lost_motion``, ``lost_motion_load``: :class:`proprio.effects.LostMotion` at unit amplitude, and times ``|τ|``;
+  ``|τ_prior|`` (:func:`proprio.effects.dahl.dahl_batch`: linear in the level, so ``a·col₁ + k·col₂`` is the law with the
+  level ``a + k|τ_prior|``, a saturation and its load gain);
+* ``lost_motion``, ``lost_motion_load``: :class:`proprio.effects.LostMotion` at unit amplitude, and times
+  ``|τ_prior|``;
 * ``ripple_sin``, ``ripple_cos``: :class:`proprio.effects.Ripple` (``sin``/``cos`` of ``h·N·q``), only when the
   robot description gives the gear ratios ``N`` (its ``drive`` block).
 
@@ -21,8 +24,9 @@ The nonlinear settings are the laws' defaults (saturation travel 6°, lost-motio
 (:class:`~proprio.reversals.ReversalCarry`) and the two Dahl carries — is carried from one piece of a motion to the
 next (:class:`SensorCarry`), so the batch over a whole sequence and the same sequence fed one sample at a time
 (the estimation Diagram, the streaming estimator) are the same law; a sequence starts in the virgin state at its
-first sample. The load is the measured ``|τ|`` when identifying and the model's own link torque (rigid body and
-friction, no offsets) when predicting — the torque the sensor transmits.
+first sample. The same ``τ_prior`` enters the identification and the prediction (the measured τ would put its noise
+into the load columns and is not available to a prediction; the identified model's own torque would make the fit
+nonlinear).
 """
 from __future__ import annotations
 
@@ -126,18 +130,19 @@ class _Laws:
 _LAWS: dict[SensorTermSettings, _Laws] = {}
 
 
-def sensor_columns(settings: SensorTermSettings, q: np.ndarray, qd: np.ndarray, load: np.ndarray,
-                   prior: np.ndarray, carry: SensorCarry | None = None) -> tuple[np.ndarray, SensorCarry]:
+def sensor_columns(settings: SensorTermSettings, q: np.ndarray, qd: np.ndarray, prior: np.ndarray,
+                   carry: SensorCarry | None = None) -> tuple[np.ndarray, SensorCarry]:
     """The columns ``[len(settings.terms), N, n]`` [N·m per unit amplitude] of the sensor terms (module docstring)
-    over the piece ``q, q̇ [N,n]`` (rad, rad/s) with the load ``|τ| [N,n]`` [N·m] and the a-priori model's torque
-    ``prior [N,n]`` [N·m] (the gain's column), continuing ``carry`` (default: the virgin state at ``q[0]``), and the
-    state at its end."""
+    over the piece ``q, q̇ [N,n]`` (rad, rad/s) with the a-priori link torque ``prior [N,n]`` [N·m] (the gain's
+    column, and the load), continuing ``carry`` (default: the virgin state at ``q[0]``), and the state at its
+    end."""
     laws = _LAWS.get(settings)
     if laws is None:
         laws = _LAWS[settings] = _Laws(settings)
     q = np.asarray(q, dtype=float)
     qd = np.asarray(qd, dtype=float)
-    load = np.abs(np.asarray(load, dtype=float))
+    prior = np.asarray(prior, dtype=float)
+    load = np.abs(prior)
     n = q.shape[1]
     c = carry or SensorCarry(ReversalCarry.start(q[0]), DahlCarry.virgin(n), DahlCarry.virgin(n))
     rt = reversal_travel(q, qd, laws.eps, c.reversal)
@@ -145,7 +150,7 @@ def sensor_columns(settings: SensorTermSettings, q: np.ndarray, qd: np.ndarray, 
     loaded, load_end = dahl_batch(rt, load, laws.rho, c.load)
     s = MotionSignals(np.zeros(q.shape[0]), q, qd, np.zeros_like(q))
     lost = laws.lost.torque(s, travel=rt)
-    cols = [np.asarray(prior, dtype=float), unit, loaded, lost, lost * load]
+    cols = [prior, unit, loaded, lost, lost * load]
     if laws.ripple is not None:
         cols += [r.torque(s) for r in laws.ripple]
     return np.stack(cols), SensorCarry(rt.end, unit_end, load_end)
@@ -158,10 +163,9 @@ class SensorTerms:
     settings: SensorTermSettings
     coefficients: tuple[tuple[float, ...], ...]
 
-    def torque(self, q: np.ndarray, qd: np.ndarray, load: np.ndarray, prior: np.ndarray,
-               carry: SensorCarry | None = None) -> tuple[np.ndarray, SensorCarry]:
-        """The terms' torque ``[N,n]`` [N·m] over the piece ``q, q̇ [N,n]`` with the load ``τ [N,n]`` [N·m] (its
-        magnitude is used) and the a-priori torque ``prior [N,n]`` continuing ``carry``, and the state at its end
-        (:func:`sensor_columns`)."""
-        cols, end = sensor_columns(self.settings, q, qd, load, prior, carry)
+    def torque(self, q: np.ndarray, qd: np.ndarray, prior: np.ndarray, carry: SensorCarry | None = None
+               ) -> tuple[np.ndarray, SensorCarry]:
+        """The terms' torque ``[N,n]`` [N·m] over the piece ``q, q̇ [N,n]`` with the a-priori link torque ``prior
+        [N,n]`` [N·m] continuing ``carry``, and the state at its end (:func:`sensor_columns`)."""
+        cols, end = sensor_columns(self.settings, q, qd, prior, carry)
         return np.einsum("kin,kn->in", cols, np.asarray(self.coefficients)), end
