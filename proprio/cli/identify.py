@@ -46,7 +46,8 @@ def _identify(args: argparse.Namespace) -> int:
     sensor = None
     if args.sensor_terms and drive_identified(robot):
         raise UserError(f"--sensor-terms: the robot description {robot.name!r} says τ is a drive torque "
-                        "(drive.tau_kind: drive); the sensor terms are a link-side torque sensor's — leave the flag out")
+                        "(drive.tau_kind: drive); the sensor terms are a link-side torque sensor's — leave the flag "
+                        "out")
     if args.sensor_terms:
         from proprio.identification.sensor_terms import SensorTermSettings
         sensor = SensorTermSettings.defaults(robot.n, robot.drive.gear_ratio if robot.drive is not None else None)
@@ -176,10 +177,11 @@ def register(subparsers) -> None:
                    help="also fit load-dependent Coulomb friction per joint: F_c = F_c0 + k |tau| (k [-] per joint, "
                         "the measured link torque as the load)")
     p.add_argument("--sensor-terms", action="store_true",
-                   help="also fit the torque sensor's reversal laws per joint: hysteresis and lost motion (each a "
-                        "level [N m] and a load gain [-], the a-priori model's |tau| as the load; the twin's laws at their "
-                        "default travel scales) and, where the robot description gives gear ratios, the ripple "
-                        "(sin/cos of harmonic x gear ratio x q); the model carries their reversal state online")
+                   help="also fit the torque sensor's laws per joint (a link-side sensor): its gain error, "
+                        "hysteresis and lost motion (each a level [N m] and a load gain [-], the a-priori model's "
+                        "|tau| as the load; the twin's laws at their default travel scales) and, where the robot "
+                        "description gives gear ratios, the ripple (sin/cos of harmonic x gear ratio x q); the model "
+                        "carries their reversal state online")
     p.add_argument("--show-parameters", action="store_true", help="print the base-parameter table (Table 4.6)")
     p.set_defaults(func=_identify)
 

@@ -13,9 +13,9 @@ refinement on the explicit residual.
 torque the joint transmits; its no-load level ``F_c0`` is the regressor's Coulomb parameter); then, with
 ``sensor`` settings (:mod:`proprio.identification.sensor_terms`), the torque sensor's gain error [-] (its column
 the a-priori torque ``Y φ_prior``, a weak prior on it settling the common scale), hysteresis and lost motion
-(each a level [N·m] and a load gain [-], the a-priori torque's magnitude as the load) and, with gear ratios, its ripple (sin/cos amplitudes [N·m]): the twin's
-laws on the measured motion, each recording (``pieces``: the sample counts of
-the stacked recordings) from the virgin state at its first sample.
+(each a level [N·m] and a load gain [-], the a-priori torque's magnitude as the load) and, with gear ratios, its
+ripple (sin/cos amplitudes [N·m]): the twin's laws on the measured motion, each recording (``pieces``: the sample
+counts of the stacked recordings) from the virgin state at its first sample.
 
 Data checks run before any fit: NaN/inf, too few samples, joints that never move, and a rank-deficient ``K_b``
 raise :class:`IdentificationError` naming the base parameters that cannot be identified and why.

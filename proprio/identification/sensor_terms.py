@@ -12,8 +12,8 @@ transmits as far as it is known before the fit; its magnitude is the load of the
   weak prior (:data:`GAIN_PRIOR_STD`, the diagnosis' prior on the same effect), so the gains it reports are relative
   to the rigid body it identifies, and its predictions do not depend on the choice;
 * ``hysteresis``, ``hysteresis_load``: the Dahl law of :class:`proprio.effects.Hysteresis` with the level ``1`` and
-  ``|τ_prior|`` (:func:`proprio.effects.dahl.dahl_batch`: linear in the level, so ``a·col₁ + k·col₂`` is the law with the
-  level ``a + k|τ_prior|``, a saturation and its load gain);
+  ``|τ_prior|`` (:func:`proprio.effects.dahl.dahl_batch`: linear in the level, so ``a·col₁ + k·col₂`` is the law
+  with the level ``a + k|τ_prior|``, a saturation and its load gain);
 * ``lost_motion``, ``lost_motion_load``: :class:`proprio.effects.LostMotion` at unit amplitude, and times
   ``|τ_prior|``;
 * ``ripple_sin``, ``ripple_cos``: :class:`proprio.effects.Ripple` (``sin``/``cos`` of ``h·N·q``), only when the
@@ -43,7 +43,8 @@ from proprio.signals import MotionSignals
 GAIN_PRIOR_STD = SensorOffsetGain.prior_std["gain"]
 """σ [-] of the zero-mean prior on the gains (the diagnosis' prior on :class:`proprio.effects.SensorOffsetGain`)."""
 
-__all__ = ["GAIN_PRIOR_STD", "SENSOR_TERMS", "RIPPLE_TERMS", "SensorTermSettings", "SensorCarry", "SensorTerms", "sensor_columns"]
+__all__ = ["GAIN_PRIOR_STD", "SENSOR_TERMS", "RIPPLE_TERMS", "SensorTermSettings", "SensorCarry", "SensorTerms",
+           "sensor_columns"]
 
 SENSOR_TERMS = ("gain", "hysteresis", "hysteresis_load", "lost_motion", "lost_motion_load")
 """The reversal terms' extras (module docstring), in their column order."""
