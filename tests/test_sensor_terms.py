@@ -193,3 +193,15 @@ def test_sensor_terms_round_trip_their_settings():
     q = np.zeros((4, 3))
     tau, _ = terms.torque(q, q, q)
     np.testing.assert_array_equal(tau, 0.0)
+
+
+def test_the_shipped_table5_model_finds_its_backbone_beside_it(tmp_path, monkeypatch):
+    """``table5_hybrid.pt`` names its grey-box backbone ``proprio/configs/table5_backbone.npz``; run from any other
+    folder it is found beside the model file, with its sensor terms."""
+    from importlib.resources import files
+
+    from proprio.diagrams.estimation import load_torque_model
+
+    monkeypatch.chdir(tmp_path)
+    model = load_torque_model(str(files("proprio.configs") / "table5_hybrid.pt"))
+    assert model.backbone.sensor is not None and "hysteresis_load" in model.backbone.sensor.settings.terms
