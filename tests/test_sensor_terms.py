@@ -205,3 +205,14 @@ def test_the_shipped_table5_model_finds_its_backbone_beside_it(tmp_path, monkeyp
     monkeypatch.chdir(tmp_path)
     model = load_torque_model(str(files("proprio.configs") / "table5_hybrid.pt"))
     assert model.backbone.sensor is not None and "hysteresis_load" in model.backbone.sensor.settings.terms
+
+
+def test_identify_refuses_sensor_terms_on_a_drive_torque_arm(tmp_path, capsys):
+    """A drive-torque arm (the TX40: τ from the motor currents) has no torque sensor: one clear line, before any data
+    are read."""
+    from proprio.cli import main
+
+    rc = main(["identify", "--robot", "staubli_tx40", "--train", str(tmp_path / "never_read.npz"), "--sensor-terms",
+               "--out", str(tmp_path / "m.npz")])
+    err = capsys.readouterr().err
+    assert rc != 0 and "--sensor-terms" in err and "drive torque" in err and not (tmp_path / "m.npz").exists()

@@ -25,6 +25,10 @@ def _identify(args: argparse.Namespace) -> int:
 
     check_output(args.out, "--out", "file")
     robot = load_robot_arg(args.robot, args)
+    if args.sensor_terms and drive_identified(robot):
+        raise UserError(f"--sensor-terms: the robot description {robot.name!r} says τ is a drive torque "
+                        "(drive.tau_kind: drive); the sensor terms are a link-side torque sensor's — leave the flag "
+                        "out")
     train = [check_recording_robot(load_recording(p, robot), robot, p, "--robot") for p in args.train]
     validate = [check_recording_robot(load_recording(p, robot), robot, p, "--robot") for p in args.validate]
     check_tau_kind(train + validate, args.train + args.validate, robot)
@@ -44,10 +48,6 @@ def _identify(args: argparse.Namespace) -> int:
             print(format_findings(assess(rec, robot, conditioning=conditioning), "warning",
                                   title=f"data quality of {path} ({role}):"))
     sensor = None
-    if args.sensor_terms and drive_identified(robot):
-        raise UserError(f"--sensor-terms: the robot description {robot.name!r} says τ is a drive torque "
-                        "(drive.tau_kind: drive); the sensor terms are a link-side torque sensor's — leave the flag "
-                        "out")
     if args.sensor_terms:
         from proprio.identification.sensor_terms import SensorTermSettings
         sensor = SensorTermSettings.defaults(robot.n, robot.drive.gear_ratio if robot.drive is not None else None)
