@@ -32,7 +32,8 @@ from proprio import friction_law
 from proprio.description import RobotDescription
 from proprio.identification.base_parameters import BaseParameters, base_parameters
 from proprio.identification.model_io import IdentifiedModel, data_digest
-from proprio.identification.regressor import PARAMS_PER_JOINT, n_parameters, regressor_buffer, standard_parameters
+from proprio.identification.regressor import (PARAMS_PER_JOINT, n_parameters, predict, regressor_buffer,
+                                              standard_parameters)
 from proprio.identification.sensor_terms import GAIN_PRIOR_STD, SensorTermSettings, sensor_columns
 
 __all__ = ["IdentificationError", "NormalEquations", "normal_equations", "check_data", "ols", "wls", "sdp",
@@ -56,7 +57,7 @@ class NormalEquations:
     tau: np.ndarray           # [N, n]
     extras: tuple[str, ...]   # the per-joint extra unknowns after the base parameters (module docstring)
     columns: np.ndarray       # [len(extras), N, n] their columns (joint i's column acts in joint i's rows)
-    prior: np.ndarray | None = None   # [r (+n)] the prior precision added to gram's diagonal (None: none)
+    prior_precision: np.ndarray | None = None   # [r (+n)] added to gram's diagonal (the gains' prior; None: none)
 
     @property
     def offsets(self) -> bool:
@@ -100,10 +101,7 @@ def normal_equations(desc: RobotDescription, base: BaseParameters, q: np.ndarray
     buf = regressor_buffer(desc, q, qd, qdd, coulomb_velocity_scale)
     r, n = base.n_base, desc.n
     extras = _extras(offsets, load_friction, sensor)
-    prior = None
-    if sensor is not None:                                  # the gain's column: the a-priori torque Y φ_prior
-        phi0 = standard_parameters(desc)
-        prior = np.stack([buf[i, PARAMS_PER_JOINT * i:].T @ phi0[PARAMS_PER_JOINT * i:] for i in range(desc.n)], 1)
+    prior = None if sensor is None else predict(buf, standard_parameters(desc))   # the a-priori torque Y φ_prior
     xc = extra_columns(extras, q, qd, tau, coulomb_velocity_scale, sensor, pieces, prior)
     m = r + n * len(extras)
     gram, rhs = np.zeros((m, m)), np.zeros(m)
@@ -200,7 +198,7 @@ def _solve_spd(gram: np.ndarray, rhs: np.ndarray) -> np.ndarray:
 def _least_squares(ne: NormalEquations, base: BaseParameters, weights: np.ndarray) -> np.ndarray:
     phi_b = _solve_spd(ne.gram, ne.rhs)
     resid = ne.tau - _predict_base(ne, base, phi_b)                     # iterative refinement (one step)
-    step = _kt_times(ne, base, resid, weights) - (0.0 if ne.prior is None else ne.prior * phi_b)
+    step = _kt_times(ne, base, resid, weights) - (0.0 if ne.prior_precision is None else ne.prior_precision * phi_b)
     return phi_b + _solve_spd(ne.gram, step)
 
 

@@ -29,7 +29,7 @@ from proprio.identification.base_parameters import BaseParameters
 from proprio.identification.sensor_terms import RIPPLE_TERMS, SENSOR_TERMS, SensorTerms, SensorTermSettings
 from proprio.identification.regressor import (
     PARAMS_PER_JOINT, RegressorGeometry, drive_from_parameters, friction_from_parameters, parameters_to_links,
-    regressor_buffer, regressor_geometry, standard_parameters)
+    predict, regressor_buffer, regressor_geometry, standard_parameters)
 
 __all__ = ["IdentifiedModel", "save_model", "load_model", "data_digest", "ModelFileError", "FORMAT"]
 
@@ -121,8 +121,7 @@ class IdentifiedModel:
             tau = friction_law.load_from_net(tau, sign, self.load_gain)
         terms = self.sensor_terms
         if terms is not None:               # their gain column and load: the a-priori torque Y φ_prior (sensor_terms)
-            phi0 = standard_parameters(self.description)
-            prior = np.stack([buf[i, per * i:].T @ phi0[per * i:] for i in range(self.n)], axis=1)
+            prior = predict(buf, standard_parameters(self.description))
             tau = tau + terms.torque(np.atleast_2d(q), np.atleast_2d(qd), prior)[0]
         return tau[0] if single else tau
 
