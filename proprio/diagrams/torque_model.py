@@ -103,11 +103,13 @@ class RigidBodyTorqueModel:
             tau += self.sensor.torque(q, qd, self.prior_torque(q, qd, qdd))[0]
         return tau
 
-    def prior_torque(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+    def prior_torque(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
+                     rigid: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None) -> np.ndarray:
         """The a-priori description's rigid body and friction ``[N,n]`` [N·m] (the sensor terms' gain column and
-        load)."""
+        load); ``rigid`` its inverse dynamics (default the numpy RNEA over samples; the step passes a Drake plant's,
+        the same law to rounding)."""
         p = self.prior
-        tau = inverse_dynamics(p, q, qd, qdd)
+        tau = inverse_dynamics(p, q, qd, qdd) if rigid is None else rigid(q, qd, qdd)
         if p.has_friction:
             tau = tau + friction_law.viscous_coulomb(qd, np.asarray(p.friction_viscous),
                                                      np.asarray(p.friction_coulomb), self.coulomb_velocity)
@@ -165,6 +167,7 @@ class RigidTorqueStep:
         self._tau_int = model.tau_int_step()
         self._model, self._sensor = model, model.sensor
         self.memory_size = 0 if model.sensor is None else 1 + 9 * n
+        self._prior_id = None if model.sensor is None else DrakeRobot(model.prior).inverse_dynamics   # one sample
 
     def initial_memory(self) -> np.ndarray:
         return np.zeros(self.memory_size)
@@ -175,9 +178,10 @@ class RigidTorqueStep:
         n = self.n
         tau_int = self._tau_int(inputs[2 * n:3 * n], inputs[3 * n:])
         if self._sensor is not None:
-            q, qd, qdd = (inputs[k * n:(k + 1) * n][None] for k in (1, 2, 3))
+            q, qd, qdd = (inputs[k * n:(k + 1) * n] for k in (1, 2, 3))
             carry = SensorCarry.from_vector(memory[1:]) if memory[0] else None
-            tau_s, end = self._sensor.torque(q, qd, self._model.prior_torque(q, qd, qdd), carry)
+            prior = self._model.prior_torque(q, qd, qdd, self._prior_id)
+            tau_s, end = self._sensor.torque(q[None], qd[None], prior[None], carry)
             tau_int = tau_int + tau_s[0]
             memory_out[0] = 1.0
             memory_out[1:] = end.vector()
