@@ -244,3 +244,30 @@ def test_identification_recovers_the_twins_sensor_on_a_short_twin_run():
     np.testing.assert_allclose(got["hysteresis_load"][[1, 3]], hyst.load_gain[[1, 3]], rtol=0, atol=0.002)
     np.testing.assert_allclose(got["lost_motion"][:4], lost.amplitude[:4], rtol=0.3, atol=0.003)
     assert abs((got["gain"][1] - got["gain"][3]) - (gain[1] - gain[3])) < 0.003
+
+
+def test_a_hybrid_on_a_backbone_with_sensor_terms_streams_as_the_diagram_runs(desc, sensor_model):
+    """A hybrid whose backbone carries sensor terms: the streaming step (backbone memory beside the network's) equals
+    the Diagram (backbone memory in its hold, the network its own stage) to 1e-10 on every sample."""
+    import torch
+
+    from proprio.diagrams.hybrid_torque_model import HybridTorqueModel
+    from proprio.learning.datasets import DataConfig
+    from proprio.learning.features import feature_matrix, rotational_displacement
+    from proprio.learning.models import HybridModel, ModelConfig
+
+    _, backbone = sensor_model
+    rate = 1000.0
+    t, q, qd, qdd = _motion(desc, 1.5, rate=rate, seed=7)
+    tau = _twin_sensor(desc, t, q, qd, qdd)
+    torch.manual_seed(0)
+    net = HybridModel(ModelConfig(arch="lstm2_fcl", lstm_hidden=12, rate_hz=rate))
+    net.set_normalisation(feature_matrix(tau, q, qd, qdd, rotational_displacement(q)), 0.1 * tau)
+    model = HybridTorqueModel(backbone, net, DataConfig(), "lstm2_fcl")
+    design = causal_conditioning(rate, 10.0, desc.n, "q")
+    diagram, estimator, logger = build_estimation_diagram(model, {"t": t, "q": q, "tau": tau,
+                                                                  "time_step": 1.0 / rate}, conditioning=design)
+    expected = run_estimation_diagram(diagram, estimator, logger, t[-1], 1.0 / rate)[:t.size]
+    est = OnlineEstimator.from_model(model, conditioning=design)
+    got = np.array([est.step(t[k], q[k], tau[k]).vector for k in range(t.size)])
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-10)
