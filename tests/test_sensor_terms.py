@@ -158,6 +158,18 @@ def test_the_estimator_model_is_the_identified_model(desc, sensor_model):
     assert np.abs(model.tau_int(q, qd, qdd) - bare.tau_int(q, qd, qdd)).max() > 0.1
 
 
+def _diagram_equals_streaming(model, design, t, q, tau, rate):
+    """The estimation Diagram's rows for raw ``q, τ`` through ``design``; asserts the streaming estimator gives the
+    same on every sample to 1e-10."""
+    diagram, estimator, logger = build_estimation_diagram(model, {"t": t, "q": q, "tau": tau,
+                                                                  "time_step": 1.0 / rate}, conditioning=design)
+    expected = run_estimation_diagram(diagram, estimator, logger, t[-1], 1.0 / rate)[:t.size]
+    est = OnlineEstimator.from_model(model, conditioning=design)
+    got = np.array([est.step(t[k], q[k], tau[k]).vector for k in range(t.size)])
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-10)
+    return expected
+
+
 def test_online_diagram_and_batch_agree_with_sensor_terms(desc, sensor_model):
     """With sensor terms (state carried per step): the streaming estimator equals the Diagram to 1e-10 on every
     sample, the batch laws on the causally conditioned signals equal it to 1e-9; the per-step law stepped over a
@@ -167,12 +179,7 @@ def test_online_diagram_and_batch_agree_with_sensor_terms(desc, sensor_model):
     t, q, qd, qdd = _motion(desc, 3.0, rate=rate, seed=5)
     tau = _twin_sensor(desc, t, q, qd, qdd)
     design = causal_conditioning(rate, 10.0, desc.n, "q")
-    diagram, estimator, logger = build_estimation_diagram(model, {"t": t, "q": q, "tau": tau,
-                                                                  "time_step": 1.0 / rate}, conditioning=design)
-    expected = run_estimation_diagram(diagram, estimator, logger, t[-1], 1.0 / rate)[:t.size]
-    est = OnlineEstimator.from_model(model, conditioning=design)
-    got = np.array([est.step(t[k], q[k], tau[k]).vector for k in range(t.size)])
-    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-10)
+    expected = _diagram_equals_streaming(model, design, t, q, tau, rate)
     batch = estimate_rows(model, design.condition(np.hstack([q, tau])))
     np.testing.assert_allclose(batch, expected, rtol=0, atol=1e-9)
     law = model.torque_step()
@@ -265,9 +272,4 @@ def test_a_hybrid_on_a_backbone_with_sensor_terms_streams_as_the_diagram_runs(de
     net.set_normalisation(feature_matrix(tau, q, qd, qdd, rotational_displacement(q)), 0.1 * tau)
     model = HybridTorqueModel(backbone, net, DataConfig(), "lstm2_fcl")
     design = causal_conditioning(rate, 10.0, desc.n, "q")
-    diagram, estimator, logger = build_estimation_diagram(model, {"t": t, "q": q, "tau": tau,
-                                                                  "time_step": 1.0 / rate}, conditioning=design)
-    expected = run_estimation_diagram(diagram, estimator, logger, t[-1], 1.0 / rate)[:t.size]
-    est = OnlineEstimator.from_model(model, conditioning=design)
-    got = np.array([est.step(t[k], q[k], tau[k]).vector for k in range(t.size)])
-    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-10)
+    _diagram_equals_streaming(model, design, t, q, tau, rate)
