@@ -7,10 +7,10 @@ Per joint, on the measured (conditioned) motion ``q, q̇`` [rad, rad/s] and the 
 transmits as far as it is known before the fit; its magnitude is the load of the load gains):
 
 * ``gain``: the sensor's gain error ``g`` [-] (measured = (1 + g)·τ, :class:`proprio.effects.SensorOffsetGain`), its
-  column ``τ_prior`` (linear to first order in g). A gain common to all
-  joints is the rigid body's overall scale (the same torques): the identification settles that direction with a
-  weak prior (:data:`GAIN_PRIOR_STD`, the diagnosis' prior on the same effect), so the gains it reports are relative
-  to the rigid body it identifies, and its predictions do not depend on the choice;
+  column ``τ_prior`` (linear to first order in g). A gain common to all joints is the rigid body's overall scale (the
+  same torques): the identification settles that direction with a weak prior (:data:`GAIN_PRIOR_STD`, the
+  diagnosis' prior on the same effect), so the gains it reports are relative to the rigid body it identifies, and
+  its predictions do not depend on the choice;
 * ``hysteresis``, ``hysteresis_load``: the Dahl law of :class:`proprio.effects.Hysteresis` with the level ``1`` and
   ``|τ_prior|`` (:func:`proprio.effects.dahl.dahl_batch`: linear in the level, so ``a·col₁ + k·col₂`` is the law
   with the level ``a + k|τ_prior|``, a saturation and its load gain);
@@ -30,6 +30,7 @@ nonlinear).
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,11 +41,11 @@ from proprio.effects.sensor import Ripple, SensorOffsetGain
 from proprio.reversals import ReversalCarry, reversal_travel
 from proprio.signals import MotionSignals
 
-GAIN_PRIOR_STD = SensorOffsetGain.prior_std["gain"]
-"""σ [-] of the zero-mean prior on the gains (the diagnosis' prior on :class:`proprio.effects.SensorOffsetGain`)."""
-
 __all__ = ["GAIN_PRIOR_STD", "SENSOR_TERMS", "RIPPLE_TERMS", "SensorTermSettings", "SensorCarry", "SensorTerms",
            "sensor_columns"]
+
+GAIN_PRIOR_STD = SensorOffsetGain.prior_std["gain"]
+"""σ [-] of the zero-mean prior on the gains (the diagnosis' prior on :class:`proprio.effects.SensorOffsetGain`)."""
 
 SENSOR_TERMS = ("gain", "hysteresis", "hysteresis_load", "lost_motion", "lost_motion_load")
 """The reversal terms' extras (module docstring), in their column order."""
@@ -128,7 +129,9 @@ class _Laws:
                    harmonic=st.harmonic) for a in (1.0, 0.0)]
 
 
-_LAWS: dict[SensorTermSettings, _Laws] = {}
+@functools.lru_cache(maxsize=16)
+def _laws(settings: SensorTermSettings) -> _Laws:
+    return _Laws(settings)
 
 
 def sensor_columns(settings: SensorTermSettings, q: np.ndarray, qd: np.ndarray, prior: np.ndarray,
@@ -137,9 +140,7 @@ def sensor_columns(settings: SensorTermSettings, q: np.ndarray, qd: np.ndarray, 
     over the piece ``q, q̇ [N,n]`` (rad, rad/s) with the a-priori link torque ``prior [N,n]`` [N·m] (the gain's
     column, and the load), continuing ``carry`` (default: the virgin state at ``q[0]``), and the state at its
     end."""
-    laws = _LAWS.get(settings)
-    if laws is None:
-        laws = _LAWS[settings] = _Laws(settings)
+    laws = _laws(settings)
     q = np.asarray(q, dtype=float)
     qd = np.asarray(qd, dtype=float)
     prior = np.asarray(prior, dtype=float)
