@@ -273,3 +273,11 @@ def test_a_hybrid_on_a_backbone_with_sensor_terms_streams_as_the_diagram_runs(de
     model = HybridTorqueModel(backbone, net, DataConfig(), "lstm2_fcl")
     design = causal_conditioning(rate, 10.0, desc.n, "q")
     _diagram_equals_streaming(model, design, t, q, tau, rate)
+
+
+def test_the_stateless_rbd_backbone_system_refuses_sensor_terms(sensor_model):
+    from proprio.systems.rbd_backbone import RbdBackbone
+
+    ident, _ = sensor_model
+    with pytest.raises(ValueError, match="TorqueModelSystem"):
+        RbdBackbone(ident)
