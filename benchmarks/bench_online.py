@@ -12,6 +12,8 @@ plus noise, one step per sample:
 * RBD — replay of conditioned q, q̇, q̈, τ_J → the RBD stage (``RigidBodyTermsSystem``: τ_rigid, momentum terms and
   J on one plant context) → ``TorqueModelSystem`` (friction) → Jacobian AND momentum observers → ``WrenchMap`` → one
   logger;
+* RBD + sensor terms — the same with an identified backbone's torque-sensor terms (``proprio identify --sensor-terms``:
+  gain, hysteresis and lost motion per joint, their reversal state carried per step in a ``ZeroOrderHold``);
 * hybrid — the same with a hybrid LSTM-2-FCL (thesis sizes: 35→35→7 + linear) on that backbone, its network the
   next stage (``ResidualNetworkSystem``: τ_NN; C++ ``Adder`` Systems: τ_dyn = τ_RBD + τ_NN, τ_int = τ_int,RBD + τ_NN);
 * … + causal conditioning — raw q, τ_J replayed into the ``CausalConditioner`` (C++ LinearSystem) first: the
@@ -36,6 +38,7 @@ at a real-time priority, which ``chrt -f 10`` (root) gives the benchmark too:
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import gc
 import os
 import time
@@ -54,6 +57,7 @@ from proprio.description import load_robot  # noqa: E402
 from proprio.diagrams.estimation import RigidBodyTorqueModel, build_estimation_diagram  # noqa: E402
 from proprio.diagrams.hybrid_torque_model import HybridTorqueModel  # noqa: E402
 from proprio.dynamics import inverse_dynamics  # noqa: E402
+from proprio.identification.sensor_terms import SensorTerms, SensorTermSettings  # noqa: E402
 from proprio.learning.datasets import DataConfig  # noqa: E402
 from proprio.learning.features import feature_matrix, rotational_displacement  # noqa: E402
 from proprio.learning.models import HybridModel, ModelConfig  # noqa: E402
@@ -172,11 +176,14 @@ def main() -> None:
     net.set_normalisation(feature_matrix(sig["tau"], sig["q"], sig["qd"], sig["qdd"], rotational_displacement(sig["q"])),
                           0.1 * sig["tau"])
     hybrid = HybridTorqueModel(RigidBodyTorqueModel(desc), net, DataConfig(), "lstm2_fcl")
+    terms = SensorTermSettings.defaults(desc.n)
+    rbd_sensor = dataclasses.replace(rbd, sensor=SensorTerms(terms, tuple((0.01,) * desc.n for _ in terms.terms)),
+                                     prior=desc)
     design = causal_conditioning(RATE, CUTOFF_HZ, desc.n)
 
     ref = _time_diagram(lambda: _reference(sig), steps, repeats)
     rows = [("replay + logger only (reference)", ref)]
-    for name, model in (("RBD", rbd), ("hybrid LSTM-2-FCL", hybrid)):
+    for name, model in (("RBD", rbd), ("RBD + sensor terms", rbd_sensor), ("hybrid LSTM-2-FCL", hybrid)):
         rows.append((f"{name} + both observers (Diagram)",
                      _time_diagram(lambda m=model: build_estimation_diagram(m, sig), steps, repeats)))
         rows.append((f"{name} + both observers + causal conditioning (Diagram)",

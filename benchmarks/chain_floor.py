@@ -165,9 +165,9 @@ def main() -> None:
         mse = table53(hyb, path)
         n = len(next(iter(mse.values())))
         print(f"\nTable 5.3 on {path.name}: MSE against the training target [N·m²]")
-        print(f"{'':28s}" + "".join(f"{'J' + str(j + 1):>8s}" for j in range(n)) + f"{'avg':>8s}")
-        for k, v in mse.items():
-            print(_row(k, np.append(v, v.mean())))
+        print(f"{'':28s}" + "".join(f"{'J' + str(j + 1):>10s}" for j in range(n)) + f"{'avg':>10s}")
+        for k, v in mse.items():        # 6 decimals: a model at the floor is ~1e-4 N·m² here
+            print(_row(k, np.append(v, v.mean()), "{:10.6f}"))
     without = f", without {', '.join(args.without)}" if args.without else ""
     print(f"\nTable 5.4 ({args.seconds:g} s RFMA per run, {args.twin_config}{without}, force-only Jacobian observer): "
           "RMSE [x y z] N")

@@ -5,7 +5,8 @@ import argparse
 import json
 
 import numpy as np
-from proprio.cli import add_chain_args, check_output, check_recording_robot, load_robot_arg, nonnegative, nonnegative_int, positive_int
+from proprio.cli import (UserError, add_chain_args, check_output, check_recording_robot, load_robot_arg, nonnegative,
+                         nonnegative_int, positive_int)
 from proprio.cli.flags import add_cutoff_hz, add_list, add_split, add_trim, conditioning_of, split_tails
 
 
@@ -24,6 +25,10 @@ def _identify(args: argparse.Namespace) -> int:
 
     check_output(args.out, "--out", "file")
     robot = load_robot_arg(args.robot, args)
+    if args.sensor_terms and drive_identified(robot):
+        raise UserError(f"--sensor-terms: the robot description {robot.name!r} says τ is a drive torque "
+                        "(drive.tau_kind: drive); the sensor terms are a link-side torque sensor's — leave the flag "
+                        "out")
     train = [check_recording_robot(load_recording(p, robot), robot, p, "--robot") for p in args.train]
     validate = [check_recording_robot(load_recording(p, robot), robot, p, "--robot") for p in args.validate]
     check_tau_kind(train + validate, args.train + args.validate, robot)
@@ -42,11 +47,19 @@ def _identify(args: argparse.Namespace) -> int:
         for path, rec in zip(paths, recs):          # warnings and problems only, and the conditioning line (once)
             print(format_findings(assess(rec, robot, conditioning=conditioning), "warning",
                                   title=f"data quality of {path} ({role}):"))
+    sensor = None
+    if args.sensor_terms:
+        from proprio.identification.sensor_terms import SensorTermSettings
+        sensor = SensorTermSettings.defaults(robot.n, robot.drive.gear_ratio if robot.drive is not None else None)
     model, text = identify_recordings(train, [], robot, args.method, trim_s, offsets,
-                                      args.coulomb_velocity_scale, conditioning, load_friction=args.load_friction)
+                                      args.coulomb_velocity_scale, conditioning, load_friction=args.load_friction,
+                                      sensor=sensor)
     print(f"{args.method.upper()} on {model.n_train_samples} samples: {model.phi_b.size} parameters "
           f"({model.base.n_base} base{' incl. drive terms' if drive_identified(robot) else ''}"
-          f"{' + offsets' if offsets else ''}{' + load-dependent friction gains' if args.load_friction else ''})")
+          f"{' + offsets' if offsets else ''}{' + load-dependent friction gains' if args.load_friction else ''}"
+          f"{' + sensor terms (' + ', '.join(sensor.terms) + ')' if sensor is not None else ''})")
+    if sensor is not None and sensor.gear_ratio is None:
+        print("sensor terms: no ripple (the robot description gives no gear ratios: drive.gear_ratio)")
     if args.show_parameters:
         print(model.parameter_table())
     print(text.split("\n\n", 1)[1])                # the tables: their conditioning lines were printed above
@@ -163,6 +176,12 @@ def register(subparsers) -> None:
     p.add_argument("--load-friction", action="store_true",
                    help="also fit load-dependent Coulomb friction per joint: F_c = F_c0 + k |tau| (k [-] per joint, "
                         "the measured link torque as the load)")
+    p.add_argument("--sensor-terms", action="store_true",
+                   help="also fit the torque sensor's laws per joint (a link-side sensor): its gain error, "
+                        "hysteresis and lost motion (each a level [N m] and a load gain [-], the a-priori model's "
+                        "|tau| as the load; the twin's laws at their default travel scales) and, where the robot "
+                        "description gives gear ratios, the ripple (sin/cos of harmonic x gear ratio x q); the model "
+                        "carries their reversal state online")
     p.add_argument("--show-parameters", action="store_true", help="print the base-parameter table (Table 4.6)")
     p.set_defaults(func=_identify)
 

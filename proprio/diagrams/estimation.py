@@ -148,7 +148,7 @@ class WrenchEstimator(Diagram):
         self.rigid_body = builder.AddNamedSystem("rigid_body", RigidBodyTermsSystem(desc, mapping.contact_point))
         network = getattr(model, "network", None)           # a hybrid model: its backbone, then its network
         self.torque_model = builder.AddNamedSystem("torque_model", TorqueModelSystem(
-            model if network is None else model.backbone))
+            model if network is None else model.backbone, time_step))
         self.residual = None
         if network is not None:
             from proprio.systems.residual_network import ResidualNetworkSystem     # torch only for a hybrid model

@@ -144,23 +144,23 @@ class HybridTorqueStep:
         self.backbone = model.backbone.torque_step()
         self.core = ResidualNetworkCore(model.network)
         self.hybrid = model.network.cfg.hybrid
-        self.memory_size = self.core.memory_size
+        self._b = self.backbone.memory_size               # memory: [backbone's (sensor terms); network's]
+        self.memory_size = self._b + self.core.memory_size
         self._features = np.empty(4 * n)                  # [τ_RBD; q; q̇; q̈], the network's input
         self._backbone_out = np.empty(2 * n)              # [τ_RBD; τ_int,RBD]
         self._tau_nn = np.empty(n)
-        self._none = np.zeros(0)
 
     def initial_memory(self) -> np.ndarray:
-        return self.core.initial_memory()
+        return np.concatenate([self.backbone.initial_memory(), self.core.initial_memory()])
 
     def step_into(self, inputs: np.ndarray, memory: np.ndarray, out: np.ndarray, memory_out: np.ndarray) -> None:
         """``inputs = [τ_rigid; q; q̇; q̈]`` (4n: N·m, rad, rad/s, rad/s²) and ``memory`` → ``out = [τ_HYB; τ_int]``
         (2n, N·m) and the next memory into ``memory_out`` (which must not alias ``memory``)."""
-        n, x, rbd, tau_nn = self.n, self._features, self._backbone_out, self._tau_nn
-        self.backbone.step_into(inputs, self._none, rbd, self._none)
+        n, x, rbd, tau_nn, b = self.n, self._features, self._backbone_out, self._tau_nn, self._b
+        self.backbone.step_into(inputs, memory[:b], rbd, memory_out[:b])
         x[:n] = rbd[:n]
         x[n:] = inputs[n:]
-        self.core.step_into(memory, x, tau_nn, memory_out)
+        self.core.step_into(memory[b:], x, tau_nn, memory_out[b:])
         if self.hybrid:
             np.add(rbd[:n], tau_nn, out=out[:n])
             np.add(rbd[n:], tau_nn, out=out[n:])

@@ -9,7 +9,10 @@ Both the estimation diagram (:mod:`proprio.diagrams.estimation`) and the hybrid 
 neither imports the other at module level. The per-sample law of τ_int is :meth:`RigidBodyTorqueModel.tau_int_step`,
 the batch law :meth:`RigidBodyTorqueModel.tau_int`: both evaluate the same functions
 (:func:`proprio.friction_law.viscous_coulomb`, :func:`~proprio.identification.regressor.drive_torque`), the step with
-its constants folded.
+its constants folded. An identified model with the torque sensor's terms (``proprio identify --sensor-terms``,
+:mod:`proprio.identification.sensor_terms`) has state — the reversal state of its hysteresis and lost motion —
+which the step carries as its memory (a ``ZeroOrderHold`` in :class:`TorqueModelSystem`) and the batch law over one
+contiguous sequence from its first sample: the same law, to rounding (tests).
 """
 from __future__ import annotations
 
@@ -19,11 +22,13 @@ from typing import Callable, Protocol
 
 import numpy as np
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
-from pydrake.systems.primitives import Demultiplexer, Multiplexer
+from pydrake.systems.primitives import Demultiplexer, Multiplexer, ZeroOrderHold
 
 from proprio import friction_law
 from proprio.description import RobotDescription, load_robot
+from proprio.dynamics import inverse_dynamics
 from proprio.identification.model_io import load_model
+from proprio.identification.sensor_terms import SensorCarry, SensorTerms
 from proprio.identification.regressor import drive_identified, drive_torque
 from proprio.plant import DrakeRobot
 
@@ -61,10 +66,16 @@ class RigidBodyTorqueModel:
     ``sgn = tanh(q̇ / coulomb_velocity)`` (``np.sign`` when 0; ``None``: the library's smoothing, read when
     evaluated). A drive-torque arm (``drive.tau_kind: drive``) adds its drive terms, rotor inertia on q̈ and motor
     friction on the coupled motor velocity (:func:`~proprio.identification.regressor.drive_torque`), and takes the
-    drive block's offsets when none are given: the observers then see the link-side torque in τ − τ_int."""
+    drive block's offsets when none are given: the observers then see the link-side torque in τ − τ_int.
+
+    ``sensor``: identified torque-sensor terms (:mod:`proprio.identification.sensor_terms`) added to τ_int, on the
+    a-priori description ``prior``'s rigid body and friction (the identification's ``Y φ_prior``: the gain's column
+    and the load); they have state (module docstring)."""
     description: RobotDescription
     coulomb_velocity: float | None = None
     offset: tuple[float, ...] | None = None
+    sensor: SensorTerms | None = None
+    prior: RobotDescription | None = None
 
     @property
     def reads_qdd(self) -> bool:
@@ -87,6 +98,21 @@ class RigidBodyTorqueModel:
         if d.has_friction:
             tau += friction_law.viscous_coulomb(qd, np.asarray(d.friction_viscous), np.asarray(d.friction_coulomb),
                                                 self.coulomb_velocity)
+        if self.sensor is not None:
+            q, qdd = np.asarray(q, dtype=float), np.asarray(qdd, dtype=float)
+            tau += self.sensor.torque(q, qd, self.prior_torque(q, qd, qdd))[0]
+        return tau
+
+    def prior_torque(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
+                     rigid: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None) -> np.ndarray:
+        """The a-priori description's rigid body and friction ``[N,n]`` [N·m] (the sensor terms' gain column and
+        load); ``rigid`` its inverse dynamics (default the numpy RNEA over samples; the step passes a Drake plant's,
+        the same law to rounding)."""
+        p = self.prior
+        tau = inverse_dynamics(p, q, qd, qdd) if rigid is None else rigid(q, qd, qdd)
+        if p.has_friction:
+            tau = tau + friction_law.viscous_coulomb(qd, np.asarray(p.friction_viscous),
+                                                     np.asarray(p.friction_coulomb), self.coulomb_velocity)
         return tau
 
     def tau_int_step(self) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
@@ -118,7 +144,8 @@ def load_rigid_torque_model(spec: str | Path) -> RigidBodyTorqueModel:
     if path.suffix == ".npz":
         ident = load_model(path)
         model = RigidBodyTorqueModel(ident.description_identified(), ident.coulomb_velocity_scale,
-                                     tuple(float(x) for x in ident.offsets))
+                                     tuple(float(x) for x in ident.offsets), ident.sensor_terms,
+                                     ident.description if ident.sensor is not None else None)
         try:
             DrakeRobot(model.description)
         except (RuntimeError, ValueError) as exc:
@@ -130,40 +157,56 @@ def load_rigid_torque_model(spec: str | Path) -> RigidBodyTorqueModel:
 
 
 class RigidTorqueStep:
-    """The per-sample torque law of a :class:`RigidBodyTorqueModel` (no memory): :meth:`step_into` ``[τ_rigid; q;
-    q̇; q̈] → [τ_dyn = τ_rigid + τ_int; τ_int]`` with the folded τ_int (:meth:`RigidBodyTorqueModel.tau_int_step`)."""
-    memory_size = 0
+    """The per-sample torque law of a :class:`RigidBodyTorqueModel`: :meth:`step_into` ``[τ_rigid; q; q̇; q̈] →
+    [τ_dyn = τ_rigid + τ_int; τ_int]`` with the folded τ_int (:meth:`RigidBodyTorqueModel.tau_int_step`) and, with
+    sensor terms, their law on the one-sample piece continuing the memory ``[started; SensorCarry (9n)]`` (zeros: the
+    first sample starts the virgin state, as the batch law's first sample does); no memory without."""
 
     def __init__(self, model: RigidBodyTorqueModel):
-        self.n = model.description.n
+        self.n = n = model.description.n
         self._tau_int = model.tau_int_step()
+        self._model, self._sensor = model, model.sensor
+        self.memory_size = 0 if model.sensor is None else 1 + 9 * n
+        self._prior_id = None if model.sensor is None else DrakeRobot(model.prior).inverse_dynamics   # one sample
 
     def initial_memory(self) -> np.ndarray:
-        return np.zeros(0)
+        return np.zeros(self.memory_size)
 
     def step_into(self, inputs: np.ndarray, memory: np.ndarray, out: np.ndarray, memory_out: np.ndarray) -> None:
-        """``inputs = [τ_rigid; q; q̇; q̈]`` (4n: N·m, rad, rad/s, rad/s²) → ``out = [τ_dyn; τ_int]`` (2n, N·m)."""
+        """``inputs = [τ_rigid; q; q̇; q̈]`` (4n: N·m, rad, rad/s, rad/s²) and ``memory`` → ``out = [τ_dyn; τ_int]``
+        (2n, N·m) and the next memory into ``memory_out`` (which must not alias ``memory``)."""
         n = self.n
         tau_int = self._tau_int(inputs[2 * n:3 * n], inputs[3 * n:])
+        if self._sensor is not None:
+            q, qd, qdd = (inputs[k * n:(k + 1) * n] for k in (1, 2, 3))
+            carry = SensorCarry.from_vector(memory[1:]) if memory[0] else None
+            prior = self._model.prior_torque(q, qd, qdd, self._prior_id)
+            tau_s, end = self._sensor.torque(q[None], qd[None], prior[None], carry)
+            tau_int = tau_int + tau_s[0]
+            memory_out[0] = 1.0
+            memory_out[1:] = end.vector()
         np.add(inputs[:n], tau_int, out=out[:n])
         out[n:] = tau_int
 
 
 class TorqueStepSystem(LeafSystem):
-    """The Python System of :class:`TorqueModelSystem`: input ``inputs`` = ``[τ_rigid; q; q̇; q̈]`` (one stacked port:
-    each input evaluation from Python costs about a microsecond), output ``step`` = ``[τ_dyn; τ_int]`` — the model's
-    torque step law (``step_into``), nothing else."""
+    """The Python System of :class:`TorqueModelSystem`: input ``inputs`` = ``[τ_rigid; q; q̇; q̈; memory]`` (one
+    stacked port: each input evaluation from Python costs about a microsecond), output ``step`` = ``[τ_dyn; τ_int;
+    next memory]`` — the model's torque step law (``step_into``), nothing else (stateless: the memory comes back
+    through a hold)."""
 
     def __init__(self, law):
         LeafSystem.__init__(self)
-        n = law.n
-        self._law, self._memory = law, np.zeros(0)
-        self._inputs = self.DeclareVectorInputPort("inputs", 4 * n)
-        self.DeclareVectorOutputPort("step", 2 * n, self._calc)
-        self._out = np.empty(2 * n)
+        n, size = law.n, law.memory_size
+        self._law, self._k = law, 4 * n
+        self._inputs = self.DeclareVectorInputPort("inputs", 4 * n + size)
+        self.DeclareVectorOutputPort("step", 2 * n + size, self._calc)
+        self._out = np.empty(2 * n + size)
+        self._tau, self._next = self._out[:2 * n], self._out[2 * n:]
 
     def _calc(self, context, output) -> None:
-        self._law.step_into(self._inputs.Eval(context), self._memory, self._out, self._memory)
+        x, k = self._inputs.Eval(context), self._k
+        self._law.step_into(x[:k], x[k:], self._tau, self._next)
         output.SetFromVector(self._out)
 
 
@@ -171,28 +214,39 @@ class TorqueModelSystem(Diagram):
     """A rigid-body model's torque on the estimator's rigid-body torque (the backbone stage), as a sub-Diagram::
 
         tau_rigid, q, qd, qdd ─▶ Multiplexer ─▶ TorqueStepSystem ─▶ Demultiplexer ─▶ tau_dyn, tau_int
+                                      ▲                    └─ next memory ─▶ ZeroOrderHold (period_s) ─┐
+                                      └────────────────────────────────────────────────────────────────┘
 
     Inputs ``tau_rigid`` (the inverse dynamics of the RBD stage, N·m), ``q``, ``qd``, ``qdd`` (rad, rad/s, rad/s²),
-    n each; outputs ``tau_dyn`` = τ_rigid + τ_int and ``tau_int`` (N·m). The step is the model's memoryless law
-    (``model.torque_step()``: :class:`RigidTorqueStep`). A hybrid model is not one stage: the estimation Diagram runs
-    its backbone here and its network as the next stage
-    (:class:`~proprio.systems.residual_network.ResidualNetworkSystem`)."""
+    n each; outputs ``tau_dyn`` = τ_rigid + τ_int and ``tau_int`` (N·m), direct feedthrough. The step is the
+    model's law (``model.torque_step()``: :class:`RigidTorqueStep`); a law with memory (sensor terms) keeps it in a
+    C++ ``ZeroOrderHold`` sampled every ``period_s`` [s] (the estimator's step; zeros at start), as the residual
+    network does. A hybrid model is not one stage: the estimation Diagram runs its backbone here and its network as
+    the next stage (:class:`~proprio.systems.residual_network.ResidualNetworkSystem`)."""
 
-    def __init__(self, model: TorqueModel):
+    def __init__(self, model: TorqueModel, period_s: float | None = None):
         Diagram.__init__(self)
         n = model.description.n
         self.law = law = model.torque_step()
-        if law.memory_size:
-            raise ValueError("TorqueModelSystem: the model's torque law has memory (a network?); give its rigid-body "
-                             "backbone, and run the network as its own System")
+        size = law.memory_size
+        if size and getattr(model, "network", None) is not None:
+            raise ValueError("TorqueModelSystem: a hybrid model's torque law holds its network's memory; give its "
+                             "rigid-body backbone, and run the network as its own System")
+        if size and not (period_s is not None and period_s > 0):
+            raise ValueError(f"TorqueModelSystem: the model's torque law has memory (sensor terms): give period_s > "
+                             f"0 s, the step it is sampled at (got {period_s})")
         builder = DiagramBuilder()
-        inputs = builder.AddNamedSystem("inputs", Multiplexer([n] * 4))
+        inputs = builder.AddNamedSystem("inputs", Multiplexer([n] * 4 + ([size] if size else [])))
         step = builder.AddNamedSystem("step", TorqueStepSystem(law))
-        split = builder.AddNamedSystem("split", Demultiplexer([n, n]))
+        split = builder.AddNamedSystem("split", Demultiplexer([n, n] + ([size] if size else [])))
         for i, name in enumerate(("tau_rigid", "q", "qd", "qdd")):
             builder.ExportInput(inputs.get_input_port(i), name)
         builder.Connect(inputs.get_output_port(), step.get_input_port())
         builder.Connect(step.get_output_port(), split.get_input_port())
+        if size:
+            hold = builder.AddNamedSystem("memory", ZeroOrderHold(float(period_s), size))
+            builder.Connect(split.get_output_port(2), hold.get_input_port())
+            builder.Connect(hold.get_output_port(), inputs.get_input_port(4))
         builder.ExportOutput(split.get_output_port(0), "tau_dyn")
         builder.ExportOutput(split.get_output_port(1), "tau_int")
         builder.BuildInto(self)

@@ -10,7 +10,12 @@ refinement on the explicit residual.
 **Extra unknowns** per joint after the base parameters, in this order: a constant torque offset ``τ_0`` [N·m]
 (``offsets``) and the load gain ``k`` [-] of load-dependent Coulomb friction (``load_friction``: the column
 ``sgn_s(q̇_j) |τ_j|`` of :func:`proprio.friction_law.load_coulomb` with the *measured* torque as the load, the link
-torque the joint transmits; its no-load level ``F_c0`` is the regressor's Coulomb parameter).
+torque the joint transmits; its no-load level ``F_c0`` is the regressor's Coulomb parameter); then, with
+``sensor`` settings (:mod:`proprio.identification.sensor_terms`), the torque sensor's gain error [-] (its column
+the a-priori torque ``Y φ_prior``, a weak prior on it settling the common scale), hysteresis and lost motion
+(each a level [N·m] and a load gain [-], the a-priori torque's magnitude as the load) and, with gear ratios, its
+ripple (sin/cos amplitudes [N·m]): the twin's laws on the measured motion, each recording (``pieces``: the sample
+counts of the stacked recordings) from the virgin state at its first sample.
 
 Data checks run before any fit: NaN/inf, too few samples, joints that never move, and a rank-deficient ``K_b``
 raise :class:`IdentificationError` naming the base parameters that cannot be identified and why.
@@ -18,6 +23,7 @@ raise :class:`IdentificationError` naming the base parameters that cannot be ide
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 import scipy.linalg
@@ -26,7 +32,9 @@ from proprio import friction_law
 from proprio.description import RobotDescription
 from proprio.identification.base_parameters import BaseParameters, base_parameters
 from proprio.identification.model_io import IdentifiedModel, data_digest
-from proprio.identification.regressor import PARAMS_PER_JOINT, n_parameters, regressor_buffer, standard_parameters
+from proprio.identification.regressor import (PARAMS_PER_JOINT, n_parameters, predict, regressor_buffer,
+                                              standard_parameters)
+from proprio.identification.sensor_terms import GAIN_PRIOR_STD, SensorTermSettings, sensor_columns
 
 __all__ = ["IdentificationError", "NormalEquations", "normal_equations", "check_data", "ols", "wls", "sdp",
            "identify", "torque_error_table", "METHODS", "MOTION_THRESHOLD", "CONDITION_LIMIT"]
@@ -47,21 +55,30 @@ class NormalEquations:
     rhs: np.ndarray           # [r (+n)]
     buffer: np.ndarray        # regressor buffer [n, p, N]
     tau: np.ndarray           # [N, n]
-    extras: tuple[str, ...]   # the per-joint extra unknowns after the base parameters ("offset", "load_gain")
+    extras: tuple[str, ...]   # the per-joint extra unknowns after the base parameters (module docstring)
     columns: np.ndarray       # [len(extras), N, n] their columns (joint i's column acts in joint i's rows)
+    prior_precision: np.ndarray | None = None   # [r (+n)] added to gram's diagonal (the gains' prior; None: none)
 
     @property
     def offsets(self) -> bool:
         return "offset" in self.extras
 
 
-def extra_columns(extras: tuple[str, ...], qd: np.ndarray, tau: np.ndarray,
-                  coulomb_velocity_scale: float | None) -> np.ndarray:
+def extra_columns(extras: tuple[str, ...], q: np.ndarray, qd: np.ndarray, tau: np.ndarray,
+                  coulomb_velocity_scale: float | None, sensor: SensorTermSettings | None = None,
+                  pieces: Sequence[int] | None = None, prior: np.ndarray | None = None) -> np.ndarray:
     """The columns ``[len(extras), N, n]`` of the extra unknowns (module docstring): ones for ``offset``,
-    ``sgn_s(q̇) |τ|`` for ``load_gain``."""
+    ``sgn_s(q̇) |τ|`` for ``load_gain``, then the ``sensor`` terms (:func:`sensor_columns` per piece)."""
     cols = {"offset": lambda: np.ones_like(tau),
             "load_gain": lambda: friction_law.load_coulomb(qd, 0.0, 1.0, tau, coulomb_velocity_scale)}
-    return np.stack([cols[k]() for k in extras]) if extras else np.zeros((0,) + tau.shape)
+    out = [cols[k]() for k in extras if k in cols]
+    if sensor is not None:
+        ends = np.cumsum([0] + list(pieces or [tau.shape[0]]))
+        if ends[-1] != tau.shape[0]:
+            raise ValueError(f"pieces {list(pieces or [])} sum to {ends[-1]} samples, the data have {tau.shape[0]}")
+        out += list(np.concatenate([sensor_columns(sensor, q[a:b], qd[a:b], prior[a:b])[0]
+                                    for a, b in zip(ends[:-1], ends[1:])], axis=1))
+    return np.stack(out) if out else np.zeros((0,) + tau.shape)
 
 
 def _base_columns(base: BaseParameters, i: int) -> tuple[np.ndarray, np.ndarray]:
@@ -70,19 +87,22 @@ def _base_columns(base: BaseParameters, i: int) -> tuple[np.ndarray, np.ndarray]
     return sel, base.independent[sel] - PARAMS_PER_JOINT * i
 
 
-def _extras(offsets: bool, load_friction: bool) -> tuple[str, ...]:
-    return (("offset",) if offsets else ()) + (("load_gain",) if load_friction else ())
+def _extras(offsets: bool, load_friction: bool, sensor: SensorTermSettings | None = None) -> tuple[str, ...]:
+    return ((("offset",) if offsets else ()) + (("load_gain",) if load_friction else ())
+            + (sensor.terms if sensor is not None else ()))
 
 
 def normal_equations(desc: RobotDescription, base: BaseParameters, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
                      tau: np.ndarray, coulomb_velocity_scale: float | None, weights: np.ndarray | None = None,
-                     offsets: bool = False, load_friction: bool = False) -> NormalEquations:
-    """Accumulate the (weighted, per-joint ``weights [n]``) normal equations of ``τ = K_b φ_b (+ τ_0 + k sgn_s(q̇)|τ|)``
-    (the extra unknowns of the module docstring)."""
+                     offsets: bool = False, load_friction: bool = False, sensor: SensorTermSettings | None = None,
+                     pieces: Sequence[int] | None = None) -> NormalEquations:
+    """Accumulate the (weighted, per-joint ``weights [n]``) normal equations of ``τ = K_b φ_b (+ τ_0 + k sgn_s(q̇)|τ|
+    + sensor terms)`` (the extra unknowns of the module docstring)."""
     buf = regressor_buffer(desc, q, qd, qdd, coulomb_velocity_scale)
     r, n = base.n_base, desc.n
-    extras = _extras(offsets, load_friction)
-    xc = extra_columns(extras, qd, tau, coulomb_velocity_scale)
+    extras = _extras(offsets, load_friction, sensor)
+    prior = None if sensor is None else predict(buf, standard_parameters(desc))   # the a-priori torque Y φ_prior
+    xc = extra_columns(extras, q, qd, tau, coulomb_velocity_scale, sensor, pieces, prior)
     m = r + n * len(extras)
     gram, rhs = np.zeros((m, m)), np.zeros(m)
     w = np.ones(n) if weights is None else np.asarray(weights, dtype=float)
@@ -97,7 +117,14 @@ def normal_equations(desc: RobotDescription, base: BaseParameters, q: np.ndarray
         gram[np.ix_(at, sel)] = gram[np.ix_(sel, at)].T
         gram[np.ix_(at, at)] = w[i] * (x_i @ x_i.T)
         rhs[at] = w[i] * (x_i @ tau[:, i])
-    return NormalEquations(gram, rhs, buf, tau, extras, xc)
+    precision = None
+    if sensor is not None:      # the gains' prior N(0, σ_g²) against the residual scale of the data (σ_e: the fit
+        at = r + n * extras.index("gain") + np.arange(n)      # without it would be circular; 1 % of the τ scale)
+        sigma_e = 0.01 * np.sqrt(np.mean(tau ** 2, axis=0))
+        precision = np.zeros(m)
+        precision[at] = w * (sigma_e / GAIN_PRIOR_STD) ** 2
+        gram[at, at] += precision[at]
+    return NormalEquations(gram, rhs, buf, tau, extras, xc, precision)
 
 
 def _predict_base(ne: NormalEquations, base: BaseParameters, phi_b: np.ndarray) -> np.ndarray:
@@ -171,7 +198,8 @@ def _solve_spd(gram: np.ndarray, rhs: np.ndarray) -> np.ndarray:
 def _least_squares(ne: NormalEquations, base: BaseParameters, weights: np.ndarray) -> np.ndarray:
     phi_b = _solve_spd(ne.gram, ne.rhs)
     resid = ne.tau - _predict_base(ne, base, phi_b)                     # iterative refinement (one step)
-    return phi_b + _solve_spd(ne.gram, _kt_times(ne, base, resid, weights))
+    step = _kt_times(ne, base, resid, weights) - (0.0 if ne.prior_precision is None else ne.prior_precision * phi_b)
+    return phi_b + _solve_spd(ne.gram, step)
 
 
 def _sigma_pct(ne: NormalEquations, base: BaseParameters, phi_b: np.ndarray, weights: np.ndarray
@@ -193,57 +221,64 @@ def _full_set(base: BaseParameters, phi_b: np.ndarray, prior: np.ndarray) -> np.
     return prior + k.T @ np.linalg.solve(k @ k.T, phi_b[:base.n_base] - k @ prior)
 
 
-def _prepare(desc, q, qd, qdd, tau, base, coulomb_velocity_scale, offsets, load_friction=False):
+def _prepare(desc, q, qd, qdd, tau, base, coulomb_velocity_scale, offsets, load_friction=False, sensor=None,
+             pieces=None):
     q, qd, qdd, tau = (np.asarray(a, dtype=float) for a in (q, qd, qdd, tau))
     base = base or base_parameters(desc)
     if base.robot != desc.name or base.n_standard != n_parameters(desc):
         raise ValueError(f"base parameters were computed for {base.robot!r}, not for {desc.name!r}")
     check_data(desc, base, q, qd, qdd, tau)
     ne = normal_equations(desc, base, q, qd, qdd, tau, coulomb_velocity_scale, offsets=offsets,
-                          load_friction=load_friction)
+                          load_friction=load_friction, sensor=sensor, pieces=pieces)
     check_data(desc, base, q, qd, qdd, tau, ne.gram)
     return (q, qd, qdd, tau), base, ne
 
 
-def _model(desc, base, phi_b, pct, phi, method, scale, data, consistent, extras):
+def _model(desc, base, phi_b, pct, phi, method, scale, data, consistent, extras, sensor=None):
     scale = float(friction_law.smoothing(scale))          # the model records the smoothing it was fitted with
     return IdentifiedModel(desc, base, phi_b, pct, phi, method, scale, data_digest(*data), data[0].shape[0],
-                           consistent, extras=tuple(extras))
+                           consistent, extras=tuple(extras), sensor=sensor)
 
 
 def ols(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, tau: np.ndarray,
         base: BaseParameters | None = None, coulomb_velocity_scale: float | None = None,
-        offsets: bool = False, load_friction: bool = False) -> IdentifiedModel:
+        offsets: bool = False, load_friction: bool = False, sensor: SensorTermSettings | None = None,
+        pieces: Sequence[int] | None = None) -> IdentifiedModel:
     """Ordinary least squares ``φ_b = (K_bᵀK_b)⁻¹K_bᵀτ`` (eq. 4.22) with σ% (eq. 4.24–4.27).
 
     ``desc`` gives the kinematics and the a-priori parameters that fill the unidentifiable directions of the full
     set. ``offsets`` adds a constant torque offset per joint [N·m] (a torque-sensor bias, not in the thesis'
     model) as ``n`` extra unknowns after the base parameters; ``load_friction`` the load gain of load-dependent
-    Coulomb friction per joint (module docstring)."""
-    data, base, ne = _prepare(desc, q, qd, qdd, tau, base, coulomb_velocity_scale, offsets, load_friction)
+    Coulomb friction per joint; ``sensor`` the torque sensor's terms with these settings, ``pieces`` the sample
+    counts of the recordings stacked in the data (module docstring)."""
+    data, base, ne = _prepare(desc, q, qd, qdd, tau, base, coulomb_velocity_scale, offsets, load_friction, sensor,
+                              pieces)
     ones = np.ones(desc.n)
     phi_b = _least_squares(ne, base, ones)
     pct, _ = _sigma_pct(ne, base, phi_b, ones)
     phi = _full_set(base, phi_b, standard_parameters(desc))
-    return _model(desc, base, phi_b, pct, phi, "ols", coulomb_velocity_scale, data, False, ne.extras)
+    return _model(desc, base, phi_b, pct, phi, "ols", coulomb_velocity_scale, data, False, ne.extras, sensor)
 
 
 def wls(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, tau: np.ndarray,
         base: BaseParameters | None = None, coulomb_velocity_scale: float | None = None,
-        offsets: bool = False, load_friction: bool = False) -> IdentifiedModel:
+        offsets: bool = False, load_friction: bool = False, sensor: SensorTermSettings | None = None,
+        pieces: Sequence[int] | None = None) -> IdentifiedModel:
     """Weighted least squares (Gautier): each joint's equations weighted by ``1/σ_i²``, ``σ_i`` the joint's OLS
     residual standard deviation; σ% from the weighted covariance. Arguments as :func:`ols`."""
-    data, base, ne = _prepare(desc, q, qd, qdd, tau, base, coulomb_velocity_scale, offsets, load_friction)
+    data, base, ne = _prepare(desc, q, qd, qdd, tau, base, coulomb_velocity_scale, offsets, load_friction, sensor,
+                              pieces)
     ones = np.ones(desc.n)
     resid = ne.tau - _predict_base(ne, base, _least_squares(ne, base, ones))
     dof = max(resid.shape[0] - ne.rhs.size / desc.n, 1.0)
     var = np.sum(resid ** 2, axis=0) / dof
     weights = 1.0 / np.maximum(var, 1e-12 * max(var.max(), 1e-300))
-    ne_w = normal_equations(desc, base, *data, coulomb_velocity_scale, weights, offsets, load_friction)
+    ne_w = normal_equations(desc, base, *data, coulomb_velocity_scale, weights, offsets, load_friction, sensor,
+                            pieces)
     phi_b = _least_squares(ne_w, base, weights)
     pct, _ = _sigma_pct(ne_w, base, phi_b, weights)
     phi = _full_set(base, phi_b, standard_parameters(desc))
-    return _model(desc, base, phi_b, pct, phi, "wls", coulomb_velocity_scale, data, False, ne.extras)
+    return _model(desc, base, phi_b, pct, phi, "wls", coulomb_velocity_scale, data, False, ne.extras, sensor)
 
 
 def _pseudo_inertia(phi_link):
@@ -258,7 +293,8 @@ def _pseudo_inertia(phi_link):
 
 def sdp(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, tau: np.ndarray,
         base: BaseParameters | None = None, coulomb_velocity_scale: float | None = None, offsets: bool = False,
-        regularization: float = 1e-4, min_mass: float = 1e-3, load_friction: bool = False) -> IdentifiedModel:
+        regularization: float = 1e-4, min_mass: float = 1e-3, load_friction: bool = False,
+        sensor: SensorTermSettings | None = None, pieces: Sequence[int] | None = None) -> IdentifiedModel:
     """Physically consistent least squares as an SDP (pseudo-inertia LMI of Wensing et al. 2018; cf. Stürz 2017).
 
     ``min ‖R(Kφ − φ̂_b)‖ + λ‖φ − φ_prior‖`` over the full standard set ``φ`` (and the offsets) subject to every
@@ -270,7 +306,8 @@ def sdp(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, 
     """
     from pydrake.solvers import ClarabelSolver, MathematicalProgram
 
-    data, base, ne = _prepare(desc, q, qd, qdd, tau, base, coulomb_velocity_scale, offsets, load_friction)
+    data, base, ne = _prepare(desc, q, qd, qdd, tau, base, coulomb_velocity_scale, offsets, load_friction, sensor,
+                              pieces)
     ones = np.ones(desc.n)
     phi_ls = _least_squares(ne, base, ones)
     prior = standard_parameters(desc)
@@ -307,7 +344,7 @@ def sdp(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, 
     phi_val = _clip_second_moments(phi_val, desc.n)
     phi_b = np.concatenate([base.to_base(phi_val), sol[p:]])
     pct, _ = _sigma_pct(ne, base, phi_b, ones)
-    return _model(desc, base, phi_b, pct, phi_val, "sdp", coulomb_velocity_scale, data, True, ne.extras)
+    return _model(desc, base, phi_b, pct, phi_val, "sdp", coulomb_velocity_scale, data, True, ne.extras, sensor)
 
 
 def _clip_second_moments(phi: np.ndarray, n: int, floor: float = 1e-9) -> np.ndarray:
@@ -349,14 +386,15 @@ def _consistent(phi: np.ndarray, n: int, min_mass: float) -> bool:
 
 def identify(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, tau: np.ndarray,
              method: str = "ols", base: BaseParameters | None = None, coulomb_velocity_scale: float | None = None,
-             offsets: bool = False, load_friction: bool = False) -> IdentifiedModel:
+             offsets: bool = False, load_friction: bool = False, sensor: SensorTermSettings | None = None,
+             pieces: Sequence[int] | None = None) -> IdentifiedModel:
     """Dispatch to :func:`ols`, :func:`wls` or :func:`sdp` (``load_friction``: fit the load gain of load-dependent
-    Coulomb friction, module docstring)."""
+    Coulomb friction; ``sensor``, ``pieces``: the torque sensor's terms, module docstring)."""
     fns = {"ols": ols, "wls": wls, "sdp": sdp}
     if method not in fns:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
     return fns[method](desc, q, qd, qdd, tau, base=base, coulomb_velocity_scale=coulomb_velocity_scale,
-                       offsets=offsets, load_friction=load_friction)
+                       offsets=offsets, load_friction=load_friction, sensor=sensor, pieces=pieces)
 
 
 def torque_error_table(tau_meas: np.ndarray, tau_pred: np.ndarray, title: str = "") -> tuple[str, dict]:

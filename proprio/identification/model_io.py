@@ -6,7 +6,8 @@ File layout (``np.savez``, ``allow_pickle=False``): arrays ``phi_b [r (+n per ex
 ``MultibodyPlant`` on its own), ``method``, ``base_names``, ``standard_names``, ``coulomb_velocity_scale``,
 ``training_digest`` (sha256 of the training arrays), ``n_train_samples``, ``physically_consistent`` and ``extras``
 (the per-joint unknowns after the base parameters, in order: ``offset`` [N·m], ``load_gain`` [-] of load-dependent
-Coulomb friction; a file without it and ``r + n`` entries holds offsets).
+Coulomb friction, then the torque sensor's terms of :mod:`proprio.identification.sensor_terms`; a file without it
+and ``r + n`` entries holds offsets) and, with sensor terms, ``sensor_terms`` (their settings).
 """
 from __future__ import annotations
 
@@ -25,9 +26,10 @@ from proprio import friction_law
 from proprio.description import RobotDescription, robot_from_dict
 from proprio.io import atomic_path
 from proprio.identification.base_parameters import BaseParameters
+from proprio.identification.sensor_terms import RIPPLE_TERMS, SENSOR_TERMS, SensorTerms, SensorTermSettings
 from proprio.identification.regressor import (
     PARAMS_PER_JOINT, RegressorGeometry, drive_from_parameters, friction_from_parameters, parameters_to_links,
-    regressor_buffer, regressor_geometry)
+    predict, regressor_buffer, regressor_geometry, standard_parameters)
 
 __all__ = ["IdentifiedModel", "save_model", "load_model", "data_digest", "ModelFileError", "FORMAT"]
 
@@ -65,7 +67,8 @@ class IdentifiedModel:
     training_digest: str = ""
     n_train_samples: int = 0
     physically_consistent: bool = False
-    extras: tuple[str, ...] = ()       # per-joint unknowns after the base parameters: "offset", "load_gain"
+    extras: tuple[str, ...] = ()       # per-joint unknowns after the base parameters: "offset", "load_gain", sensor
+    sensor: SensorTermSettings | None = None   # the settings of the sensor terms among the extras
     _geometry: RegressorGeometry | None = field(default=None, repr=False, compare=False)
 
     @property
@@ -90,12 +93,21 @@ class IdentifiedModel:
         return self._extra("load_gain")
 
     @property
+    def sensor_terms(self) -> SensorTerms | None:
+        """The identified torque-sensor terms (:mod:`proprio.identification.sensor_terms`), ``None`` without."""
+        if self.sensor is None:
+            return None
+        return SensorTerms(self.sensor, tuple(tuple(float(x) for x in self._extra(k)) for k in self.sensor.terms))
+
+    @property
     def names(self) -> list[str]:
         """Names of the entries of ``phi_b``: the base parameters, then ``offset<j>`` / ``load_gain<j>`` per extra."""
         return list(self.base.names) + [f"{e}{j + 1}" for e in self.extras for j in range(self.n)]
 
     def torque(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
-        """``τ_RBD [N, n]`` (rigid body + identified friction) [N·m] for ``q, qd, qdd [N, n]`` (or ``[n]``)."""
+        """``τ_RBD [N, n]`` (rigid body + identified friction + offsets + sensor terms) [N·m] for ``q, qd, qdd [N, n]``
+        (or ``[n]``). The sensor terms have state: the samples are one contiguous sequence from the virgin state at
+        the first (:mod:`proprio.identification.sensor_terms`)."""
         single = np.ndim(q) == 1
         if self._geometry is None:
             self._geometry = regressor_geometry(self.description)
@@ -107,6 +119,10 @@ class IdentifiedModel:
         if "load_gain" in self.extras:      # τ = a + k|τ| sgn_s(q̇): solved exactly (proprio.friction_law)
             sign = friction_law.smooth_sign(np.atleast_2d(qd), self.coulomb_velocity_scale)
             tau = friction_law.load_from_net(tau, sign, self.load_gain)
+        terms = self.sensor_terms
+        if terms is not None:               # their gain column and load: the a-priori torque Y φ_prior (sensor_terms)
+            prior = predict(buf, standard_parameters(self.description))
+            tau = tau + terms.torque(np.atleast_2d(q), np.atleast_2d(qd), prior)[0]
         return tau[0] if single else tau
 
     def description_identified(self) -> RobotDescription:
@@ -138,6 +154,7 @@ def save_model(model: IdentifiedModel, path: str | Path) -> Path:
         "standard_names": list(model.base.standard_names), "coulomb_velocity_scale": model.coulomb_velocity_scale,
         "training_digest": model.training_digest, "n_train_samples": model.n_train_samples,
         "physically_consistent": model.physically_consistent, "extras": list(model.extras),
+        "sensor_terms": None if model.sensor is None else model.sensor.to_dict(),
     }
     with atomic_path(path, suffix=".npz") as tmp:
         with open(tmp, "wb") as fh:
@@ -176,8 +193,15 @@ def load_model(path: str | Path) -> IdentifiedModel:
                           arrays["beta"], tuple(meta["standard_names"]), tuple(meta["base_names"]))
     n_extra = (arrays["phi_b"].size - base.n_base) // max(desc.n, 1)
     extras = tuple(meta.get("extras", ["offset"] * n_extra))
-    if not set(extras) <= {"offset", "load_gain"}:
-        raise ModelFileError(f"{path}: meta.extras {list(extras)} are not among 'offset', 'load_gain'")
+    known = ("offset", "load_gain") + SENSOR_TERMS + RIPPLE_TERMS
+    if not set(extras) <= set(known):
+        raise ModelFileError(f"{path}: meta.extras {list(extras)} are not among {', '.join(known)}")
+    try:
+        sensor = None if meta.get("sensor_terms") is None else SensorTermSettings.from_dict(meta["sensor_terms"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ModelFileError(f"{path}: meta.sensor_terms is malformed ({exc!r})") from None
+    if (sensor.terms if sensor is not None else ()) != tuple(e for e in extras if e in known[2:]):
+        raise ModelFileError(f"{path}: meta.extras {list(extras)} do not match meta.sensor_terms")
     if arrays["phi_b"].shape != (base.n_base + desc.n * len(extras),) or \
             arrays["phi"].shape != (base.n_standard,):
         raise ModelFileError(f"{path}: phi_b/phi shapes {arrays['phi_b'].shape}/{arrays['phi'].shape} do not match "
@@ -185,4 +209,4 @@ def load_model(path: str | Path) -> IdentifiedModel:
     return IdentifiedModel(desc, base, arrays["phi_b"], arrays["sigma_pct"], arrays["phi"], meta["method"],
                            float(meta["coulomb_velocity_scale"]), meta.get("training_digest", ""),
                            int(meta.get("n_train_samples", 0)), bool(meta.get("physically_consistent", False)),
-                           extras)
+                           extras, sensor)

@@ -11,6 +11,7 @@ import numpy as np
 from proprio.conditioning import ConditionedSignals, ConditioningConfig, condition
 from proprio.identification.estimators import identify, torque_error_table
 from proprio.identification.regressor import drive_identified
+from proprio.identification.sensor_terms import SensorTermSettings
 from proprio.recording import Recording
 
 __all__ = ["identify_recordings", "stack_recordings", "check_tau_kind", "TRIM_S", "TAU_KINDS"]
@@ -50,34 +51,42 @@ def stack_recordings(recs: Sequence[Recording], trim_s: float, config: Condition
     conditioned = []
     for k, rec in enumerate(recs):
         cs = condition(rec, config)
-        trim = int(round(trim_s * cs.rate_hz))
-        if cs.n_samples <= 2 * trim:
-            raise ValueError(f"recording {k}: {cs.n_samples / cs.rate_hz:.3g} s are not more than 2 × --trim "
-                             f"{trim_s:g} s")
-        keep = np.zeros(cs.n_samples, dtype=bool)
-        keep[trim:cs.n_samples - trim] = True
-        keep &= cs.valid
+        keep = _kept(cs, trim_s, k)
         for name in parts:
             parts[name].append(getattr(cs, name)[keep])
         conditioned.append(cs)
     return tuple(np.concatenate(parts[k]) for k in ("q", "qd", "qdd", "tau")), conditioned
 
 
+def _kept(cs: ConditionedSignals, trim_s: float, k: int = 0) -> np.ndarray:
+    """The samples of recording ``k``'s conditioned signals that :func:`stack_recordings` keeps."""
+    trim = int(round(trim_s * cs.rate_hz))
+    if cs.n_samples <= 2 * trim:
+        raise ValueError(f"recording {k}: {cs.n_samples / cs.rate_hz:.3g} s are not more than 2 × --trim "
+                         f"{trim_s:g} s")
+    keep = np.zeros(cs.n_samples, dtype=bool)
+    keep[trim:cs.n_samples - trim] = True
+    return keep & cs.valid
+
+
 def identify_recordings(train_recs: Sequence[Recording], validate_recs: Sequence[Recording], robot,
                         method: str = "ols", trim_s: float = TRIM_S, offsets: bool = True,
                         coulomb_velocity_scale: float | None = None,
-                        conditioning: ConditioningConfig = ConditioningConfig(), load_friction: bool = False):
+                        conditioning: ConditioningConfig = ConditioningConfig(), load_friction: bool = False,
+                        sensor: SensorTermSettings | None = None):
     """Identify ``robot`` (a RobotDescription: kinematics + a-priori inertials) on Recordings and validate on
     others. Returns ``(model, table_text)`` with the Table 4.4-style per-joint MSE/σ on training and validation,
     headed by each recording's conditioning line. ``trim_s`` [s]: dropped at both ends of every recording.
     ``coulomb_velocity_scale`` [rad/s]: the Coulomb smoothing
     (``None``: the library's, :mod:`proprio.friction_law`). A drive-torque arm (``robot.drive.tau_kind == 'drive'``) always
     fits the constant drive offsets with its drive columns. ``load_friction``: also the load gain of load-dependent
-    Coulomb friction per joint (:mod:`proprio.identification.estimators`)."""
+    Coulomb friction per joint; ``sensor``: the torque sensor's terms with these settings, each recording's from the
+    virgin state at its first kept sample (:mod:`proprio.identification.estimators`)."""
     offsets = offsets or drive_identified(robot)
     train, cond_tr = stack_recordings(train_recs, trim_s, conditioning)
+    pieces = [int(_kept(cs, trim_s, k).sum()) for k, cs in enumerate(cond_tr)]
     model = identify(robot, *train, method, coulomb_velocity_scale=coulomb_velocity_scale, offsets=offsets,
-                     load_friction=load_friction)
+                     load_friction=load_friction, sensor=sensor, pieces=pieces)
     lines = sorted({f"{cs.describe()}" for cs in cond_tr})
     parts = ["\n".join(lines), torque_error_table(train[3], model.torque(*train[:3]), "training (Table 4.4 layout)")[0]]
     if validate_recs:

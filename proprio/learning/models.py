@@ -271,7 +271,9 @@ def save_model(model: HybridModel, path: str | Path, extra: dict[str, Any] | Non
 
 
 def load_model(path: str | Path, dtype: torch.dtype = torch.float32) -> tuple[HybridModel, dict[str, Any]]:
-    """``(model in eval mode, extra)`` from a file written by :func:`save_model` (``weights_only=True``)."""
+    """``(model in eval mode, extra)`` from a file written by :func:`save_model` (``weights_only=True``). An
+    identified backbone (``extra["backbone"]``, an ``.npz``) not found where it was named is looked for beside the
+    model file (a model shipped with its backbone, e.g. ``proprio/configs/table5_*``)."""
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such model file")
@@ -287,7 +289,12 @@ def load_model(path: str | Path, dtype: torch.dtype = torch.float32) -> tuple[Hy
     except (KeyError, TypeError, ValueError, RuntimeError) as exc:
         raise ValueError(f"{path}: a proprio hybrid model file whose config and weights do not fit together "
                          f"({first_line(exc)})") from None
-    return model.to(dtype).eval(), payload.get("extra", {})
+    extra = dict(payload.get("extra", {}))
+    spec = extra.get("backbone")
+    if isinstance(spec, str) and spec.endswith(".npz") and not Path(spec).exists() \
+            and (path.parent / Path(spec).name).exists():
+        extra["backbone"] = str(path.parent / Path(spec).name)      # an identified backbone shipped beside the model
+    return model.to(dtype).eval(), extra
 
 
 def first_line(exc: BaseException, limit: int = 200) -> str:

@@ -21,6 +21,10 @@ class RbdBackbone(LeafSystem):
     def __init__(self, model: IdentifiedModel | str | Path):
         super().__init__()
         self.model = model if isinstance(model, IdentifiedModel) else load_model(model)
+        if self.model.sensor is not None:
+            raise ValueError("RbdBackbone: the model has torque-sensor terms, whose reversal state this stateless "
+                             "System cannot carry; use the estimation Diagram's TorqueModelSystem "
+                             "(proprio.diagrams.torque_model)")
         n = self.model.n
         self._q = self.DeclareVectorInputPort("q", n)
         self._qd = self.DeclareVectorInputPort("qd", n)
