@@ -38,15 +38,16 @@ def _identify(args: argparse.Namespace) -> int:
         robot = dataclasses.replace(robot, drive=None)
     conditioning = conditioning_of(args)
     offsets = args.offsets or drive_identified(robot)
+    load_friction = args.load_friction or robot.friction_load_dependent     # the flag or the description asks
     for role, paths, recs in (("train", args.train, train), ("validate", val_names, validate)):
         for path, rec in zip(paths, recs):          # warnings and problems only, and the conditioning line (once)
             print(format_findings(assess(rec, robot, conditioning=conditioning), "warning",
                                   title=f"data quality of {path} ({role}):"))
     model, text = identify_recordings(train, [], robot, args.method, trim_s, offsets,
-                                      args.coulomb_velocity_scale, conditioning, load_friction=args.load_friction)
+                                      args.coulomb_velocity_scale, conditioning, load_friction=load_friction)
     print(f"{args.method.upper()} on {model.n_train_samples} samples: {model.phi_b.size} parameters "
           f"({model.base.n_base} base{' incl. drive terms' if drive_identified(robot) else ''}"
-          f"{' + offsets' if offsets else ''}{' + load-dependent friction gains' if args.load_friction else ''})")
+          f"{' + offsets' if offsets else ''}{_load_friction_note(args.load_friction, robot.friction_load_dependent)})")
     if args.show_parameters:
         print(model.parameter_table())
     print(text.split("\n\n", 1)[1])                # the tables: their conditioning lines were printed above
@@ -58,6 +59,16 @@ def _identify(args: argparse.Namespace) -> int:
     save_model(model, args.out)
     print(f"wrote {args.out}")
     return 0
+
+
+def _load_friction_note(flag: bool, described: bool) -> str:
+    """The parameter count's words for the load gains and who asked for them (the flag, the description, or both:
+    either turns them on)."""
+    if not (flag or described):
+        return ""
+    who = " and ".join(w for w, on in (("--load-friction", flag), ("the description's friction.load_dependent",
+                                                                     described)) if on)
+    return f" + load-dependent friction gains ({who})"
 
 
 OFFSET_ALPHA = 0.01
@@ -162,7 +173,8 @@ def register(subparsers) -> None:
                         "proprio.friction_law.SMOOTH_VELOCITY = 0.05)")
     p.add_argument("--load-friction", action="store_true",
                    help="also fit load-dependent Coulomb friction per joint: F_c = F_c0 + k |tau| (k [-] per joint, "
-                        "the measured link torque as the load)")
+                        "the measured link torque as the load); on anyway when the robot description says "
+                        "friction: {load_dependent: true}")
     p.add_argument("--show-parameters", action="store_true", help="print the base-parameter table (Table 4.6)")
     p.set_defaults(func=_identify)
 
