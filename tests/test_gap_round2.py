@@ -45,7 +45,7 @@ def test_spring_and_cable_are_position_not_history():
     5 % held-out gain (no hysteresis, no sensor gain error standing in for them), and a hint on q."""
     case = next(c for c in make_cases(twin=True) if c.name == "twin:open:spring_cable@1")
     r = run_case(case)
-    assert r.error is None
+    assert not r.error
     assert all(g < 0.05 for g in r.physical_gains.values()), r.physical_gains
     assert _flagged_unexplained(r)
     assert _hint_names_signal(r), r.hints

@@ -25,7 +25,7 @@ import numpy as np
 from proprio.diagnosis.candidates.base import Candidate, _kept_signals
 from proprio.diagnosis.data import GapData
 
-__all__ = ["ConfigurationCandidate", "REVERSAL_CANDIDATES", "POSITION_MIMICS"]
+__all__ = ["ConfigurationCandidate", "REVERSAL_CANDIDATES", "POSITION_MIMICS", "own_angle_columns"]
 
 REVERSAL_CANDIDATES = ("hysteresis", "lost_motion", "presliding")
 """The candidates whose torque is a function of the motion's history (the travel since the last reversal)."""
@@ -54,22 +54,22 @@ class ConfigurationCandidate(Candidate):
         return [f"{c}[{j + 1}]" for j in self.joints for c in _COLUMNS]
 
     def design(self, data: GapData) -> np.ndarray:
-        out = []
-        for s in _kept_signals(data):
-            q = s.q
-            m, n = q.shape
-            cols = np.stack([np.ones_like(q), q, np.sin(q), np.cos(q)], axis=2)      # [m, n, per]
-            d = np.zeros((m, n, len(self.joints) * self._per))
-            for k, j in enumerate(self.joints):
-                d[:, j, k * self._per:(k + 1) * self._per] = cols[:, j]
-            out.append(d)
-        return np.concatenate(out)
+        cols = own_angle_columns(data)                                             # [M, n, per]
+        d = np.zeros(cols.shape[:2] + (len(self.joints) * self._per,))
+        for k, j in enumerate(self.joints):
+            d[:, j, k * self._per:(k + 1) * self._per] = cols[:, j]
+        return d
 
-    def cached_design(self, data: GapData) -> np.ndarray:
-        key = ("design", self.name, tuple(self.joints))          # one design per joint set
-        if key not in data.cache:
-            data.cache[key] = self.design(data)
-        return data.cache[key]
+    @property
+    def design_key(self) -> tuple:
+        return self.name, tuple(self.joints)                                       # one design per joint set
 
     def joint_of_param(self, n: int) -> np.ndarray:
         return np.repeat(self.joints, self._per)
+
+
+def own_angle_columns(data: GapData) -> np.ndarray:
+    """``[M, n, len(_COLUMNS)]``: the columns ``1, q_j, sin q_j, cos q_j`` of each joint's own angle [rad] at the
+    data's kept samples."""
+    q = np.concatenate([s.q for s in _kept_signals(data)])
+    return np.stack([np.ones_like(q), q, np.sin(q), np.cos(q)], axis=2)

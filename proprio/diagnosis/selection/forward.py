@@ -85,7 +85,7 @@ from scipy import stats
 from proprio.description import RobotDescription
 from proprio.diagnosis.candidates.registry import candidate_set
 from proprio.diagnosis.candidates.base import Candidate
-from proprio.diagnosis.candidates.configuration import POSITION_MIMICS, ConfigurationCandidate
+from proprio.diagnosis.candidates.configuration import POSITION_MIMICS, ConfigurationCandidate, own_angle_columns
 from proprio.conditioning import ConditionedSignals, ConditioningConfig, processing_torque_sigma
 from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, MIN_BLOCK_S, MIN_BLOCKS, Conditioned, GapData, SimModel,
                                     condition_recordings, session_motion)
@@ -275,12 +275,11 @@ def _configuration_joints(r_tr: np.ndarray, train: GapData, alpha: float) -> np.
     a significant part of the training residual ``r_tr [M, n]`` beyond a constant: per joint the F test of the
     least-squares fit, its sample count deflated to the effective one of the residual's autocorrelation
     (:func:`~proprio.diagnosis.selection.block_test.n_eff_factor`), at ``alpha``."""
-    n = r_tr.shape[1]
-    design = ConfigurationCandidate(n).cached_design(train)
-    per = design.shape[2] // n
+    cols = own_angle_columns(train)
+    per = cols.shape[2]
     keep = []
-    for j in range(n):
-        a, y = design[:, j, j * per:(j + 1) * per], r_tr[:, j]
+    for j in range(r_tr.shape[1]):
+        a, y = cols[:, j], r_tr[:, j]
         y0 = y - y.mean()
         sse0 = float(y0 @ y0)
         if sse0 <= 0:
