@@ -3,7 +3,6 @@ configuration-dependent torque that is not hysteresis, and the data path that ne
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from proprio.diagnosis.data import SimModel
 from proprio.diagnosis.selection.forward import attribute
@@ -41,15 +40,12 @@ def test_log_without_gravity_names_gravity_not_offsets():
     assert attribute(model, data.train, data.holdout).missing_term is None
 
 
-@pytest.mark.xfail(strict=True, reason="issue 39 item 3 not met at magnitude 1: a sensor gain error (11 %) and "
-                   "hysteresis (10 %, after it) stand in for the spring on joint 1 and the cable's sin q on joint 3; "
-                   "at magnitude 2 only a 5 % sensor gain is named and the hint names q_3")
 def test_spring_and_cable_are_position_not_history():
     """A gravity-compensation spring k (q − q₀) on one joint and a cable's sin q on another: no library effect above
-    5 % held-out gain (no hysteresis), and a hint on q."""
+    5 % held-out gain (no hysteresis, no sensor gain error standing in for them), and a hint on q."""
     case = next(c for c in make_cases(twin=True) if c.name == "twin:open:spring_cable@1")
     r = run_case(case)
-    assert r.error is None
+    assert not r.error
     assert all(g < 0.05 for g in r.physical_gains.values()), r.physical_gains
     assert _flagged_unexplained(r)
     assert _hint_names_signal(r), r.hints

@@ -104,3 +104,51 @@ def test_benchmark_families_withhold_it_at_two_magnitudes_and_move_no_other_case
         assert {"drive:load_friction@0.5/100Hz", "drive:load_friction@1/1000Hz"} <= set(drive)
     # a kind added later is never drawn as a null case's modelled effect (the null cases stay what they were)
     assert not any("load_friction" in c.modelled for c in make_cases(False) + make_cases(False, twin=True))
+
+
+def test_a_description_asks_for_it_and_identify_fits_it(tmp_path, capsys):
+    """``friction: {load_dependent: true}`` in a robot YAML (alone or beside the coefficients) makes ``proprio
+    identify`` fit the load gains without the flag; the flag and the description together are the same fit; a
+    description that does not say so fits none; a value that is not a boolean is refused naming the field."""
+    import json
+
+    import yaml
+
+    from proprio.cli import main
+    from proprio.description import DescriptionError, robot_from_dict
+
+    desc = load_robot("iiwa14_identified")
+    d = desc.to_dict()
+    assert "load_dependent" not in d["friction"] and not desc.friction_load_dependent
+    alone = robot_from_dict({**d, "friction": {"load_dependent": True}})
+    assert alone.friction_load_dependent and not alone.has_friction
+    asked = robot_from_dict({**d, "friction": {**d["friction"], "load_dependent": True}})
+    assert asked.friction_load_dependent and asked.friction_coulomb == desc.friction_coulomb
+    assert robot_from_dict(asked.to_dict()) == asked                                 # written back as read
+    assert not asked.without_friction().friction_load_dependent
+    with pytest.raises(DescriptionError, match=r"friction\.load_dependent: expected true or false"):
+        robot_from_dict({**d, "friction": {**d["friction"], "load_dependent": "yes"}})
+
+    t, q, qd, qdd = _motion(desc.n)
+    k_true = np.random.default_rng(3).uniform(0.01, 0.03, desc.n)
+    rest = (inverse_dynamics(desc, q, qd, qdd) + np.asarray(desc.friction_viscous) * qd
+            + friction_law.viscous_coulomb(qd, 0.0, np.asarray(desc.friction_coulomb)))
+    tau = friction_law.load_from_net(rest, friction_law.smooth_sign(qd), k_true)
+    rec = tmp_path / "rec.npz"
+    with open(rec, "wb") as fh:
+        np.savez(fh, t=t, q=q, tau=tau, meta=np.array(json.dumps({"robot": desc.name})))
+    (tmp_path / "plain.yaml").write_text(yaml.safe_dump(d))
+    (tmp_path / "asked.yaml").write_text(yaml.safe_dump(asked.to_dict()))
+    gains = {}
+    for name, robot, flag in (("plain", "plain.yaml", []), ("asked", "asked.yaml", []),
+                              ("both", "asked.yaml", ["--load-friction"]), ("flag", "plain.yaml", ["--load-friction"])):
+        out = tmp_path / f"{name}.npz"
+        assert main(["identify", "--robot", str(tmp_path / robot), "--train", str(rec), "--out", str(out)]
+                    + flag) == 0
+        model = load_model(out)
+        gains[name] = model.load_gain if "load_gain" in model.extras else None
+        said = capsys.readouterr().out
+        assert ("the description's friction.load_dependent" in said) == (robot == "asked.yaml")
+    assert gains["plain"] is None
+    assert np.abs(gains["asked"] - k_true).max() < 0.005
+    assert np.array_equal(gains["asked"], gains["both"]) and np.array_equal(gains["asked"], gains["flag"])

@@ -43,6 +43,7 @@ def _identify(args: argparse.Namespace) -> int:
         robot = dataclasses.replace(robot, drive=None)
     conditioning = conditioning_of(args)
     offsets = args.offsets or drive_identified(robot)
+    load_friction = args.load_friction or robot.friction_load_dependent     # the flag or the description asks
     for role, paths, recs in (("train", args.train, train), ("validate", val_names, validate)):
         for path, rec in zip(paths, recs):          # warnings and problems only, and the conditioning line (once)
             print(format_findings(assess(rec, robot, conditioning=conditioning), "warning",
@@ -52,11 +53,11 @@ def _identify(args: argparse.Namespace) -> int:
         from proprio.identification.sensor_terms import SensorTermSettings
         sensor = SensorTermSettings.defaults(robot.n, robot.drive.gear_ratio if robot.drive is not None else None)
     model, text = identify_recordings(train, [], robot, args.method, trim_s, offsets,
-                                      args.coulomb_velocity_scale, conditioning, load_friction=args.load_friction,
+                                      args.coulomb_velocity_scale, conditioning, load_friction=load_friction,
                                       sensor=sensor)
     print(f"{args.method.upper()} on {model.n_train_samples} samples: {model.phi_b.size} parameters "
           f"({model.base.n_base} base{' incl. drive terms' if drive_identified(robot) else ''}"
-          f"{' + offsets' if offsets else ''}{' + load-dependent friction gains' if args.load_friction else ''}"
+          f"{' + offsets' if offsets else ''}{_load_friction_note(args.load_friction, robot.friction_load_dependent)}"
           f"{' + sensor terms (' + ', '.join(sensor.terms) + ')' if sensor is not None else ''})")
     if sensor is not None and sensor.gear_ratio is None:
         print("sensor terms: no ripple (the robot description gives no gear ratios: drive.gear_ratio)")
@@ -71,6 +72,16 @@ def _identify(args: argparse.Namespace) -> int:
     save_model(model, args.out)
     print(f"wrote {args.out}")
     return 0
+
+
+def _load_friction_note(flag: bool, described: bool) -> str:
+    """The parameter count's words for the load gains and who asked for them (the flag, the description, or both:
+    either turns them on)."""
+    if not (flag or described):
+        return ""
+    who = " and ".join(w for w, on in (("--load-friction", flag), ("the description's friction.load_dependent",
+                                                                     described)) if on)
+    return f" + load-dependent friction gains ({who})"
 
 
 OFFSET_ALPHA = 0.01
@@ -175,7 +186,8 @@ def register(subparsers) -> None:
                         "proprio.friction_law.SMOOTH_VELOCITY = 0.05)")
     p.add_argument("--load-friction", action="store_true",
                    help="also fit load-dependent Coulomb friction per joint: F_c = F_c0 + k |tau| (k [-] per joint, "
-                        "the measured link torque as the load)")
+                        "the measured link torque as the load); on anyway when the robot description says "
+                        "friction: {load_dependent: true}")
     p.add_argument("--sensor-terms", action="store_true",
                    help="also fit the torque sensor's laws per joint (a link-side sensor): its gain error, "
                         "hysteresis and lost motion (each a level [N m] and a load gain [-], the a-priori model's "

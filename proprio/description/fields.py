@@ -29,7 +29,7 @@ SHAPE_KEYS = ("shape", "xyz", "rpy", "radius", "length", "size")
 JOINT_KEYS = ("name", "parent", "child", "origin_xyz", "origin_rpy", "axis", "limits")
 LIMIT_KEYS = ("lower", "upper", "lower_deg", "upper_deg", "velocity", "velocity_deg", "effort", "acceleration")
 EE_KEYS = ("name", "parent", "xyz", "rpy")
-FRICTION_KEYS = ("viscous", "coulomb")
+FRICTION_KEYS = ("viscous", "coulomb", "load_dependent")
 MDH_TOP_KEYS = ("format", "name", "provenance", "gravity_world", "mdh", "limits", "links", "friction", "drive")
 MDH_TABLE_KEYS = ("alpha", "alpha_deg", "a", "d", "theta_offset", "theta_offset_deg", "flange_d")
 MDH_LIMIT_KEYS = ("position", "position_deg", "lower", "lower_deg", "upper", "upper_deg", "velocity",
@@ -226,16 +226,26 @@ def _parse_drive(data: dict, n: int, source: str) -> DriveDescription | None:
         raise DescriptionError(str(exc)) from None
 
 
-def _parse_friction(data: dict, n: int, source: str) -> tuple[tuple[float, ...] | None, tuple[float, ...] | None]:
-    """The optional ``friction: {viscous, coulomb}`` block: n coefficients each, ≥ 0 (None, None when absent)."""
+def _parse_friction(data: dict, n: int, source: str
+                    ) -> tuple[tuple[float, ...] | None, tuple[float, ...] | None, bool]:
+    """The optional ``friction: {viscous, coulomb, load_dependent}`` block: n coefficients each, ≥ 0 (both or
+    neither: None, None when absent), and ``load_dependent`` (a YAML boolean, default false): the joints' Coulomb
+    friction grows with the torque they transmit, ``F_c = F_c0 + k |τ|`` (:func:`proprio.friction_law.load_coulomb`),
+    so ``proprio identify`` fits the load gains ``k``. A block may hold ``load_dependent`` alone."""
     fr = data.get("friction")
     if fr is None:
-        return None, None
+        return None, None, False
     if not isinstance(fr, dict):
-        raise DescriptionError(f"{source}:friction: expected a mapping {{viscous, coulomb}}, got {fr!r}")
+        raise DescriptionError(f"{source}:friction: expected a mapping {{viscous, coulomb, load_dependent}}, "
+                               f"got {fr!r}")
     check_keys(fr, FRICTION_KEYS, f"{source}:friction", DOC_KEYS)
+    load = fr.get("load_dependent", False)
+    if not isinstance(load, bool):
+        raise DescriptionError(f"{source}:friction.load_dependent: expected true or false, got {load!r}")
+    if "load_dependent" in fr and "viscous" not in fr and "coulomb" not in fr:
+        return None, None, load
     fv = _vec(fr, "viscous", f"{source}:friction", size=n)
     fc = _vec(fr, "coulomb", f"{source}:friction", size=n)
     if min(fv) < 0 or min(fc) < 0:
         raise DescriptionError(f"{source}:friction: coefficients must be >= 0")
-    return fv, fc
+    return fv, fc, load

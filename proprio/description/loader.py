@@ -63,13 +63,13 @@ def robot_from_dict(data: dict[str, Any], source: str = "<dict>") -> RobotDescri
                          name=str(ee.get("name", "flange")))
     if ee_obj.parent != links[-1].name:
         raise DescriptionError(f"{source}:end_effector.parent must be the last link '{links[-1].name}'")
-    fv, fc = _parse_friction(data, len(joints), source)
+    fv, fc, load_dependent = _parse_friction(data, len(joints), source)
     gravity = _vec(data, "gravity_world", source, default=(0.0, 0.0, -9.81))
     return RobotDescription(
         name=name, base=base_link, joints=joints, links=links, end_effector=ee_obj,
         world_to_base_xyz=_vec(pose, "xyz", f"{source}:base.world_to_base_link", default=(0, 0, 0)),
         world_to_base_rpy=_vec(pose, "rpy", f"{source}:base.world_to_base_link", default=(0, 0, 0)),
-        gravity=gravity, friction_viscous=fv, friction_coulomb=fc,
+        gravity=gravity, friction_viscous=fv, friction_coulomb=fc, friction_load_dependent=load_dependent,
         provenance=str(data.get("provenance", "")).strip(), drive=_parse_drive(data, len(joints), source))
 
 

@@ -124,8 +124,8 @@ def robot_from_mdh_dict(data: dict, source: str) -> RobotDescription:
     if acc is not None:
         desc = dataclasses.replace(desc, joints=tuple(dataclasses.replace(j, acceleration=x)
                                                       for j, x in zip(desc.joints, acc)))
-    fv, fc = _parse_friction(data, n, source)
-    desc = dataclasses.replace(desc, friction_viscous=fv, friction_coulomb=fc,
+    fv, fc, load_dependent = _parse_friction(data, n, source)
+    desc = dataclasses.replace(desc, friction_viscous=fv, friction_coulomb=fc, friction_load_dependent=load_dependent,
                                gravity=_vec(data, "gravity_world", source, default=(0.0, 0.0, -9.81)),
                                provenance=str(data.get("provenance", desc.provenance)).strip(),
                                drive=_parse_drive(data, n, source))

@@ -104,7 +104,10 @@ class EndEffector:
 @dataclass(frozen=True)
 class RobotDescription:
     """A serial revolute arm. ``links[i]`` is the body moved by ``joints[i]``; ``base`` is welded to the world at
-    ``world_to_base_xyz/rpy``. Friction (optional, per joint): viscous [N·m·s/rad] and Coulomb [N·m]."""
+    ``world_to_base_xyz/rpy``. Friction (optional, per joint): viscous [N·m·s/rad] and Coulomb [N·m];
+    ``friction_load_dependent``: the joints' Coulomb friction grows with the torque they transmit
+    (``F_c = F_c0 + k |τ|``, :func:`proprio.friction_law.load_coulomb`), so identification fits the load gains
+    ``k`` (``proprio identify``, as its ``--load-friction``)."""
     name: str
     base: Link
     joints: tuple[Joint, ...]
@@ -115,6 +118,7 @@ class RobotDescription:
     gravity: tuple[float, float, float] = (0.0, 0.0, -9.81)
     friction_viscous: tuple[float, ...] | None = None
     friction_coulomb: tuple[float, ...] | None = None
+    friction_load_dependent: bool = False
     provenance: str = ""
     drive: DriveDescription | None = None         # motors, gears, coupling, what τ is (proprio.drive_description)
 
@@ -164,7 +168,7 @@ class RobotDescription:
         return dataclasses.replace(self, links=tuple(links))
 
     def without_friction(self) -> "RobotDescription":
-        return dataclasses.replace(self, friction_viscous=None, friction_coulomb=None)
+        return dataclasses.replace(self, friction_viscous=None, friction_coulomb=None, friction_load_dependent=False)
 
     def to_dict(self) -> dict[str, Any]:
         """The ``proprio-robot/v1`` YAML mapping of this description (inverse of :func:`robot_from_dict`)."""
@@ -194,6 +198,8 @@ class RobotDescription:
         }
         if self.has_friction:
             out["friction"] = {"viscous": list(self.friction_viscous), "coulomb": list(self.friction_coulomb)}
+        if self.friction_load_dependent:
+            out.setdefault("friction", {})["load_dependent"] = True
         if self.drive is not None:
             out["drive"] = self.drive.to_dict()
         return out

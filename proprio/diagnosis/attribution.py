@@ -96,10 +96,11 @@ class TimeVariation:
 
 @dataclass
 class PositionOnly:
-    """A reversal candidate (hysteresis, lost motion, pre-sliding friction) that won a step with held-out gain
+    """A candidate a configuration torque can pose as (hysteresis, lost motion, pre-sliding friction, a torque-sensor
+    gain error: :data:`~proprio.diagnosis.candidates.configuration.POSITION_MIMICS`) that won a step with held-out gain
     ``gain`` while a configuration-only torque explains ``configuration`` (≥ ``gain``) and the candidate adds only
-    ``beyond`` (t = ``t_stat``) to it: the residual depends on where the arm is, not on the motion's history — set
-    aside, not named (:mod:`proprio.diagnosis.candidates.configuration`)."""
+    ``beyond`` (t = ``t_stat``) to it: the residual depends on where the arm is, not on the motion's history (nor on
+    the torque it carries) — set aside, not named (:mod:`proprio.diagnosis.candidates.configuration`)."""
     name: str
     gain: float
     beyond: float
@@ -108,11 +109,13 @@ class PositionOnly:
 
     def text(self, plain: dict[str, str]) -> str:
         """One sentence for the report."""
-        return (f"Position, not history: {plain.get(self.name, self.name)} would lower the held-out error by "
+        head, not_on = (("Position, not torque", "the torque it carries") if self.name == "sensor_gain"
+                        else ("Position, not history", "the reversals"))
+        return (f"{head}: {plain.get(self.name, self.name)} would lower the held-out error by "
                 f"{100 * self.gain:.0f} %, but a torque that depends on the configuration alone (the joint's own "
                 f"angle) lowers it by {100 * self.configuration:.0f} % and beyond that torque it adds "
                 f"{100 * self.beyond:.1f} % (t = {self.t_stat:.2g}) — the residual "
-                "depends on where the arm is, not on the reversals: not named (see the hints on q).")
+                f"depends on where the arm is, not on {not_on}: not named (see the hints on q).")
 
 
 @dataclass

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import inspect
 import math
-from typing import Any, Sequence
+from typing import Any, Hashable, Sequence
 
 import numpy as np
 from scipy import signal
@@ -68,8 +68,14 @@ class Candidate:
         """Joint each parameter acts on (-1: several joints) — used for the sparse finite-difference Jacobian."""
         return -np.ones(self.n_params, dtype=int)
 
+    @property
+    def design_key(self) -> Hashable:
+        """What the cached design of :meth:`cached_design` is filed under in ``data.cache`` (the name; a candidate
+        whose columns depend on its settings adds them)."""
+        return self.name
+
     def cached_design(self, data: GapData) -> np.ndarray:
-        key = ("design", self.name)
+        key = ("design", self.design_key)
         if key not in data.cache:
             data.cache[key] = self.design(data)
         return data.cache[key]

@@ -41,7 +41,7 @@ class RigidBodyCandidate(Candidate):
         self.columns = np.sort(nz[piv[:rank]])
         names = [nm for k, nm in enumerate(parameter_names(robot.n)) if k % PARAMS_PER_JOINT < 10]
         self._names = [f"δ{names[c]}" for c in self.columns]
-        train.cache[("design", self.name)] = full[..., self.columns]
+        train.cache[("design", self.design_key)] = full[..., self.columns]
         # the training motion, for mapping a fit back to physical link inertials (:meth:`patch`)
         self._motion = tuple(train.stack([getattr(s, k) for s in train.signals]) for k in ("q", "qd", "qdd"))
 

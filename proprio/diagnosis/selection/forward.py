@@ -44,13 +44,17 @@ first, the rest refitted, at most :data:`MAX_SUPERSEDED` times) — backward eli
 significant together, as the rigid body and Coulomb friction of the gap benchmark's pair.)
 
 **Position is not history.** Hysteresis, lost motion and pre-sliding friction depend on the motion's history (the
-travel since the last reversal). A reversal candidate that wins a step is set aside (:attr:`Attribution.position_only`;
-the hints then say which q the residual follows) when a configuration-only torque
+travel since the last reversal); a torque-sensor gain error on the measured torque. Along a trajectory both follow
+where the arm is, so a torque of the configuration alone can pose as them
+(:data:`~proprio.diagnosis.candidates.configuration.POSITION_MIMICS`). Such a candidate that wins a step is set aside
+(:attr:`Attribution.position_only`; the hints then say which q the residual follows) when a configuration-only torque
 (:class:`~proprio.diagnosis.candidates.configuration.ConfigurationCandidate`: ``1, q, sin q, cos q`` of the joint's
-own angle — a spring ``k (q − q₀)``, a cable's ``sin q``) explains at least as much of the held-out residual as it
-does *and* it adds no significant held-out gain (``min_gain`` and the step's t bound) beyond that torque. Both
-conditions: a configuration basis fitted on one motion can extrapolate poorly to another, so "adds nothing beyond
-it" alone would also set aside a real reversal effect whose held-out gain the basis' extrapolation error swamps.
+own angle — a spring ``k (q − q₀)``, a cable's ``sin q`` — on the joints where these columns explain a significant
+part of the training residual beyond a constant: :func:`_configuration_joints`) explains at least as much of the
+held-out residual as it does *and* it adds no significant held-out gain (``min_gain`` and the step's t bound) beyond
+that torque. Both conditions: a configuration basis fitted on one motion can extrapolate poorly to another, so "adds
+nothing beyond it" alone would also set aside a real effect whose held-out gain the basis' extrapolation error
+swamps.
 
 **Noise.** Torque noise cannot shrink a held-out error. After the deterministic steps, an unmodelled
 ``torque_noise`` is reported when the remaining residual is white (Ljung–Box and state R² agree:
@@ -81,7 +85,7 @@ from scipy import stats
 from proprio.description import RobotDescription
 from proprio.diagnosis.candidates.registry import candidate_set
 from proprio.diagnosis.candidates.base import Candidate
-from proprio.diagnosis.candidates.configuration import REVERSAL_CANDIDATES, ConfigurationCandidate
+from proprio.diagnosis.candidates.configuration import POSITION_MIMICS, ConfigurationCandidate, own_angle_columns
 from proprio.conditioning import ConditionedSignals, ConditioningConfig, processing_torque_sigma
 from proprio.diagnosis.data import (DIAGNOSIS_CONDITIONING, MIN_BLOCK_S, MIN_BLOCKS, Conditioned, GapData, SimModel,
                                     condition_recordings, session_motion)
@@ -266,14 +270,42 @@ def _drop_stand_ins(selected: list[Candidate], steps: list[Step], fit: Fit, trai
     return selected, steps, fit, dropped
 
 
+def _configuration_joints(r_tr: np.ndarray, train: GapData, alpha: float) -> np.ndarray:
+    """The joints (0-based) on which the configuration columns ``q, sin q, cos q`` of the joint's own angle explain
+    a significant part of the training residual ``r_tr [M, n]`` beyond a constant: per joint the F test of the
+    least-squares fit, its sample count deflated to the effective one of the residual's autocorrelation
+    (:func:`~proprio.diagnosis.selection.block_test.n_eff_factor`), at ``alpha``."""
+    cols = own_angle_columns(train)
+    per = cols.shape[2]
+    keep = []
+    for j in range(r_tr.shape[1]):
+        a, y = cols[:, j], r_tr[:, j]
+        y0 = y - y.mean()
+        sse0 = float(y0 @ y0)
+        if sse0 <= 0:
+            continue
+        fitted = a @ np.linalg.lstsq(a, y, rcond=None)[0]
+        explained = 1.0 - float(((y - fitted) ** 2).sum()) / sse0
+        n_eff = len(y) / n_eff_factor(y0[:, None])
+        dof = n_eff - per
+        if dof <= 0 or explained <= 0:
+            continue
+        f = (explained / (per - 1)) / max(1.0 - explained, 1e-12) * dof
+        if stats.f.sf(f, per - 1, dof) < alpha:
+            keep.append(j)
+    return np.asarray(keep, dtype=int)
+
+
 def _beyond_configuration(c: Candidate, selected: list[Candidate], fit_init: dict[str, np.ndarray], train: GapData,
                           hold: GapData, w: np.ndarray, blk: np.ndarray,
-                          with_nuisance: Callable[[list[Candidate]], list[Candidate]], pred_h: np.ndarray
-                          ) -> tuple[float, float, float]:
-    """``(held-out gain of the configuration-only nuisance added to selected, gain and block t statistic of the
-    reversal candidate c added beyond it)`` (module docstring, "Position is not history"); ``pred_h``: the selected
+                          with_nuisance: Callable[[list[Candidate]], list[Candidate]], pred_h: np.ndarray,
+                          joints: np.ndarray) -> tuple[float, float, float]:
+    """``(held-out gain of the configuration-only nuisance on ``joints`` added to selected, gain and block t statistic
+    of the candidate c added beyond it)`` (module docstring, "Position is not history"); ``pred_h``: the selected
     candidates' held-out prediction."""
-    cfg = ConfigurationCandidate(train.signals[0].n)
+    if not len(joints):
+        return 0.0, 0.0, 0.0
+    cfg = ConfigurationCandidate(train.signals[0].n, joints)
     n_blk = int(blk.max()) + 1
     sweeps = 2 if any(not x.linear for x in selected + [c]) else 1
     f0 = fit_candidates(with_nuisance(selected + [cfg]), train, w, fit_init, sweeps=sweeps)
@@ -354,10 +386,11 @@ def _select(model: SimModel, train: GapData, hold: GapData, blk: np.ndarray, blo
             below_floor.append((c.name, chosen[3], float(rms_delta.max())))
             remaining = [x for x in remaining if x is not c]
             continue
-        if c.name in REVERSAL_CANDIDATES:        # position is not history (module docstring)
+        if c.name in POSITION_MIMICS:        # position is not history (module docstring)
             say(f"step {len(steps) + 1}: {c.name} beyond the configuration")
+            joints = _configuration_joints(e_tr - predict_candidates(selected, fit, train), train, alpha)
             g_cfg, g_beyond, t_beyond = _beyond_configuration(c, selected, {**fit.thetas, **f_c.thetas}, train, hold,
-                                                              w, blk, with_nuisance, pred_h)
+                                                              w, blk, with_nuisance, pred_h, joints)
             if g_cfg >= chosen[3] and (g_beyond < min_gain or t_beyond < t_crit):
                 position_only.append(PositionOnly(c.name, float(chosen[3]), g_beyond, t_beyond, g_cfg))
                 remaining = [x for x in remaining if x is not c]
