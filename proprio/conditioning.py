@@ -43,6 +43,7 @@ from typing import Any, Sequence
 
 import numpy as np
 import scipy.signal
+from scipy import stats
 
 from proprio.cutoff import (auto_cutoff, decimate, decimate_valid, decimation_factor, lost_power, noise_floor_dof,
                             spectra, tau_white_level)
@@ -52,6 +53,11 @@ from proprio.signals import MotionSignals
 
 __all__ = ["ConditioningConfig", "ConditionedSignals", "condition", "zero_phase_lowpass",
            "processing_torque_sigma"]
+
+CLOCK_ALPHA = 0.05
+"""One-sided level of the time-base test (step 1): the samples go on the controller's clock when the white floor of q
+under it is below the floor at the stamps by more than the floor estimate's own 95 % chance margin (``χ²_{D,α}/D``,
+``D`` from :func:`~proprio.cutoff.noise_floor_dof`)."""
 
 
 @dataclass(frozen=True)
@@ -251,7 +257,8 @@ def _time_base(rec: Recording, t_u: np.ndarray, h: float, config: ConditioningCo
     if config.time_base == "auto" and rec.n_samples >= 64:
         floor_stamps = spectra(rec.q, 1.0 / h, t)[3]
         floor_clock = spectra(rec.q, 1.0 / h, clock)[3]
-        if not np.sum(floor_clock) < 0.8 * np.sum(floor_stamps):
+        dof = noise_floor_dof(rec.n_samples)
+        if not np.sum(floor_clock) < np.sum(floor_stamps) * stats.chi2.ppf(CLOCK_ALPHA, dof) / dof:
             return t
     elif config.time_base == "auto":
         return t
@@ -280,14 +287,15 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
             raise RecordingError(f"recording: {q.shape[0]} samples are too few to estimate the noise floor "
                                  "(conditioning.cutoff_hz = auto needs ≥ 64); give cutoff_hz explicitly")
         cutoff, sigma_q = auto_cutoff(rec.q, rate, config.min_cutoff_hz, config.max_cutoff_fraction, t_src,
-                                      config.order, config.max_motion_hz)
+                                      config.order, config.max_motion_hz, config.max_gap_s)
     else:
         cutoff = np.broadcast_to(np.asarray(config.cutoff_hz, dtype=float), (n,)).copy()
         sigma_q = auto_cutoff(rec.q, rate, t=t_src)[1] if q.shape[0] >= 64 else np.zeros(n)
     if np.any(cutoff >= 0.5 * rate):
         raise RecordingError(f"recording: cutoff {cutoff.max():g} Hz is not below the Nyquist frequency "
                              f"{0.5 * rate:.6g} Hz of its {rate:.6g} Hz time base")
-    lost = [lost_power(rec.q, rate, cutoff, p, t_src, config.order, config.max_motion_hz) if q.shape[0] >= 64
+    lost = [lost_power(rec.q, rate, cutoff, p, t_src, config.order, config.max_motion_hz, config.max_gap_s)
+            if q.shape[0] >= 64
             else np.zeros(n) for p in (1, 2)]
     qd_raw = resample(t_src, rec.qd, t_u) if use_qd else None
     m = decimation_factor(rate, cutoff, config.max_motion_hz, config.oversampling) \
