@@ -10,16 +10,19 @@ Steps, all vectorised over samples and joints:
    sampling, e.g. a 150 Hz log of 6/7 ms steps from a 1 kHz controller); ``clock`` — the samples were taken on the
    controller's regular clock and the stamps carry the logging host's receive-time jitter, so each sample belongs to
    the grid index nearest its stamp (a missing index is a lost sample, filled by the spline). ``auto`` (default)
-   takes the one under which ``q`` is smoother: the white floor of ``Δ²q/h²`` (step 2) must drop by at least 20 %
-   for ``clock`` (a wrong stamp adds ``q̇·δt`` of noise; a wrong snap does the same). A step longer
+   takes the one under which ``q`` is smoother: the white floor of ``Δ²q/h²`` (step 2) must drop for ``clock`` by
+   more than the floor estimate's own 95 % chance margin (``CLOCK_ALPHA``; a wrong stamp adds ``q̇·δt`` of noise; a
+   wrong snap does the same; ≈ 2 % in variance for 20 s at 1 kHz, where a 10⁻⁴ rad encoder's floor drops only
+   5–15 % on the clock). A step longer
    than ``max_gap_s`` is a *gap* (a dropout): the grid samples inside it are interpolated (``gap``) and flagged
    invalid (``valid``); so are, beside a gap lasting a cutoff period or more (where the fill is guesswork), the
    samples within ``edge_cycles`` periods of the lowest cutoff — the zero-phase filters of step 3 carry the fill that
    far. Every later stage drops the invalid samples. Duplicate stamps cannot reach this point: a Recording's time is
    strictly increasing (:func:`proprio.recording.recording_from_csv` averages duplicated stamps at import).
 2. **Cutoff per joint** (:mod:`proprio.cutoff`). From the config, or ``auto``: the cutoff that minimises the
-   estimated error of ``q̈`` (the signal the filter distorts plus the white floor it passes), bounded by the arm's
-   physical motion band ``max_motion_hz``. **Decimation** (``decimate``, on in the diagnosis): a grid sampled more
+   estimated error of ``q̈`` (the signal the filter distorts plus the white floor it passes; the motion's spectrum
+   taken on the uniform grid, the floor at the samples' own instants), bounded by the arm's physical motion band
+   ``max_motion_hz``. **Decimation** (``decimate``, on in the diagnosis): a grid sampled more
    than ``oversampling ×`` faster than that band is decimated by the integer ``M`` behind a zero-phase anti-alias
    filter, ``q``, ``τ`` and the robot's ``q̇`` alike, before the low-pass; white τ noise keeps its density, so its
    variance drops by ``M`` (``tau_gain``).
@@ -287,15 +290,14 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
             raise RecordingError(f"recording: {q.shape[0]} samples are too few to estimate the noise floor "
                                  "(conditioning.cutoff_hz = auto needs ≥ 64); give cutoff_hz explicitly")
         cutoff, sigma_q = auto_cutoff(rec.q, rate, config.min_cutoff_hz, config.max_cutoff_fraction, t_src,
-                                      config.order, config.max_motion_hz, config.max_gap_s)
+                                      config.order, config.max_motion_hz)
     else:
         cutoff = np.broadcast_to(np.asarray(config.cutoff_hz, dtype=float), (n,)).copy()
         sigma_q = auto_cutoff(rec.q, rate, t=t_src)[1] if q.shape[0] >= 64 else np.zeros(n)
     if np.any(cutoff >= 0.5 * rate):
         raise RecordingError(f"recording: cutoff {cutoff.max():g} Hz is not below the Nyquist frequency "
                              f"{0.5 * rate:.6g} Hz of its {rate:.6g} Hz time base")
-    lost = [lost_power(rec.q, rate, cutoff, p, t_src, config.order, config.max_motion_hz, config.max_gap_s)
-            if q.shape[0] >= 64
+    lost = [lost_power(rec.q, rate, cutoff, p, t_src, config.order, config.max_motion_hz) if q.shape[0] >= 64
             else np.zeros(n) for p in (1, 2)]
     qd_raw = resample(t_src, rec.qd, t_u) if use_qd else None
     m = decimation_factor(rate, cutoff, config.max_motion_hz, config.oversampling) \

@@ -9,7 +9,16 @@ error of ``q̈`` for a cutoff ``f_c``: the signal the filter's magnitude ``G`` r
 within ``[min_cutoff_hz, min(max_cutoff_fraction · rate, max_motion_hz)]``. ``max_motion_hz`` (40 Hz) is the
 physical bound of a manipulator's rigid-body motion: what ``q`` holds above it (drive and structure vibration, servo
 chatter of a 5 kHz log) is counted neither as motion to keep nor as motion the filter distorts, so a fast log's
-cutoff and its error estimate (:func:`lost_power`) follow the arm, not its vibrations.
+cutoff and its error estimate (:func:`lost_power`) follow the arm, not its vibrations. The rule is the physics of
+the error the diagnosis sees: a torque model evaluated on the conditioned motion errs by ``M(q)`` times the q̈ error,
+and both parts — the motion the filter removes (a structured error the effect candidates could mistake for physics)
+and the differentiated noise it passes (what the data-path candidates would then explain) — enter that error alike.
+The cutoff lies where the q̈ noise density ``(2πf)⁴ P_0`` meets the motion's acceleration spectrum.
+
+Where the samples sit at unequal stamps (a jittered or lossy log), the floor ``P_0`` is taken at the stamps, the
+motion's spectrum on the uniform grid (:func:`spectra`): the three-point ``Δ²q`` at unequal steps spreads white noise
+down to 0 Hz, which at a 10⁻⁴ rad floor hid the whole motion of a 1 kHz twin log and dropped its cutoff to the 1 Hz
+floor (issue 39: the conditioning then made a 0.79 N·m "before" gap of a 0.21 N·m one).
 
 **Decimation** (:func:`decimation_factor`, :func:`decimate`): when the grid rate exceeds ``oversampling ×`` the
 motion band (the largest of the cutoffs and ``max_motion_hz``) by a factor ``M ≥ 2``, the signals are decimated by
@@ -70,33 +79,15 @@ def noise_floor_dof(n_samples: int) -> float:
     return float(nu * k ** 2 / r[lag].sum())
 
 
-def _grid_second_difference(x: np.ndarray, rate_hz: float, t: np.ndarray, max_gap_s: float
-                             ) -> tuple[np.ndarray, np.ndarray]:
+def _grid_second_difference(x: np.ndarray, rate_hz: float, t: np.ndarray) -> np.ndarray:
     """``Δ²x / h²`` [per s²] on the uniform grid of ``rate_hz`` from the first stamp, ``x [N, ...]`` resampled from its
-    stamps ``t`` by the cubic spline, and ``[M]`` whether each value reaches into a gap (a step longer than
-    ``max_gap_s`` [s]: across it the spline carries the slope of the last samples, noise included, far into the hole —
-    no measurement of the motion nor of the noise)."""
+    stamps ``t`` by the cubic spline."""
     grid = t[0] + np.arange(int(np.floor((t[-1] - t[0]) * rate_hz)) + 1) / rate_hz
-    d2 = np.diff(resample(t, x, grid), n=2, axis=0) * rate_hz ** 2
-    hole = np.zeros(grid.size, dtype=bool)
-    for k in np.flatnonzero(np.diff(t) > max_gap_s):                 # a few dropouts, not one per sample
-        hole[(grid > t[k]) & (grid < t[k + 1])] = True
-    return d2, hole[:-2] | hole[1:-1] | hole[2:]
+    return np.diff(resample(t, x, grid), n=2, axis=0) * rate_hz ** 2
 
 
-def _welch_outside(x: np.ndarray, rate_hz: float, nper: int, hole: np.ndarray) -> np.ndarray:
-    """The Welch spectrum of ``x [M, ...]`` (Hann, 50 % overlap, as ``scipy.signal.welch``) averaged over the segments
-    that hold no ``hole`` sample; over all of them when every segment holds one."""
-    s = scipy.signal.spectrogram(x, fs=rate_hz, window="hann", nperseg=nper, noverlap=nper // 2, detrend="constant",
-                                 scaling="density", mode="psd", axis=0)[2]
-    starts = np.arange(s.shape[-1]) * (nper - nper // 2)
-    count = np.concatenate([[0], np.cumsum(hole)])
-    clean = count[starts + nper] == count[starts]
-    return s[..., clean].mean(axis=-1) if clean.any() else s.mean(axis=-1)
-
-
-def spectra(q: np.ndarray, rate_hz: float, t: np.ndarray | None = None, band_hz: float = np.inf,
-            max_gap_s: float = np.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def spectra(q: np.ndarray, rate_hz: float, t: np.ndarray | None = None, band_hz: float = np.inf
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Frequencies ``f [F]``, the q̈ signal spectrum ``S [F,n]`` and the q̈ noise spectrum ``N [F,n]`` [(rad/s²)²/Hz],
     and the white floor of q ``P_0 [n]`` [rad²/Hz].
 
@@ -105,9 +96,8 @@ def spectra(q: np.ndarray, rate_hz: float, t: np.ndarray | None = None, band_hz:
     time stamps ``t`` when given (a resampled log's interpolated stretches would hide the noise): its white-noise part
     has a known shape (``16 sin⁴(π f h) / h⁴`` on a uniform grid; at unequal steps that of unit white noise at the same
     stamps), and ``P_0`` is the mean of the ratio over the upper half of the band.
-    The signal ``S``: from ``Δ²q / h²`` on the uniform grid (q resampled from its stamps by the cubic spline; Welch
-    segments that reach into a gap longer than ``max_gap_s`` [s] left out), whose white noise has the shape of unit
-    white noise through the same resampling — small at low frequency, where the
+    The signal ``S``: from ``Δ²q / h²`` on the uniform grid (q resampled from its stamps by the cubic spline), whose
+    white noise has the shape of unit white noise through the same resampling — small at low frequency, where the
     motion is (``∝ f⁴``: the spline keeps constants) — whereas the three-point formula at jittered stamps turns white
     noise into a level that reaches down to 0 Hz (its weights change from sample to sample) and would bury the motion
     of a log with a high floor (10⁻⁴ rad at 1 kHz with 0.1 ms of jitter).
@@ -126,8 +116,7 @@ def spectra(q: np.ndarray, rate_hz: float, t: np.ndarray | None = None, band_hz:
         unit = np.random.default_rng(0).standard_normal((q.shape[0], 16))
         at_stamps = welch(_second_difference(unit, rate_hz, t))[1].mean(axis=1) / (2.0 / rate_hz)
         floor = np.mean(p[top] / at_stamps[top, None], axis=0)
-        d2_grid, hole = _grid_second_difference(np.column_stack([q, unit]), rate_hz, t, max_gap_s)
-        both = _welch_outside(d2_grid, rate_hz, nper, hole)                  # the motion: on the uniform grid
+        both = welch(_grid_second_difference(np.column_stack([q, unit]), rate_hz, t))[1]   # the motion: uniform grid
         p, shape = both[:, :q.shape[1]], both[:, q.shape[1]:].mean(axis=1) / (2.0 / rate_hz)
     noise = floor[None, :] * (2 * np.pi * f[:, None]) ** 4          # q̈ noise through ideal differentiation
     white = floor[None, :] * shape[:, None]
@@ -137,16 +126,15 @@ def spectra(q: np.ndarray, rate_hz: float, t: np.ndarray | None = None, band_hz:
 
 
 def auto_cutoff(q: np.ndarray, rate_hz: float, min_hz: float = 1.0, max_fraction: float = 0.2,
-                t: np.ndarray | None = None, order: int = 2, max_motion_hz: float = 40.0,
-                max_gap_s: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+                t: np.ndarray | None = None, order: int = 2, max_motion_hz: float = 40.0
+                ) -> tuple[np.ndarray, np.ndarray]:
     """Per-joint cutoff [Hz] minimising the estimated q̈ error (module docstring) and the white noise σ of q
-    [rad] implied by the floor (``σ² = P_0 · rate / 2``); ``q`` at its own stamps ``t`` [s] when given (steps longer
-    than ``max_gap_s`` [s] are gaps, :func:`spectra`).
+    [rad] implied by the floor (``σ² = P_0 · rate / 2``); ``q`` at its own stamps ``t`` [s] when given.
 
     The error of a cutoff ``f_c`` uses the zero-phase Butterworth's magnitude ``G(f) = 1 / (1 + (f/f_c)^{2·order})``:
     ``Σ_f S(f) (1 − G(f))² + N(f) G(f)²`` over 120 log-spaced candidates in ``[min_hz, min(max_fraction · rate,
     max_motion_hz)]``; signal above ``max_motion_hz`` (vibration, not arm motion) is not counted."""
-    f, signal, noise, floor = spectra(q, rate_hz, t, max_motion_hz, max_gap_s)
+    f, signal, noise, floor = spectra(q, rate_hz, t, max_motion_hz)
     sigma_q = np.sqrt(floor * rate_hz / 2.0)
     hi = min(max_fraction * rate_hz, max_motion_hz)
     if hi <= min_hz:
@@ -158,12 +146,11 @@ def auto_cutoff(q: np.ndarray, rate_hz: float, min_hz: float = 1.0, max_fraction
 
 
 def lost_power(q: np.ndarray, rate_hz: float, cutoff: np.ndarray, power: int, t: np.ndarray | None = None,
-                order: int = 2, band_hz: float = np.inf, max_gap_s: float = np.inf) -> np.ndarray:
+                order: int = 2, band_hz: float = np.inf) -> np.ndarray:
     """RMS of the ``power``-th derivative's signal that the low-pass distorts: ``Σ S(f) (1 − G(f))²`` with the
     zero-phase Butterworth's magnitude ``G`` (the signal term of the cutoff's error model, step 2: it counts the
-    attenuation below the cutoff as well as the signal removed above it; only motion below ``band_hz``; gaps as in
-    :func:`spectra`)."""
-    f, signal, _, _ = spectra(q, rate_hz, t, band_hz, max_gap_s)
+    attenuation below the cutoff as well as the signal removed above it; only motion below ``band_hz``)."""
+    f, signal, _, _ = spectra(q, rate_hz, t, band_hz)
     s = signal * (2 * np.pi * np.maximum(f[:, None], 1e-9)) ** (2 * power - 4)
     g = 1.0 / (1.0 + (f[:, None] / cutoff[None, :]) ** (2 * order))
     return np.sqrt(np.sum(s * (1.0 - g) ** 2, axis=0) * (f[1] - f[0]))
