@@ -49,7 +49,7 @@ import scipy.signal
 from scipy import stats
 
 from proprio.cutoff import (auto_cutoff, decimate, decimate_valid, decimation_factor, lost_power, noise_floor_dof,
-                            spectra, tau_white_level)
+                            tau_white_level, white_floor)
 from proprio.recording import Recording, RecordingError
 from proprio.time_base import clock_stamps, resample, uniform_time_base
 from proprio.signals import MotionSignals
@@ -258,8 +258,8 @@ def _time_base(rec: Recording, t_u: np.ndarray, h: float, config: ConditioningCo
                                  f"tick of the {1e3 * h:.4g} ms clock; use 'stamps'")
         return t
     if config.time_base == "auto" and rec.n_samples >= 64:
-        floor_stamps = spectra(rec.q, 1.0 / h, t)[3]
-        floor_clock = spectra(rec.q, 1.0 / h, clock)[3]
+        floor_stamps = white_floor(rec.q, 1.0 / h, t)
+        floor_clock = white_floor(rec.q, 1.0 / h, clock)
         dof = noise_floor_dof(rec.n_samples)
         if not np.sum(floor_clock) < np.sum(floor_stamps) * stats.chi2.ppf(CLOCK_ALPHA, dof) / dof:
             return t

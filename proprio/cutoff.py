@@ -35,7 +35,7 @@ import scipy.signal
 
 from proprio.time_base import resample
 
-__all__ = ["auto_cutoff", "spectra", "lost_power", "noise_floor_dof", "decimation_factor", "decimate",
+__all__ = ["auto_cutoff", "spectra", "white_floor", "lost_power", "noise_floor_dof", "decimation_factor", "decimate",
            "decimate_valid", "tau_white_level"]
 
 
@@ -86,37 +86,49 @@ def _grid_second_difference(x: np.ndarray, rate_hz: float, t: np.ndarray) -> np.
     return np.diff(resample(t, x, grid), n=2, axis=0) * rate_hz ** 2
 
 
+def white_floor(q: np.ndarray, rate_hz: float, t: np.ndarray | None = None) -> np.ndarray:
+    """The white floor ``P_0 [n]`` [rad²/Hz] of ``q`` (encoder noise and quantisation; ``σ_q² = P_0 · rate / 2``):
+    from the Welch spectrum of the raw second difference ``Δ²q / h²`` at the log's own stamps ``t`` when given (a
+    resampled log's interpolated stretches would hide the noise), whose white part has a known shape —
+    ``16 sin⁴(π f h) / h⁴`` on a uniform grid, at unequal steps that of unit white noise at the same stamps (fixed
+    seed) — as the mean of the ratio over the upper half of the band, where arm motion has no power."""
+    d2 = _second_difference(q, rate_hz, t)
+    nper = _welch_length(d2.shape[0])
+    f, p = scipy.signal.welch(d2, fs=rate_hz, nperseg=nper, detrend="constant", axis=0)
+    if t is None:
+        shape = 16.0 * np.sin(np.pi * f / rate_hz) ** 4 * rate_hz ** 4
+    else:
+        unit = np.random.default_rng(0).standard_normal((q.shape[0], 16))
+        shape = scipy.signal.welch(_second_difference(unit, rate_hz, t), fs=rate_hz, nperseg=nper,
+                                   detrend="constant", axis=0)[1].mean(axis=1) / (2.0 / rate_hz)
+    top = f >= 0.25 * rate_hz
+    return np.mean(p[top] / shape[top, None], axis=0)              # the mean: unbiased for white noise
+
+
 def spectra(q: np.ndarray, rate_hz: float, t: np.ndarray | None = None, band_hz: float = np.inf
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Frequencies ``f [F]``, the q̈ signal spectrum ``S [F,n]`` and the q̈ noise spectrum ``N [F,n]`` [(rad/s²)²/Hz],
     and the white floor of q ``P_0 [n]`` [rad²/Hz].
 
-    The floor ``P_0``: from the Welch spectrum of the raw second difference ``Δ²q / h²`` (pre-whitened, so the window's
-    leakage from the large low-frequency content of q does not pose as high-frequency signal), taken at the log's own
-    time stamps ``t`` when given (a resampled log's interpolated stretches would hide the noise): its white-noise part
-    has a known shape (``16 sin⁴(π f h) / h⁴`` on a uniform grid; at unequal steps that of unit white noise at the same
-    stamps), and ``P_0`` is the mean of the ratio over the upper half of the band.
-    The signal ``S``: from ``Δ²q / h²`` on the uniform grid (q resampled from its stamps by the cubic spline), whose
-    white noise has the shape of unit white noise through the same resampling — small at low frequency, where the
-    motion is (``∝ f⁴``: the spline keeps constants) — whereas the three-point formula at jittered stamps turns white
+    The floor ``P_0``: :func:`white_floor`, at the samples' own stamps. The spectra are those of the second difference
+    (pre-whitened, so the window's leakage from the large low-frequency content of q does not pose as high-frequency
+    signal). The signal ``S``: from ``Δ²q / h²`` on the uniform grid (q resampled from its stamps by the cubic
+    spline), whose white noise has the shape of unit white noise through the same resampling — small at low
+    frequency, where the motion is (``∝ f⁴``: the spline keeps constants) — whereas the three-point formula at jittered stamps turns white
     noise into a level that reaches down to 0 Hz (its weights change from sample to sample) and would bury the motion
     of a log with a high floor (10⁻⁴ rad at 1 kHz with 0.1 ms of jitter).
     Signal is counted only below the floor's band, below ``band_hz`` (the motion's physical band) and in bins at least
     three times the floor."""
     h = 1.0 / rate_hz
-    d2 = _second_difference(q, rate_hz, t)
-    nper = _welch_length(d2.shape[0])
+    floor = white_floor(q, rate_hz, t)
+    nper = _welch_length(q.shape[0] - 2)
     welch = lambda x: scipy.signal.welch(x, fs=rate_hz, nperseg=nper, detrend="constant", axis=0)  # noqa: E731
-    f, p = welch(d2)
-    shape = 16.0 * np.sin(np.pi * f * h) ** 4 / h ** 4                 # |Δ²/h²|² at f on the uniform grid
-    top = f >= 0.25 * rate_hz
     if t is None:
-        floor = np.mean(p[top] / shape[top, None], axis=0)              # the mean: unbiased for white noise
-    else:   # unequal steps colour the noise: its shapes from unit white noise at the same stamps (fixed seed)
+        f, p = welch(_second_difference(q, rate_hz, None))
+        shape = 16.0 * np.sin(np.pi * f * h) ** 4 / h ** 4             # |Δ²/h²|² at f on the uniform grid
+    else:   # the motion on the uniform grid; its noise shape from unit white noise resampled alike (fixed seed)
         unit = np.random.default_rng(0).standard_normal((q.shape[0], 16))
-        at_stamps = welch(_second_difference(unit, rate_hz, t))[1].mean(axis=1) / (2.0 / rate_hz)
-        floor = np.mean(p[top] / at_stamps[top, None], axis=0)
-        both = welch(_grid_second_difference(np.column_stack([q, unit]), rate_hz, t))[1]   # the motion: uniform grid
+        f, both = welch(_grid_second_difference(np.column_stack([q, unit]), rate_hz, t))
         p, shape = both[:, :q.shape[1]], both[:, q.shape[1]:].mean(axis=1) / (2.0 / rate_hz)
     noise = floor[None, :] * (2 * np.pi * f[:, None]) ** 4          # q̈ noise through ideal differentiation
     white = floor[None, :] * shape[:, None]
