@@ -79,6 +79,12 @@ def noise_floor_dof(n_samples: int) -> float:
     return float(nu * k ** 2 / r[lag].sum())
 
 
+def _uniform_shape(f: np.ndarray, rate_hz: float) -> np.ndarray:
+    """``|Δ²/h²|²`` at ``f`` [Hz] on a uniform grid of ``rate_hz``: ``16 sin⁴(π f h) / h⁴``, the shape of white noise's
+    second-difference spectrum."""
+    return 16.0 * np.sin(np.pi * f / rate_hz) ** 4 * rate_hz ** 4
+
+
 def _grid_second_difference(x: np.ndarray, rate_hz: float, t: np.ndarray) -> np.ndarray:
     """``Δ²x / h²`` [per s²] on the uniform grid of ``rate_hz`` from the first stamp, ``x [N, ...]`` resampled from its
     stamps ``t`` by the cubic spline."""
@@ -96,7 +102,7 @@ def white_floor(q: np.ndarray, rate_hz: float, t: np.ndarray | None = None) -> n
     nper = _welch_length(d2.shape[0])
     f, p = scipy.signal.welch(d2, fs=rate_hz, nperseg=nper, detrend="constant", axis=0)
     if t is None:
-        shape = 16.0 * np.sin(np.pi * f / rate_hz) ** 4 * rate_hz ** 4
+        shape = _uniform_shape(f, rate_hz)
     else:
         unit = np.random.default_rng(0).standard_normal((q.shape[0], 16))
         shape = scipy.signal.welch(_second_difference(unit, rate_hz, t), fs=rate_hz, nperseg=nper,
@@ -114,18 +120,17 @@ def spectra(q: np.ndarray, rate_hz: float, t: np.ndarray | None = None, band_hz:
     (pre-whitened, so the window's leakage from the large low-frequency content of q does not pose as high-frequency
     signal). The signal ``S``: from ``Δ²q / h²`` on the uniform grid (q resampled from its stamps by the cubic
     spline), whose white noise has the shape of unit white noise through the same resampling — small at low
-    frequency, where the motion is (``∝ f⁴``: the spline keeps constants) — whereas the three-point formula at jittered stamps turns white
-    noise into a level that reaches down to 0 Hz (its weights change from sample to sample) and would bury the motion
-    of a log with a high floor (10⁻⁴ rad at 1 kHz with 0.1 ms of jitter).
+    frequency, where the motion is (``∝ f⁴``: the spline keeps constants) — whereas the three-point formula at
+    jittered stamps turns white noise into a level that reaches down to 0 Hz (its weights change from sample to
+    sample) and would bury the motion of a log with a high floor (10⁻⁴ rad at 1 kHz with 0.1 ms of jitter).
     Signal is counted only below the floor's band, below ``band_hz`` (the motion's physical band) and in bins at least
     three times the floor."""
-    h = 1.0 / rate_hz
     floor = white_floor(q, rate_hz, t)
     nper = _welch_length(q.shape[0] - 2)
     welch = lambda x: scipy.signal.welch(x, fs=rate_hz, nperseg=nper, detrend="constant", axis=0)  # noqa: E731
     if t is None:
         f, p = welch(_second_difference(q, rate_hz, None))
-        shape = 16.0 * np.sin(np.pi * f * h) ** 4 / h ** 4             # |Δ²/h²|² at f on the uniform grid
+        shape = _uniform_shape(f, rate_hz)
     else:   # the motion on the uniform grid; its noise shape from unit white noise resampled alike (fixed seed)
         unit = np.random.default_rng(0).standard_normal((q.shape[0], 16))
         f, both = welch(_grid_second_difference(np.column_stack([q, unit]), rate_hz, t))
