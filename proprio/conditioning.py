@@ -10,16 +10,19 @@ Steps, all vectorised over samples and joints:
    sampling, e.g. a 150 Hz log of 6/7 ms steps from a 1 kHz controller); ``clock`` — the samples were taken on the
    controller's regular clock and the stamps carry the logging host's receive-time jitter, so each sample belongs to
    the grid index nearest its stamp (a missing index is a lost sample, filled by the spline). ``auto`` (default)
-   takes the one under which ``q`` is smoother: the white floor of ``Δ²q/h²`` (step 2) must drop by at least 20 %
-   for ``clock`` (a wrong stamp adds ``q̇·δt`` of noise; a wrong snap does the same). A step longer
+   takes the one under which ``q`` is smoother: the white floor of ``Δ²q/h²`` (step 2) must drop for ``clock`` by
+   more than the floor estimate's own 95 % chance margin (``CLOCK_ALPHA``; a wrong stamp adds ``q̇·δt`` of noise; a
+   wrong snap does the same; ≈ 2 % in variance for 20 s at 1 kHz, where a 10⁻⁴ rad encoder's floor drops only
+   5–15 % on the clock). A step longer
    than ``max_gap_s`` is a *gap* (a dropout): the grid samples inside it are interpolated (``gap``) and flagged
    invalid (``valid``); so are, beside a gap lasting a cutoff period or more (where the fill is guesswork), the
    samples within ``edge_cycles`` periods of the lowest cutoff — the zero-phase filters of step 3 carry the fill that
    far. Every later stage drops the invalid samples. Duplicate stamps cannot reach this point: a Recording's time is
    strictly increasing (:func:`proprio.recording.recording_from_csv` averages duplicated stamps at import).
 2. **Cutoff per joint** (:mod:`proprio.cutoff`). From the config, or ``auto``: the cutoff that minimises the
-   estimated error of ``q̈`` (the signal the filter distorts plus the white floor it passes), bounded by the arm's
-   physical motion band ``max_motion_hz``. **Decimation** (``decimate``, on in the diagnosis): a grid sampled more
+   estimated error of ``q̈`` (the signal the filter distorts plus the white floor it passes; the motion's spectrum
+   taken on the uniform grid, the floor at the samples' own instants), bounded by the arm's physical motion band
+   ``max_motion_hz``. **Decimation** (``decimate``, on in the diagnosis): a grid sampled more
    than ``oversampling ×`` faster than that band is decimated by the integer ``M`` behind a zero-phase anti-alias
    filter, ``q``, ``τ`` and the robot's ``q̇`` alike, before the low-pass; white τ noise keeps its density, so its
    variance drops by ``M`` (``tau_gain``).
@@ -43,15 +46,21 @@ from typing import Any, Sequence
 
 import numpy as np
 import scipy.signal
+from scipy import stats
 
 from proprio.cutoff import (auto_cutoff, decimate, decimate_valid, decimation_factor, lost_power, noise_floor_dof,
-                            spectra, tau_white_level)
+                            tau_white_level, white_floor)
 from proprio.recording import Recording, RecordingError
 from proprio.time_base import clock_stamps, resample, uniform_time_base
 from proprio.signals import MotionSignals
 
 __all__ = ["ConditioningConfig", "ConditionedSignals", "condition", "zero_phase_lowpass",
            "processing_torque_sigma"]
+
+CLOCK_ALPHA = 0.05
+"""One-sided level of the time-base test (step 1): the samples go on the controller's clock when the white floor of q
+under it is below the floor at the stamps by more than the floor estimate's own 95 % chance margin (``χ²_{D,α}/D``,
+``D`` from :func:`~proprio.cutoff.noise_floor_dof`)."""
 
 
 @dataclass(frozen=True)
@@ -249,9 +258,10 @@ def _time_base(rec: Recording, t_u: np.ndarray, h: float, config: ConditioningCo
                                  f"tick of the {1e3 * h:.4g} ms clock; use 'stamps'")
         return t
     if config.time_base == "auto" and rec.n_samples >= 64:
-        floor_stamps = spectra(rec.q, 1.0 / h, t)[3]
-        floor_clock = spectra(rec.q, 1.0 / h, clock)[3]
-        if not np.sum(floor_clock) < 0.8 * np.sum(floor_stamps):
+        floor_stamps = white_floor(rec.q, 1.0 / h, t)
+        floor_clock = white_floor(rec.q, 1.0 / h, clock)
+        dof = noise_floor_dof(rec.n_samples)
+        if not np.sum(floor_clock) < np.sum(floor_stamps) * stats.chi2.ppf(CLOCK_ALPHA, dof) / dof:
             return t
     elif config.time_base == "auto":
         return t

@@ -9,7 +9,16 @@ error of ``q̈`` for a cutoff ``f_c``: the signal the filter's magnitude ``G`` r
 within ``[min_cutoff_hz, min(max_cutoff_fraction · rate, max_motion_hz)]``. ``max_motion_hz`` (40 Hz) is the
 physical bound of a manipulator's rigid-body motion: what ``q`` holds above it (drive and structure vibration, servo
 chatter of a 5 kHz log) is counted neither as motion to keep nor as motion the filter distorts, so a fast log's
-cutoff and its error estimate (:func:`lost_power`) follow the arm, not its vibrations.
+cutoff and its error estimate (:func:`lost_power`) follow the arm, not its vibrations. The rule is the physics of
+the error the diagnosis sees: a torque model evaluated on the conditioned motion errs by ``M(q)`` times the q̈ error,
+and both parts — the motion the filter removes (a structured error the effect candidates could mistake for physics)
+and the differentiated noise it passes (what the data-path candidates would then explain) — enter that error alike.
+The cutoff lies where the q̈ noise density ``(2πf)⁴ P_0`` meets the motion's acceleration spectrum.
+
+Where the samples sit at unequal stamps (a jittered or lossy log), the floor ``P_0`` is taken at the stamps, the
+motion's spectrum on the uniform grid (:func:`spectra`): the three-point ``Δ²q`` at unequal steps spreads white noise
+down to 0 Hz, which at a 10⁻⁴ rad floor hid the whole motion of a 1 kHz twin log and dropped its cutoff to the 1 Hz
+floor (issue 39: the conditioning then made a 0.79 N·m "before" gap of a 0.21 N·m one).
 
 **Decimation** (:func:`decimation_factor`, :func:`decimate`): when the grid rate exceeds ``oversampling ×`` the
 motion band (the largest of the cutoffs and ``max_motion_hz``) by a factor ``M ≥ 2``, the signals are decimated by
@@ -24,7 +33,9 @@ from __future__ import annotations
 import numpy as np
 import scipy.signal
 
-__all__ = ["auto_cutoff", "spectra", "lost_power", "noise_floor_dof", "decimation_factor", "decimate",
+from proprio.time_base import resample
+
+__all__ = ["auto_cutoff", "spectra", "white_floor", "lost_power", "noise_floor_dof", "decimation_factor", "decimate",
            "decimate_valid", "tau_white_level"]
 
 
@@ -68,29 +79,62 @@ def noise_floor_dof(n_samples: int) -> float:
     return float(nu * k ** 2 / r[lag].sum())
 
 
+def _uniform_shape(f: np.ndarray, rate_hz: float) -> np.ndarray:
+    """``|Δ²/h²|²`` at ``f`` [Hz] on a uniform grid of ``rate_hz``: ``16 sin⁴(π f h) / h⁴``, the shape of white noise's
+    second-difference spectrum."""
+    return 16.0 * np.sin(np.pi * f / rate_hz) ** 4 * rate_hz ** 4
+
+
+def _grid_second_difference(x: np.ndarray, rate_hz: float, t: np.ndarray) -> np.ndarray:
+    """``Δ²x / h²`` [per s²] on the uniform grid of ``rate_hz`` from the first stamp, ``x [N, ...]`` resampled from its
+    stamps ``t`` by the cubic spline."""
+    grid = t[0] + np.arange(int(np.floor((t[-1] - t[0]) * rate_hz)) + 1) / rate_hz
+    return np.diff(resample(t, x, grid), n=2, axis=0) * rate_hz ** 2
+
+
+def white_floor(q: np.ndarray, rate_hz: float, t: np.ndarray | None = None) -> np.ndarray:
+    """The white floor ``P_0 [n]`` [rad²/Hz] of ``q`` (encoder noise and quantisation; ``σ_q² = P_0 · rate / 2``):
+    from the Welch spectrum of the raw second difference ``Δ²q / h²`` at the log's own stamps ``t`` when given (a
+    resampled log's interpolated stretches would hide the noise), whose white part has a known shape —
+    ``16 sin⁴(π f h) / h⁴`` on a uniform grid, at unequal steps that of unit white noise at the same stamps (fixed
+    seed) — as the mean of the ratio over the upper half of the band, where arm motion has no power."""
+    d2 = _second_difference(q, rate_hz, t)
+    nper = _welch_length(d2.shape[0])
+    f, p = scipy.signal.welch(d2, fs=rate_hz, nperseg=nper, detrend="constant", axis=0)
+    if t is None:
+        shape = _uniform_shape(f, rate_hz)
+    else:
+        unit = np.random.default_rng(0).standard_normal((q.shape[0], 16))
+        shape = scipy.signal.welch(_second_difference(unit, rate_hz, t), fs=rate_hz, nperseg=nper,
+                                   detrend="constant", axis=0)[1].mean(axis=1) / (2.0 / rate_hz)
+    top = f >= 0.25 * rate_hz
+    return np.mean(p[top] / shape[top, None], axis=0)              # the mean: unbiased for white noise
+
+
 def spectra(q: np.ndarray, rate_hz: float, t: np.ndarray | None = None, band_hz: float = np.inf
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Frequencies ``f [F]``, the q̈ signal spectrum ``S [F,n]`` and the q̈ noise spectrum ``N [F,n]`` [(rad/s²)²/Hz],
     and the white floor of q ``P_0 [n]`` [rad²/Hz].
 
-    Estimated from the Welch spectrum of the raw second difference ``Δ²q / h²`` (pre-whitened, so the window's leakage
-    from the large low-frequency content of q does not pose as high-frequency signal), taken at the log's own time
-    stamps ``t`` when given (a resampled log's interpolated stretches would hide the noise): its white-noise part has the
-    known shape ``P_0 · 16 sin⁴(π f h) / h⁴``, whose level ``P_0`` is the mean over the upper half of the band;
-    signal is counted only below the floor's band, below ``band_hz`` (the motion's physical band) and in bins at least
+    The floor ``P_0``: :func:`white_floor`, at the samples' own stamps. The spectra are those of the second difference
+    (pre-whitened, so the window's leakage from the large low-frequency content of q does not pose as high-frequency
+    signal). The signal ``S``: from ``Δ²q / h²`` on the uniform grid (q resampled from its stamps by the cubic
+    spline), whose white noise has the shape of unit white noise through the same resampling — small at low
+    frequency, where the motion is (``∝ f⁴``: the spline keeps constants) — whereas the three-point formula at
+    jittered stamps turns white noise into a level that reaches down to 0 Hz (its weights change from sample to
+    sample) and would bury the motion of a log with a high floor (10⁻⁴ rad at 1 kHz with 0.1 ms of jitter).
+    Signal is counted only below the floor's band, below ``band_hz`` (the motion's physical band) and in bins at least
     three times the floor."""
-    h = 1.0 / rate_hz
-    d2 = _second_difference(q, rate_hz, t)
-    nper = _welch_length(d2.shape[0])
-    f, p = scipy.signal.welch(d2, fs=rate_hz, nperseg=nper, detrend="constant", axis=0)
+    floor = white_floor(q, rate_hz, t)
+    nper = _welch_length(q.shape[0] - 2)
+    welch = lambda x: scipy.signal.welch(x, fs=rate_hz, nperseg=nper, detrend="constant", axis=0)  # noqa: E731
     if t is None:
-        shape = 16.0 * np.sin(np.pi * f * h) ** 4 / h ** 4                 # |Δ²/h²|² at f
-    else:   # unequal steps colour the noise: its shape from unit white noise at the same stamps (fixed seed)
+        f, p = welch(_second_difference(q, rate_hz, None))
+        shape = _uniform_shape(f, rate_hz)
+    else:   # the motion on the uniform grid; its noise shape from unit white noise resampled alike (fixed seed)
         unit = np.random.default_rng(0).standard_normal((q.shape[0], 16))
-        shape = scipy.signal.welch(_second_difference(unit, rate_hz, t), fs=rate_hz, nperseg=nper,
-                                   detrend="constant", axis=0)[1].mean(axis=1) / (2.0 / rate_hz)
-    top = f >= 0.25 * rate_hz
-    floor = np.mean(p[top] / shape[top, None], axis=0)             # the mean: unbiased for white noise
+        f, both = welch(_grid_second_difference(np.column_stack([q, unit]), rate_hz, t))
+        p, shape = both[:, :q.shape[1]], both[:, q.shape[1]:].mean(axis=1) / (2.0 / rate_hz)
     noise = floor[None, :] * (2 * np.pi * f[:, None]) ** 4          # q̈ noise through ideal differentiation
     white = floor[None, :] * shape[:, None]
     clear = (p > 3.0 * white) & (f[:, None] < min(0.25 * rate_hz, band_hz))   # chance bins of noise stay below 3×
