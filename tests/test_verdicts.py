@@ -167,3 +167,36 @@ def test_a_stand_in_taken_first_is_dropped_once_the_effects_it_imitated_are_name
     assert att.superseded[0].gain < 0.02 and att.superseded[0].context == ["rigid_body", "viscous_coulomb"]
     assert set(att.fitted) == {"rigid_body", "viscous_coulomb"} and "stribeck" not in att.steps[-1].params
     assert "A stand-in, dropped: Stribeck" in data_and_processing_text(att)
+
+
+def test_torque_noise_is_named_from_the_raw_floor_where_the_residual_is_within_the_conditioning_error(robot):
+    # a friction on joint 2 within the torque error of derivatives from a very noisy encoder: its residual is
+    # structured (not white) but within the conditioning error, so the whiteness test cannot decide about noise there
+    n = robot.n
+    fc = np.zeros(n)
+    fc[1] = 0.4
+    eff = EFFECTS["viscous_coulomb"](n, coulomb=fc, viscous=np.zeros(n))
+    cands = ["viscous_coulomb", "payload"]
+
+    def run(model, noise, ar=0.0):
+        recs = _recs(robot, [eff], (1, 2, 3), 12.0, noise, encoder_std=1e-3, ar=ar)
+        return attribute(model, recs[:2], recs[2:], candidates=cands)
+
+    att = run(SimModel(robot), 0.05)
+    rs = att.residual
+    level = rs.within_processing & ~rs.white_joints
+    assert level[1]                                       # the case the rule is for
+    # the model lacks the τ noise: named from the raw τ's white floor, at its level, on those joints only
+    assert [f.name for f in att.noise] == ["torque_noise"]
+    rms = att.noise[0].rms
+    assert rms[1] > 0 and np.all(rms[~(level | rs.white_joints)] == 0)
+    np.testing.assert_allclose(rms[level], 0.05, rtol=0.1)
+    assert "within the conditioning error" in att.noise[0].explanation
+    np.testing.assert_allclose(twin_patch(att, SimModel(robot))["effects"]["torque_noise"]["std"], rms)
+    # the model carries it: not named
+    noisy = SimModel(robot, (EFFECTS["torque_noise"](n, std=np.full(n, 0.05)),))
+    assert run(noisy, 0.05).noise == []
+    # a coloured τ floor (AR(0.9): what a filtered τ or the motion leaves in Δ²τ) is not white: not named there
+    ar = run(SimModel(robot), 0.05, ar=0.9)
+    assert ar.residual.within_processing[1] and not ar.residual.white_joints[1]
+    assert not ar.noise or ar.noise[0].rms[1] == 0
