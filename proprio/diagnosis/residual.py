@@ -29,8 +29,8 @@ NOISE_SLACK = 1.2           # variance slack on the χ² 99.9 % bounds of the to
 
 @dataclass
 class NoiseFinding:
-    """Unmodelled white noise: ``rms [n]`` N·m per joint (0 on joints where the residual is structured or within
-    the model's own noise)."""
+    """Unmodelled white noise: ``rms [n]`` N·m per joint (0 on joints where neither rule of :func:`noise_findings`
+    names it); ``explanation``: which rule(s) named it."""
     name: str
     rms: np.ndarray
     explanation: str
