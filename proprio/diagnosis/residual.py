@@ -174,11 +174,11 @@ def _raw_floor_joints(structure: ResidualStructure, hold: GapData, m: int) -> np
     the floor is *white*: its levels from ``Δ²τ`` (``sigma_tau``, σ₂) and ``Δ³τ`` (``sigma_tau3``, σ₃), which white
     noise gives alike and a motion- or filter-made floor does not (smaller from ``Δ³τ``), agree within the χ² 99.9 %
     bound on the ``m`` held-out samples: neither of ``σ₂², σ₃²`` exceeds ``1.2 · χ²_{m, 0.999} / m`` times the other
-    (each pooled over the held-out recordings). ``m`` counts the conditioned held-out grid, never more than the raw samples the levels come from,
-    so the bound is wider than the raw count's. The 20 % slack (the torque-noise and encoder-floor rules' own): both
-    levels are medians of overlapping differences of the same samples, not a sample variance; on white Gaussian noise
-    the ratio without the slack exceeds the χ² bound in 0.3–1 % of draws (N = 300–30 000) instead of 0.1 %, with it
-    in none of 1000."""
+    (each pooled over the held-out recordings). ``m`` counts the conditioned held-out grid, never more than the raw
+    samples the levels come from, so the bound is wider than the raw count's. The 20 % slack (the white-residual and
+    encoder-floor rules' own): both levels are medians of overlapping differences of the same samples, not sample
+    variances; on white Gaussian noise their ratio exceeds the bare χ² bound in 0.3–1 % of draws (N = 300–30 000)
+    instead of 0.1 %, the bound with the slack in none of 1000."""
     n = len(structure.rmse)
     pairs = [(cs.sigma_tau, cs.sigma_tau3) for cs in hold.conditioned
              if cs.sigma_tau is not None and cs.sigma_tau3 is not None]
