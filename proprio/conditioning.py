@@ -134,7 +134,9 @@ class ConditionedSignals:
     ``sigma_qdd [n]``), ``velocity_source``,
     ``tau_gain [n]`` (the factor by which the τ low-pass scales the variance of white noise: compare a noise level
     with the conditioned τ through it), ``notes`` (what was done to the time base) and ``sigma_tau [n]`` N·m: the
-    white noise of the raw τ at the log's own rate and stamps, robustly (:func:`tau_white_level`)."""
+    white noise of the raw τ at the log's own rate and stamps, robustly (:func:`tau_white_level`); ``sigma_tau3 [n]``
+    N·m: the same level from the third difference (equal to ``sigma_tau`` when the raw floor is white noise, below it
+    when the floor is the motion's or a filtered τ's)."""
     t: np.ndarray
     q: np.ndarray
     qd: np.ndarray
@@ -154,6 +156,7 @@ class ConditionedSignals:
     source: Recording | None = None
     gap: np.ndarray | None = None
     sigma_tau: np.ndarray | None = None
+    sigma_tau3: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.gap is None:
@@ -171,7 +174,7 @@ class ConditionedSignals:
                                   self.rate_hz, self.cutoff_hz, self.sigma_q, self.sigma_q_dof, self.sigma_qd,
                                   self.sigma_qdd,
                                   self.velocity_source, self.auto_cutoff, self.tau_gain, list(self.notes), None,
-                                  self.gap[sl], self.sigma_tau)
+                                  self.gap[sl], self.sigma_tau, self.sigma_tau3)
 
     def motion(self, tau: np.ndarray | None = None) -> MotionSignals:
         """The conditioned motion as the effect library's :class:`MotionSignals` (``tau`` defaults to the conditioned
@@ -343,7 +346,7 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
                               sigma_qdd=sigma_qdd, velocity_source=velocity_source,
                               auto_cutoff=config.cutoff_hz == "auto",
                               tau_gain=tau_gain, notes=notes, source=rec, gap=gap,
-                              sigma_tau=tau_white_level(rec.tau))
+                              sigma_tau=tau_white_level(rec.tau), sigma_tau3=tau_white_level(rec.tau, 3))
 
 
 def _robot_velocity_better(qd_robot: np.ndarray, qd_q: np.ndarray, h: float, noise_robot: np.ndarray,

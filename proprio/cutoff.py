@@ -30,6 +30,8 @@ drops by ``M``.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import scipy.signal
 
@@ -173,14 +175,17 @@ def lost_power(q: np.ndarray, rate_hz: float, cutoff: np.ndarray, power: int, t:
     return np.sqrt(np.sum(s * (1.0 - g) ** 2, axis=0) * (f[1] - f[0]))
 
 
-def tau_white_level(tau: np.ndarray) -> np.ndarray:
+def tau_white_level(tau: np.ndarray, order: int = 2) -> np.ndarray:
     """Per-joint σ [N·m] of the white noise of a raw τ log ``[N, n]`` at its own rate: ``1.4826 · MAD(Δ²τ) / √6``
     (the second difference of white noise has variance ``6σ²``; the median ignores the bursts of fast motion and
-    reversals, and ``Δ²`` the smooth torque of the motion). The level a noise finding may claim for the sensor."""
-    d2 = np.diff(np.asarray(tau, dtype=float), n=2, axis=0)
-    if d2.shape[0] < 1:
+    reversals, and ``Δ²`` the smooth torque of the motion). The level a noise finding may claim for the sensor.
+
+    ``order`` k: the same from ``Δᵏτ`` (white noise: variance ``C(2k, k) σ²``). White noise gives the same level at
+    every order; a floor made by the motion or by a filter upstream of the log (coloured) shrinks with the order."""
+    d = np.diff(np.asarray(tau, dtype=float), n=order, axis=0)
+    if d.shape[0] < 1:
         return np.zeros(np.shape(tau)[1])
-    return 1.4826 * np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0) / np.sqrt(6.0)
+    return 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0) / np.sqrt(math.comb(2 * order, order))
 
 
 def decimation_factor(rate_hz: float, cutoff: np.ndarray, max_motion_hz: float, oversampling: float) -> int:

@@ -54,7 +54,9 @@ class DemoSize:
     excitation (fractions of the §4.1 speed, one period each), training epochs of the hybrid model."""
     rfma_scaffolds: int = 3
     twin_seconds: float = 40.0            # s of RFMA motion simulated on the twin (the 3 scaffolds last 33 s: all
-                                          # of it; its first 30 s left the 0.1x lost motion and the noise unnamed)
+                                          # of it; its first 30 s left the 0.1x lost motion unnamed; the 0.7x noise
+                                          # is named from the raw τ's white floor on the joints whose residual is
+                                          # structured only within the conditioning error: docs/guide/demo.md)
     excitation_speeds: tuple[float, ...] = (1.0, 0.8)   # the first two periods of the §4.1 protocol (20 s + 25 s)
     payload_seconds: float = 6.0          # s of motion per payload mass
     hybrid_epochs: int = 0               # fine-tuning epochs of the pretrained residual (README: fine-tuning on the

@@ -3,9 +3,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import scipy.signal
 
 from proprio.conditioning import ConditioningConfig, condition, processing_torque_sigma, zero_phase_lowpass
-from proprio.cutoff import auto_cutoff, noise_floor_dof
+from proprio.cutoff import auto_cutoff, noise_floor_dof, tau_white_level
 from proprio.time_base import clock_stamps
 from proprio.recording import Recording, RecordingError
 
@@ -230,6 +231,9 @@ def test_a_fast_log_is_decimated_to_its_motion_band_with_the_noise_density_kept(
     np.testing.assert_allclose(dec.tau_gain, 1 / 12)
     np.testing.assert_allclose(noise.std(axis=0), 0.05 * np.sqrt(dec.tau_gain), rtol=0.15)
     np.testing.assert_allclose(dec.sigma_tau, 0.05, rtol=0.1)          # the raw τ's own white level
+    np.testing.assert_allclose(dec.sigma_tau3, dec.sigma_tau, rtol=0.05)  # white: the same level from Δ³τ
+    low = scipy.signal.lfilter(*scipy.signal.butter(2, 0.3), rec.tau - 2.0 * _motion(rec.t)[0], axis=0)
+    assert np.all(tau_white_level(low, 3) < 0.8 * tau_white_level(low))    # a low-passed floor: smaller from Δ³τ
 
 
 def test_decimation_keeps_the_gaps_flagged():

@@ -167,3 +167,40 @@ def test_a_stand_in_taken_first_is_dropped_once_the_effects_it_imitated_are_name
     assert att.superseded[0].gain < 0.02 and att.superseded[0].context == ["rigid_body", "viscous_coulomb"]
     assert set(att.fitted) == {"rigid_body", "viscous_coulomb"} and "stribeck" not in att.steps[-1].params
     assert "A stand-in, dropped: Stribeck" in data_and_processing_text(att)
+
+
+def test_torque_noise_is_named_from_the_raw_floor_where_the_residual_is_within_the_conditioning_error(robot):
+    # a friction on joint 2 within the torque error of derivatives from a very noisy encoder: its residual is
+    # structured (not white) but within the conditioning error, so the whiteness test cannot decide about noise there
+    n = robot.n
+    fc = np.zeros(n)
+    fc[1] = 0.4
+    eff = EFFECTS["viscous_coulomb"](n, coulomb=fc, viscous=np.zeros(n))
+    cands = ["viscous_coulomb", "payload"]
+
+    def run(model, noise):
+        recs = _recs(robot, [eff], (1, 2, 3), 12.0, noise, encoder_std=1e-3)
+        return attribute(model, recs[:2], recs[2:], candidates=cands)
+
+    att = run(SimModel(robot), 0.05)
+    rs = att.residual
+    level = rs.within_processing & ~rs.white_joints
+    assert level[1]                                       # the case the rule is for
+    # the model lacks the τ noise: named from the raw τ's white floor, at its level, on those joints only
+    assert [f.name for f in att.noise] == ["torque_noise"]
+    rms = att.noise[0].rms
+    assert rms[1] > 0 and np.all(rms[~(level | rs.white_joints)] == 0)
+    np.testing.assert_allclose(rms[level], 0.05, rtol=0.1)
+    assert "within the conditioning error" in att.noise[0].explanation
+    np.testing.assert_allclose(twin_patch(att, SimModel(robot))["effects"]["torque_noise"]["std"], rms)
+    # the model carries it: not named
+    noisy = SimModel(robot, (EFFECTS["torque_noise"](n, std=np.full(n, 0.05)),))
+    assert run(noisy, 0.05).noise == []
+    # a τ low-passed before logging (as the LWR 4+ logs are) has a coloured floor: not named there
+    b, a = scipy.signal.butter(2, 0.3)
+    recs = [r.replace(tau=r.tau + scipy.signal.lfilter(b, a, np.random.default_rng(7 + k).normal(0.0, 0.05, r.tau.shape),
+                                                       axis=0))
+            for k, r in enumerate(_recs(robot, [eff], (1, 2, 3), 12.0, 0.0, encoder_std=1e-3))]
+    low = attribute(SimModel(robot), recs[:2], recs[2:], candidates=cands)
+    assert low.residual.within_processing[1] and not low.residual.white_joints[1]
+    assert not low.noise or low.noise[0].rms[1] == 0

@@ -205,7 +205,8 @@ def compare_to_truth(att: Attribution, model: SimModel, holdout: Sequence[Record
         fitted = np.where(found.rms > 0, found.rms, np.nan) if found is not None else np.full(n, np.nan)
         rows.append(ParameterRow("torque noise", "σ", "N·m", effects["torque_noise"]["std"], fitted,
                                  np.full(n, np.nan)))
-        notes.append("torque noise σ is reported on the joints whose remaining residual is white; elsewhere —")
+        notes.append("torque noise σ is reported on the joints whose remaining residual is white, or structured only "
+                     "within the conditioning error with a white raw τ floor; elsewhere —")
     if payload is not None:
         fitted = np.array([params["payload"][0][0]]) if "payload" in params else np.array([np.nan])
         rows.append(ParameterRow("payload", "mass", "kg", np.array([payload.mass]), fitted, np.array([np.nan])))

@@ -162,7 +162,7 @@ def summary_rows(att: Attribution, tau_kind: str = "link_sensor") -> list[Summar
     for f in att.noise:
         js = np.flatnonzero(np.asarray(f.rms) > 0)
         rows.append(SummaryRow(plain.get(f.name, f.name), ", ".join(att.joint_names[j] for j in js), "—",
-                               "— (white)", "white residual above the model's own noise: "
+                               "— (white)", f"{f.explanation}: "
                                + ", ".join(f"{f.rms[j]:.2g}" for j in js) + " N·m"))
     tv = att.time_variation
     if tv is not None and tv.detected:
@@ -264,8 +264,8 @@ def remains_text(att: Attribution, tau_kind: str = "link_sensor") -> str:
                          "explain a significant share of it on the held-out data: no hint.")
     for f in att.noise:
         joints = np.flatnonzero(f.rms > 0)
-        parts.append(f"On {', '.join(att.joint_names[j] for j in joints)} the remaining residual is white and larger "
-                     f"than the model's own noise: {plain.get(f.name, f.name)} of about "
+        parts.append(f"On {', '.join(att.joint_names[j] for j in joints)}: {f.explanation} — "
+                     f"{plain.get(f.name, f.name)} of about "
                      f"{', '.join(f'{f.rms[j]:.2g}' for j in joints)} N·m is unmodelled.")
     return " ".join(parts)
 

@@ -58,9 +58,10 @@ swamps.
 
 **Noise.** Torque noise cannot shrink a held-out error. After the deterministic steps, an unmodelled
 ``torque_noise`` is reported when the remaining residual is white (Ljung–Box and state R² agree:
-:mod:`proprio.diagnosis.residual`) and its variance
-exceeds the noise the model already predicts. Encoder noise *can* be predicted: its signature is the change of the
-modelled torque when the measured motion is de-noised (``EncoderNoiseCandidate``, for a model without encoder noise).
+:mod:`proprio.diagnosis.residual`) and its variance exceeds the noise the model already predicts, or — for a model
+without torque noise, on a joint whose residual's structure lies within the conditioning's own error, where the
+whiteness test cannot decide — when the raw τ's floor is white (:func:`proprio.diagnosis.residual.noise_findings`).
+Encoder noise *can* be predicted: its signature is the change of the modelled torque when the measured motion is de-noised (``EncoderNoiseCandidate``, for a model without encoder noise).
 Past the low-pass that signature is mostly unpredictable band-limited noise, so encoder noise is also compared by
 *level*: the data's position-noise floor against the model's encoder noise (:mod:`proprio.diagnosis.encoder_floor`,
 :attr:`Attribution.encoder`), a data-path finding (:attr:`Attribution.processing_findings`), never a cause.
