@@ -76,7 +76,7 @@ def noise_floor_dof(n_samples: int) -> float:
     rho = np.array([float(w[k * step:] @ w[:nper - k * step]) for k in lags if k * step < nper]) / float(w @ w)
     nu = 2.0 * segs / (1.0 + 2.0 * float(np.sum((1.0 - lags[:rho.size] / segs) * rho ** 2)))
     r = np.abs(np.fft.fft(w ** 2)) ** 2 / float(w @ w) ** 2          # r_l at l = 0 .. nper-1 (r_0 = 1)
-    k = int(np.sum(np.fft.rfftfreq(nper) >= 0.25))                  # bins f ≥ rate/4, as in _spectra
+    k = int(np.sum(np.fft.rfftfreq(nper) >= 0.25))                  # bins f ≥ rate/4, as in white_floor
     lag = np.abs(np.arange(k)[:, None] - np.arange(k)[None, :])
     return float(nu * k ** 2 / r[lag].sum())
 

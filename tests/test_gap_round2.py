@@ -3,6 +3,7 @@ configuration-dependent torque that is not hysteresis, and the data path that ne
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from proprio.diagnosis.data import SimModel
 from proprio.diagnosis.selection.forward import attribute

@@ -131,12 +131,12 @@ def AddMeasurementChain(builder: DiagramBuilder, signals: Sequence[OutputPort], 
     registered = sum(port.size() for port in signals)     # [q; q̇; net actuation (; θ; θ̇)]
     width = registered + n                           # the rows' motion with q̈: [q; q̇; q̈; net actuation (; θ; θ̇)]
     elastic = width > 4 * n
+    if len(levels) < 2:
+        raise ValueError(f"AddMeasurementChain: levels must have at least two levels, got {levels}")
     register = AddBlockRegister(builder, [p.size() for p in signals], dt, levels)
     for port, sample_in in zip(signals, register.samples):
         builder.Connect(port, sample_in)
     B = register.size * chunks
-    if len(register.levels) < 2:
-        raise ValueError(f"AddMeasurementChain: levels must have at least two levels, got {levels}")
     # the clock reads a block once the register holds it, after the instant of the step that follows it (so that
     # level 0 holds that step's sample, whose q̇ gives q̈ of the block's last step) and before the next chunk's
     phase = max(1.0, register.phase) + 0.1

@@ -162,7 +162,8 @@ def summary_rows(att: Attribution, tau_kind: str = "link_sensor") -> list[Summar
     for f in att.noise:
         js = np.flatnonzero(np.asarray(f.rms) > 0)
         rows.append(SummaryRow(plain.get(f.name, f.name), ", ".join(att.joint_names[j] for j in js), "—",
-                               "— (white)", f"{f.explanation}: "
+                               "— (white)" if "white residual" in f.explanation else "— (raw τ floor)",
+                               f"{f.explanation}: "
                                + ", ".join(f"{f.rms[j]:.2g}" for j in js) + " N·m"))
     tv = att.time_variation
     if tv is not None and tv.detected:
@@ -247,7 +248,9 @@ def remains_text(att: Attribution, tau_kind: str = "link_sensor") -> str:
         parts.append(f"What remains on {', '.join(joints)} is not white (Ljung–Box p down to "
                      f"{float(rs.ljung_box_p.min()):.2g}, held-out R² against the motion state up to "
                      f"{float(rs.r2_state.max()):.2f}) but its structured part stays within the error the signal "
-                     "conditioning explains: neither noise nor a named effect.")
+                     "conditioning explains: not a named effect"
+                     + ("; whether it holds unmodelled noise is read from the raw τ's white floor (below)."
+                        if att.noise else ", nor noise."))
     else:
         jt = [att.joint_names[j] for j in np.flatnonzero(rs.structured_time)]
         js = [att.joint_names[j] for j in np.flatnonzero(rs.structured_state)]
