@@ -195,6 +195,7 @@ def test_the_estimator_model_carries_the_load_gains(tmp_path):
     got = np.array([est.step(t[k], q[k], tau[k]).vector for k in range(t.size)])
     np.testing.assert_allclose(got, expected, rtol=0, atol=1e-10)
     batch = estimate_rows(model, design.condition(np.hstack([q, tau])))
-    np.testing.assert_allclose(batch[:, 14:14 + desc.n], expected[:, 14:14 + desc.n], rtol=0, atol=1e-9)  # τ_dyn − τ
+    torques = slice(14, 14 + desc.n)                                                     # τ_dyn − τ
+    np.testing.assert_allclose(batch[:, torques], expected[:, torques], rtol=0, atol=1e-9)
     # the observer's recursion over 10 s at 100 Hz and the wrenches: 1e-9 to 2e-9 apart without the gains too
     np.testing.assert_allclose(batch, expected, rtol=0, atol=1e-8)

@@ -94,8 +94,9 @@ OFFSET_ALPHA = 0.01
 def _advice(model, e: np.ndarray, method: str, offsets: bool) -> list[str]:
     """What identify can tell beyond its tables: an OLS/WLS model that is not physically consistent (suggest
     ``--method sdp``), and a training residual ``e [N,n]`` [N·m] (each recording's from its own start, as fitted)
-    with a constant part beyond its noise (suggest ``--offsets``): per joint the mean against its standard error, ``t = |ē| / (σ √(f / N))`` with ``f`` the residual's autocorrelation
-    factor N/N_eff (:func:`proprio.diagnosis.selection.block_test.n_eff_factor`), named where ``t`` exceeds the two-sided
+    with a constant part beyond its noise (suggest ``--offsets``): per joint the mean against its standard error,
+    ``t = |ē| / (σ √(f / N))`` with ``f`` the residual's autocorrelation factor N/N_eff
+    (:func:`proprio.diagnosis.selection.block_test.n_eff_factor`), named where ``t`` exceeds the two-sided
     :data:`OFFSET_ALPHA` level Bonferroni-corrected over the joints."""
     from scipy.stats import norm
 

@@ -177,8 +177,9 @@ def load_rigid_torque_model(spec: str | Path) -> RigidBodyTorqueModel:
 class RigidTorqueStep:
     """The per-sample torque law of a :class:`RigidBodyTorqueModel`: :meth:`step_into` ``[τ_rigid; q; q̇; q̈] →
     [τ_dyn = τ_rigid + τ_int; τ_int]`` with the folded τ_int (:meth:`RigidBodyTorqueModel.tau_int_step`), the load
-    gains on τ_rigid (:meth:`RigidBodyTorqueModel.with_load_friction`) and, with sensor terms, their law on the one-sample piece continuing the memory ``[started; SensorCarry (9n)]`` (zeros: the
-    first sample starts the virgin state, as the batch law's first sample does); no memory without."""
+    gains on τ_rigid (:meth:`RigidBodyTorqueModel.with_load_friction`) and, with sensor terms, their law on the
+    one-sample piece continuing the memory ``[started; SensorCarry (9n)]`` (zeros: the first sample starts the
+    virgin state, as the batch law's first sample does); no memory without."""
 
     def __init__(self, model: RigidBodyTorqueModel):
         self.n = n = model.description.n

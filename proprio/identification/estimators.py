@@ -309,10 +309,9 @@ def sdp(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, 
     ``min ‖R(Kφ − φ̂_b)‖ + λ‖φ − φ_prior‖`` over the full standard set ``φ`` (and the offsets) subject to every
     link's pseudo-inertia ``⪰ 0`` with mass ``≥ min_mass`` [kg], ``F_v, F_c ≥ 0``, the load gains ``≥ 0`` and the
     sensor terms inside the effects' bounds (hysteresis and lost-motion levels ≥ 0, their load gains in ``[0,
-    MAX_LOAD_GAIN]``; gain and ripple free). ``R`` is the Cholesky factor
-    of ``K_bᵀK_b`` and ``φ̂_b`` the OLS solution, so the first term is the LS residual norm above its minimum;
-    ``λ = regularization · ‖R‖₂`` only picks the unidentifiable directions closest to the a-priori ``desc``. Both
-    terms are norms (second-order cones), so when the OLS solution is physically consistent it is an exact
+    MAX_LOAD_GAIN]``; gain and ripple free). ``R`` is the Cholesky factor of ``K_bᵀK_b`` and ``φ̂_b`` the OLS
+    solution, so the first term is the LS residual norm above its minimum; ``λ = regularization · ‖R‖₂`` only picks
+    the unidentifiable directions closest to the a-priori ``desc``. Both terms are norms (second-order cones), so when the OLS solution is physically consistent it is an exact
     minimiser of the data term. Solved with Clarabel; then polished onto ``Kφ = φ̂_b`` when that stays consistent.
     """
     from pydrake.solvers import ClarabelSolver, MathematicalProgram

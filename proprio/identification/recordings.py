@@ -14,7 +14,8 @@ from proprio.identification.regressor import drive_identified
 from proprio.identification.sensor_terms import SensorTermSettings
 from proprio.recording import Recording
 
-__all__ = ["identify_recordings", "stack_recordings", "pieces", "piece_torque", "check_tau_kind", "TRIM_S", "TAU_KINDS"]
+__all__ = ["identify_recordings", "stack_recordings", "pieces", "piece_torque", "check_tau_kind", "TRIM_S",
+           "TAU_KINDS"]
 
 TAU_KINDS = ("link_sensor", "drive")
 """The values of a Recording's ``meta.tau_kind`` (written by ``proprio import``)."""

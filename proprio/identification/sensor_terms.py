@@ -57,8 +57,8 @@ SENSOR_BOUNDS = {"hysteresis": Hysteresis.parameters["saturation"][1:],
                  "lost_motion": LostMotion.parameters["amplitude"][1:],
                  "lost_motion_load": LostMotion.parameters["load_gain"][1:]}
 """``(lower, upper)`` of the sensor terms the effects bound (their own parameter bounds: levels ≥ 0, load gains in
-``[0, MAX_LOAD_GAIN]``); the gain and the ripple are free (a physically consistent fit, :func:`~proprio.identification
-.estimators.sdp`, keeps the others inside)."""
+``[0, MAX_LOAD_GAIN]``); the gain and the ripple are free (the physically consistent fit,
+:func:`~proprio.identification.estimators.sdp`, keeps the others inside them)."""
 
 
 @dataclass(frozen=True)
