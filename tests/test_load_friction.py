@@ -152,3 +152,50 @@ def test_a_description_asks_for_it_and_identify_fits_it(tmp_path, capsys):
     assert gains["plain"] is None
     assert np.abs(gains["asked"] - k_true).max() < 0.005
     assert np.array_equal(gains["asked"], gains["both"]) and np.array_equal(gains["asked"], gains["flag"])
+
+
+def test_the_estimator_model_carries_the_load_gains(tmp_path):
+    """An identified model with load gains, loaded for the estimator (``load_rigid_torque_model``): τ_rigid + its
+    τ_int is the identified model's torque (1e-9 N·m; without the gains it is not), its per-step law stepped over
+    the motion is its batch τ_int (1e-9), and the streaming estimator equals the estimation Diagram on every sample
+    (1e-10) and the batch rows (τ_dyn − τ 1e-9; the observer and the wrenches 1e-8, as without the gains)."""
+    from proprio.causal_conditioning import causal_conditioning
+    from proprio.diagrams.estimation import build_estimation_diagram, estimate_rows, run_estimation_diagram
+    from proprio.diagrams.torque_model import load_rigid_torque_model
+    from proprio.online import OnlineEstimator
+
+    desc = load_robot("iiwa14_identified")
+    t, q, qd, qdd = _motion(desc.n, 3001)
+    k_true = np.random.default_rng(3).uniform(0.01, 0.03, desc.n)
+    rest = (inverse_dynamics(desc, q, qd, qdd) + np.asarray(desc.friction_viscous) * qd
+            + friction_law.viscous_coulomb(qd, 0.0, np.asarray(desc.friction_coulomb)))
+    tau = friction_law.load_from_net(rest, friction_law.smooth_sign(qd), k_true)
+    ident = identify(desc, q, qd, qdd, tau, "sdp", load_friction=True)
+    model = load_rigid_torque_model(save_model(ident, tmp_path / "m.npz"))
+    np.testing.assert_array_equal(model.load_gain, ident.load_gain)
+    rigid = inverse_dynamics(model.description, q, qd, qdd)
+    np.testing.assert_allclose(rigid + model.tau_int(q, qd, qdd), ident.torque(q, qd, qdd), rtol=0, atol=1e-9)
+    bare = dataclasses.replace(model, load_gain=None)
+    assert np.abs(model.tau_int(q, qd, qdd) - bare.tau_int(q, qd, qdd)).max() > 0.1
+    law = model.torque_step()
+    out, mem = np.empty(2 * desc.n), law.initial_memory()
+    stepped = np.empty_like(q)
+    for k in range(t.size):
+        law.step_into(np.concatenate([rigid[k], q[k], qd[k], qdd[k]]), mem, out, mem.copy())
+        stepped[k] = out[desc.n:]
+    np.testing.assert_allclose(stepped, model.tau_int(q, qd, qdd), rtol=0, atol=1e-9)
+    rate, keep, home = 100.0, slice(0, 1000), np.array([0.0, 0.5, 0.0, -1.2, 0.0, 0.8, 0.0])   # away from q = 0
+    t, q, qd, qdd = t[keep], home + 0.3 * q[keep], 0.3 * qd[keep], 0.3 * qdd[keep]
+    tau = ident.torque(q, qd, qdd)
+    design = causal_conditioning(rate, 10.0, desc.n, "q")
+    diagram, estimator, logger = build_estimation_diagram(model, {"t": t, "q": q, "tau": tau, "time_step": 1 / rate},
+                                                          conditioning=design)
+    expected = run_estimation_diagram(diagram, estimator, logger, t[-1], 1.0 / rate)[:t.size]
+    est = OnlineEstimator.from_model(model, conditioning=design)
+    got = np.array([est.step(t[k], q[k], tau[k]).vector for k in range(t.size)])
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-10)
+    batch = estimate_rows(model, design.condition(np.hstack([q, tau])))
+    torques = slice(14, 14 + desc.n)                                                     # τ_dyn − τ
+    np.testing.assert_allclose(batch[:, torques], expected[:, torques], rtol=0, atol=1e-9)
+    # the observer's recursion over 10 s at 100 Hz and the wrenches: 1e-9 to 2e-9 apart without the gains too
+    np.testing.assert_allclose(batch, expected, rtol=0, atol=1e-8)

@@ -12,10 +12,11 @@ from proprio.diagrams.estimation import build_estimation_diagram, estimate_rows,
 from proprio.diagrams.torque_model import RigidBodyTorqueModel, load_rigid_torque_model
 from proprio.dynamics import inverse_dynamics
 from proprio.effects import Hysteresis, LostMotion
-from proprio.effects.sensor import Ripple
+from proprio.effects.sensor import Ripple, SensorOffsetGain
 from proprio.identification.estimators import ols, sdp
 from proprio.identification.model_io import ModelFileError, load_model, save_model
-from proprio.identification.sensor_terms import SensorCarry, SensorTerms, SensorTermSettings, sensor_columns
+from proprio.identification.sensor_terms import (SENSOR_BOUNDS, SensorCarry, SensorTerms, SensorTermSettings,
+                                                  sensor_columns)
 from proprio.online import OnlineEstimator
 from proprio.signals import MotionSignals
 
@@ -59,7 +60,8 @@ def _twin_sensor(desc, t, q, qd, qdd):
     gauge = (Hysteresis(desc.n, saturation=SAT, load_gain=SAT_LOAD).torque(s)
              + LostMotion(desc.n, amplitude=LOST).torque(s)
              + Ripple(desc.n, sin_amplitude=RIPPLE_SIN, cos_amplitude=RIPPLE_COS, gear_ratio=GEAR).torque(s))
-    return (1.0 + GAIN) * (link + gauge) + OFFSET
+    sensed = link + gauge
+    return sensed + SensorOffsetGain(desc.n, gain=GAIN, offset=OFFSET).torque(MotionSignals(t, q, qd, qdd, sensed))
 
 
 def test_the_columns_are_the_twin_laws(desc):
@@ -196,6 +198,9 @@ def test_online_diagram_and_batch_agree_with_sensor_terms(desc, sensor_model):
 def test_sensor_terms_round_trip_their_settings():
     st = SensorTermSettings.defaults(3, [100, -120, 160])
     assert SensorTermSettings.from_dict(st.to_dict()) == st and st.gear_ratio == (100.0, 120.0, 160.0)
+    for field in ("saturation_travel", "reversal_velocity", "gear_ratio"):
+        with pytest.raises(ValueError, match=field):
+            SensorTermSettings.from_dict({**st.to_dict(), field: st.to_dict()[field][:2]})
     terms = SensorTerms(st, tuple((0.0,) * 3 for _ in st.terms))
     q = np.zeros((4, 3))
     tau, _ = terms.torque(q, q, q)
@@ -275,9 +280,66 @@ def test_a_hybrid_on_a_backbone_with_sensor_terms_streams_as_the_diagram_runs(de
     _diagram_equals_streaming(model, design, t, q, tau, rate)
 
 
-def test_the_stateless_rbd_backbone_system_refuses_sensor_terms(sensor_model):
+def test_the_stateless_rbd_backbone_system_refuses_sensor_terms(desc, sensor_model):
     from proprio.systems.rbd_backbone import RbdBackbone
 
-    ident, _ = sensor_model
-    with pytest.raises(ValueError, match="TorqueModelSystem"):
+    from proprio.diagrams.torque_model import TorqueModelSystem
+
+    ident, model = sensor_model
+    with pytest.raises(ValueError, match=r"load_rigid_torque_model\(path\) and use TorqueModelSystem\(that model, "
+                                         r"period_s="):
         RbdBackbone(ident)
+    system = TorqueModelSystem(model, period_s=1.0 / RATE)          # the advice works (model: from the file)
+    assert system.law.memory_size == 1 + 9 * desc.n
+
+
+def _recording(desc, seconds, seed):
+    from proprio.recording import Recording
+
+    t, q, qd, qdd = _motion(desc, seconds, seed=seed)
+    return Recording(t=t, q=q, tau=_twin_sensor(desc, t, q, qd, qdd))
+
+
+def test_the_training_table_restarts_the_sensor_state_at_each_recording(desc):
+    """Two training recordings: the fit starts each from the virgin sensor state, and so does the training table
+    (the per-recording predictions concatenated), not one sequence over the stack (whose state would flow from the
+    first recording into the second)."""
+    from proprio.identification.estimators import torque_error_table
+    from proprio.identification.recordings import (TRIM_S, identify_recordings, piece_torque, pieces,
+                                                   stack_recordings)
+
+    recs = [_recording(desc, 20.0, 0), _recording(desc, 15.0, 1)]
+    model, text = identify_recordings(recs, [], desc, "ols", TRIM_S, True,
+                                      sensor=SensorTermSettings.defaults(desc.n, GEAR))
+    (q, qd, qdd, tau), cond = stack_recordings(recs, TRIM_S)
+    counts = pieces(cond, TRIM_S)
+    cut = counts[0]
+    each = np.concatenate([model.torque(q[:cut], qd[:cut], qdd[:cut]), model.torque(q[cut:], qd[cut:], qdd[cut:])])
+    np.testing.assert_array_equal(piece_torque(model, q, qd, qdd, counts), each)
+    assert np.abs(model.torque(q, qd, qdd) - each)[cut:cut + 50].max() > 1e-3       # the stack would differ
+    assert torque_error_table(tau, each, "training (Table 4.4 layout)")[0] in text
+
+
+def test_sdp_keeps_the_sensor_terms_in_the_effects_bounds(desc):
+    """A hysteresis loop the wrong way round (a negative level, which OLS fits) is held at the effects' bounds by
+    the SDP: levels ≥ 0, load gains in [0, MAX_LOAD_GAIN]; the gains stay free."""
+    t, q, qd, qdd = _motion(desc, 20.0)
+    link = inverse_dynamics(desc, q, qd, qdd) + RigidBodyTorqueModel(desc).tau_int(q, qd, qdd)
+    tau = link - Hysteresis(desc.n, saturation=SAT).torque(MotionSignals(t, q, qd, qdd, link)) + OFFSET
+    settings = SensorTermSettings.defaults(desc.n)
+    free = dict(zip(settings.terms, np.asarray(ols(desc, q, qd, qdd, tau, offsets=True,
+                                                   sensor=settings).sensor_terms.coefficients)))
+    assert free["hysteresis"].min() < -0.1                              # the bound binds
+    got = dict(zip(settings.terms, np.asarray(sdp(desc, q, qd, qdd, tau, offsets=True,
+                                                  sensor=settings).sensor_terms.coefficients)))
+    for name, (lo, hi) in SENSOR_BOUNDS.items():
+        assert np.all(got[name] >= lo - 1e-7) and np.all(got[name] <= hi + 1e-7), name
+
+
+def test_the_estimators_refuse_sensor_terms_on_a_drive_torque_arm():
+    """The library call refuses what the CLI refuses: the sensor terms' a-priori torque has no drive terms."""
+    tx = load_robot("staubli_tx40")
+    z = np.zeros((50, tx.n))
+    for fit in (ols, sdp):
+        with pytest.raises(ValueError, match="drive torque"):
+            fit(tx, z, z, z, z, sensor=SensorTermSettings.defaults(tx.n))

@@ -19,7 +19,8 @@ def _identify(args: argparse.Namespace) -> int:
     from proprio.data_quality import assess, format_findings
     from proprio.identification.estimators import torque_error_table
     from proprio.identification.model_io import save_model
-    from proprio.identification.recordings import TRIM_S, check_tau_kind, identify_recordings, stack_recordings
+    from proprio.identification.recordings import (TRIM_S, check_tau_kind, identify_recordings, piece_torque, pieces,
+                                                   stack_recordings)
     from proprio.identification.regressor import drive_identified
     from proprio.recording import load_recording
 
@@ -67,7 +68,9 @@ def _identify(args: argparse.Namespace) -> int:
     for path, rec in zip(val_names, validate):      # one table per held-out file: runs are not pooled
         (q, qd, qdd, tau), _ = stack_recordings([rec], trim_s, conditioning)
         print("\n" + torque_error_table(tau, model.torque(q, qd, qdd), f"validation: {path}")[0])
-    for line in _advice(model, stack_recordings(train, trim_s, conditioning)[0], args.method, offsets):
+    stacked, cond_tr = stack_recordings(train, trim_s, conditioning)
+    e_train = stacked[3] - piece_torque(model, *stacked[:3], pieces(cond_tr, trim_s))   # per recording, as fitted
+    for line in _advice(model, e_train, args.method, offsets):
         print(line)
     save_model(model, args.out)
     print(f"wrote {args.out}")
@@ -88,11 +91,12 @@ OFFSET_ALPHA = 0.01
 """Significance level of identify's test for a constant part in the residual (two-sided, over all joints)."""
 
 
-def _advice(model, data, method: str, offsets: bool) -> list[str]:
+def _advice(model, e: np.ndarray, method: str, offsets: bool) -> list[str]:
     """What identify can tell beyond its tables: an OLS/WLS model that is not physically consistent (suggest
-    ``--method sdp``), and a training residual with a constant part beyond its noise (suggest ``--offsets``): per
-    joint the mean against its standard error, ``t = |ē| / (σ √(f / N))`` with ``f`` the residual's autocorrelation
-    factor N/N_eff (:func:`proprio.diagnosis.selection.block_test.n_eff_factor`), named where ``t`` exceeds the two-sided
+    ``--method sdp``), and a training residual ``e [N,n]`` [N·m] (each recording's from its own start, as fitted)
+    with a constant part beyond its noise (suggest ``--offsets``): per joint the mean against its standard error,
+    ``t = |ē| / (σ √(f / N))`` with ``f`` the residual's autocorrelation factor N/N_eff
+    (:func:`proprio.diagnosis.selection.block_test.n_eff_factor`), named where ``t`` exceeds the two-sided
     :data:`OFFSET_ALPHA` level Bonferroni-corrected over the joints."""
     from scipy.stats import norm
 
@@ -106,8 +110,6 @@ def _advice(model, data, method: str, offsets: bool) -> list[str]:
                      f"of joint(s) {', '.join(map(str, bad))}): Drake warns when it builds a plant from it (view, "
                      "estimate, train); --method sdp identifies a physically consistent model")
     if not offsets:
-        q, qd, qdd, tau = data
-        e = tau - model.torque(q, qd, qdd)
         mean, sd = e.mean(axis=0), np.maximum(e.std(axis=0), 1e-12)
         factor = np.array([n_eff_factor(e[:, [j]]) for j in range(e.shape[1])])
         t = np.abs(mean) / (sd * np.sqrt(factor / e.shape[0]))

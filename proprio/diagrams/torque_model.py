@@ -68,14 +68,19 @@ class RigidBodyTorqueModel:
     friction on the coupled motor velocity (:func:`~proprio.identification.regressor.drive_torque`), and takes the
     drive block's offsets when none are given: the observers then see the link-side torque in τ − τ_int.
 
-    ``sensor``: identified torque-sensor terms (:mod:`proprio.identification.sensor_terms`) added to τ_int, on the
-    a-priori description ``prior``'s rigid body and friction (the identification's ``Y φ_prior``: the gain's column
-    and the load); they have state (module docstring)."""
+    ``load_gain``: identified load gains ``k [n]`` [-] of load-dependent Coulomb friction (``proprio identify
+    --load-friction``), on the whole torque as the identified model applies them
+    (:meth:`~proprio.identification.model_io.IdentifiedModel.torque`): ``τ_dyn`` is the root of ``τ_dyn − k|τ_dyn|
+    sgn_s(q̇) = τ_rigid + τ_int(without it)`` (:func:`proprio.friction_law.load_from_net`), so τ_int reads τ_rigid.
+    ``sensor``: identified torque-sensor terms (:mod:`proprio.identification.sensor_terms`) added to τ_int after it,
+    on the a-priori description ``prior``'s rigid body and friction (the identification's ``Y φ_prior``: the gain's
+    column and the load); they have state (module docstring)."""
     description: RobotDescription
     coulomb_velocity: float | None = None
     offset: tuple[float, ...] | None = None
     sensor: SensorTerms | None = None
     prior: RobotDescription | None = None
+    load_gain: tuple[float, ...] | None = None
 
     @property
     def reads_qdd(self) -> bool:
@@ -89,7 +94,8 @@ class RigidBodyTorqueModel:
         return np.zeros(d.n) if offset is None else np.asarray(offset, dtype=float)
 
     def tau_int(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
-        """τ_int ``[N,n]`` [N·m] for ``q, qd, qdd [N,n]`` (rad, rad/s, rad/s²; q is not read)."""
+        """τ_int ``[N,n]`` [N·m] for ``q, qd, qdd [N,n]`` (rad, rad/s, rad/s²; q is read only by the load gains and
+        the sensor terms)."""
         d = self.description
         qd = np.asarray(qd, dtype=float)
         tau = np.broadcast_to(self._offset(), qd.shape).copy()
@@ -98,10 +104,19 @@ class RigidBodyTorqueModel:
         if d.has_friction:
             tau += friction_law.viscous_coulomb(qd, np.asarray(d.friction_viscous), np.asarray(d.friction_coulomb),
                                                 self.coulomb_velocity)
+        q, qdd = np.asarray(q, dtype=float), np.asarray(qdd, dtype=float)
+        if self.load_gain is not None:
+            tau = self.with_load_friction(inverse_dynamics(d, q, qd, qdd), tau, qd)
         if self.sensor is not None:
-            q, qdd = np.asarray(q, dtype=float), np.asarray(qdd, dtype=float)
             tau += self.sensor.torque(q, qd, self.prior_torque(q, qd, qdd))[0]
         return tau
+
+    def with_load_friction(self, rigid: np.ndarray, tau_int: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """τ_int ``[..., n]`` [N·m] with the load-dependent friction of :attr:`load_gain` on the torque ``rigid +
+        τ_int`` it is the root of (:func:`proprio.friction_law.load_from_net`; ``rigid`` τ_rigid [N·m], ``qd``
+        [rad/s], the same shape): the one place the batch and the step apply it."""
+        sign = friction_law.smooth_sign(qd, self.coulomb_velocity)
+        return friction_law.load_from_net(rigid + tau_int, sign, np.asarray(self.load_gain)) - rigid
 
     def prior_torque(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
                      rigid: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None) -> np.ndarray:
@@ -117,7 +132,8 @@ class RigidBodyTorqueModel:
 
     def tau_int_step(self) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
         """The same ``τ_int(q̇, q̈)`` [N·m] for ONE sample ``q̇, q̈ [n]``, constants folded (for the per-step Systems
-        and the streaming estimator). q̈ matters only for a drive-torque arm (rotor inertia)."""
+        and the streaming estimator), without the load gains and the sensor terms (they read τ_rigid and q:
+        :class:`RigidTorqueStep` adds them). q̈ matters only for a drive-torque arm (rotor inertia)."""
         d = self.description
         drive, offset = self.reads_qdd, self._offset()
         v_s = friction_law.smoothing(self.coulomb_velocity)
@@ -138,14 +154,16 @@ class RigidBodyTorqueModel:
 def load_rigid_torque_model(spec: str | Path) -> RigidBodyTorqueModel:
     """A rigid-body model from a shipped robot name or robot YAML/URDF (its RBD + friction, e.g.
     ``iiwa14_identified``) or an identified-model ``.npz`` from ``proprio identify`` (its identified inertials,
-    friction, Coulomb law and torque offsets; Drake must accept the identified inertials, which an SDP model always
-    satisfies)."""
+    friction, Coulomb law, torque offsets, load gains and sensor terms; Drake must accept the identified inertials,
+    which an SDP model always satisfies)."""
     path = Path(spec)
     if path.suffix == ".npz":
         ident = load_model(path)
         model = RigidBodyTorqueModel(ident.description_identified(), ident.coulomb_velocity_scale,
                                      tuple(float(x) for x in ident.offsets), ident.sensor_terms,
-                                     ident.description if ident.sensor is not None else None)
+                                     ident.description if ident.sensor is not None else None,
+                                     tuple(float(x) for x in ident.load_gain) if "load_gain" in ident.extras
+                                     else None)
         try:
             DrakeRobot(model.description)
         except (RuntimeError, ValueError) as exc:
@@ -158,9 +176,10 @@ def load_rigid_torque_model(spec: str | Path) -> RigidBodyTorqueModel:
 
 class RigidTorqueStep:
     """The per-sample torque law of a :class:`RigidBodyTorqueModel`: :meth:`step_into` ``[τ_rigid; q; q̇; q̈] →
-    [τ_dyn = τ_rigid + τ_int; τ_int]`` with the folded τ_int (:meth:`RigidBodyTorqueModel.tau_int_step`) and, with
-    sensor terms, their law on the one-sample piece continuing the memory ``[started; SensorCarry (9n)]`` (zeros: the
-    first sample starts the virgin state, as the batch law's first sample does); no memory without."""
+    [τ_dyn = τ_rigid + τ_int; τ_int]`` with the folded τ_int (:meth:`RigidBodyTorqueModel.tau_int_step`), the load
+    gains on τ_rigid (:meth:`RigidBodyTorqueModel.with_load_friction`) and, with sensor terms, their law on the
+    one-sample piece continuing the memory ``[started; SensorCarry (9n)]`` (zeros: the first sample starts the
+    virgin state, as the batch law's first sample does); no memory without."""
 
     def __init__(self, model: RigidBodyTorqueModel):
         self.n = n = model.description.n
@@ -177,6 +196,8 @@ class RigidTorqueStep:
         (2n, N·m) and the next memory into ``memory_out`` (which must not alias ``memory``)."""
         n = self.n
         tau_int = self._tau_int(inputs[2 * n:3 * n], inputs[3 * n:])
+        if self._model.load_gain is not None:
+            tau_int = self._model.with_load_friction(inputs[:n], tau_int, inputs[2 * n:3 * n])
         if self._sensor is not None:
             q, qd, qdd = (inputs[k * n:(k + 1) * n] for k in (1, 2, 3))
             carry = SensorCarry.from_vector(memory[1:]) if memory[0] else None

@@ -32,16 +32,21 @@ from proprio import friction_law
 from proprio.description import RobotDescription
 from proprio.identification.base_parameters import BaseParameters, base_parameters
 from proprio.identification.model_io import IdentifiedModel, data_digest
-from proprio.identification.regressor import (PARAMS_PER_JOINT, n_parameters, predict, regressor_buffer,
-                                              standard_parameters)
-from proprio.identification.sensor_terms import GAIN_PRIOR_STD, SensorTermSettings, sensor_columns
+from proprio.identification.regressor import (PARAMS_PER_JOINT, drive_identified, n_parameters, predict,
+                                              regressor_buffer, standard_parameters)
+from proprio.identification.sensor_terms import GAIN_PRIOR_STD, SENSOR_BOUNDS, SensorTermSettings, sensor_columns
 
 __all__ = ["IdentificationError", "NormalEquations", "normal_equations", "check_data", "ols", "wls", "sdp",
-           "identify", "torque_error_table", "METHODS", "MOTION_THRESHOLD", "CONDITION_LIMIT"]
+           "identify", "torque_error_table", "METHODS", "MOTION_THRESHOLD", "CONDITION_LIMIT", "GAIN_PRIOR_RESIDUAL"]
 
 METHODS = ("ols", "wls", "sdp")
 MOTION_THRESHOLD = 1e-3      # [rad] a joint whose position range is below this never moved
 CONDITION_LIMIT = 1e10       # cond(K_b) (columns scaled to unit norm) above this: numerically rank deficient
+GAIN_PRIOR_RESIDUAL = 0.01
+"""The residual σ the sensor gains' prior is weighed against, as a fraction of each joint's RMS τ [-]: the prior's
+precision ``(σ_e / GAIN_PRIOR_STD)²`` needs a residual scale before the fit (the fit's own residual would make it
+circular); 1 % of the torque scale is the order of a good backbone's residual, so the prior settles only the direction
+the data leave free (a gain common to all joints, the rigid body's overall scale) and does not pull the others."""
 
 
 class IdentificationError(ValueError):
@@ -118,9 +123,9 @@ def normal_equations(desc: RobotDescription, base: BaseParameters, q: np.ndarray
         gram[np.ix_(at, at)] = w[i] * (x_i @ x_i.T)
         rhs[at] = w[i] * (x_i @ tau[:, i])
     precision = None
-    if sensor is not None:      # the gains' prior N(0, σ_g²) against the residual scale of the data (σ_e: the fit
-        at = r + n * extras.index("gain") + np.arange(n)      # without it would be circular; 1 % of the τ scale)
-        sigma_e = 0.01 * np.sqrt(np.mean(tau ** 2, axis=0))
+    if sensor is not None:      # the gains' prior N(0, σ_g²) against the residual scale σ_e (GAIN_PRIOR_RESIDUAL)
+        at = r + n * extras.index("gain") + np.arange(n)
+        sigma_e = GAIN_PRIOR_RESIDUAL * np.sqrt(np.mean(tau ** 2, axis=0))
         precision = np.zeros(m)
         precision[at] = w * (sigma_e / GAIN_PRIOR_STD) ** 2
         gram[at, at] += precision[at]
@@ -227,6 +232,10 @@ def _prepare(desc, q, qd, qdd, tau, base, coulomb_velocity_scale, offsets, load_
     base = base or base_parameters(desc)
     if base.robot != desc.name or base.n_standard != n_parameters(desc):
         raise ValueError(f"base parameters were computed for {base.robot!r}, not for {desc.name!r}")
+    if sensor is not None and drive_identified(desc):
+        raise ValueError(f"sensor: the robot description {desc.name!r} says τ is a drive torque (drive.tau_kind: "
+                         "drive); the sensor terms are a link-side torque sensor's and their a-priori torque has no "
+                         "drive terms — leave sensor out")
     check_data(desc, base, q, qd, qdd, tau)
     ne = normal_equations(desc, base, q, qd, qdd, tau, coulomb_velocity_scale, offsets=offsets,
                           load_friction=load_friction, sensor=sensor, pieces=pieces)
@@ -298,10 +307,11 @@ def sdp(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, 
     """Physically consistent least squares as an SDP (pseudo-inertia LMI of Wensing et al. 2018; cf. Stürz 2017).
 
     ``min ‖R(Kφ − φ̂_b)‖ + λ‖φ − φ_prior‖`` over the full standard set ``φ`` (and the offsets) subject to every
-    link's pseudo-inertia ``⪰ 0`` with mass ``≥ min_mass`` [kg], and ``F_v, F_c ≥ 0``. ``R`` is the Cholesky factor
-    of ``K_bᵀK_b`` and ``φ̂_b`` the OLS solution, so the first term is the LS residual norm above its minimum;
-    ``λ = regularization · ‖R‖₂`` only picks the unidentifiable directions closest to the a-priori ``desc``. Both
-    terms are norms (second-order cones), so when the OLS solution is physically consistent it is an exact
+    link's pseudo-inertia ``⪰ 0`` with mass ``≥ min_mass`` [kg], ``F_v, F_c ≥ 0``, the load gains ``≥ 0`` and the
+    sensor terms inside the effects' bounds (hysteresis and lost-motion levels ≥ 0, their load gains in ``[0,
+    MAX_LOAD_GAIN]``; gain and ripple free). ``R`` is the Cholesky factor of ``K_bᵀK_b`` and ``φ̂_b`` the OLS
+    solution, so the first term is the LS residual norm above its minimum; ``λ = regularization · ‖R‖₂`` only picks
+    the unidentifiable directions closest to the a-priori ``desc``. Both terms are norms (second-order cones), so when the OLS solution is physically consistent it is an exact
     minimiser of the data term. Solved with Clarabel; then polished onto ``Kφ = φ̂_b`` when that stays consistent.
     """
     from pydrake.solvers import ClarabelSolver, MathematicalProgram
@@ -328,9 +338,10 @@ def sdp(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, 
         prog.AddBoundingBoxConstraint(0.0, np.inf, x[PARAMS_PER_JOINT * j + 10:PARAMS_PER_JOINT * j + 12])
     if p > PARAMS_PER_JOINT * desc.n:                                 # drive: I_a, F_v,m, F_c,m ≥ 0
         prog.AddBoundingBoxConstraint(0.0, np.inf, x[PARAMS_PER_JOINT * desc.n:p])
-    if "load_gain" in ne.extras:                                      # load gains k ≥ 0 (dissipative)
-        at = p + desc.n * ne.extras.index("load_gain")
-        prog.AddBoundingBoxConstraint(0.0, np.inf, x[at:at + desc.n])
+    bounds = _extra_bounds(ne.extras)
+    for k, (lo, hi) in bounds.items():                                # load gains ≥ 0, the sensor terms' bounds
+        at = p + desc.n * ne.extras.index(k)
+        prog.AddBoundingBoxConstraint(lo, hi, x[at:at + desc.n])
     result = ClarabelSolver().Solve(prog)
     if not result.is_success():
         raise IdentificationError(f"SDP failed ({result.get_solution_result()}); the data may be inconsistent with "
@@ -338,13 +349,21 @@ def sdp(desc: RobotDescription, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, 
     sol = result.GetSolution(x)
     phi_val = sol[:p]
     polished = _full_set(base, phi_ls, phi_val)                       # exact LS optimum if it stays feasible
-    k_ls = phi_ls[r + desc.n * ne.extras.index("load_gain"):][:desc.n] if "load_gain" in ne.extras else np.zeros(0)
-    if _consistent(polished, desc.n, min_mass) and np.all(k_ls >= 0.0):
+    extra_ls = {k: phi_ls[r + desc.n * ne.extras.index(k):][:desc.n] for k in bounds}
+    inside = all(np.all((lo <= extra_ls[k]) & (extra_ls[k] <= hi)) for k, (lo, hi) in bounds.items())
+    if _consistent(polished, desc.n, min_mass) and inside:
         phi_val, sol[p:] = polished, phi_ls[r:]
     phi_val = _clip_second_moments(phi_val, desc.n)
     phi_b = np.concatenate([base.to_base(phi_val), sol[p:]])
     pct, _ = _sigma_pct(ne, base, phi_b, ones)
     return _model(desc, base, phi_b, pct, phi_val, "sdp", coulomb_velocity_scale, data, True, ne.extras, sensor)
+
+
+def _extra_bounds(extras: tuple[str, ...]) -> dict[str, tuple[float, float]]:
+    """``(lower, upper)`` of the bounded extras among ``extras``: the friction load gain ``k ≥ 0`` (dissipative) and
+    the sensor terms the effects bound (:data:`~proprio.identification.sensor_terms.SENSOR_BOUNDS`)."""
+    bounds = {"load_gain": (0.0, np.inf), **SENSOR_BOUNDS}
+    return {k: bounds[k] for k in extras if k in bounds}
 
 
 def _clip_second_moments(phi: np.ndarray, n: int, floor: float = 1e-9) -> np.ndarray:

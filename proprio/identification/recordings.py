@@ -14,7 +14,8 @@ from proprio.identification.regressor import drive_identified
 from proprio.identification.sensor_terms import SensorTermSettings
 from proprio.recording import Recording
 
-__all__ = ["identify_recordings", "stack_recordings", "check_tau_kind", "TRIM_S", "TAU_KINDS"]
+__all__ = ["identify_recordings", "stack_recordings", "pieces", "piece_torque", "check_tau_kind", "TRIM_S",
+           "TAU_KINDS"]
 
 TAU_KINDS = ("link_sensor", "drive")
 """The values of a Recording's ``meta.tau_kind`` (written by ``proprio import``)."""
@@ -46,7 +47,8 @@ def stack_recordings(recs: Sequence[Recording], trim_s: float, config: Condition
                      ) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], list[ConditionedSignals]]:
     """Condition each Recording and concatenate its ``q, qd, qdd, tau`` ``[N,n]``, dropping ``trim_s`` seconds at
     both ends (filter start-up; rounded to the conditioned grid) and the samples inside gaps of the log. Returns the
-    stacked arrays and the conditioned signals (for their ``describe()`` line)."""
+    stacked arrays and the conditioned signals (for their ``describe()`` line; :func:`pieces` gives the sample count
+    each recording contributes)."""
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("q", "qd", "qdd", "tau")}
     conditioned = []
     for k, rec in enumerate(recs):
@@ -56,6 +58,21 @@ def stack_recordings(recs: Sequence[Recording], trim_s: float, config: Condition
             parts[name].append(getattr(cs, name)[keep])
         conditioned.append(cs)
     return tuple(np.concatenate(parts[k]) for k in ("q", "qd", "qdd", "tau")), conditioned
+
+
+def pieces(conditioned: Sequence[ConditionedSignals], trim_s: float) -> list[int]:
+    """The sample count each of :func:`stack_recordings`' conditioned recordings contributes to the stack."""
+    return [int(_kept(cs, trim_s, k).sum()) for k, cs in enumerate(conditioned)]
+
+
+def piece_torque(model, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, counts: Sequence[int]) -> np.ndarray:
+    """``model.torque`` ``[N,n]`` [N·m] over stacked recordings, each piece (``counts``: its samples, summing to N)
+    its own sequence: the sensor terms' state restarts at each recording's first sample, as the fit has it
+    (:mod:`proprio.identification.estimators`), instead of flowing from one recording into the next."""
+    ends = np.cumsum([0] + list(counts))
+    if ends[-1] != np.shape(q)[0]:
+        raise ValueError(f"pieces {list(counts)} sum to {ends[-1]} samples, the data have {np.shape(q)[0]}")
+    return np.concatenate([model.torque(q[a:b], qd[a:b], qdd[a:b]) for a, b in zip(ends[:-1], ends[1:])])
 
 
 def _kept(cs: ConditionedSignals, trim_s: float, k: int = 0) -> np.ndarray:
@@ -84,13 +101,15 @@ def identify_recordings(train_recs: Sequence[Recording], validate_recs: Sequence
     virgin state at its first kept sample (:mod:`proprio.identification.estimators`)."""
     offsets = offsets or drive_identified(robot)
     train, cond_tr = stack_recordings(train_recs, trim_s, conditioning)
-    pieces = [int(_kept(cs, trim_s, k).sum()) for k, cs in enumerate(cond_tr)]
+    counts = pieces(cond_tr, trim_s)
     model = identify(robot, *train, method, coulomb_velocity_scale=coulomb_velocity_scale, offsets=offsets,
-                     load_friction=load_friction, sensor=sensor, pieces=pieces)
+                     load_friction=load_friction, sensor=sensor, pieces=counts)
     lines = sorted({f"{cs.describe()}" for cs in cond_tr})
-    parts = ["\n".join(lines), torque_error_table(train[3], model.torque(*train[:3]), "training (Table 4.4 layout)")[0]]
+    parts = ["\n".join(lines), torque_error_table(train[3], piece_torque(model, *train[:3], counts),
+                                                  "training (Table 4.4 layout)")[0]]
     if validate_recs:
         val, cond_v = stack_recordings(validate_recs, trim_s, conditioning)
         parts[0] = "\n".join(sorted(set(lines) | {cs.describe() for cs in cond_v}))
-        parts.append(torque_error_table(val[3], model.torque(*val[:3]), "validation")[0])
+        parts.append(torque_error_table(val[3], piece_torque(model, *val[:3], pieces(cond_v, trim_s)),
+                                        "validation")[0])
     return model, "\n\n".join(parts)

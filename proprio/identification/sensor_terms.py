@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 
@@ -41,8 +42,8 @@ from proprio.effects.sensor import Ripple, SensorOffsetGain
 from proprio.reversals import ReversalCarry, reversal_travel
 from proprio.signals import MotionSignals
 
-__all__ = ["GAIN_PRIOR_STD", "SENSOR_TERMS", "RIPPLE_TERMS", "SensorTermSettings", "SensorCarry", "SensorTerms",
-           "sensor_columns"]
+__all__ = ["GAIN_PRIOR_STD", "SENSOR_TERMS", "RIPPLE_TERMS", "SENSOR_BOUNDS", "SensorTermSettings", "SensorCarry",
+           "SensorTerms", "sensor_columns"]
 
 GAIN_PRIOR_STD = SensorOffsetGain.prior_std["gain"]
 """σ [-] of the zero-mean prior on the gains (the diagnosis' prior on :class:`proprio.effects.SensorOffsetGain`)."""
@@ -51,6 +52,13 @@ SENSOR_TERMS = ("gain", "hysteresis", "hysteresis_load", "lost_motion", "lost_mo
 """The reversal terms' extras (module docstring), in their column order."""
 RIPPLE_TERMS = ("ripple_sin", "ripple_cos")
 """The ripple's extras (only with gear ratios)."""
+SENSOR_BOUNDS = {"hysteresis": Hysteresis.parameters["saturation"][1:],
+                 "hysteresis_load": Hysteresis.parameters["load_gain"][1:],
+                 "lost_motion": LostMotion.parameters["amplitude"][1:],
+                 "lost_motion_load": LostMotion.parameters["load_gain"][1:]}
+"""``(lower, upper)`` of the sensor terms the effects bound (their own parameter bounds: levels ≥ 0, load gains in
+``[0, MAX_LOAD_GAIN]``); the gain and the ripple are free (the physically consistent fit,
+:func:`~proprio.identification.estimators.sdp`, keeps the others inside them)."""
 
 
 @dataclass(frozen=True)
@@ -65,7 +73,7 @@ class SensorTermSettings:
     harmonic: float = Ripple.settings["harmonic"][0]
 
     @classmethod
-    def defaults(cls, n: int, gear_ratio=None) -> "SensorTermSettings":
+    def defaults(cls, n: int, gear_ratio: Sequence[float] | None = None) -> "SensorTermSettings":
         """The laws' default settings for ``n`` joints; ``gear_ratio [n]`` (e.g. the description's drive block)
         adds the ripple terms."""
         def full(x: float) -> tuple[float, ...]:
@@ -76,6 +84,7 @@ class SensorTermSettings:
 
     @property
     def n(self) -> int:
+        """The number of joints the settings are for."""
         return len(self.window)
 
     @property
@@ -84,12 +93,20 @@ class SensorTermSettings:
         return SENSOR_TERMS + (RIPPLE_TERMS if self.gear_ratio is not None else ())
 
     def to_dict(self) -> dict:
+        """The settings as plain lists and floats (the model file's ``meta.sensor_terms``; :meth:`from_dict`)."""
         return {"saturation_travel": list(self.saturation_travel), "window": list(self.window),
                 "reversal_velocity": list(self.reversal_velocity),
                 "gear_ratio": None if self.gear_ratio is None else list(self.gear_ratio), "harmonic": self.harmonic}
 
     @classmethod
     def from_dict(cls, d: dict) -> "SensorTermSettings":
+        """The settings of :meth:`to_dict`'s dict; ``ValueError`` naming the field whose list is not as long as
+        ``window`` (the number of joints)."""
+        n = len(d["window"])
+        for field in ("saturation_travel", "reversal_velocity", "gear_ratio"):
+            if d.get(field) is not None and len(d[field]) != n:
+                raise ValueError(f"sensor terms: {field} has {len(d[field])} entries, window has {n} (one per "
+                                 "joint)")
         gear = d.get("gear_ratio")
         return cls(tuple(map(float, d["saturation_travel"])), tuple(map(float, d["window"])),
                    tuple(map(float, d["reversal_velocity"])), None if gear is None else tuple(map(float, gear)),
@@ -110,6 +127,7 @@ class SensorCarry:
 
     @classmethod
     def from_vector(cls, v: np.ndarray) -> "SensorCarry":
+        """The carry of :meth:`vector`'s ``[9n]`` layout (``n = v.size // 9``)."""
         v = np.asarray(v, dtype=float)
         n = v.size // 9
         return cls(ReversalCarry.from_vector(v[:5 * n]), DahlCarry.from_vector(v[5 * n:7 * n]),

@@ -23,8 +23,9 @@ class RbdBackbone(LeafSystem):
         self.model = model if isinstance(model, IdentifiedModel) else load_model(model)
         if self.model.sensor is not None:
             raise ValueError("RbdBackbone: the model has torque-sensor terms, whose reversal state this stateless "
-                             "System cannot carry; use the estimation Diagram's TorqueModelSystem "
-                             "(proprio.diagrams.torque_model)")
+                             "System cannot carry; load the model file with proprio.diagrams.torque_model."
+                             "load_rigid_torque_model(path) and use TorqueModelSystem(that model, period_s=<the "
+                             "step, s>) on the rigid-body torque (its inputs tau_rigid, q, qd, qdd)")
         n = self.model.n
         self._q = self.DeclareVectorInputPort("q", n)
         self._qd = self.DeclareVectorInputPort("qd", n)
