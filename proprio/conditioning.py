@@ -48,8 +48,8 @@ import numpy as np
 import scipy.signal
 from scipy import stats
 
-from proprio.cutoff import (auto_cutoff, decimate, decimate_valid, decimation_factor, lost_power, noise_floor_dof,
-                            tau_white_level, white_floor)
+from proprio.cutoff import (cutoff_of_spectra, decimate, decimate_valid, decimation_factor, lost_power, noise_floor_dof,
+                            spectra, tau_white_level, white_floor)
 from proprio.recording import Recording, RecordingError
 from proprio.time_base import clock_stamps, resample, uniform_time_base
 from proprio.signals import MotionSignals
@@ -288,20 +288,21 @@ def condition(rec: Recording, config: ConditioningConfig = ConditioningConfig())
     if config.velocity == "measured" and rec.qd is None:
         raise RecordingError("recording: conditioning.velocity = 'measured' but the Recording has no 'qd' channel")
     use_qd = rec.qd is not None and config.velocity in ("auto", "measured")
+    if config.cutoff_hz == "auto" and q.shape[0] < 64:
+        raise RecordingError(f"recording: {q.shape[0]} samples are too few to estimate the noise floor "
+                             "(conditioning.cutoff_hz = auto needs ≥ 64); give cutoff_hz explicitly")
+    # the spectra once: the auto cutoff, the noise σ of q and the derivatives' lost signal all read them
+    spec = spectra(rec.q, rate, t_src, config.max_motion_hz) if q.shape[0] >= 64 else None
     if config.cutoff_hz == "auto":
-        if q.shape[0] < 64:
-            raise RecordingError(f"recording: {q.shape[0]} samples are too few to estimate the noise floor "
-                                 "(conditioning.cutoff_hz = auto needs ≥ 64); give cutoff_hz explicitly")
-        cutoff, sigma_q = auto_cutoff(rec.q, rate, config.min_cutoff_hz, config.max_cutoff_fraction, t_src,
-                                      config.order, config.max_motion_hz)
+        cutoff, sigma_q = cutoff_of_spectra(spec, rate, config.min_cutoff_hz, config.max_cutoff_fraction,
+                                            config.order, config.max_motion_hz)
     else:
         cutoff = np.broadcast_to(np.asarray(config.cutoff_hz, dtype=float), (n,)).copy()
-        sigma_q = auto_cutoff(rec.q, rate, t=t_src)[1] if q.shape[0] >= 64 else np.zeros(n)
+        sigma_q = cutoff_of_spectra(spec, rate)[1] if spec is not None else np.zeros(n)
     if np.any(cutoff >= 0.5 * rate):
         raise RecordingError(f"recording: cutoff {cutoff.max():g} Hz is not below the Nyquist frequency "
                              f"{0.5 * rate:.6g} Hz of its {rate:.6g} Hz time base")
-    lost = [lost_power(rec.q, rate, cutoff, p, t_src, config.order, config.max_motion_hz) if q.shape[0] >= 64
-            else np.zeros(n) for p in (1, 2)]
+    lost = [lost_power(spec, cutoff, p, config.order) if spec is not None else np.zeros(n) for p in (1, 2)]
     qd_raw = resample(t_src, rec.qd, t_u) if use_qd else None
     m = decimation_factor(rate, cutoff, config.max_motion_hz, config.oversampling) \
         if config.decimate and q.shape[0] >= 64 else 1

@@ -37,7 +37,7 @@ import scipy.signal
 
 from proprio.time_base import resample
 
-__all__ = ["auto_cutoff", "spectra", "white_floor", "lost_power", "noise_floor_dof", "decimation_factor", "decimate",
+__all__ = ["auto_cutoff", "cutoff_of_spectra", "spectra", "white_floor", "lost_power", "noise_floor_dof", "decimation_factor", "decimate",
            "decimate_valid", "tau_white_level"]
 
 
@@ -87,6 +87,12 @@ def _uniform_shape(f: np.ndarray, rate_hz: float) -> np.ndarray:
     return 16.0 * np.sin(np.pi * f / rate_hz) ** 4 * rate_hz ** 4
 
 
+def _unit_noise(n_samples: int) -> np.ndarray:
+    """16 channels of unit white noise ``[n_samples, 16]`` (fixed seed): the noise whose spectrum through a log's own
+    stamps or resampling gives the white floor's shape there (:func:`white_floor`, :func:`spectra`)."""
+    return np.random.default_rng(0).standard_normal((n_samples, 16))
+
+
 def _grid_second_difference(x: np.ndarray, rate_hz: float, t: np.ndarray) -> np.ndarray:
     """``Δ²x / h²`` [per s²] on the uniform grid of ``rate_hz`` from the first stamp, ``x [N, ...]`` resampled from its
     stamps ``t`` by the cubic spline."""
@@ -106,7 +112,7 @@ def white_floor(q: np.ndarray, rate_hz: float, t: np.ndarray | None = None) -> n
     if t is None:
         shape = _uniform_shape(f, rate_hz)
     else:
-        unit = np.random.default_rng(0).standard_normal((q.shape[0], 16))
+        unit = _unit_noise(q.shape[0])
         shape = scipy.signal.welch(_second_difference(unit, rate_hz, t), fs=rate_hz, nperseg=nper,
                                    detrend="constant", axis=0)[1].mean(axis=1) / (2.0 / rate_hz)
     top = f >= 0.25 * rate_hz
@@ -134,7 +140,7 @@ def spectra(q: np.ndarray, rate_hz: float, t: np.ndarray | None = None, band_hz:
         f, p = welch(_second_difference(q, rate_hz, None))
         shape = _uniform_shape(f, rate_hz)
     else:   # the motion on the uniform grid; its noise shape from unit white noise resampled alike (fixed seed)
-        unit = np.random.default_rng(0).standard_normal((q.shape[0], 16))
+        unit = _unit_noise(q.shape[0])
         f, both = welch(_grid_second_difference(np.column_stack([q, unit]), rate_hz, t))
         p, shape = both[:, :q.shape[1]], both[:, q.shape[1]:].mean(axis=1) / (2.0 / rate_hz)
     noise = floor[None, :] * (2 * np.pi * f[:, None]) ** 4          # q̈ noise through ideal differentiation
@@ -148,28 +154,38 @@ def auto_cutoff(q: np.ndarray, rate_hz: float, min_hz: float = 1.0, max_fraction
                 t: np.ndarray | None = None, order: int = 2, max_motion_hz: float = 40.0
                 ) -> tuple[np.ndarray, np.ndarray]:
     """Per-joint cutoff [Hz] minimising the estimated q̈ error (module docstring) and the white noise σ of q
-    [rad] implied by the floor (``σ² = P_0 · rate / 2``); ``q`` at its own stamps ``t`` [s] when given.
+    [rad] implied by the floor (``σ² = P_0 · rate / 2``); ``q`` at its own stamps ``t`` [s] when given: the
+    :func:`spectra` of ``q`` through :func:`cutoff_of_spectra`."""
+    return cutoff_of_spectra(spectra(q, rate_hz, t, max_motion_hz), rate_hz, min_hz, max_fraction, order,
+                             max_motion_hz)
+
+
+def cutoff_of_spectra(spec: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], rate_hz: float,
+                      min_hz: float = 1.0, max_fraction: float = 0.2, order: int = 2, max_motion_hz: float = 40.0
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`auto_cutoff` on spectra already taken (``spec`` = :func:`spectra`'s ``f, S, N, P_0``).
 
     The error of a cutoff ``f_c`` uses the zero-phase Butterworth's magnitude ``G(f) = 1 / (1 + (f/f_c)^{2·order})``:
     ``Σ_f S(f) (1 − G(f))² + N(f) G(f)²`` over 120 log-spaced candidates in ``[min_hz, min(max_fraction · rate,
     max_motion_hz)]``; signal above ``max_motion_hz`` (vibration, not arm motion) is not counted."""
-    f, signal, noise, floor = spectra(q, rate_hz, t, max_motion_hz)
+    f, signal, noise, floor = spec
     sigma_q = np.sqrt(floor * rate_hz / 2.0)
     hi = min(max_fraction * rate_hz, max_motion_hz)
     if hi <= min_hz:
-        return np.full(q.shape[1], hi), sigma_q
+        return np.full(signal.shape[1], hi), sigma_q
     cands = np.geomspace(min_hz, hi, 120)
     g = 1.0 / (1.0 + (f[None, :] / cands[:, None]) ** (2 * order))            # [C, F]
     err = ((1.0 - g) ** 2) @ signal + (g ** 2) @ noise                         # [C, n]
     return cands[np.argmin(err, axis=0)], sigma_q
 
 
-def lost_power(q: np.ndarray, rate_hz: float, cutoff: np.ndarray, power: int, t: np.ndarray | None = None,
-                order: int = 2, band_hz: float = np.inf) -> np.ndarray:
+def lost_power(spec: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], cutoff: np.ndarray, power: int,
+               order: int = 2) -> np.ndarray:
     """RMS of the ``power``-th derivative's signal that the low-pass distorts: ``Σ S(f) (1 − G(f))²`` with the
     zero-phase Butterworth's magnitude ``G`` (the signal term of the cutoff's error model, step 2: it counts the
-    attenuation below the cutoff as well as the signal removed above it; only motion below ``band_hz``)."""
-    f, signal, _, _ = spectra(q, rate_hz, t, band_hz)
+    attenuation below the cutoff as well as the signal removed above it), from :func:`spectra`'s ``spec`` (whose
+    ``band_hz`` bounds the motion counted)."""
+    f, signal, _, _ = spec
     s = signal * (2 * np.pi * np.maximum(f[:, None], 1e-9)) ** (2 * power - 4)
     g = 1.0 / (1.0 + (f[:, None] / cutoff[None, :]) ** (2 * order))
     return np.sqrt(np.sum(s * (1.0 - g) ** 2, axis=0) * (f[1] - f[0]))
