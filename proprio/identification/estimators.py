@@ -78,12 +78,18 @@ def extra_columns(extras: tuple[str, ...], q: np.ndarray, qd: np.ndarray, tau: n
             "load_gain": lambda: friction_law.load_coulomb(qd, 0.0, 1.0, tau, coulomb_velocity_scale)}
     out = [cols[k]() for k in extras if k in cols]
     if sensor is not None:
-        ends = np.cumsum([0] + list(pieces or [tau.shape[0]]))
-        if ends[-1] != tau.shape[0]:
-            raise ValueError(f"pieces {list(pieces or [])} sum to {ends[-1]} samples, the data have {tau.shape[0]}")
-        out += list(np.concatenate([sensor_columns(sensor, q[a:b], qd[a:b], prior[a:b])[0]
-                                    for a, b in zip(ends[:-1], ends[1:])], axis=1))
+        out += list(np.concatenate([sensor_columns(sensor, q[k], qd[k], prior[k])[0]
+                                    for k in piece_slices(pieces, tau.shape[0])], axis=1))
     return np.stack(out) if out else np.zeros((0,) + tau.shape)
+
+
+def piece_slices(pieces: Sequence[int] | None, n_samples: int) -> list[slice]:
+    """The slices of stacked recordings in a stack of ``n_samples`` (``pieces``: each recording's sample count;
+    ``None``: one recording), checked to cover it: the sensor terms' state restarts at each slice's first sample."""
+    ends = np.cumsum([0] + list(pieces or [n_samples]))
+    if ends[-1] != n_samples:
+        raise ValueError(f"pieces {list(pieces or [])} sum to {ends[-1]} samples, the data have {n_samples}")
+    return [slice(int(a), int(b)) for a, b in zip(ends[:-1], ends[1:])]
 
 
 def _base_columns(base: BaseParameters, i: int) -> tuple[np.ndarray, np.ndarray]:

@@ -9,7 +9,7 @@ from typing import Sequence
 import numpy as np
 
 from proprio.conditioning import ConditionedSignals, ConditioningConfig, condition
-from proprio.identification.estimators import identify, torque_error_table
+from proprio.identification.estimators import identify, piece_slices, torque_error_table
 from proprio.identification.regressor import drive_identified
 from proprio.identification.sensor_terms import SensorTermSettings
 from proprio.recording import Recording
@@ -69,10 +69,7 @@ def piece_torque(model, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, counts: 
     """``model.torque`` ``[N,n]`` [N·m] over stacked recordings, each piece (``counts``: its samples, summing to N)
     its own sequence: the sensor terms' state restarts at each recording's first sample, as the fit has it
     (:mod:`proprio.identification.estimators`), instead of flowing from one recording into the next."""
-    ends = np.cumsum([0] + list(counts))
-    if ends[-1] != np.shape(q)[0]:
-        raise ValueError(f"pieces {list(counts)} sum to {ends[-1]} samples, the data have {np.shape(q)[0]}")
-    return np.concatenate([model.torque(q[a:b], qd[a:b], qdd[a:b]) for a, b in zip(ends[:-1], ends[1:])])
+    return np.concatenate([model.torque(q[k], qd[k], qdd[k]) for k in piece_slices(counts, np.shape(q)[0])])
 
 
 def _kept(cs: ConditionedSignals, trim_s: float, k: int = 0) -> np.ndarray:
